@@ -1,0 +1,29 @@
+"""Helpers for struct-of-arrays message fields: read-only arrays with checked shape and finiteness."""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+
+from lastmile.core.errors import MessageError
+
+
+def frozen_array(values: npt.ArrayLike, dtype: npt.DTypeLike, columns: int | None, what: str) -> np.ndarray:
+    """A read-only copy of ``values`` as ``dtype`` with shape (N, columns) (or (N,) when None).
+
+    Raises:
+        MessageError: naming ``what`` if the shape is wrong or a value is NaN or infinite.
+    """
+    arr = np.array(values, dtype=dtype, copy=True)
+    if columns is None:
+        if arr.ndim != 1:
+            raise MessageError(f"{what}: expected a 1-D array, got shape {arr.shape}")
+    else:
+        if arr.size == 0:
+            arr = arr.reshape(0, columns)
+        if arr.ndim != 2 or arr.shape[1] != columns:
+            raise MessageError(f"{what}: expected shape (N, {columns}), got {arr.shape}")
+    if arr.dtype.kind == "f" and not np.all(np.isfinite(arr)):
+        raise MessageError(f"{what}: expected finite values, got NaN or inf")
+    arr.setflags(write=False)
+    return arr

@@ -1,0 +1,195 @@
+"""Sensor frames: what real sensors on the shuttle output, timestamped at capture.
+
+Frames reach the stack after a latency and may arrive out of order; ``stamp`` is always the capture
+time. Positions of the INS are in the map frame (the INS is configured with the map's origin); radar
+objects are in the radar's own frame (x forward along its boresight, y left).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from lastmile.core.arrays import frozen_array
+from lastmile.core.errors import MessageError
+from lastmile.core.stamp import Stamp
+
+
+def _check_finite(name: str, **values: float) -> None:
+    for key, value in values.items():
+        if value != value or value in (float("inf"), float("-inf")):
+            raise MessageError(f"{name}.{key}: expected a finite number, got {value}")
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class GnssInsFrame:
+    """RTK GNSS / INS solution: pose of the base (rear axle centre) in the map frame.
+
+    ``fix_ok`` False means the receiver reports no usable solution (outage); the values are then
+    the receiver's last dead-reckoned guess and must not be trusted.
+    """
+
+    stamp: Stamp
+    x_m: float
+    y_m: float
+    yaw_rad: float
+    speed_mps: float
+    pos_std_m: float
+    yaw_std_rad: float
+    fix_ok: bool = True
+
+    def validate(self) -> None:
+        _check_finite(
+            "GnssInsFrame", x_m=self.x_m, y_m=self.y_m, yaw_rad=self.yaw_rad, speed_mps=self.speed_mps
+        )
+        if self.pos_std_m <= 0 or self.yaw_std_rad <= 0:
+            raise MessageError(
+                f"GnssInsFrame: expected positive std devs, got {self.pos_std_m}, {self.yaw_std_rad}"
+            )
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ImuFrame:
+    """IMU: yaw rate (counter-clockwise positive) and body accelerations (x forward, y left)."""
+
+    stamp: Stamp
+    yaw_rate_radps: float
+    accel_x_mps2: float
+    accel_y_mps2: float
+
+    def validate(self) -> None:
+        _check_finite("ImuFrame", yaw_rate_radps=self.yaw_rate_radps, accel_x_mps2=self.accel_x_mps2)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class WheelOdometryFrame:
+    """Wheel-speed and steering feedback from the vehicle bus (CAN)."""
+
+    stamp: Stamp
+    speed_mps: float
+    steer_front_rad: float
+    steer_rear_rad: float
+
+    def validate(self) -> None:
+        _check_finite("WheelOdometryFrame", speed_mps=self.speed_mps, steer_front_rad=self.steer_front_rad)
+
+
+RADAR_COLUMNS = ("x_m", "y_m", "vx_mps", "vy_mps", "rcs_dbsm", "range_rate_mps")
+"""Columns of :attr:`RadarFrame.objects`: position and over-ground velocity in the radar frame."""
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class RadarFrame:
+    """A radar's object list (cluster/object mode as automotive radars output it).
+
+    Attributes:
+        sensor_id: which radar ("front", "rear").
+        objects: (N, 6) float64, columns :data:`RADAR_COLUMNS`; velocities are over ground, expressed
+            in the radar frame (the radar compensates its own motion from the vehicle speed it is fed).
+    """
+
+    stamp: Stamp
+    sensor_id: str
+    objects: np.ndarray = field(default_factory=lambda: np.zeros((0, len(RADAR_COLUMNS))))
+
+    def __post_init__(self) -> None:
+        object.__setattr__(
+            self, "objects", frozen_array(self.objects, np.float64, len(RADAR_COLUMNS), "RadarFrame.objects")
+        )
+
+    def validate(self) -> None:
+        frozen_array(self.objects, np.float64, len(RADAR_COLUMNS), "RadarFrame.objects")
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class DoorSensorFrame:
+    """The in-door sensor: door state and whether someone stands in the doorway."""
+
+    stamp: Stamp
+    door_open: bool
+    person_in_doorway: bool
+
+    def validate(self) -> None:
+        """Booleans only: nothing can be out of range."""
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class StopCallFrame:
+    """A stop's call button (wired to the shuttle over V2I) or an onboard seat button.
+
+    ``stop_id`` names the stop the request is for; ``source`` is "stop_button" or "seat_button".
+    """
+
+    stamp: Stamp
+    stop_id: str
+    source: str
+
+    def validate(self) -> None:
+        if self.source not in ("stop_button", "seat_button", "dispatch"):
+            raise MessageError(
+                f"StopCallFrame.source: expected stop_button, seat_button or dispatch, got {self.source!r}"
+            )
+
+
+LIDAR_COLUMNS = ("x_m", "y_m", "z_m", "intensity", "ring", "t_offset_us")
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class LidarSweep:
+    """One LiDAR sweep in the sensor frame; each point keeps its own capture-time offset.
+
+    Attributes:
+        points: (N, 6) float32, columns :data:`LIDAR_COLUMNS`; ``t_offset_us`` is relative to ``stamp``.
+    """
+
+    stamp: Stamp
+    sensor_id: str
+    points: np.ndarray
+
+    def __post_init__(self) -> None:
+        object.__setattr__(
+            self, "points", frozen_array(self.points, np.float32, len(LIDAR_COLUMNS), "LidarSweep.points")
+        )
+
+    def validate(self) -> None:
+        frozen_array(self.points, np.float32, len(LIDAR_COLUMNS), "LidarSweep.points")
+
+
+CAMERA_BOX_COLUMNS = ("u_min_px", "v_min_px", "u_max_px", "v_max_px", "class_id", "score")
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class CameraDetections:
+    """2D boxes from a camera's detector (a model-free simulator detector or a real network).
+
+    Attributes:
+        boxes: (N, 6) float32, columns :data:`CAMERA_BOX_COLUMNS`, pixel coordinates.
+    """
+
+    stamp: Stamp
+    camera_id: str
+    boxes: np.ndarray
+
+    def __post_init__(self) -> None:
+        object.__setattr__(
+            self,
+            "boxes",
+            frozen_array(self.boxes, np.float32, len(CAMERA_BOX_COLUMNS), "CameraDetections.boxes"),
+        )
+
+    def validate(self) -> None:
+        frozen_array(self.boxes, np.float32, len(CAMERA_BOX_COLUMNS), "CameraDetections.boxes")
+
+
+SensorFrame = (
+    GnssInsFrame
+    | ImuFrame
+    | WheelOdometryFrame
+    | RadarFrame
+    | DoorSensorFrame
+    | StopCallFrame
+    | LidarSweep
+    | CameraDetections
+)
+"""Everything the simulator (or a real vehicle) may hand to the stack."""

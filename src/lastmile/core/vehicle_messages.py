@@ -1,0 +1,155 @@
+"""Messages between the stack's modules and out of the stack: pose, route, decisions, commands, status."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from enum import Enum
+
+import numpy as np
+
+from lastmile.core.arrays import frozen_array
+from lastmile.core.errors import MessageError
+from lastmile.core.geometry import SE2
+from lastmile.core.stamp import Stamp
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class LocalizationEstimate:
+    """Pose of the base (rear axle) in the map frame, with speed and confidence."""
+
+    stamp: Stamp
+    map_from_base: SE2
+    speed_mps: float
+    yaw_rate_radps: float
+    pos_std_m: float
+    yaw_std_rad: float
+    valid: bool
+
+
+class BehaviourState(Enum):
+    """WATonoBus's decision states (Fig. 8)."""
+
+    NORMAL_DRIVING = "normal_driving"
+    INTERSECTION = "intersection"
+    PULLOVER = "pullover"
+    ONBOARDING = "onboarding"
+    MERGING = "merging"
+    EMERGENCY_STOP = "emergency_stop"
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class BehaviourDecision:
+    """What decision making asks of planning and control this cycle.
+
+    Attributes:
+        stop_at_s_m: route s at which the front bumper must be stopped, or None to drive on.
+        speed_limit_mps: upper bound on speed in this state (merging is slower than normal driving).
+        pullover_spot: the chosen pull-over pose (rear axle, map frame) while pulling over/onboarding.
+        door_open: whether the door should be open.
+        risk_track_id: the highest-risk obstacle the decision reacted to (-1: none).
+        reason: a short human-readable reason, logged and shown on the HMI.
+    """
+
+    stamp: Stamp
+    state: BehaviourState
+    speed_limit_mps: float
+    stop_at_s_m: float | None
+    pullover_spot: SE2 | None
+    merge_from_s_m: float | None
+    door_open: bool
+    risk_track_id: int
+    reason: str
+
+
+TRAJECTORY_COLUMNS = ("x_m", "y_m", "yaw_rad", "curvature_1pm", "s_m")
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Trajectory:
+    """The local path to follow (geometry only; speed comes from the longitudinal law).
+
+    Attributes:
+        points: (N, 5) float64, columns :data:`TRAJECTORY_COLUMNS`, ``s_m`` from the path start.
+        route_s0_m: route s of the first point (to relate path s to map features).
+    """
+
+    stamp: Stamp
+    points: np.ndarray
+    route_s0_m: float
+
+    def __post_init__(self) -> None:
+        object.__setattr__(
+            self,
+            "points",
+            frozen_array(self.points, np.float64, len(TRAJECTORY_COLUMNS), "Trajectory.points"),
+        )
+        if self.points.shape[0] < 2:
+            raise MessageError(f"Trajectory.points: expected at least 2 points, got {self.points.shape[0]}")
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ActuatorCommand:
+    """Command to the drive-by-wire: longitudinal acceleration and wheel angles.
+
+    ``accel_mps2`` > 0 drives, < 0 brakes. ``steer_rear_rad`` is used only with all-wheel steer
+    (WATonoBus: rear = -front). ``emergency_brake`` asks for maximum deceleration.
+    """
+
+    stamp: Stamp
+    accel_mps2: float
+    steer_front_rad: float
+    steer_rear_rad: float
+    door_open: bool = False
+    emergency_brake: bool = False
+
+    def __post_init__(self) -> None:
+        for name in ("accel_mps2", "steer_front_rad", "steer_rear_rad"):
+            value = getattr(self, name)
+            if not np.isfinite(value):
+                raise MessageError(f"ActuatorCommand.{name}: expected a finite number, got {value}")
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Heartbeat:
+    """A module's pulse: healthy or not, and why."""
+
+    stamp: Stamp
+    module: str
+    healthy: bool
+    reason: str = ""
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class HmiMessage:
+    """Text and sound for passengers and pedestrians (LED screens, speaker, autonomy light)."""
+
+    stamp: Stamp
+    screen: str
+    text: str
+    sound: str = ""
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class VehicleStatus:
+    """What the stack reports about itself (to the fleet and the run log)."""
+
+    stamp: Stamp
+    map_from_base: SE2 | None
+    speed_mps: float
+    state: BehaviourState
+    route_s_m: float
+    door_open: bool
+    healthy: bool
+    next_stop_id: str = ""
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class StackOutput:
+    """Everything one stack tick returns."""
+
+    command: ActuatorCommand | None
+    status: VehicleStatus | None = None
+    decision: BehaviourDecision | None = None
+    hmi: tuple[HmiMessage, ...] = field(default_factory=tuple)
+    heartbeats: tuple[Heartbeat, ...] = field(default_factory=tuple)
+    takeover_request: bool = False

@@ -1,0 +1,19 @@
+#!/usr/bin/env bash
+# Quick start 2/2: set up (first time only) and run every check CI runs: lint, format, types, layer
+# contracts and the test suite. Extra arguments go to pytest.
+set -euo pipefail
+cd "$(dirname "$0")"
+source scripts/bootstrap.sh dev
+ruff check src tests benchmarks
+ruff format --check src tests benchmarks
+mypy
+lint-imports
+set +e
+python -m pytest "$@"
+status=$?
+set -e
+if [ "$status" -eq 5 ]; then
+  echo "pytest collected no tests: that is a failure here, not a pass" >&2
+  exit 1
+fi
+exit "$status"
