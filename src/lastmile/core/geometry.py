@@ -97,3 +97,17 @@ def convex_polygons_overlap(a: FloatArray, b: FloatArray) -> bool:
         if np.any((pa.max(axis=0) < pb.min(axis=0)) | (pb.max(axis=0) < pa.min(axis=0))):
             return False
     return True
+
+
+def point_in_polygon(x_m: float, y_m: float, polygon: FloatArray) -> bool:
+    """Even-odd rule test of one point against an (N, 2) polygon (closed implicitly)."""
+    inside = False
+    n = len(polygon)
+    j = n - 1
+    for i in range(n):
+        xi, yi = polygon[i]
+        xj, yj = polygon[j]
+        if (yi > y_m) != (yj > y_m) and x_m < (xj - xi) * (y_m - yi) / (yj - yi) + xi:
+            inside = not inside
+        j = i
+    return inside

@@ -1,0 +1,305 @@
+"""The simulator's referee: collisions, rule violations, stops served, from ground truth only.
+
+Nothing here reaches the stack; its verdicts go to the run log as events.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from lastmile.core.geometry import convex_polygons_overlap, point_in_polygon, rectangle_corners_m
+from lastmile.core.object_class import ObjectClass
+from lastmile.core.polyline import Polyline
+from lastmile.sim.arbiter import EGO_ID
+from lastmile.sim.passengers import PassengerModel, StopVisit
+from lastmile.sim.world import World
+
+Event = tuple[float, str, dict[str, object]]
+
+
+@dataclass(slots=True)
+class JudgeConfig:
+    """Tolerances of the referee.
+
+    Attributes:
+        speed_tolerance_mps: speed over the limit that counts, held for ``speed_hold_s``.
+        stop_speed_mps: below this the shuttle has come to a stop (stop lines, stops).
+        ttc_log_s: time-to-collision below which a ``min_ttc`` event is logged.
+    """
+
+    speed_limit_mps: float = 20.0 / 3.6
+    speed_tolerance_mps: float = 0.5
+    speed_hold_s: float = 1.0
+    stop_speed_mps: float = 0.2
+    ttc_log_s: float = 3.0
+
+
+@dataclass(slots=True)
+class _LineState:
+    stopped: bool = False
+    last_along_m: float | None = None
+
+
+@dataclass
+class Judge:
+    """Watches the world each tick and emits events."""
+
+    world: World
+    passengers: PassengerModel
+    service_route: Polyline
+    config: JudgeConfig = field(default_factory=JudgeConfig)
+    events: list[Event] = field(default_factory=list)
+    _colliding: set[int] = field(default_factory=set)
+    _line_state: dict[int, _LineState] = field(default_factory=dict)
+    _speeding_since: float | None = None
+    _speeding_logged: bool = False
+    _off_road: bool = False
+    _crosswalk_flagged: set[int] = field(default_factory=set)
+    _route_s: float = 0.0
+    _route_s_total: float = 0.0
+    _loops: int = 0
+    _approached: dict[str, int] = field(default_factory=dict)
+    _ttc_min_logged: float = math.inf
+
+    def __post_init__(self) -> None:
+        s = self.world.ego.state
+        self._route_s = self.service_route.project(s.x_m, s.y_m).s_m
+        self._stop_s = {
+            st.id: (
+                self.service_route.project(*st.curb.point_at(0.0)[:2]).s_m,
+                self.service_route.project(*st.curb.point_at(st.curb.length_m)[:2]).s_m,
+            )
+            for st in self.passengers.stops.values()
+        }
+
+    @property
+    def route_s_m(self) -> float:
+        return self._route_s
+
+    def emit(self, kind: str, **data: object) -> None:
+        self.events.append((round(self.world.t_s, 6), kind, data))
+
+    def step(self) -> None:
+        self._collisions()
+        self._stop_lines()
+        self._crosswalks()
+        self._speed()
+        self._drivable()
+        self._progress()
+        self._ttc()
+
+    # --- collisions ------------------------------------------------------------------------
+    def _collisions(self) -> None:
+        w = self.world
+        ex, ey = w.ego_centre()
+        s = w.ego.state
+        reach = 0.5 * math.hypot(w.geometry.length_m, w.geometry.width_m)
+        ego_box: np.ndarray | None = None
+        now_touching: set[int] = set()
+        for a in w.agents:
+            if not a.active or math.hypot(a.x_m - ex, a.y_m - ey) > reach + a.radius_m:
+                continue
+            if ego_box is None:
+                ego_box = w.ego_corners()
+            if convex_polygons_overlap(
+                ego_box, rectangle_corners_m(a.x_m, a.y_m, a.yaw_rad, a.length_m, a.width_m)
+            ):
+                now_touching.add(a.id)
+                if a.id not in self._colliding:
+                    along = (a.x_m - ex) * math.cos(s.yaw_rad) + (a.y_m - ey) * math.sin(s.yaw_rad)
+                    # The shuttle is at fault when it moves into something ahead of it; a standing
+                    # shuttle struck, or one hit from behind, is not.
+                    at_fault = s.speed_mps > 0.3 and along > 0.0
+                    self.emit(
+                        "collision",
+                        agent_id=a.id,
+                        agent_class=a.cls.name.lower(),
+                        at_fault=at_fault,
+                        ego_speed_mps=round(s.speed_mps, 3),
+                    )
+        self._colliding = now_touching
+
+    # --- stop lines and right of way -------------------------------------------------------------
+    def _stop_lines(self) -> None:
+        w = self.world
+        speed = w.ego.state.speed_mps
+        for line in w.stop_lines:
+            if line.all_way_stop_id is None:
+                continue
+            along = w.ego_stop_line_distance(line)
+            st = self._line_state.setdefault(line.id, _LineState())
+            if along is None:
+                st.stopped, st.last_along_m = False, None
+                continue
+            if -1.0 <= along <= 4.0 and speed < self.config.stop_speed_mps:
+                if not st.stopped:
+                    w.arbiter.arrive(EGO_ID, line.id, w.t_s)
+                st.stopped = True
+            if st.last_along_m is not None and st.last_along_m > 0.0 >= along:
+                if not st.stopped:
+                    self.emit("rule_violation", rule="stop_line", detail=f"ran stop line {line.id}")
+                owed = w.arbiter.earlier_than(EGO_ID) if EGO_ID in w.arbiter.queue else list(w.arbiter.queue)
+                inside = w.arbiter.box_occupied_by - {EGO_ID}
+                order_ok = not owed and not inside
+                self.emit(
+                    "intersection_entry", stop_line_id=line.id, order_ok=order_ok, waiting_before=len(owed)
+                )
+                if not order_ok:
+                    self.emit(
+                        "rule_violation",
+                        rule="right_of_way",
+                        detail=f"entered with {len(owed)} earlier arrivals waiting, {len(inside)} inside",
+                    )
+                w.arbiter.enter(EGO_ID)
+                st.stopped = False
+            st.last_along_m = along
+
+    def _crosswalks(self) -> None:
+        w = self.world
+        box = w.ego_corners()
+        for cw in w.hdmap.crosswalks:
+            poly = cw.polygon
+            touching = any(point_in_polygon(float(x), float(y), poly) for x, y in box)
+            if not touching:
+                self._crosswalk_flagged.discard(cw.id)
+                continue
+            if cw.id in self._crosswalk_flagged or w.ego.state.speed_mps < 0.3:
+                continue
+            ex, ey = w.ego_centre()
+            for a in w.agents:
+                if (
+                    a.active
+                    and a.cls == ObjectClass.PEDESTRIAN
+                    and point_in_polygon(a.x_m, a.y_m, poly)
+                    and math.hypot(a.x_m - ex, a.y_m - ey) < 6.0
+                ):
+                    self.emit(
+                        "rule_violation",
+                        rule="crosswalk_yield",
+                        detail=f"crosswalk {cw.id}, pedestrian {a.id}",
+                    )
+                    self._crosswalk_flagged.add(cw.id)
+                    break
+
+    def _speed(self) -> None:
+        w, c = self.world, self.config
+        if w.ego.state.speed_mps > c.speed_limit_mps + c.speed_tolerance_mps:
+            if self._speeding_since is None:
+                self._speeding_since = w.t_s
+            if not self._speeding_logged and w.t_s - self._speeding_since >= c.speed_hold_s:
+                self.emit("rule_violation", rule="speed_limit", detail=f"{w.ego.state.speed_mps:.2f} m/s")
+                self._speeding_logged = True
+        else:
+            self._speeding_since, self._speeding_logged = None, False
+
+    def _drivable(self) -> None:
+        w = self.world
+        off = not bool(np.all(w.hdmap.is_drivable(w.ego_corners())))
+        if off and not self._off_road:
+            self.emit("rule_violation", rule="drivable_area", detail="a corner of the shuttle left the road")
+        self._off_road = off
+
+    @property
+    def off_road(self) -> bool:
+        return self._off_road
+
+    # --- progress, loops, stops ------------------------------------------------------------------
+    def _progress(self) -> None:
+        w = self.world
+        s = w.ego.state
+        f = self.service_route.project(s.x_m, s.y_m, hint_s_m=self._route_s, window_m=10.0)
+        length = self.service_route.length_m
+        ds = (f.s_m - self._route_s + length / 2.0) % length - length / 2.0
+        if abs(f.d_m) < 8.0:
+            self._route_s_total += ds
+            self._route_s = f.s_m
+        loops = int(self._route_s_total // length)
+        if loops > self._loops:
+            self._loops = loops
+            self.emit("loop_completed", loop=loops)
+        # A stop counts as missed when riders waited there as the shuttle came within 40 m and it
+        # drove past the platform without opening the door.
+        for stop_id, (s0, s1) in self._stop_s.items():
+            to_start = (s0 - self._route_s) % length
+            past_end = (self._route_s - s1) % length
+            if 30.0 < to_start < 40.0 and stop_id not in self._approached:
+                self._approached[stop_id] = len(self.passengers.waiting[stop_id])
+            elif 0.5 < past_end < 5.0 and stop_id in self._approached:
+                waited = self._approached.pop(stop_id)
+                if waited and not self._served_recently(stop_id):
+                    self.emit("stop_missed", stop_id=stop_id, waiting=waited)
+
+    def _served_recently(self, stop_id: str) -> bool:
+        for t, kind, data in reversed(self.events):
+            if self.world.t_s - t > 240.0:
+                return False
+            if kind == "stop_served" and data.get("stop_id") == stop_id:
+                return True
+        return False
+
+    def stop_at(self) -> str | None:
+        """The stop whose platform the shuttle's door is beside, if any."""
+        w = self.world
+        s, g = w.ego.state, w.geometry
+        door_along = g.length_m / 2.0 - g.rear_overhang_m
+        dx = s.x_m + door_along * math.cos(s.yaw_rad) + (g.width_m / 2.0) * math.sin(s.yaw_rad)
+        dy = s.y_m + door_along * math.sin(s.yaw_rad) - (g.width_m / 2.0) * math.cos(s.yaw_rad)
+        for stop in self.passengers.stops.values():
+            f = stop.curb.project(dx, dy)
+            if -4.0 <= f.s_m <= stop.curb.length_m + 4.0 and 0.0 <= f.d_m < 1.5:
+                return stop.id
+        return None
+
+    def open_visit(self, stop_id: str) -> StopVisit:
+        """Measure the pull-over when the door starts opening at a stop."""
+        w = self.world
+        stop = self.passengers.stops[stop_id]
+        corners = w.ego_corners()  # front-left, rear-left, rear-right, front-right
+        gaps = [stop.curb.project(float(x), float(y)).d_m for x, y in corners[2:]]
+        s, g = w.ego.state, w.geometry
+        door_along = g.length_m / 2.0 - g.rear_overhang_m
+        door = stop.curb.project(
+            s.x_m + door_along * math.cos(s.yaw_rad), s.y_m + door_along * math.sin(s.yaw_rad)
+        )
+        lon_err = max(0.0, -door.s_m, door.s_m - stop.curb.length_m)
+        return StopVisit(
+            stop_id=stop_id,
+            opened_s=w.t_s,
+            curb_gap_m=round(max(gaps), 4),
+            longitudinal_error_m=round(lon_err, 4),
+        )
+
+    def _ttc(self) -> None:
+        ttc, agent = self.time_to_collision()
+        if ttc < self.config.ttc_log_s and ttc < self._ttc_min_logged - 0.05:
+            self.emit("min_ttc", ttc_s=round(ttc, 3), agent_id=agent)
+            self._ttc_min_logged = ttc
+
+    def time_to_collision(self) -> tuple[float, int]:
+        """Constant-velocity time until the shuttle's front reaches something in its corridor."""
+        w = self.world
+        s, g = w.ego.state, w.geometry
+        fx, fy = w.ego_front()
+        c, si = math.cos(s.yaw_rad), math.sin(s.yaw_rad)
+        best, who = math.inf, -1
+        for a in w.agents:
+            if not a.active:
+                continue
+            dx, dy = a.x_m - fx, a.y_m - fy
+            along = dx * c + dy * si
+            if along < -1.0 or along > 25.0:
+                continue
+            lateral = -dx * si + dy * c
+            if abs(lateral) > g.width_m / 2.0 + a.width_m / 2.0 + 0.2:
+                continue
+            closing = s.speed_mps - (a.vx_mps * c + a.vy_mps * si)
+            if closing <= 0.05:
+                continue
+            gap = max(0.0, along - a.length_m / 2.0)
+            ttc = gap / closing
+            if ttc < best:
+                best, who = ttc, a.id
+        return best, who

@@ -1,0 +1,148 @@
+"""Passengers: Poisson arrivals at stops, stop and seat buttons, boarding through a sensed door."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from lastmile.hdmap.model import BusStop
+
+
+@dataclass(slots=True)
+class Passenger:
+    id: int
+    origin: str
+    destination: str
+    arrived_s: float
+    boarded_s: float | None = None
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class PassengerConfig:
+    """Demand at the stops.
+
+    Attributes:
+        arrivals_per_stop_per_min: Poisson rate of new riders at each stop.
+        initial_waiting: riders already waiting at t = 0, by stop id.
+        board_s: time one rider takes through the door (boarding or alighting).
+        door_s: time for the door to open or close fully.
+    """
+
+    arrivals_per_stop_per_min: float = 0.3
+    initial_waiting: dict[str, int] = field(default_factory=dict)
+    board_s: float = 2.5
+    door_s: float = 2.0
+
+
+@dataclass(slots=True)
+class StopVisit:
+    """An ongoing stop: when the door opened and who moved through it."""
+
+    stop_id: str
+    opened_s: float
+    curb_gap_m: float
+    longitudinal_error_m: float
+    boarded: int = 0
+    alighted: int = 0
+
+
+class PassengerModel:
+    """Riders at the stops and on board, and the door they move through."""
+
+    def __init__(
+        self, stops: tuple[BusStop, ...], config: PassengerConfig, rng: np.random.Generator, seats: int
+    ) -> None:
+        self.stops = {s.id: s for s in stops}
+        self.order = [s.id for s in stops]
+        self.config = config
+        self.rng = rng
+        self.seats = seats
+        self.waiting: dict[str, list[Passenger]] = {s: [] for s in self.order}
+        self.onboard: list[Passenger] = []
+        self._next_id = 1
+        self._next_arrival = {s: self._draw_gap() for s in self.order}
+        self.new_calls: list[tuple[str, str]] = []
+        self.door_position = 0.0  # 0 closed .. 1 open
+        self._transfer_left_s = 0.0
+        self.visit: StopVisit | None = None
+        unknown = set(config.initial_waiting) - set(self.stops)
+        if unknown:
+            from lastmile.core.errors import ConfigError
+
+            raise ConfigError(
+                f"passengers.initial_waiting: expected stop ids {self.order}, got {sorted(unknown)}"
+            )
+        for stop_id, count in config.initial_waiting.items():
+            for _ in range(count):
+                self._add(stop_id, 0.0)
+
+    def _draw_gap(self) -> float:
+        rate = self.config.arrivals_per_stop_per_min / 60.0
+        return float(self.rng.exponential(1.0 / rate)) if rate > 0 else math.inf
+
+    def _add(self, stop_id: str, t_s: float) -> None:
+        others = [s for s in self.order if s != stop_id]
+        dest = others[int(self.rng.integers(len(others)))]
+        if not self.waiting[stop_id]:
+            self.new_calls.append((stop_id, "stop_button"))
+        self.waiting[stop_id].append(Passenger(self._next_id, stop_id, dest, t_s))
+        self._next_id += 1
+
+    def step_arrivals(self, t_s: float) -> None:
+        for stop_id in self.order:
+            while self._next_arrival[stop_id] <= t_s:
+                self._add(stop_id, self._next_arrival[stop_id])
+                self._next_arrival[stop_id] += self._draw_gap()
+
+    def step_door(
+        self, t_s: float, dt_s: float, door_cmd_open: bool, at_stop: str | None, stopped: bool
+    ) -> list[tuple[str, dict[str, object]]]:
+        """Move the door and the riders; returns events (kind, data) for the run log."""
+        events: list[tuple[str, dict[str, object]]] = []
+        # The door interlock: it opens only at standstill.
+        want_open = door_cmd_open and stopped
+        rate = dt_s / self.config.door_s
+        self.door_position = (
+            min(1.0, self.door_position + rate) if want_open else max(0.0, self.door_position - rate)
+        )
+        if self.door_position < 1.0 or at_stop is None or self.visit is None:
+            return events
+        if self._transfer_left_s > 0.0:
+            self._transfer_left_s -= dt_s
+            return events
+        visit = self.visit
+        leaving = [p for p in self.onboard if p.destination == at_stop]
+        if leaving:
+            p = leaving[0]
+            self.onboard.remove(p)
+            visit.alighted += 1
+            self._transfer_left_s = self.config.board_s
+            ride = t_s - (p.boarded_s or t_s)
+            events.append(
+                ("passenger_alighted", {"passenger_id": p.id, "stop_id": at_stop, "ride_s": round(ride, 3)})
+            )
+            return events
+        queue = self.waiting[at_stop]
+        if queue and len(self.onboard) < self.seats:
+            p = queue.pop(0)
+            p.boarded_s = t_s
+            self.onboard.append(p)
+            visit.boarded += 1
+            self._transfer_left_s = self.config.board_s
+            self.new_calls.append((p.destination, "seat_button"))
+            events.append(
+                (
+                    "passenger_boarded",
+                    {"passenger_id": p.id, "stop_id": at_stop, "wait_s": round(t_s - p.arrived_s, 3)},
+                )
+            )
+        return events
+
+    @property
+    def person_in_doorway(self) -> bool:
+        return self._transfer_left_s > 0.0
+
+    def wants_stop(self, stop_id: str) -> bool:
+        return bool(self.waiting[stop_id]) or any(p.destination == stop_id for p in self.onboard)
