@@ -103,11 +103,17 @@ class Polyline:
         return float(self._heading[self._segment_at(self._wrap_s(s_m))])
 
     def curvature_at(self, s_m: float, window_m: float = 2.0) -> float:
-        """Signed curvature (1/m, left positive) from the heading change over +-``window_m``."""
-        h0 = self.heading_at(s_m - window_m)
-        h1 = self.heading_at(s_m + window_m)
-        dh = (h1 - h0 + math.pi) % (2 * math.pi) - math.pi
-        return dh / (2.0 * window_m)
+        """Signed curvature (1/m, left positive): the circle through the points at s - w, s, s + w.
+
+        Three points rather than segment headings, because headings are constant along a segment and
+        would quantise the estimate to the vertex spacing.
+        """
+        ax, ay, _ = self.point_at(s_m - window_m)
+        bx, by, _ = self.point_at(s_m)
+        cx, cy, _ = self.point_at(s_m + window_m)
+        cross = (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
+        denom = math.hypot(bx - ax, by - ay) * math.hypot(cx - bx, cy - by) * math.hypot(cx - ax, cy - ay)
+        return 0.0 if denom < 1e-12 else 2.0 * cross / denom
 
     def project(
         self, x_m: float, y_m: float, hint_s_m: float | None = None, window_m: float = 15.0

@@ -427,9 +427,10 @@ class BehaviourStateMachine:
                 self._enter(back, t_s, "emergency cleared")
         else:
             self.emergency_clear_since_s = None
+        # Hold still for this cycle even when just cleared; the next cycle plans from the restored state.
         return BehaviourDecision(
             stamp=inp.stamp,
-            state=BehaviourState.EMERGENCY_STOP,
+            state=self.state,
             speed_limit_mps=0.0,
             stop_at_s_m=front_s,
             pullover_spot=self._spot_pose(),

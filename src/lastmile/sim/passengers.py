@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from lastmile.core.errors import ConfigError
 from lastmile.hdmap.model import BusStop
 
 
@@ -67,10 +68,10 @@ class PassengerModel:
         self.door_position = 0.0  # 0 closed .. 1 open
         self._transfer_left_s = 0.0
         self.visit: StopVisit | None = None
+        if len(self.order) < 2:
+            raise ConfigError(f"passengers: expected a map with at least 2 stops, got {len(self.order)}")
         unknown = set(config.initial_waiting) - set(self.stops)
         if unknown:
-            from lastmile.core.errors import ConfigError
-
             raise ConfigError(
                 f"passengers.initial_waiting: expected stop ids {self.order}, got {sorted(unknown)}"
             )

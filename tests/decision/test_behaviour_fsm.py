@@ -1,0 +1,122 @@
+"""The decision FSM on a straight test road: pull-over, onboarding, merging, crosswalk, emergency."""
+
+import numpy as np
+
+from lastmile.core.geometry import SE2
+from lastmile.core.object_class import ObjectClass
+from lastmile.core.objects import TRACK_COLUMNS, TrackedObjects, empty_tracks
+from lastmile.core.sensor_frames import StopCallFrame
+from lastmile.core.stamp import Stamp
+from lastmile.core.vehicle import VehicleGeometry
+from lastmile.core.vehicle_messages import BehaviourState
+from lastmile.decision.behaviour_fsm import BehaviourStateMachine, DecisionInput
+from lastmile.decision.mission import MissionManager
+
+G = VehicleGeometry()
+
+
+def _fsm(layers) -> BehaviourStateMachine:
+    mission = MissionManager(stop_order=("S1", "S2"))
+    return BehaviourStateMachine(layers=layers, geometry=G, mission=mission)
+
+
+def _tracks(rows: list[tuple[int, float, float, float, float, ObjectClass]]) -> TrackedObjects:
+    table = []
+    for _, x, y, vx, vy, cls in rows:
+        row = [0.0] * len(TRACK_COLUMNS)
+        row[0:6] = [
+            x,
+            y,
+            vx,
+            vy,
+            4.5 if cls == ObjectClass.CAR else 0.5,
+            1.8 if cls == ObjectClass.CAR else 0.5,
+        ]
+        row[7] = float(cls)
+        table.append(row)
+    return TrackedObjects(
+        stamp=Stamp(0),
+        ids=np.array([r[0] for r in rows], dtype=np.int64),
+        table=np.array(table).reshape(-1, len(TRACK_COLUMNS)),
+    )
+
+
+def _inp(t_s, s_m, d_m=0.0, v=0.0, tracks=None, door=False, person=False):
+    return DecisionInput(
+        stamp=Stamp(int(t_s * 1e6)),
+        map_from_base=SE2(s_m, d_m, 0.0),
+        speed_mps=v,
+        route_s_m=s_m,
+        route_d_m=d_m,
+        tracks=tracks if tracks is not None else empty_tracks(Stamp(0)),
+        door_open=door,
+        person_in_doorway=person,
+        trajectory=None,
+    )
+
+
+def test_without_requests_the_shuttle_drives_past_stops(straight_layers):
+    fsm = _fsm(straight_layers)
+    d = fsm.step(_inp(0.0, 170.0, v=5.0))
+    assert d.state == BehaviourState.NORMAL_DRIVING and d.stop_at_s_m is None
+
+
+def test_requested_stop_runs_pullover_onboarding_and_merging(straight_layers):
+    fsm = _fsm(straight_layers)
+    fsm.mission.on_call(StopCallFrame(stamp=Stamp(0), stop_id="S1", source="stop_button"))
+    d = fsm.step(_inp(0.0, 170.0, v=5.0))
+    assert d.state == BehaviourState.PULLOVER and d.pullover_spot is not None
+    # The spot keeps a curb gap of 0.15 m: centre line 1.15 m left of the curb at d = -4.75.
+    assert abs(d.pullover_spot.y_m - (-4.75 + 0.15 + 1.0)) < 1e-9
+    front = d.stop_at_s_m
+    assert 204.6 <= front <= 224.0
+    rear = front - G.front_from_rear_axle_m
+    d = fsm.step(_inp(1.0, rear, d_m=-3.6, v=0.0))
+    assert d.state == BehaviourState.ONBOARDING
+    d = fsm.step(_inp(2.0, rear, d_m=-3.6))
+    assert d.door_open
+    t = 2.0
+    for k in range(40):  # door open, a rider in the doorway for the first 5 s
+        t += 0.5
+        d = fsm.step(_inp(t, rear, d_m=-3.6, door=True, person=k < 10))
+    assert d.state == BehaviourState.ONBOARDING and not d.door_open  # closing after the doorway cleared
+    assert t - 2.0 >= 6.0
+    d = fsm.step(_inp(t + 0.5, rear, d_m=-3.6, door=False))
+    assert d.state == BehaviourState.MERGING
+    assert not fsm.mission.wants("S1")
+    # A car approaching in the lane from behind holds the shuttle in the bay.
+    car = _tracks([(5, rear - 30.0, 0.0, 5.0, 0.0, ObjectClass.CAR)])
+    d = fsm.step(_inp(t + 1.0, rear, d_m=-3.6, tracks=car))
+    assert "rear" in d.reason and d.stop_at_s_m is not None
+    d = fsm.step(_inp(t + 2.0, rear, d_m=-3.6))
+    assert d.reason == "merging"
+
+
+def test_pedestrian_on_the_crosswalk_makes_the_shuttle_yield_before_it(straight_layers):
+    fsm = _fsm(straight_layers)
+    ped = _tracks([(3, 100.0, 1.0, 0.0, 1.2, ObjectClass.PEDESTRIAN)])
+    d = fsm.step(_inp(0.0, 60.0, v=5.0, tracks=ped))
+    assert d.stop_at_s_m is not None and d.stop_at_s_m <= 98.0
+    assert d.state == BehaviourState.NORMAL_DRIVING
+
+
+def test_obstacle_too_close_to_stop_comfortably_triggers_emergency_stop(straight_layers):
+    fsm = _fsm(straight_layers)
+    # Front bumper at 53.75 m, goose 3 m ahead of it: stopping would need over 6 m/s^2.
+    goose = _tracks([(4, 57.0, 0.0, 0.0, 0.0, ObjectClass.ANIMAL)])
+    d = fsm.step(_inp(0.0, 50.0, v=5.5, tracks=goose))
+    assert d.state == BehaviourState.EMERGENCY_STOP and d.risk_track_id == 4
+    d = fsm.step(_inp(1.0, 51.0, v=0.0, tracks=goose))
+    assert d.state == BehaviourState.EMERGENCY_STOP  # still blocked
+    empty = _tracks([])
+    fsm.step(_inp(2.0, 51.0, v=0.0, tracks=empty))
+    d = fsm.step(_inp(3.5, 51.0, v=0.0, tracks=empty))
+    assert d.state == BehaviourState.NORMAL_DRIVING
+
+
+def test_distant_goose_in_lane_is_a_normal_stop_not_an_emergency(straight_layers):
+    fsm = _fsm(straight_layers)
+    goose = _tracks([(4, 90.0, 0.5, 0.0, 0.0, ObjectClass.ANIMAL)])
+    d = fsm.step(_inp(0.0, 50.0, v=5.5, tracks=goose))
+    assert d.state == BehaviourState.NORMAL_DRIVING
+    assert d.risk_track_id == 4 and d.stop_at_s_m < 90.0
