@@ -1,0 +1,124 @@
+"""Lateral control: WATonoBus's lookahead heading-error PID (all-wheel steer) and pure pursuit."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Protocol
+
+from lastmile.core.errors import ConfigError
+from lastmile.core.geometry import SE2, wrap_angle_rad
+from lastmile.core.polyline import Polyline
+from lastmile.core.vehicle import VehicleGeometry
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class LateralConfig:
+    """Lookahead and gains.
+
+    Attributes:
+        lookahead_min_m, lookahead_time_s: lookahead distance = max(min, time * speed) (WATonoBus picks
+            it by the vehicle's speed).
+        kp, ki, kd: PID gains on the heading error to the lookahead point, scaled by
+            wheelbase / lookahead so the loop gain stays constant as the lookahead grows.
+        integral_limit_rad_s: anti-windup bound on the integral of the heading error.
+    """
+
+    lookahead_min_m: float = 4.0
+    lookahead_time_s: float = 1.0
+    kp: float = 2.0
+    ki: float = 0.05
+    kd: float = 0.05
+    integral_limit_rad_s: float = 0.5
+
+
+class LateralController(Protocol):
+    """Turns a path and the pose into wheel angles (front, rear)."""
+
+    def step(
+        self, dt_s: float, map_from_base: SE2, speed_mps: float, path: Polyline
+    ) -> tuple[float, float]: ...
+
+
+def _reference_pose(map_from_base: SE2, geometry: VehicleGeometry, all_wheel: bool) -> SE2:
+    """The point that follows the path: the rear axle with front steer, mid-wheelbase with all-wheel steer."""
+    if not all_wheel:
+        return map_from_base
+    return map_from_base.compose(SE2(geometry.wheelbase_m / 2.0, 0.0, 0.0))
+
+
+def _lookahead_point(path: Polyline, ref: SE2, lookahead_m: float) -> tuple[float, float]:
+    f = path.project(ref.x_m, ref.y_m)
+    x, y, _ = path.point_at(f.s_m + lookahead_m)
+    return x, y
+
+
+class LookaheadHeadingPid:
+    """WATonoBus: PID on the heading error to a lookahead point; rear = -delta with all-wheel steer."""
+
+    def __init__(self, geometry: VehicleGeometry, config: LateralConfig | None = None) -> None:
+        self.geometry = geometry
+        self.config = config or LateralConfig()
+        self._integral = 0.0
+        self._last_error: float | None = None
+
+    def step(self, dt_s: float, map_from_base: SE2, speed_mps: float, path: Polyline) -> tuple[float, float]:
+        g, c = self.geometry, self.config
+        ref = _reference_pose(map_from_base, g, g.all_wheel_steer)
+        lookahead = max(c.lookahead_min_m, c.lookahead_time_s * speed_mps)
+        lx, ly = _lookahead_point(path, ref, lookahead)
+        error = wrap_angle_rad(math.atan2(ly - ref.y_m, lx - ref.x_m) - ref.yaw_rad)
+        if speed_mps > 0.1:
+            self._integral = min(
+                max(self._integral + error * dt_s, -c.integral_limit_rad_s), c.integral_limit_rad_s
+            )
+        derivative = 0.0 if self._last_error is None else (error - self._last_error) / dt_s
+        self._last_error = error
+        scale = g.wheelbase_m / lookahead
+        if g.all_wheel_steer:
+            scale /= 2.0  # opposite rear steer doubles the yaw rate per wheel angle
+        delta = scale * (c.kp * error + c.ki * self._integral + c.kd * derivative)
+        delta = min(max(delta, -g.max_steer_rad), g.max_steer_rad)
+        return delta, (-delta if g.all_wheel_steer else 0.0)
+
+
+class PurePursuitController:
+    """Pure pursuit (NUS golf car): the arc through the lookahead point, front steer or all-wheel steer."""
+
+    def __init__(self, geometry: VehicleGeometry, config: LateralConfig | None = None) -> None:
+        self.geometry = geometry
+        self.config = config or LateralConfig()
+
+    def step(self, dt_s: float, map_from_base: SE2, speed_mps: float, path: Polyline) -> tuple[float, float]:
+        g, c = self.geometry, self.config
+        ref = _reference_pose(map_from_base, g, g.all_wheel_steer)
+        lookahead = max(c.lookahead_min_m, c.lookahead_time_s * speed_mps)
+        lx, ly = _lookahead_point(path, ref, lookahead)
+        alpha = wrap_angle_rad(math.atan2(ly - ref.y_m, lx - ref.x_m) - ref.yaw_rad)
+        dist = max(math.hypot(lx - ref.x_m, ly - ref.y_m), 1e-3)
+        curvature = 2.0 * math.sin(alpha) / dist
+        if g.all_wheel_steer:
+            delta = math.atan(curvature * g.wheelbase_m / 2.0)
+        else:
+            delta = math.atan(curvature * g.wheelbase_m)
+        delta = min(max(delta, -g.max_steer_rad), g.max_steer_rad)
+        return delta, (-delta if g.all_wheel_steer else 0.0)
+
+
+LATERAL_CONTROLLERS: dict[str, type[LookaheadHeadingPid] | type[PurePursuitController]] = {
+    "heading_pid": LookaheadHeadingPid,
+    "pure_pursuit": PurePursuitController,
+}
+
+
+def make_lateral_controller(
+    name: str, geometry: VehicleGeometry, config: LateralConfig | None = None
+) -> LateralController:
+    """The lateral controller registered as ``name``."""
+    try:
+        cls = LATERAL_CONTROLLERS[name]
+    except KeyError:
+        raise ConfigError(
+            f"lateral controller: expected one of {sorted(LATERAL_CONTROLLERS)}, got {name!r}"
+        ) from None
+    return cls(geometry, config)

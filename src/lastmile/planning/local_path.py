@@ -1,0 +1,119 @@
+"""Local path: the route ahead, shifted by the potential field and by Bezier pull-over/merge curves."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from lastmile.core.geometry import FloatArray
+from lastmile.core.polyline import Polyline
+from lastmile.core.route_obstacles import RouteObstacle
+from lastmile.core.stamp import Stamp
+from lastmile.core.vehicle_messages import BehaviourDecision, BehaviourState, Trajectory
+from lastmile.planning.bezier import lateral_transition_m, smooth_through
+from lastmile.planning.potential_field import PotentialFieldConfig, nudge_offsets_m
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class LocalPathConfig:
+    """Extent and resolution of the local path.
+
+    Attributes:
+        behind_m, ahead_m: route length planned behind and ahead of the rear axle.
+        waypoint_step_m: spacing of the shifted waypoints the Bezier chain passes through.
+        pullover_m: route length of the lateral move into a bay; merge_m likewise out of it.
+        lane_half_width_m: half the lane width used to bound the nudge when the map has no layer.
+    """
+
+    behind_m: float = 5.0
+    ahead_m: float = 60.0
+    waypoint_step_m: float = 2.0
+    pullover_m: float = 16.0
+    merge_m: float = 18.0
+    lane_half_width_m: float = 1.75
+    field: PotentialFieldConfig = field(default_factory=PotentialFieldConfig)
+
+
+class LocalPathPlanner:
+    """Plans the geometric path each planning cycle (10 Hz); speed is left to the controller."""
+
+    def __init__(self, route: Polyline, half_width_m: float, config: LocalPathConfig | None = None) -> None:
+        self.route = route
+        self.half_width_m = half_width_m
+        self.config = config or LocalPathConfig()
+
+    def offsets_m(
+        self, s_m: FloatArray, decision: BehaviourDecision, obstacles: list[RouteObstacle], ego_d_m: float
+    ) -> FloatArray:
+        """Lateral offset d(s) from the route for the decision's state."""
+        c = self.config
+        spot_d = self._spot_d(decision)
+        if decision.state in (BehaviourState.PULLOVER, BehaviourState.ONBOARDING) and spot_d is not None:
+            assert decision.pullover_spot is not None
+            spot_rear_s = self.route.project(
+                decision.pullover_spot.x_m,
+                decision.pullover_spot.y_m,
+                hint_s_m=float(s_m[0]) + 30.0,
+                window_m=80.0,
+            ).s_m
+            s1 = _unwrap_near(spot_rear_s, float(s_m[0]), self.route) - 1.0
+            return lateral_transition_m(s_m, s1 - c.pullover_m, s1, 0.0, spot_d)
+        if decision.state == BehaviourState.MERGING and decision.merge_from_s_m is not None:
+            start_d = spot_d if spot_d is not None else ego_d_m
+            s0 = _unwrap_near(decision.merge_from_s_m, float(s_m[0]), self.route)
+            return lateral_transition_m(s_m, s0, s0 + c.merge_m, start_d, 0.0)
+        if decision.state == BehaviourState.EMERGENCY_STOP and abs(ego_d_m) > 0.5:
+            return np.full_like(s_m, ego_d_m)
+        return nudge_offsets_m(
+            s_m, obstacles, self.half_width_m, c.lane_half_width_m, -c.lane_half_width_m, c.field
+        )
+
+    def plan(
+        self,
+        stamp: Stamp,
+        ego_s_m: float,
+        ego_d_m: float,
+        decision: BehaviourDecision,
+        obstacles: list[RouteObstacle],
+    ) -> Trajectory:
+        c = self.config
+        s = np.arange(ego_s_m - c.behind_m, ego_s_m + c.ahead_m + 1e-9, c.waypoint_step_m)
+        d = self.offsets_m(s, decision, obstacles, ego_d_m)
+        base = self.route.points_at(s)
+        headings = _headings(base, self.route.closed)
+        way = base + d[:, None] * np.c_[-np.sin(headings), np.cos(headings)]
+        xy = smooth_through(way, samples_per_segment=2)
+        seg = np.diff(xy, axis=0)
+        ds = np.hypot(seg[:, 0], seg[:, 1])
+        keep = np.r_[True, ds > 1e-6]
+        xy = xy[keep]
+        seg = np.diff(xy, axis=0)
+        ds = np.hypot(seg[:, 0], seg[:, 1])
+        yaw = np.r_[np.arctan2(seg[:, 1], seg[:, 0]), math.atan2(seg[-1, 1], seg[-1, 0])]
+        dyaw = (np.diff(yaw) + np.pi) % (2 * np.pi) - np.pi
+        kappa = np.r_[dyaw / np.maximum(ds, 1e-6), 0.0]
+        path_s = np.r_[0.0, np.cumsum(ds)]
+        points = np.c_[xy, yaw, kappa, path_s]
+        return Trajectory(stamp=stamp, points=points, route_s0_m=float(s[0]))
+
+    def _spot_d(self, decision: BehaviourDecision) -> float | None:
+        spot = decision.pullover_spot
+        if spot is None:
+            return None
+        return self.route.project(spot.x_m, spot.y_m).d_m
+
+
+def _headings(points: FloatArray, closed: bool) -> FloatArray:
+    seg = np.diff(points, axis=0)
+    h = np.arctan2(seg[:, 1], seg[:, 0])
+    return np.r_[h, h[-1]]
+
+
+def _unwrap_near(s_m: float, reference_s_m: float, route: Polyline) -> float:
+    """Express a loop's s in the same lap as ``reference_s_m`` (the planning grid is not wrapped)."""
+    if not route.closed:
+        return s_m
+    length = route.length_m
+    return reference_s_m + (s_m - reference_s_m + length / 2.0) % length - length / 2.0

@@ -1,0 +1,77 @@
+"""Controllers driving the simulator's bicycle model (no perception): they converge and stop where told."""
+
+import math
+
+import numpy as np
+import pytest
+
+from lastmile.control.lateral import make_lateral_controller
+from lastmile.control.longitudinal import WatonobusLongitudinalController
+from lastmile.core.errors import ConfigError
+from lastmile.core.geometry import SE2
+from lastmile.core.polyline import Polyline
+from lastmile.core.vehicle import VehicleGeometry
+from lastmile.planning.bezier import lateral_transition_m
+from lastmile.sim.vehicle_model import ActuatorDynamics, KinematicBicycle, VehicleState
+
+DT = 0.02
+
+
+def _run(
+    path: Polyline, controller: str, all_wheel: bool, y0: float, stop_at_x: float | None, seconds: float
+):
+    g = VehicleGeometry(all_wheel_steer=all_wheel)
+    car = KinematicBicycle(g, ActuatorDynamics(), VehicleState(0.0, y0, 0.0, speed_mps=0.0))
+    lat = make_lateral_controller(controller, g)
+    lon = WatonobusLongitudinalController()
+    accels = []
+    for _ in range(int(seconds / DT)):
+        s = car.state
+        pose = SE2(s.x_m, s.y_m, s.yaw_rad)
+        front_x = s.x_m + g.front_from_rear_axle_m * math.cos(s.yaw_rad)
+        gap = None if stop_at_x is None else stop_at_x - front_x
+        a = lon.step(DT, s.speed_mps, g.max_speed_mps, gap)
+        df, dr = lat.step(DT, pose, s.speed_mps, path)
+        for _ in range(2):
+            car.step(DT / 2, a, df, dr, False)
+        accels.append(car.state.accel_mps2)
+    return car, np.array(accels)
+
+
+@pytest.mark.parametrize("controller", ["heading_pid", "pure_pursuit"])
+@pytest.mark.parametrize("all_wheel", [True, False])
+def test_lateral_controllers_converge_onto_a_straight_path(controller, all_wheel):
+    path = Polyline(np.array([[-10.0, 0.0], [400.0, 0.0]]))
+    car, _ = _run(path, controller, all_wheel, y0=1.0, stop_at_x=None, seconds=30.0)
+    mid = car.state.y_m + (VehicleGeometry().wheelbase_m / 2) * math.sin(car.state.yaw_rad)
+    assert abs(mid) < 0.05
+    assert abs(car.state.yaw_rad) < 0.02
+
+
+def test_pullover_curve_followed_to_within_a_decimetre_and_stopped_at_the_spot():
+    s = np.arange(-10.0, 200.0, 0.5)
+    d = lateral_transition_m(s, 40.0, 56.0, 0.0, -3.6)
+    path = Polyline(np.c_[s, d])
+    stop_front_x = 70.0
+    car, accels = _run(path, "heading_pid", True, y0=0.0, stop_at_x=stop_front_x, seconds=40.0)
+    g = VehicleGeometry()
+    front_x = car.state.x_m + g.front_from_rear_axle_m * math.cos(car.state.yaw_rad)
+    assert car.state.speed_mps == pytest.approx(0.0, abs=1e-6)
+    assert abs(front_x - stop_front_x) < 0.3
+    assert abs(car.state.y_m - (-3.6)) < 0.1
+    assert accels.min() > -3.1  # a planned stop is a comfortable one
+
+
+def test_longitudinal_law_reaches_20_kmh_at_the_nominal_acceleration():
+    lon = WatonobusLongitudinalController()
+    v = 0.0
+    for _ in range(int(10.0 / DT)):
+        a = lon.step(DT, v, 20 / 3.6, None)
+        v += a * DT
+    assert v == pytest.approx(20 / 3.6, abs=0.1)
+    assert lon.v_des_mps == pytest.approx(20 / 3.6)
+
+
+def test_unknown_lateral_controller_names_the_choices():
+    with pytest.raises(ConfigError, match="heading_pid"):
+        make_lateral_controller("stanley", VehicleGeometry())
