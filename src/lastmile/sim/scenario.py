@@ -1,0 +1,130 @@
+"""Scenario files: a TOML table per kind of road user, loaded into frozen, checked dataclasses."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+from lastmile.core.config import check_range, from_mapping, load_toml
+from lastmile.core.errors import ConfigError
+from lastmile.sim.passengers import PassengerConfig
+from lastmile.sim.weather import parse_weather
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class RingCar:
+    """A car driving the ring: ``direction`` "ccw" shares the shuttle's lane, "cw" is oncoming."""
+
+    direction: Literal["ccw", "cw"] = "cw"
+    start_s_m: float = 0.0
+    speed_mps: float = 6.0
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SideRoadCar:
+    """A car entering from the side road at ``spawn_t_s``, stopping at the all-way stop, then turning."""
+
+    spawn_t_s: float = 0.0
+    turn: Literal["left", "right"] = "left"
+    speed_mps: float = 6.0
+    start_m: float = 100.0
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ParkedCar:
+    """A car parked in a stop's bay at its downstream end, partly blocking the stop."""
+
+    stop: str = "S1"
+    from_end_m: float = 3.0
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class CrosswalkPedestrians:
+    """Pedestrians crossing at crosswalk number ``crosswalk`` (0-based), Poisson with ``mean_gap_s``."""
+
+    crosswalk: int = 0
+    mean_gap_s: float = 40.0
+    first_after_s: float = 5.0
+    speed_mps: float = 1.3
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Walker:
+    """A single crossing away from crosswalks: a jaywalker, or a goose (``kind``).
+
+    ``route_s_m`` is where on the shuttle's loop it crosses; it steps out when the shuttle is between
+    ``min_trigger_m`` and ``trigger_m`` away and the gap to every vehicle is at least ``gap_s``.
+    """
+
+    kind: Literal["pedestrian", "goose"] = "pedestrian"
+    route_s_m: float = 0.0
+    speed_mps: float = 1.4
+    trigger_m: float = 45.0
+    min_trigger_m: float = 25.0
+    gap_s: float = 3.0
+    from_left: bool = True
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Scenario:
+    """Everything that defines a run besides the code: with the seed, it repeats bit for bit."""
+
+    name: str = "default_service"
+    minutes: float = 10.0
+    seed: int = 0
+    weather: str = "clear"
+    lateral_controller: str = "heading_pid"
+    start_route_s_m: float = 0.0
+    serve_all_stops: bool = False
+    passengers: PassengerConfig = field(default_factory=PassengerConfig)
+    ring_cars: tuple[RingCar, ...] = ()
+    side_road_cars: tuple[SideRoadCar, ...] = ()
+    parked_cars: tuple[ParkedCar, ...] = ()
+    crosswalk_pedestrians: tuple[CrosswalkPedestrians, ...] = ()
+    walkers: tuple[Walker, ...] = ()
+
+    def __post_init__(self) -> None:
+        check_range("scenario.minutes", self.minutes, 0.01, 24 * 60.0)
+        parse_weather(self.weather)
+        if self.lateral_controller not in ("heading_pid", "pure_pursuit"):
+            raise ConfigError(
+                "scenario.lateral_controller: expected heading_pid or pure_pursuit, "
+                f"got {self.lateral_controller!r}"
+            )
+
+
+def load_scenario(path: Path) -> Scenario:
+    """Read and check a scenario TOML file."""
+    return from_mapping(Scenario, load_toml(path), str(path))
+
+
+def default_service(seed: int = 0, minutes: float = 10.0, weather: str = "clear") -> Scenario:
+    """The default campus service: riders at every stop, traffic, a parked car in S1's bay, pedestrians
+    at two crosswalks, a jaywalker and a goose crossing."""
+    return Scenario(
+        name="default_service",
+        minutes=minutes,
+        seed=seed,
+        weather=weather,
+        passengers=PassengerConfig(
+            arrivals_per_stop_per_min=0.3, initial_waiting={"S1": 1, "S2": 1, "S3": 1, "S4": 1}
+        ),
+        ring_cars=(
+            RingCar(direction="cw", start_s_m=300.0),
+            RingCar(direction="cw", start_s_m=1200.0),
+            RingCar(direction="ccw", start_s_m=600.0, speed_mps=5.0),
+        ),
+        side_road_cars=(SideRoadCar(spawn_t_s=20.0, turn="left"), SideRoadCar(spawn_t_s=200.0, turn="right")),
+        parked_cars=(ParkedCar(stop="S1"),),
+        crosswalk_pedestrians=(
+            CrosswalkPedestrians(crosswalk=0),
+            CrosswalkPedestrians(crosswalk=2, first_after_s=60.0),
+        ),
+        walkers=(
+            Walker(kind="pedestrian", route_s_m=900.0),
+            Walker(
+                kind="goose", route_s_m=1500.0, speed_mps=0.35, trigger_m=40.0, min_trigger_m=20.0, gap_s=0.0
+            ),
+        ),
+    )
