@@ -1,0 +1,687 @@
+"""Metrics from a run log: Snow Lion's Table 2 set, safety, rules, service and a nuPlan-style score.
+
+Every metric is a small function registered by name (:func:`register_metric`) that reads a
+:class:`RunSignals` (the log plus signals derived once) and returns a :class:`MetricResult`
+``(value, valid)``, as in Waymax. :func:`compute_metrics` runs the registry and flattens the results into
+one dict; an invalid result (nothing to measure, e.g. a wait time with no passengers) becomes ``None``,
+which ``metrics.json`` writes as ``null``. Metrics depend only on the log, never on wall-clock time, so the
+same seed and configuration give an identical dict; floats are rounded to 6 decimals.
+
+Definitions (units in the names):
+
+- ``duration_s``: span of the ego trace (last minus first ``t_s``); ``distance_m``: length of the driven
+  path (sum of the distances between consecutive ego positions); ``mean_speed_mps`` = distance / duration.
+- ``share_time_at_or_above_9kph``: time-weighted share of the trace with speed >= 2.5 m/s (each sample
+  holds until the next), stops and dwell included, as in Snow Lion's Table 2.
+- ``min_accel_mps2``/``max_accel_mps2``: extremes of the logged longitudinal acceleration.
+- Jerk: the acceleration is first averaged over consecutive 0.1 s windows (10 Hz) and then
+  differentiated between adjacent windows. This mirrors an IMU-rate estimate like the logs behind Snow
+  Lion's Table 2; differentiating the raw 50 Hz trace would turn every controller step into a spike that
+  no passenger feels. ``min_jerk_mps3``/``max_jerk_mps3`` are the extremes of that 10 Hz jerk.
+- ``hard_braking_events``: entries into episodes where the 10 Hz acceleration is <= -1 m/s² (Snow Lion's
+  braking criterion); an episode ends once the acceleration rises above -1 + 0.1 m/s², so that a
+  signal hovering at the threshold counts once. ``km_per_hard_braking`` and ``km_per_takeover`` are
+  distance in km divided by the count, and ``None`` when the count is zero (infinity is not JSON).
+- ``passengers_served``: passengers picked up (``passenger_boarded`` events); ``passengers_alighted``
+  counts drop-offs. Riders still waiting at the end of the run have no wait time in the log, so
+  ``mean_wait_s``/``max_wait_s`` cover boarded riders only.
+- ``min_ttc_s``: the smallest time-to-collision logged; ``None`` when it never fell below the 3 s
+  logging threshold of the simulator.
+- ``closed_loop_score`` (in [0, 1], in the spirit of nuPlan's):
+  ``M * (5 * ttc + 4 * speed_limit + 2 * comfort + 5 * progress) / 16`` where the multiplier ``M`` is
+  0 with any at-fault collision, 0 with any drivable-area violation, 0.5 when the progress ratio is below
+  0.2, else 1; ``ttc`` is 1 when ``min_ttc_s`` is None or >= 0.95 s, else 0; ``speed_limit`` is 1 minus
+  the share of time spent over the limit in episodes the referee flagged; ``comfort`` is 1 when the 10 Hz
+  acceleration and jerk stay inside :class:`ComfortLimits` outside emergencies, else 0; ``progress`` is
+  ``min(1, distance / expected_distance_m)`` with ``expected_distance_m`` from ``meta.config`` (ratio 1
+  when it is absent).
+
+Optional ``meta.config`` keys read here: ``expected_distance_m`` (progress), ``speed_limit_mps`` and
+``speed_tolerance_mps`` (default 0.5, the referee's) to measure time over the limit, ``speed_hold_s``
+(default 1.0, the referee's) for the estimate used when the limit is absent.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from functools import cached_property
+from pathlib import Path
+from types import MappingProxyType
+from typing import Any
+
+import numpy as np
+
+from lastmile.core.errors import ConfigError, LastmileError
+from lastmile.recorder import run_log
+
+MetricValue = float | int | str | None
+
+SPEED_9KPH_MPS = 2.5
+"""Snow Lion's "high speed" threshold, 9 km/h."""
+
+RESAMPLE_PERIOD_S = 0.1
+"""Window of the acceleration means that jerk and braking episodes are computed from (10 Hz)."""
+
+TTC_THRESHOLD_S = 0.95
+"""Time-to-collision below which the score's TTC term is 0 (nuPlan's value)."""
+
+MIN_PROGRESS_RATIO = 0.2
+"""Progress ratio below which the score is halved."""
+
+SCORE_WEIGHTS: Mapping[str, float] = MappingProxyType(
+    {"ttc": 5.0, "speed_limit": 4.0, "comfort": 2.0, "progress": 5.0}
+)
+"""Weights of the score's averaged terms (nuPlan's 5 / 4 / 2 / 5)."""
+
+METRICS_FILE = "metrics.json"
+TIMING_FILE = "timing.json"
+
+_EMERGENCY_CODE = run_log.STATE_NAMES.index("emergency_stop")
+
+
+class MetricsError(LastmileError):
+    """A metrics or timing dict cannot be written or read (not JSON-able, missing, garbled)."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class ComfortLimits:
+    """Ride-comfort limits of a shuttle with standing riders, checked on the 10 Hz signals.
+
+    nuPlan's comfort limits (2.40 / -4.05 m/s², 4.13 m/s³) are for seated car occupants. A shuttle
+    carries standing riders who hold on with one hand, so the limits are tighter: 2.0 m/s² forward,
+    3.0 m/s² braking, and 2.5 m/s³ jerk. Snow Lion's campus shuttle stayed inside 1.12 / -1.83 m/s² and
+    ±1.93 m/s³ over 1,000 km, so a good stack can meet these with margin.
+
+    Attributes:
+        max_accel_mps2: largest comfortable forward acceleration (> 0).
+        max_decel_mps2: largest comfortable braking, as a positive magnitude (> 0).
+        max_abs_jerk_mps3: largest comfortable jerk magnitude (> 0).
+        emergency_window_s: after an ``emergency_stop`` or ``takeover`` event, the samples this long
+            are exempt from the comfort check (as are rows in the ``emergency_stop`` state): an
+            emergency stop should be hard.
+        hard_braking_mps2: acceleration at or below which an episode counts as hard braking (< 0).
+        hard_braking_release_mps2: the episode ends once acceleration rises above
+            ``hard_braking_mps2 + hard_braking_release_mps2`` (>= 0), so noise at the threshold counts once.
+    """
+
+    max_accel_mps2: float = 2.0
+    max_decel_mps2: float = 3.0
+    max_abs_jerk_mps3: float = 2.5
+    emergency_window_s: float = 3.0
+    hard_braking_mps2: float = -1.0
+    hard_braking_release_mps2: float = 0.1
+
+    def __post_init__(self) -> None:
+        for name in ("max_accel_mps2", "max_decel_mps2", "max_abs_jerk_mps3"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0.0):
+                raise ConfigError(f"ComfortLimits.{name}: expected a finite number > 0, got {value!r}")
+        for name in ("emergency_window_s", "hard_braking_release_mps2"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0.0):
+                raise ConfigError(f"ComfortLimits.{name}: expected a finite number >= 0, got {value!r}")
+        if not (math.isfinite(self.hard_braking_mps2) and self.hard_braking_mps2 < 0.0):
+            got = self.hard_braking_mps2
+            raise ConfigError(f"ComfortLimits.hard_braking_mps2: expected a finite number < 0, got {got!r}")
+
+
+@dataclass(frozen=True, slots=True)
+class MetricResult:
+    """A metric's value and whether it could be measured (``valid=False`` is written as null)."""
+
+    value: MetricValue
+    valid: bool = True
+
+
+INVALID = MetricResult(None, False)
+
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """(start, stop) index pairs of the maximal runs of True in a 1-D bool array."""
+    padded = np.concatenate([[False], mask, [False]]).astype(np.int8)
+    edges = np.flatnonzero(np.diff(padded))
+    return list(zip(edges[0::2].tolist(), edges[1::2].tolist(), strict=True))
+
+
+class RunSignals:
+    """A run log with the signals metrics share, each derived once on first use.
+
+    Attributes:
+        log: the run log.
+        comfort: the comfort limits in force.
+        t_s, x_m, y_m, speed_mps, accel_mps2: (N,) float64 ego columns.
+        state: (N,) int64 behaviour state codes.
+    """
+
+    def __init__(self, log: run_log.RunLog, comfort: ComfortLimits) -> None:
+        self.log = log
+        self.comfort = comfort
+        self.t_s = log.column("t_s")
+        self.x_m = log.column("x_m")
+        self.y_m = log.column("y_m")
+        self.speed_mps = log.column("speed_mps")
+        self.accel_mps2 = log.column("accel_mps2")
+        self.state = log.column("state_code").astype(np.int64)
+
+    @property
+    def rows(self) -> int:
+        return len(self.t_s)
+
+    @cached_property
+    def dt_s(self) -> np.ndarray:
+        """(N-1,) time from each sample to the next; sample i holds its values for dt_s[i]."""
+        return np.diff(self.t_s)
+
+    @cached_property
+    def duration_s(self) -> float:
+        return float(self.t_s[-1] - self.t_s[0]) if self.rows >= 2 else 0.0
+
+    @cached_property
+    def distance_m(self) -> float:
+        return float(np.sum(np.hypot(np.diff(self.x_m), np.diff(self.y_m))))
+
+    def time_where(self, mask: np.ndarray) -> float:
+        """Seconds during which the (N,) row mask holds, each row holding until the next."""
+        if self.rows < 2:
+            return 0.0
+        return float(np.sum(self.dt_s[mask[:-1]]))
+
+    def events(self, kind: str) -> tuple[run_log.RunEvent, ...]:
+        return self._by_kind.get(kind, ())
+
+    @cached_property
+    def _by_kind(self) -> dict[str, tuple[run_log.RunEvent, ...]]:
+        grouped: dict[str, list[run_log.RunEvent]] = {}
+        for event in self.log.events:
+            grouped.setdefault(event.kind, []).append(event)
+        return {k: tuple(v) for k, v in grouped.items()}
+
+    def config_number(self, key: str) -> float | None:
+        """A number from ``meta.config`` (None when absent).
+
+        Raises:
+            ConfigError: the key is present but not a finite number.
+        """
+        if key not in self.log.meta.config:
+            return None
+        value = self.log.meta.config[key]
+        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+            raise ConfigError(f"meta.config.{key}: expected a finite number, got {value!r}")
+        return float(value)
+
+    # --- the 10 Hz signals ----------------------------------------------------------------------
+    @cached_property
+    def emergency_rows(self) -> np.ndarray:
+        """(N,) bool: rows in the emergency-stop state or within the window after an emergency or takeover."""
+        mask = self.state == _EMERGENCY_CODE
+        window = self.comfort.emergency_window_s
+        for event in (*self.events("emergency_stop"), *self.events("takeover")):
+            mask |= (self.t_s >= event.t_s) & (self.t_s <= event.t_s + window)
+        return mask
+
+    @cached_property
+    def _windows(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Window means: (K,) window index, mean time, mean acceleration, any-emergency flag."""
+        if self.rows == 0:
+            empty = np.zeros(0)
+            return empty.astype(np.int64), empty, empty, empty.astype(bool)
+        # The small offset keeps a sample that lands on a window edge (0.1 s, 0.2 s, ...) in the later
+        # window despite binary rounding of the tick.
+        index = np.floor((self.t_s - self.t_s[0]) / RESAMPLE_PERIOD_S + 1e-6).astype(np.int64)
+        windows, inverse, counts = np.unique(index, return_inverse=True, return_counts=True)
+        t_mean = np.bincount(inverse, weights=self.t_s) / counts
+        a_mean = np.bincount(inverse, weights=self.accel_mps2) / counts
+        emergency = np.bincount(inverse, weights=self.emergency_rows.astype(float)) > 0.0
+        return windows, t_mean, a_mean, emergency
+
+    @property
+    def accel_10hz_mps2(self) -> np.ndarray:
+        """(K,) acceleration averaged over each 0.1 s window that holds samples."""
+        return self._windows[2]
+
+    @property
+    def accel_10hz_t_s(self) -> np.ndarray:
+        return self._windows[1]
+
+    @cached_property
+    def _jerk(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        windows, t_mean, a_mean, emergency = self._windows
+        # Differentiate only between adjacent windows: across a gap in the trace there is no estimate.
+        adjacent = np.diff(windows) == 1
+        jerk = (np.diff(a_mean) / np.diff(t_mean))[adjacent] if len(windows) > 1 else np.zeros(0)
+        t_mid = (0.5 * (t_mean[1:] + t_mean[:-1]))[adjacent] if len(windows) > 1 else np.zeros(0)
+        excluded = (emergency[1:] | emergency[:-1])[adjacent] if len(windows) > 1 else np.zeros(0, bool)
+        return t_mid, jerk, excluded
+
+    @property
+    def jerk_mps3(self) -> np.ndarray:
+        """(K-1,) jerk between adjacent 0.1 s windows (fewer where the trace has gaps)."""
+        return self._jerk[1]
+
+    @property
+    def jerk_t_s(self) -> np.ndarray:
+        return self._jerk[0]
+
+    @cached_property
+    def hard_braking_events(self) -> int:
+        enter = self.comfort.hard_braking_mps2
+        leave = enter + self.comfort.hard_braking_release_mps2
+        count, braking = 0, False
+        for a in self.accel_10hz_mps2.tolist():
+            if not braking and a <= enter:
+                count, braking = count + 1, True
+            elif braking and a > leave:
+                braking = False
+        return count
+
+    @cached_property
+    def comfort_compliant(self) -> bool:
+        c = self.comfort
+        keep_a = ~self._windows[3]
+        accel = self.accel_10hz_mps2[keep_a]
+        jerk = self.jerk_mps3[~self._jerk[2]]
+        return bool(
+            np.all(accel <= c.max_accel_mps2)
+            and np.all(accel >= -c.max_decel_mps2)
+            and np.all(np.abs(jerk) <= c.max_abs_jerk_mps3)
+        )
+
+    # --- rules -----------------------------------------------------------------------------------
+    def violations(self, rule: str) -> tuple[run_log.RunEvent, ...]:
+        return tuple(e for e in self.events("rule_violation") if e.data.get("rule") == rule)
+
+    @cached_property
+    def over_limit_rows(self) -> np.ndarray:
+        """(N,) bool: rows inside speeding episodes that the referee flagged with a violation.
+
+        With ``speed_limit_mps`` in the config an episode is a maximal run of speed above limit plus
+        tolerance, counted when a ``speed_limit`` violation falls inside it (or at the sample after
+        it). Without it, the episode around each violation is the run of samples at least as fast as
+        the slowest sample of the ``speed_hold_s`` before the violation, which the referee saw over the
+        limit throughout: a lower-bound estimate.
+        """
+        mask = np.zeros(self.rows, dtype=bool)
+        flagged = [e.t_s for e in self.violations("speed_limit")]
+        if not flagged or self.rows == 0:
+            return mask
+        limit = self.config_number("speed_limit_mps")
+        if limit is not None:
+            tolerance = self.config_number("speed_tolerance_mps")
+            threshold = limit + (0.5 if tolerance is None else tolerance)
+            for start, stop in _runs(self.speed_mps > threshold):
+                t_end = self.t_s[min(stop, self.rows - 1)]
+                if any(self.t_s[start] <= t <= t_end for t in flagged):
+                    mask[start:stop] = True
+            return mask
+        hold = self.config_number("speed_hold_s")
+        hold_s = 1.0 if hold is None else hold
+        for t in flagged:
+            at = int(np.searchsorted(self.t_s, t, side="right")) - 1
+            if at < 0:
+                continue
+            first = int(np.searchsorted(self.t_s, t - hold_s, side="left"))
+            threshold = float(np.min(self.speed_mps[first : at + 1]))
+            for start, stop in _runs(self.speed_mps >= threshold):
+                if start <= at < stop:
+                    mask[start:stop] = True
+                    break
+        return mask
+
+    @cached_property
+    def progress_ratio(self) -> float:
+        expected = self.config_number("expected_distance_m")
+        if expected is None:
+            return 1.0
+        if expected <= 0.0:
+            raise ConfigError(f"meta.config.expected_distance_m: expected a number > 0, got {expected}")
+        return self.distance_m / expected
+
+    @cached_property
+    def min_ttc_s(self) -> float | None:
+        values = [float(e.data["ttc_s"]) for e in self.events("min_ttc")]
+        return min(values) if values else None
+
+
+MetricFn = Callable[[RunSignals], MetricResult]
+_REGISTRY: dict[str, MetricFn] = {}
+
+
+def register_metric(name: str) -> Callable[[MetricFn], MetricFn]:
+    """Decorator adding a metric function under ``name``; names are unique."""
+
+    def add(fn: MetricFn) -> MetricFn:
+        if name in _REGISTRY:
+            raise ConfigError(f"register_metric: expected a new metric name, got {name!r} twice")
+        _REGISTRY[name] = fn
+        return fn
+
+    return add
+
+
+def metric_names() -> tuple[str, ...]:
+    """All registered metric names, in registration order."""
+    return tuple(_REGISTRY)
+
+
+def metric(name: str) -> MetricFn:
+    """The metric function registered under ``name``."""
+    if name not in _REGISTRY:
+        raise ConfigError(f"metric: expected one of {sorted(_REGISTRY)}, got {name!r}")
+    return _REGISTRY[name]
+
+
+def _ok(value: MetricValue) -> MetricResult:
+    return MetricResult(value, True)
+
+
+def _mean(values: list[float]) -> MetricResult:
+    return _ok(float(np.mean(values))) if values else INVALID
+
+
+def _max(values: list[float]) -> MetricResult:
+    return _ok(max(values)) if values else INVALID
+
+
+def _field(sig: RunSignals, kind: str, name: str) -> list[float]:
+    return [float(e.data[name]) for e in sig.events(kind)]
+
+
+def _count(kind: str) -> MetricFn:
+    return lambda sig: _ok(len(sig.events(kind)))
+
+
+# --- run identity ----------------------------------------------------------------------------------
+def _meta_field(name: str) -> MetricFn:
+    return lambda sig: _ok(getattr(sig.log.meta, name))
+
+
+for _name in ("seed", "weather", "perception_mode", "scenario_name", "map_name"):
+    register_metric(_name)(_meta_field(_name))
+
+
+# --- Snow Lion's Table 2 -----------------------------------------------------------------------------
+@register_metric("duration_s")
+def _duration(sig: RunSignals) -> MetricResult:
+    return _ok(sig.duration_s)
+
+
+@register_metric("distance_m")
+def _distance(sig: RunSignals) -> MetricResult:
+    return _ok(sig.distance_m)
+
+
+@register_metric("max_speed_mps")
+def _max_speed(sig: RunSignals) -> MetricResult:
+    return _ok(float(np.max(sig.speed_mps))) if sig.rows else INVALID
+
+
+@register_metric("mean_speed_mps")
+def _mean_speed(sig: RunSignals) -> MetricResult:
+    return _ok(sig.distance_m / sig.duration_s) if sig.duration_s > 0.0 else INVALID
+
+
+@register_metric("share_time_at_or_above_9kph")
+def _share_fast(sig: RunSignals) -> MetricResult:
+    if sig.duration_s <= 0.0:
+        return INVALID
+    return _ok(sig.time_where(sig.speed_mps >= SPEED_9KPH_MPS) / sig.duration_s)
+
+
+@register_metric("min_accel_mps2")
+def _min_accel(sig: RunSignals) -> MetricResult:
+    return _ok(float(np.min(sig.accel_mps2))) if sig.rows else INVALID
+
+
+@register_metric("max_accel_mps2")
+def _max_accel(sig: RunSignals) -> MetricResult:
+    return _ok(float(np.max(sig.accel_mps2))) if sig.rows else INVALID
+
+
+@register_metric("min_jerk_mps3")
+def _min_jerk(sig: RunSignals) -> MetricResult:
+    return _ok(float(np.min(sig.jerk_mps3))) if len(sig.jerk_mps3) else INVALID
+
+
+@register_metric("max_jerk_mps3")
+def _max_jerk(sig: RunSignals) -> MetricResult:
+    return _ok(float(np.max(sig.jerk_mps3))) if len(sig.jerk_mps3) else INVALID
+
+
+@register_metric("hard_braking_events")
+def _hard_braking(sig: RunSignals) -> MetricResult:
+    return _ok(sig.hard_braking_events)
+
+
+@register_metric("km_per_hard_braking")
+def _km_per_braking(sig: RunSignals) -> MetricResult:
+    n = sig.hard_braking_events
+    return _ok(sig.distance_m / 1000.0 / n) if n else INVALID
+
+
+@register_metric("km_per_takeover")
+def _km_per_takeover(sig: RunSignals) -> MetricResult:
+    n = len(sig.events("takeover"))
+    return _ok(sig.distance_m / 1000.0 / n) if n else INVALID
+
+
+# --- safety ------------------------------------------------------------------------------------------
+register_metric("collisions_total")(_count("collision"))
+
+
+@register_metric("collisions_at_fault")
+def _at_fault(sig: RunSignals) -> MetricResult:
+    return _ok(sum(1 for e in sig.events("collision") if e.data["at_fault"]))
+
+
+@register_metric("collisions_not_at_fault")
+def _not_at_fault(sig: RunSignals) -> MetricResult:
+    return _ok(sum(1 for e in sig.events("collision") if not e.data["at_fault"]))
+
+
+register_metric("takeovers")(_count("takeover"))
+
+
+def _takeovers_for(reason: str) -> MetricFn:
+    return lambda sig: _ok(sum(1 for e in sig.events("takeover") if e.data["reason"] == reason))
+
+
+for _reason in run_log.TAKEOVER_REASONS:
+    register_metric(f"takeovers_{_reason}")(_takeovers_for(_reason))
+register_metric("emergency_stops")(_count("emergency_stop"))
+
+
+@register_metric("min_ttc_s")
+def _min_ttc(sig: RunSignals) -> MetricResult:
+    return INVALID if sig.min_ttc_s is None else _ok(sig.min_ttc_s)
+
+
+# --- rules -------------------------------------------------------------------------------------------
+register_metric("rule_violations")(_count("rule_violation"))
+
+
+def _violations_of(rule: str) -> MetricFn:
+    return lambda sig: _ok(len(sig.violations(rule)))
+
+
+for _rule in run_log.RULES:
+    register_metric(f"rule_violations_{_rule}")(_violations_of(_rule))
+
+
+@register_metric("rule_violations_other")
+def _other_violations(sig: RunSignals) -> MetricResult:
+    return _ok(sum(1 for e in sig.events("rule_violation") if e.data["rule"] not in run_log.RULES))
+
+
+register_metric("intersection_entries")(_count("intersection_entry"))
+
+
+@register_metric("intersection_entries_out_of_order")
+def _out_of_order(sig: RunSignals) -> MetricResult:
+    return _ok(sum(1 for e in sig.events("intersection_entry") if not e.data["order_ok"]))
+
+
+@register_metric("time_over_speed_limit_s")
+def _time_over_limit(sig: RunSignals) -> MetricResult:
+    return _ok(sig.time_where(sig.over_limit_rows))
+
+
+# --- service -----------------------------------------------------------------------------------------
+register_metric("stops_served")(_count("stop_served"))
+register_metric("stops_missed")(_count("stop_missed"))
+register_metric("passengers_served")(_count("passenger_boarded"))
+register_metric("passengers_boarded")(_count("passenger_boarded"))
+register_metric("passengers_alighted")(_count("passenger_alighted"))
+register_metric("mean_wait_s")(lambda sig: _mean(_field(sig, "passenger_boarded", "wait_s")))
+register_metric("max_wait_s")(lambda sig: _max(_field(sig, "passenger_boarded", "wait_s")))
+register_metric("mean_ride_s")(lambda sig: _mean(_field(sig, "passenger_alighted", "ride_s")))
+register_metric("max_ride_s")(lambda sig: _max(_field(sig, "passenger_alighted", "ride_s")))
+register_metric("pullover_curb_gap_mean_m")(lambda sig: _mean(_field(sig, "stop_served", "curb_gap_m")))
+register_metric("pullover_curb_gap_max_m")(lambda sig: _max(_field(sig, "stop_served", "curb_gap_m")))
+register_metric("pullover_longitudinal_error_mean_m")(
+    lambda sig: _mean(_field(sig, "stop_served", "longitudinal_error_m"))
+)
+register_metric("pullover_longitudinal_error_max_m")(
+    lambda sig: _max(_field(sig, "stop_served", "longitudinal_error_m"))
+)
+
+
+@register_metric("loops_completed")
+def _loops(sig: RunSignals) -> MetricResult:
+    return _ok(max((int(e.data["loop"]) for e in sig.events("loop_completed")), default=0))
+
+
+def _time_share_of(code: int) -> MetricFn:
+    def share(sig: RunSignals) -> MetricResult:
+        if sig.duration_s <= 0.0:
+            return INVALID
+        return _ok(sig.time_where(sig.state == code) / sig.duration_s)
+
+    return share
+
+
+for _code, _state in enumerate(run_log.STATE_NAMES):
+    register_metric(f"time_share_{_state}")(_time_share_of(_code))
+
+
+# --- closed-loop score -------------------------------------------------------------------------------
+@register_metric("progress_ratio")
+def _progress_ratio(sig: RunSignals) -> MetricResult:
+    return _ok(sig.progress_ratio)
+
+
+@register_metric("ttc_compliant")
+def _ttc_compliant(sig: RunSignals) -> MetricResult:
+    return _ok(int(sig.min_ttc_s is None or sig.min_ttc_s >= TTC_THRESHOLD_S))
+
+
+@register_metric("speed_limit_compliance")
+def _speed_compliance(sig: RunSignals) -> MetricResult:
+    if sig.duration_s <= 0.0:
+        return INVALID
+    return _ok(1.0 - sig.time_where(sig.over_limit_rows) / sig.duration_s)
+
+
+@register_metric("comfort_compliant")
+def _comfort_compliant(sig: RunSignals) -> MetricResult:
+    return _ok(int(sig.comfort_compliant)) if sig.rows else INVALID
+
+
+@register_metric("closed_loop_score")
+def _closed_loop_score(sig: RunSignals) -> MetricResult:
+    if sig.duration_s <= 0.0:
+        return INVALID
+    at_fault = any(e.data["at_fault"] for e in sig.events("collision"))
+    off_road = bool(sig.violations("drivable_area"))
+    multiplier = 0.0 if (at_fault or off_road) else 1.0
+    if sig.progress_ratio < MIN_PROGRESS_RATIO:
+        multiplier *= 0.5
+    terms = {
+        "ttc": float(sig.min_ttc_s is None or sig.min_ttc_s >= TTC_THRESHOLD_S),
+        "speed_limit": 1.0 - sig.time_where(sig.over_limit_rows) / sig.duration_s,
+        "comfort": float(sig.comfort_compliant),
+        "progress": min(1.0, sig.progress_ratio),
+    }
+    weighted = sum(SCORE_WEIGHTS[k] * v for k, v in terms.items()) / sum(SCORE_WEIGHTS.values())
+    return _ok(multiplier * weighted)
+
+
+def _clean(result: MetricResult, name: str) -> MetricValue:
+    if not result.valid or result.value is None:
+        return None
+    value = result.value
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, bool):
+        return int(value)
+    if isinstance(value, int | str):
+        return value
+    if isinstance(value, float):
+        # Adding 0.0 turns -0.0 into 0.0, so identical runs print identically.
+        return round(value, 6) + 0.0 if math.isfinite(value) else None
+    raise MetricsError(f"metric {name}: expected a float, int, str or None, got {type(value).__name__}")
+
+
+_SHUTTLE_COMFORT = ComfortLimits()
+
+
+def compute_metrics(log: run_log.RunLog, comfort: ComfortLimits = _SHUTTLE_COMFORT) -> dict[str, MetricValue]:
+    """Every registered metric of one run, as a flat dict (``None`` where not measurable).
+
+    Args:
+        log: the run log.
+        comfort: comfort limits (the shuttle defaults of :class:`ComfortLimits`).
+
+    Returns:
+        Metric name -> value; floats rounded to 6 decimals; depends on nothing but the log.
+
+    Raises:
+        ConfigError: an optional ``meta.config`` key the metrics read is not a finite number.
+    """
+    sig = RunSignals(log, comfort)
+    return {name: _clean(fn(sig), name) for name, fn in _REGISTRY.items()}
+
+
+def _write_json(doc: Mapping[str, Any], path: Path, what: str) -> Path:
+    try:
+        text = json.dumps(dict(doc), sort_keys=True, indent=2, allow_nan=False)
+    except (TypeError, ValueError) as exc:
+        raise MetricsError(
+            f"{what}: expected JSON-able values (finite numbers, str, None), got {exc}"
+        ) from None
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text + "\n", encoding="utf-8")
+    os.replace(tmp, path)
+    return path
+
+
+def write_metrics(metrics: Mapping[str, MetricValue], run_dir: str | os.PathLike[str]) -> Path:
+    """Write ``metrics.json`` (sorted keys, indent 2) into ``run_dir``; returns its path."""
+    return _write_json(metrics, Path(run_dir) / METRICS_FILE, "write_metrics")
+
+
+def write_timing(timing: Mapping[str, Any], run_dir: str | os.PathLike[str]) -> Path:
+    """Write the wall-clock ``timing.json`` (sorted keys, indent 2) into ``run_dir``; returns its path."""
+    return _write_json(timing, Path(run_dir) / TIMING_FILE, "write_timing")
+
+
+def load_metrics(run_dir: str | os.PathLike[str]) -> dict[str, MetricValue]:
+    """Read ``metrics.json`` back (for sweeps that aggregate many runs).
+
+    Raises:
+        MetricsError: naming the file when it is missing or not a JSON object.
+    """
+    path = Path(run_dir) / METRICS_FILE
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise MetricsError(f"{path}: expected a metrics file, got no such file") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise MetricsError(f"{path}: expected metrics JSON, got unreadable content ({exc})") from None
+    if not isinstance(doc, dict):
+        raise MetricsError(f"{path}: expected a JSON object, got {type(doc).__name__}")
+    return doc
