@@ -1,1 +1,1 @@
-"""lastmile.evaluation."""
+"""lastmile.evaluation: metrics from run logs, the closed-loop score, and reports with plots."""

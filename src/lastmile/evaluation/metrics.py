@@ -129,6 +129,10 @@ class ComfortLimits:
             raise ConfigError(f"ComfortLimits.hard_braking_mps2: expected a finite number < 0, got {got!r}")
 
 
+SHUTTLE_COMFORT = ComfortLimits()
+"""The default comfort limits of a shuttle with standing riders."""
+
+
 @dataclass(frozen=True, slots=True)
 class MetricResult:
     """A metric's value and whether it could be measured (``valid=False`` is written as null)."""
@@ -140,7 +144,7 @@ class MetricResult:
 INVALID = MetricResult(None, False)
 
 
-def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+def true_runs(mask: np.ndarray) -> list[tuple[int, int]]:
     """(start, stop) index pairs of the maximal runs of True in a 1-D bool array."""
     padded = np.concatenate([[False], mask, [False]]).astype(np.int8)
     edges = np.flatnonzero(np.diff(padded))
@@ -312,7 +316,7 @@ class RunSignals:
         if limit is not None:
             tolerance = self.config_number("speed_tolerance_mps")
             threshold = limit + (0.5 if tolerance is None else tolerance)
-            for start, stop in _runs(self.speed_mps > threshold):
+            for start, stop in true_runs(self.speed_mps > threshold):
                 t_end = self.t_s[min(stop, self.rows - 1)]
                 if any(self.t_s[start] <= t <= t_end for t in flagged):
                     mask[start:stop] = True
@@ -325,7 +329,7 @@ class RunSignals:
                 continue
             first = int(np.searchsorted(self.t_s, t - hold_s, side="left"))
             threshold = float(np.min(self.speed_mps[first : at + 1]))
-            for start, stop in _runs(self.speed_mps >= threshold):
+            for start, stop in true_runs(self.speed_mps >= threshold):
                 if start <= at < stop:
                     mask[start:stop] = True
                     break
@@ -625,10 +629,7 @@ def _clean(result: MetricResult, name: str) -> MetricValue:
     raise MetricsError(f"metric {name}: expected a float, int, str or None, got {type(value).__name__}")
 
 
-_SHUTTLE_COMFORT = ComfortLimits()
-
-
-def compute_metrics(log: run_log.RunLog, comfort: ComfortLimits = _SHUTTLE_COMFORT) -> dict[str, MetricValue]:
+def compute_metrics(log: run_log.RunLog, comfort: ComfortLimits = SHUTTLE_COMFORT) -> dict[str, MetricValue]:
     """Every registered metric of one run, as a flat dict (``None`` where not measurable).
 
     Args:
