@@ -89,7 +89,7 @@ def test_linear_acceleration_gives_its_slope_as_jerk() -> None:
 def test_jerk_uses_window_means_so_a_single_tick_spike_is_damped() -> None:
     n = 500
     accel = np.zeros(n)
-    accel[250] = 1.0  # one 20 ms spike: 50 m/s^3 at the raw rate, 10 m/s^3 after 0.1 s averaging
+    accel[250] = 1.0  # one 20 ms spike: 50 m/s^3 at the raw rate, 2 m/s^3 after 0.1 s averaging
     out = m.compute_metrics(make_log(np.full(n, 3.0), accel))
     assert out["max_jerk_mps3"] == pytest.approx(2.0, abs=1e-6)
     assert out["min_jerk_mps3"] == pytest.approx(-2.0, abs=1e-6)
