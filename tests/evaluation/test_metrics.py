@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from lastmile.core.errors import ConfigError
 from lastmile.evaluation import metrics as m
@@ -301,3 +304,15 @@ def test_registry_refuses_a_duplicate_name() -> None:
     with pytest.raises(ConfigError, match="twice"):
         m.register_metric("distance_m")(lambda sig: m.MetricResult(0.0))
     assert m.metric("distance_m")(m.RunSignals(make_log(np.ones(3)), m.ComfortLimits())).valid
+
+
+@given(st.lists(st.booleans(), max_size=60))
+def test_true_runs_are_the_maximal_runs_of_the_mask(bits: list[bool]) -> None:
+    mask = np.array(bits, dtype=bool)
+    runs = m.true_runs(mask)
+    rebuilt = np.zeros(len(mask), dtype=bool)
+    for start, stop in runs:
+        rebuilt[start:stop] = True
+    assert np.array_equal(rebuilt, mask)
+    # Maximal: consecutive runs are separated by at least one False.
+    assert all(prev[1] < nxt[0] for prev, nxt in itertools.pairwise(runs))

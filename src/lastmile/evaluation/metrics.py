@@ -1,45 +1,4 @@
-"""Metrics from a run log: Snow Lion's Table 2 set, safety, rules, service and a nuPlan-style score.
-
-Every metric is a small function registered by name (:func:`register_metric`) that reads a
-:class:`RunSignals` (the log plus signals derived once) and returns a :class:`MetricResult`
-``(value, valid)``, as in Waymax. :func:`compute_metrics` runs the registry and flattens the results into
-one dict; an invalid result (nothing to measure, e.g. a wait time with no passengers) becomes ``None``,
-which ``metrics.json`` writes as ``null``. Metrics depend only on the log, never on wall-clock time, so the
-same seed and configuration give an identical dict; floats are rounded to 6 decimals.
-
-Definitions (units in the names):
-
-- ``duration_s``: span of the ego trace (last minus first ``t_s``); ``distance_m``: length of the driven
-  path (sum of the distances between consecutive ego positions); ``mean_speed_mps`` = distance / duration.
-- ``share_time_at_or_above_9kph``: time-weighted share of the trace with speed >= 2.5 m/s (each sample
-  holds until the next), stops and dwell included, as in Snow Lion's Table 2.
-- ``min_accel_mps2``/``max_accel_mps2``: extremes of the logged longitudinal acceleration.
-- Jerk: the acceleration is first averaged over consecutive 0.1 s windows (10 Hz) and then
-  differentiated between adjacent windows. This mirrors an IMU-rate estimate like the logs behind Snow
-  Lion's Table 2; differentiating the raw 50 Hz trace would turn every controller step into a spike that
-  no passenger feels. ``min_jerk_mps3``/``max_jerk_mps3`` are the extremes of that 10 Hz jerk.
-- ``hard_braking_events``: entries into episodes where the 10 Hz acceleration is <= -1 m/s² (Snow Lion's
-  braking criterion); an episode ends once the acceleration rises above -1 + 0.1 m/s², so that a
-  signal hovering at the threshold counts once. ``km_per_hard_braking`` and ``km_per_takeover`` are
-  distance in km divided by the count, and ``None`` when the count is zero (infinity is not JSON).
-- ``passengers_served``: passengers picked up (``passenger_boarded`` events); ``passengers_alighted``
-  counts drop-offs. Riders still waiting at the end of the run have no wait time in the log, so
-  ``mean_wait_s``/``max_wait_s`` cover boarded riders only.
-- ``min_ttc_s``: the smallest time-to-collision logged; ``None`` when it never fell below the 3 s
-  logging threshold of the simulator.
-- ``closed_loop_score`` (in [0, 1], in the spirit of nuPlan's):
-  ``M * (5 * ttc + 4 * speed_limit + 2 * comfort + 5 * progress) / 16`` where the multiplier ``M`` is
-  0 with any at-fault collision, 0 with any drivable-area violation, 0.5 when the progress ratio is below
-  0.2, else 1; ``ttc`` is 1 when ``min_ttc_s`` is None or >= 0.95 s, else 0; ``speed_limit`` is 1 minus
-  the share of time spent over the limit in episodes the referee flagged; ``comfort`` is 1 when the 10 Hz
-  acceleration and jerk stay inside :class:`ComfortLimits` outside emergencies, else 0; ``progress`` is
-  ``min(1, distance / expected_distance_m)`` with ``expected_distance_m`` from ``meta.config`` (ratio 1
-  when it is absent).
-
-Optional ``meta.config`` keys read here: ``expected_distance_m`` (progress), ``speed_limit_mps`` and
-``speed_tolerance_mps`` (default 0.5, the referee's) to measure time over the limit, ``speed_hold_s``
-(default 1.0, the referee's) for the estimate used when the limit is absent.
-"""
+"""Metrics from a run log: Snow Lion's Table 2 set, safety, rules, service and a nuPlan-style score."""
 
 from __future__ import annotations
 
@@ -631,6 +590,47 @@ def _clean(result: MetricResult, name: str) -> MetricValue:
 
 def compute_metrics(log: run_log.RunLog, comfort: ComfortLimits = SHUTTLE_COMFORT) -> dict[str, MetricValue]:
     """Every registered metric of one run, as a flat dict (``None`` where not measurable).
+
+    Each metric is a small function registered by name (:func:`register_metric`) that reads a
+    :class:`RunSignals` (the log plus signals derived once) and returns a :class:`MetricResult`
+    ``(value, valid)``, as in Waymax. An invalid result (nothing to measure, e.g. a wait time with no
+    passengers) becomes ``None``, which ``metrics.json`` writes as ``null``. Metrics depend only on the
+    log, never on wall-clock time, so the same seed and configuration give an identical dict.
+
+    Definitions (units in the names):
+
+    - ``duration_s``: span of the ego trace (last minus first ``t_s``); ``distance_m``: length of the
+      driven path (sum of the distances between consecutive ego positions); ``mean_speed_mps`` =
+      distance / duration.
+    - ``share_time_at_or_above_9kph``: time-weighted share of the trace with speed >= 2.5 m/s (each
+      sample holds until the next), stops and dwell included, as in Snow Lion's Table 2.
+    - ``min_accel_mps2``/``max_accel_mps2``: extremes of the logged longitudinal acceleration.
+    - Jerk: the acceleration is first averaged over consecutive 0.1 s windows (10 Hz) and then
+      differentiated between adjacent windows. This mirrors an IMU-rate estimate like the logs behind
+      Snow Lion's Table 2; differentiating the raw 50 Hz trace would turn every controller step into a
+      spike that no passenger feels. ``min_jerk_mps3``/``max_jerk_mps3`` are extremes of that jerk.
+    - ``hard_braking_events``: entries into episodes where the 10 Hz acceleration is <= -1 m/s² (Snow
+      Lion's braking criterion); an episode ends once the acceleration rises above -1 + 0.1 m/s², so a
+      signal hovering at the threshold counts once. ``km_per_hard_braking`` and ``km_per_takeover``
+      are distance in km divided by the count, and ``None`` when the count is zero (infinity is not
+      JSON).
+    - ``passengers_served``: passengers picked up (``passenger_boarded`` events);
+      ``passengers_alighted`` counts drop-offs. Riders still waiting at the end of the run have no
+      wait time in the log, so ``mean_wait_s``/``max_wait_s`` cover boarded riders only.
+    - ``min_ttc_s``: the smallest time-to-collision logged; ``None`` when it never fell below the
+      simulator's 3 s logging threshold.
+    - ``closed_loop_score`` (in [0, 1], in the spirit of nuPlan's):
+      ``M * (5 * ttc + 4 * speed_limit + 2 * comfort + 5 * progress) / 16``. The multiplier ``M`` is 0
+      with any at-fault collision, 0 with any drivable-area violation, else 1, halved when the
+      progress ratio is below 0.2; ``ttc`` is 1 when ``min_ttc_s`` is None or >= 0.95 s, else 0;
+      ``speed_limit`` is 1 minus the share of time over the limit in episodes the referee flagged;
+      ``comfort`` is 1 when the 10 Hz acceleration and jerk stay inside :class:`ComfortLimits` outside
+      emergencies, else 0; ``progress`` is ``min(1, distance / expected_distance_m)`` with
+      ``expected_distance_m`` from ``meta.config`` (ratio 1 when it is absent).
+
+    Optional ``meta.config`` keys read here: ``expected_distance_m`` (progress), ``speed_limit_mps``
+    and ``speed_tolerance_mps`` (default 0.5, the referee's) to measure time over the limit,
+    ``speed_hold_s`` (default 1.0, the referee's) for the estimate used when the limit is absent.
 
     Args:
         log: the run log.
