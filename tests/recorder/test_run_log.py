@@ -205,3 +205,13 @@ def test_empty_writer_gives_an_empty_log(tmp_path: Path) -> None:
     assert log.ego.shape == (0, 9) and log.events == () and len(log.agents) == 0
     log.save(tmp_path)
     assert RunLog.load(tmp_path) == log
+
+
+def test_referee_event_triples_are_added_as_they_come() -> None:
+    w = RunLogWriter(_meta())
+    w.add_events([(0.5, "min_ttc", {"ttc_s": 1.5, "agent_id": 3}), (0.2, "loop_completed", {"loop": 1})])
+    log = w.finish()
+    assert [(e.t_s, e.kind) for e in log.events] == [(0.2, "loop_completed"), (0.5, "min_ttc")]
+    w = RunLogWriter(_meta())
+    with pytest.raises(RunLogError, match="loop_completed event expected field 'loop'"):
+        w.add_events([(0.2, "loop_completed", {"laps": 1})])
