@@ -1,0 +1,52 @@
+"""The default service in closed loop over seeds 0-4: the outcomes issue #2 guarantees."""
+
+from __future__ import annotations
+
+import functools
+
+import pytest
+
+from lastmile.evaluation.metrics import compute_metrics
+from lastmile.recorder.run_log import RunLog
+from lastmile.runner.closed_loop import run_scenario
+from lastmile.sim.scenario import default_service
+
+pytestmark = pytest.mark.closed_loop
+SEEDS = (0, 1, 2, 3, 4)
+
+
+@functools.cache
+def _run(seed: int) -> tuple[RunLog, dict]:
+    log = run_scenario(default_service(seed=seed))
+    return log, compute_metrics(log)
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_default_service_has_no_collision_and_no_takeover(seed):
+    log, m = _run(seed)
+    assert m["collisions_total"] == 0, log.events_of("collision")
+    assert m["takeovers"] == 0, log.events_of("takeover")
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_default_service_breaks_no_rule(seed):
+    log, m = _run(seed)
+    assert m["rule_violations"] == 0, log.events_of("rule_violation")
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_every_stop_with_a_waiting_rider_is_served_at_the_curb(seed):
+    log, m = _run(seed)
+    served = log.events_of("stop_served")
+    assert m["stops_missed"] == 0, log.events_of("stop_missed")
+    assert {e.data["stop_id"] for e in served} >= {"S1", "S2", "S3", "S4"}
+    for e in served:
+        assert 0.0 < e.data["curb_gap_m"] <= 0.3, e
+    assert m["passengers_served"] >= 4
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_the_shuttle_stops_at_the_all_way_stop(seed):
+    log, _ = _run(seed)
+    entries = log.events_of("intersection_entry")
+    assert entries and all(e.data["order_ok"] for e in entries)

@@ -1,0 +1,312 @@
+"""The simulator assembled from a scenario: world, sensors, riders, referee and operator, in loop phases.
+
+The runner calls the phases in DESIGN.md's order: ``advance_world``, ``sensor_frames``, (the stack),
+``apply_command``, ``referee``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from lastmile.core.errors import ConfigError
+from lastmile.core.geometry import SE2
+from lastmile.core.object_class import ObjectClass
+from lastmile.core.polyline import Polyline
+from lastmile.core.rng import component_rng
+from lastmile.core.sensor_frames import SensorFrame
+from lastmile.core.vehicle import VehicleGeometry
+from lastmile.core.vehicle_messages import ActuatorCommand
+from lastmile.hdmap.model import HDMap
+from lastmile.hdmap.routing import route, route_polyline
+from lastmile.sim.agents import Agent, PathCar, StopLineOnPath, WalkingAgent
+from lastmile.sim.judge import Judge
+from lastmile.sim.operator import OperatorModel
+from lastmile.sim.passengers import PassengerModel
+from lastmile.sim.scenario import Scenario
+from lastmile.sim.sensors import RCS_DBSM, SensorSuite
+from lastmile.sim.vehicle_model import ActuatorDynamics, KinematicBicycle, VehicleState
+from lastmile.sim.weather import parse_weather
+from lastmile.sim.world import World
+
+CAR_LENGTH_M, CAR_WIDTH_M = 4.5, 1.8
+LANE_WIDTH_M = 3.5
+
+
+class Simulation:
+    """Ground truth and everything that measures or judges it."""
+
+    def __init__(
+        self,
+        scenario: Scenario,
+        hdmap: HDMap,
+        service_route: Polyline,
+        geometry: VehicleGeometry,
+        tick_us: int,
+    ) -> None:
+        self.scenario = scenario
+        self.tick_us = tick_us
+        self.dt_s = tick_us / 1e6
+        self.service_route = service_route
+        x, y, yaw = service_route.point_at(scenario.start_route_s_m)
+        ego = KinematicBicycle(geometry, ActuatorDynamics(), VehicleState(x, y, yaw))
+        agents = _build_agents(scenario, hdmap, service_route)
+        self.world = World(
+            hdmap, ego, agents, parse_weather(scenario.weather), component_rng(scenario.seed, "agents")
+        )
+        self.sensors = SensorSuite(self.world, scenario.seed, tick_us)
+        self.passengers = PassengerModel(
+            hdmap.stops, scenario.passengers, component_rng(scenario.seed, "passengers"), geometry.seats
+        )
+        self.judge = Judge(self.world, self.passengers, service_route)
+        self.operator = OperatorModel(self.judge)
+        self._pending_side_cars = sorted(
+            ((c.spawn_t_s, c) for c in scenario.side_road_cars), key=lambda item: item[0]
+        )
+        self._side_paths = {
+            turn: _side_road_path(hdmap, turn) for turn in {c.turn for c in scenario.side_road_cars}
+        }
+        self._next_id = len(agents) + 1
+
+    @property
+    def radar_mounts(self) -> dict[str, SE2]:
+        """Where the radars sit, which the stack is configured with (as a real vehicle's calibration)."""
+        return {r.sensor_id: r.base_from_sensor for r in self.sensors.radars}
+
+    def advance_world(self, tick: int) -> None:
+        w = self.world
+        w.t_s = tick * self.dt_s
+        while self._pending_side_cars and self._pending_side_cars[0][0] <= w.t_s:
+            _, spec = self._pending_side_cars.pop(0)
+            path, lines = self._side_paths[spec.turn]
+            first_line = lines[0].s_m if lines else path.length_m / 2.0
+            start_s = max(0.0, first_line - spec.start_m)
+            w.agents.append(_path_car(self._next_id, path, start_s, spec.speed_mps, lines))
+            self._next_id += 1
+        self.passengers.step_arrivals(w.t_s)
+        for stop_id, source in self.passengers.new_calls:
+            self.sensors.push_stop_call(tick * self.tick_us, stop_id, source)
+        self.passengers.new_calls.clear()
+        for agent in w.agents:
+            if agent.active:
+                agent.step(w, self.dt_s)
+        w.update_intersections()
+
+    def sensor_frames(self, tick: int) -> list[SensorFrame]:
+        self.sensors.sample(tick)
+        return self.sensors.deliver(tick * self.tick_us)
+
+    def apply_command(self, command: ActuatorCommand | None) -> None:
+        """Safety gate then vehicle dynamics: the operator's brake overrides the stack while in control."""
+        s = self.world.ego.state
+        if self.operator.in_control:
+            self.world.ego.step(self.dt_s, -3.0, s.steer_front_rad, s.steer_rear_rad, False)
+            door_cmd = False
+        elif command is None:
+            self.world.ego.step(self.dt_s, -1.5, s.steer_front_rad, s.steer_rear_rad, False)
+            door_cmd = False
+        else:
+            self.world.ego.step(
+                self.dt_s,
+                command.accel_mps2,
+                command.steer_front_rad,
+                command.steer_rear_rad,
+                command.emergency_brake,
+            )
+            door_cmd = command.door_open
+        self._door(door_cmd)
+
+    def _door(self, door_cmd: bool) -> None:
+        p, j = self.passengers, self.judge
+        stopped = self.world.ego.state.speed_mps < 0.05
+        at_stop = j.stop_at() if stopped else None
+        was_closed = p.door_position == 0.0
+        for kind, data in p.step_door(self.world.t_s, self.dt_s, door_cmd, at_stop, stopped):
+            j.emit(kind, **data)
+        if was_closed and p.door_position > 0.0 and at_stop is not None and p.visit is None:
+            p.visit = j.open_visit(at_stop)
+        if p.door_position == 0.0 and p.visit is not None:
+            v = p.visit
+            j.emit(
+                "stop_served",
+                stop_id=v.stop_id,
+                curb_gap_m=v.curb_gap_m,
+                longitudinal_error_m=v.longitudinal_error_m,
+                boarded=v.boarded,
+                alighted=v.alighted,
+            )
+            p.visit = None
+        self.sensors.door_open = p.door_position > 0.0
+        self.sensors.person_in_doorway = p.person_in_doorway
+
+    def referee(self, takeover_request: bool) -> None:
+        self.judge.step()
+        self.operator.step(takeover_request, self.passengers.door_position > 0.0)
+
+
+def _path_car(
+    agent_id: int, path: Polyline, s_m: float, speed_mps: float, lines: list[StopLineOnPath]
+) -> PathCar:
+    x, y, yaw = path.point_at(s_m)
+    return PathCar(
+        id=agent_id,
+        cls=ObjectClass.CAR,
+        x_m=x,
+        y_m=y,
+        yaw_rad=yaw,
+        speed_mps=speed_mps,
+        length_m=CAR_LENGTH_M,
+        width_m=CAR_WIDTH_M,
+        rcs_dbsm=RCS_DBSM[ObjectClass.CAR],
+        path=path,
+        s_m=s_m,
+        desired_speed_mps=speed_mps,
+        stop_lines=[StopLineOnPath(s_m=line.s_m, stop_line_id=line.stop_line_id) for line in lines],
+        despawn_at_end=not path.closed,
+    )
+
+
+def _stop_lines_on(path: Polyline, hdmap: HDMap) -> list[StopLineOnPath]:
+    out = []
+    for sl in hdmap.stop_lines:
+        if sl.all_way_stop_id is None:
+            continue
+        mid = np.asarray(sl.line, dtype=float).mean(axis=0)
+        f = path.project(float(mid[0]), float(mid[1]))
+        lanelet = hdmap.lanelets[sl.lanelet_id].centerline
+        heading = lanelet.heading_at(lanelet.length_m - 0.1)
+        if abs(f.d_m) < 2.0 and math.cos(path.heading_at(f.s_m) - heading) > 0.7:
+            out.append(StopLineOnPath(s_m=f.s_m, stop_line_id=sl.id))
+    return sorted(out, key=lambda line: line.s_m)
+
+
+def _side_road_path(hdmap: HDMap, turn: str) -> tuple[Polyline, list[StopLineOnPath]]:
+    """Side road northbound from its far end, through the all-way stop, turning onto the ring."""
+    start = _lanelet_heading(hdmap, (381.75, -120.0), math.pi / 2) or _lanelet_heading(
+        hdmap, (378.25, -120.0), math.pi / 2
+    )
+    goal = (
+        _lanelet_heading(hdmap, (300.0, 1.75), math.pi)
+        if turn == "left"
+        else _lanelet_heading(hdmap, (460.0, -1.75), 0.0)
+    )
+    if start is None or goal is None:
+        raise ConfigError(
+            f"side_road_cars: expected the campus map's side road and ring lanes, not found for {turn!r}"
+        )
+    path = route_polyline(hdmap, route(hdmap, start, goal))
+    return path, _stop_lines_on(path, hdmap)
+
+
+def _lanelet_heading(hdmap: HDMap, xy: tuple[float, float], heading_rad: float) -> int | None:
+    lid = hdmap.lanelet_at(*xy)
+    if lid is None:
+        return None
+    centre = hdmap.lanelets[lid].centerline
+    f = centre.project(*xy)
+    return lid if math.cos(centre.heading_at(f.s_m) - heading_rad) > 0.7 else None
+
+
+def _build_agents(scenario: Scenario, hdmap: HDMap, service_route: Polyline) -> list[Agent]:
+    agents: list[Agent] = []
+    ccw_lines = _stop_lines_on(service_route, hdmap)
+    cw_path = Polyline(service_route.offset(LANE_WIDTH_M).xy_m[::-1].copy(), closed=True)
+    cw_lines = _stop_lines_on(cw_path, hdmap)
+    for car in scenario.ring_cars:
+        if car.direction == "ccw":
+            agents.append(_path_car(len(agents) + 1, service_route, car.start_s_m, car.speed_mps, ccw_lines))
+        else:
+            agents.append(_path_car(len(agents) + 1, cw_path, car.start_s_m, car.speed_mps, cw_lines))
+    stops = {s.id: s for s in hdmap.stops}
+    for parked in scenario.parked_cars:
+        if parked.stop not in stops:
+            raise ConfigError(f"parked_cars.stop: expected one of {sorted(stops)}, got {parked.stop!r}")
+        curb = stops[parked.stop].curb
+        along = curb.length_m - parked.from_end_m - CAR_LENGTH_M / 2.0
+        x, y, yaw = curb.point_at(along)
+        off = 0.2 + CAR_WIDTH_M / 2.0
+        agents.append(
+            Agent(
+                id=len(agents) + 1,
+                cls=ObjectClass.CAR,
+                x_m=x - off * math.sin(yaw),
+                y_m=y + off * math.cos(yaw),
+                yaw_rad=yaw,
+                speed_mps=0.0,
+                length_m=CAR_LENGTH_M,
+                width_m=CAR_WIDTH_M,
+                rcs_dbsm=RCS_DBSM[ObjectClass.CAR],
+            )
+        )
+    for group in scenario.crosswalk_pedestrians:
+        if not 0 <= group.crosswalk < len(hdmap.crosswalks):
+            raise ConfigError(
+                f"crosswalk_pedestrians.crosswalk: expected 0..{len(hdmap.crosswalks) - 1}, got {group.crosswalk}"
+            )
+        centre = np.asarray(hdmap.crosswalks[group.crosswalk].polygon, dtype=float).mean(axis=0)
+        f = service_route.project(float(centre[0]), float(centre[1]))
+        start, end = _crossing(service_route, f.s_m, from_left=False)
+        agents.append(
+            _walker(
+                len(agents) + 1,
+                ObjectClass.PEDESTRIAN,
+                start,
+                end,
+                group.speed_mps,
+                3.5,
+                respawn=True,
+                start_after_s=group.first_after_s,
+            )
+        )
+    for walker in scenario.walkers:
+        start, end = _crossing(service_route, walker.route_s_m, walker.from_left)
+        cls = ObjectClass.ANIMAL if walker.kind == "goose" else ObjectClass.PEDESTRIAN
+        agent = _walker(len(agents) + 1, cls, start, end, walker.speed_mps, walker.gap_s)
+        agent.trigger_distance_m = walker.trigger_m
+        agent.min_trigger_distance_m = walker.min_trigger_m
+        if cls == ObjectClass.ANIMAL:
+            agent.pause_every_m, agent.pause_s = 1.5, 2.0  # geese stop and peck on the way
+        agents.append(agent)
+    return agents
+
+
+def _crossing(
+    route_: Polyline, s_m: float, from_left: bool
+) -> tuple[tuple[float, float], tuple[float, float]]:
+    """Kerb-to-kerb crossing points at route s: the road spans d in [-1.75, +5.25] from the lane centre."""
+    x, y, h = route_.point_at(s_m)
+    nx, ny = -math.sin(h), math.cos(h)
+    left = (x + 6.5 * nx, y + 6.5 * ny)
+    right = (x - 3.0 * nx, y - 3.0 * ny)
+    return (left, right) if from_left else (right, left)
+
+
+def _walker(
+    agent_id: int,
+    cls: ObjectClass,
+    start: tuple[float, float],
+    end: tuple[float, float],
+    speed_mps: float,
+    gap_s: float,
+    respawn: bool = False,
+    start_after_s: float = 0.0,
+) -> WalkingAgent:
+    small = cls == ObjectClass.ANIMAL
+    return WalkingAgent(
+        id=agent_id,
+        cls=cls,
+        x_m=start[0],
+        y_m=start[1],
+        yaw_rad=math.atan2(end[1] - start[1], end[0] - start[0]),
+        speed_mps=0.0,
+        length_m=0.5 if small else 0.5,
+        width_m=0.3 if small else 0.5,
+        rcs_dbsm=RCS_DBSM[cls],
+        start_xy=start,
+        end_xy=end,
+        walk_speed_mps=speed_mps,
+        gap_s=gap_s,
+        respawn=respawn,
+        start_after_s=start_after_s,
+    )

@@ -1,0 +1,239 @@
+"""The shuttle's software, wired: localization, radar tracking, decision, planning, control.
+
+It sees only sensor frames, the map and its own configuration (import-linter keeps ``sim`` out).
+Modules run at integer divisors of the base tick: planning and decision at 10 Hz, control at 50 Hz,
+estimation whenever a frame arrives.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+from lastmile.control.lateral import LateralConfig, make_lateral_controller
+from lastmile.control.longitudinal import LongitudinalConfig, WatonobusLongitudinalController, stopping_gap_m
+from lastmile.core.geometry import SE2
+from lastmile.core.objects import TrackedObjects, empty_tracks
+from lastmile.core.polyline import Polyline
+from lastmile.core.route_obstacles import route_obstacles
+from lastmile.core.sensor_frames import (
+    DoorSensorFrame,
+    GnssInsFrame,
+    ImuFrame,
+    RadarFrame,
+    SensorFrame,
+    StopCallFrame,
+    WheelOdometryFrame,
+)
+from lastmile.core.stamp import Stamp
+from lastmile.core.vehicle import VehicleGeometry
+from lastmile.core.vehicle_messages import (
+    ActuatorCommand,
+    BehaviourDecision,
+    BehaviourState,
+    Heartbeat,
+    HmiMessage,
+    StackOutput,
+    Trajectory,
+    VehicleStatus,
+)
+from lastmile.decision.behaviour_fsm import BehaviourStateMachine, DecisionConfig, DecisionInput
+from lastmile.decision.mission import MissionManager
+from lastmile.hdmap.layers import SLayerDatabase
+from lastmile.localization.ekf import PoseEkf, PoseEkfConfig
+from lastmile.planning.local_path import LocalPathConfig, LocalPathPlanner
+from lastmile.stack.profiler import ModuleProfiler
+from lastmile.tracking.radar_tracker import RadarObjectTracker, RadarTrackerConfig
+
+HMI_TEXT = {
+    BehaviourState.NORMAL_DRIVING: ("front", "Departing", "chime_depart"),
+    BehaviourState.INTERSECTION: ("front", "Stopping at intersection", ""),
+    BehaviourState.PULLOVER: ("rear", "Pulling over to stop", "indicator_right"),
+    BehaviourState.ONBOARDING: ("inside", "Doors open - please board", "door_chime"),
+    BehaviourState.MERGING: ("rear", "Merging - please wait", "indicator_left"),
+    BehaviourState.EMERGENCY_STOP: ("inside", "Emergency stop - please hold on", "alarm"),
+}
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class StackConfig:
+    """The stack's own configuration (never the simulator's).
+
+    Attributes:
+        tick_us: base tick of the loop that calls ``tick``.
+        planning_period_ticks, control_period_ticks: module rates as multiples of the tick.
+        lateral_controller: "heading_pid" (WATonoBus, default) or "pure_pursuit".
+        radar_mounts: base_from_sensor pose of each radar by sensor id.
+        serve_all_stops: timetable mode (serve every stop) instead of on request.
+    """
+
+    tick_us: int = 10_000
+    planning_period_ticks: int = 10
+    control_period_ticks: int = 2
+    lateral_controller: str = "heading_pid"
+    radar_mounts: dict[str, SE2] = field(default_factory=dict)
+    serve_all_stops: bool = False
+    decision: DecisionConfig = field(default_factory=DecisionConfig)
+    path: LocalPathConfig = field(default_factory=LocalPathConfig)
+    longitudinal: LongitudinalConfig = field(default_factory=LongitudinalConfig)
+    lateral: LateralConfig = field(default_factory=LateralConfig)
+    ekf: PoseEkfConfig = field(default_factory=PoseEkfConfig)
+    tracker: RadarTrackerConfig = field(default_factory=RadarTrackerConfig)
+
+
+class ShuttleStack:
+    """Implements :class:`lastmile.core.vehicle.VehicleSoftware`."""
+
+    def __init__(self, layers: SLayerDatabase, geometry: VehicleGeometry, config: StackConfig) -> None:
+        self.layers = layers
+        self.geometry = geometry
+        self.config = config
+        self.route: Polyline = layers.centerline
+        self.profiler = ModuleProfiler()
+        self.ekf = PoseEkf(config.ekf)
+        self.tracker = RadarObjectTracker(config.tracker)
+        self.mission = MissionManager(
+            stop_order=tuple(rs.stop.id for rs in layers.stops), serve_all=config.serve_all_stops
+        )
+        self.fsm = BehaviourStateMachine(layers=layers, geometry=geometry, mission=self.mission, config=config.decision)
+        self.planner = LocalPathPlanner(self.route, geometry.width_m / 2.0, config.path)
+        self.longitudinal = WatonobusLongitudinalController(config.longitudinal)
+        self.lateral = make_lateral_controller(config.lateral_controller, geometry, config.lateral)
+        self._tick = 0
+        self._speed_mps = 0.0
+        self._yaw_rate_radps = 0.0
+        self._door_open = False
+        self._person_in_doorway = False
+        self._route_s: float | None = None
+        self._route_d = 0.0
+        self._decision: BehaviourDecision | None = None
+        self._trajectory: Trajectory | None = None
+        self._path: Polyline | None = None
+        self._tracks: TrackedObjects = empty_tracks(Stamp(0))
+        self._command = ActuatorCommand(stamp=Stamp(0), accel_mps2=-1.0, steer_front_rad=0.0, steer_rear_rad=0.0)
+        self._last_state = BehaviourState.NORMAL_DRIVING
+
+    # ------------------------------------------------------------------------------------------------
+    def tick(self, now: Stamp, frames: Sequence[SensorFrame]) -> StackOutput:
+        p = self.profiler
+        hmi: list[HmiMessage] = []
+        with p.measure("estimation"):
+            for frame in frames:
+                self._ingest(frame)
+        c = self.config
+        status = None
+        if self._tick % c.planning_period_ticks == 0:
+            with p.measure("tracking"):
+                self._tracks = self.tracker.tracks(now)
+            with p.measure("decision"):
+                self._decide(now)
+            with p.measure("planning"):
+                self._plan(now)
+            if self._decision is not None and self._decision.state != self._last_state:
+                screen, text, sound = HMI_TEXT[self._decision.state]
+                hmi.append(HmiMessage(stamp=now, screen=screen, text=text, sound=sound))
+                self._last_state = self._decision.state
+        if self._tick % c.control_period_ticks == 0:
+            with p.measure("control"):
+                self._control(now)
+        if self._tick % c.planning_period_ticks == 0:
+            status = self._status(now)
+        self._tick += 1
+        beats = tuple(
+            Heartbeat(stamp=now, module=m, healthy=True) for m in ("localization", "tracking", "decision", "planning", "control")
+        ) if status is not None else ()
+        return StackOutput(command=self._command, status=status, decision=self._decision, hmi=tuple(hmi), heartbeats=beats)
+
+    def _ingest(self, frame: SensorFrame) -> None:
+        if isinstance(frame, WheelOdometryFrame):
+            self._speed_mps = frame.speed_mps
+            self.ekf.predict(frame.stamp, frame.speed_mps, self._yaw_rate_radps)
+        elif isinstance(frame, ImuFrame):
+            self._yaw_rate_radps = frame.yaw_rate_radps
+        elif isinstance(frame, GnssInsFrame):
+            self.ekf.update_gnss(frame)
+        elif isinstance(frame, RadarFrame):
+            est = self.ekf.estimate(frame.stamp)
+            mount = self.config.radar_mounts.get(frame.sensor_id)
+            if est.valid and mount is not None:
+                self.tracker.update(frame, est.map_from_base, mount)
+        elif isinstance(frame, DoorSensorFrame):
+            self._door_open = frame.door_open
+            self._person_in_doorway = frame.person_in_doorway
+        elif isinstance(frame, StopCallFrame):
+            self.mission.on_call(frame)
+
+    def _decide(self, now: Stamp) -> None:
+        est = self.ekf.estimate(now)
+        if not est.valid:
+            self._decision = None
+            return
+        pose = est.map_from_base
+        f = self.route.project(pose.x_m, pose.y_m, hint_s_m=self._route_s, window_m=20.0)
+        self._route_s, self._route_d = f.s_m, f.d_m
+        self._decision = self.fsm.step(
+            DecisionInput(
+                stamp=now,
+                map_from_base=pose,
+                speed_mps=est.speed_mps,
+                route_s_m=f.s_m,
+                route_d_m=f.d_m,
+                tracks=self._tracks,
+                door_open=self._door_open,
+                person_in_doorway=self._person_in_doorway,
+                trajectory=self._trajectory,
+            )
+        )
+
+    def _plan(self, now: Stamp) -> None:
+        if self._decision is None or self._route_s is None:
+            return
+        obstacles = route_obstacles(self._tracks, self.route, self._route_s, self.geometry.front_from_rear_axle_m)
+        self._trajectory = self.planner.plan(now, self._route_s, self._route_d, self._decision, obstacles)
+        self._path = Polyline(self._trajectory.points[:, :2])
+
+    def _control(self, now: Stamp) -> None:
+        d, path, est = self._decision, self._path, self.ekf.estimate(now)
+        dt = self.config.control_period_ticks * self.config.tick_us / 1e6
+        if d is None or path is None or not est.valid or self._route_s is None:
+            # No pose or plan yet: hold the brakes.
+            self._command = ActuatorCommand(stamp=now, accel_mps2=-1.5, steer_front_rad=0.0, steer_rear_rad=0.0)
+            self.longitudinal.reset(est.speed_mps if est.valid else 0.0)
+            return
+        pose = est.map_from_base
+        front_s = self._route_s + self.geometry.front_from_rear_axle_m
+        # Route s advances between planning cycles; extrapolate it so the stop point stays sharp at 50 Hz.
+        fp = self.route.project(pose.x_m, pose.y_m, hint_s_m=self._route_s, window_m=5.0)
+        front_s = fp.s_m + self.geometry.front_from_rear_axle_m
+        gap = stopping_gap_m(d.stop_at_s_m, front_s)
+        if gap is not None and self.route.closed:
+            length = self.route.length_m
+            gap = (gap + length / 2.0) % length - length / 2.0
+        assert self._trajectory is not None
+        path_s = path.project(pose.x_m, pose.y_m).s_m
+        v_ref = self.longitudinal.reference_speed_mps(self._trajectory, path_s, d.speed_limit_mps)
+        accel = self.longitudinal.step(dt, est.speed_mps, v_ref, gap)
+        emergency = d.state == BehaviourState.EMERGENCY_STOP and est.speed_mps > 0.05
+        steer_f, steer_r = self.lateral.step(dt, pose, est.speed_mps, path)
+        self._command = ActuatorCommand(
+            stamp=now,
+            accel_mps2=accel,
+            steer_front_rad=steer_f,
+            steer_rear_rad=steer_r,
+            door_open=d.door_open,
+            emergency_brake=emergency,
+        )
+
+    def _status(self, now: Stamp) -> VehicleStatus:
+        est = self.ekf.estimate(now)
+        d = self._decision
+        return VehicleStatus(
+            stamp=now,
+            map_from_base=est.map_from_base if est.valid else None,
+            speed_mps=est.speed_mps,
+            state=d.state if d is not None else BehaviourState.NORMAL_DRIVING,
+            route_s_m=self._route_s if self._route_s is not None else math.nan,
+            door_open=self._door_open,
+            healthy=est.valid,
+        )
