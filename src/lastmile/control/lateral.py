@@ -53,6 +53,17 @@ def _lookahead_point(path: Polyline, ref: SE2, lookahead_m: float) -> tuple[floa
     return x, y
 
 
+def _aim(
+    map_from_base: SE2, speed_mps: float, path: Polyline, g: VehicleGeometry, c: LateralConfig
+) -> tuple[float, float, float]:
+    """Heading error to the lookahead point (rad), distance to it (m) and the lookahead distance (m)."""
+    ref = _reference_pose(map_from_base, g, g.all_wheel_steer)
+    lookahead = max(c.lookahead_min_m, c.lookahead_time_s * speed_mps)
+    lx, ly = _lookahead_point(path, ref, lookahead)
+    error = wrap_angle_rad(math.atan2(ly - ref.y_m, lx - ref.x_m) - ref.yaw_rad)
+    return error, max(math.hypot(lx - ref.x_m, ly - ref.y_m), 1e-3), lookahead
+
+
 class LookaheadHeadingPid:
     """WATonoBus: PID on the heading error to a lookahead point; rear = -delta with all-wheel steer."""
 
@@ -64,10 +75,7 @@ class LookaheadHeadingPid:
 
     def step(self, dt_s: float, map_from_base: SE2, speed_mps: float, path: Polyline) -> tuple[float, float]:
         g, c = self.geometry, self.config
-        ref = _reference_pose(map_from_base, g, g.all_wheel_steer)
-        lookahead = max(c.lookahead_min_m, c.lookahead_time_s * speed_mps)
-        lx, ly = _lookahead_point(path, ref, lookahead)
-        error = wrap_angle_rad(math.atan2(ly - ref.y_m, lx - ref.x_m) - ref.yaw_rad)
+        error, _, lookahead = _aim(map_from_base, speed_mps, path, g, c)
         if speed_mps > 0.1:
             self._integral = min(
                 max(self._integral + error * dt_s, -c.integral_limit_rad_s), c.integral_limit_rad_s
@@ -91,11 +99,7 @@ class PurePursuitController:
 
     def step(self, dt_s: float, map_from_base: SE2, speed_mps: float, path: Polyline) -> tuple[float, float]:
         g, c = self.geometry, self.config
-        ref = _reference_pose(map_from_base, g, g.all_wheel_steer)
-        lookahead = max(c.lookahead_min_m, c.lookahead_time_s * speed_mps)
-        lx, ly = _lookahead_point(path, ref, lookahead)
-        alpha = wrap_angle_rad(math.atan2(ly - ref.y_m, lx - ref.x_m) - ref.yaw_rad)
-        dist = max(math.hypot(lx - ref.x_m, ly - ref.y_m), 1e-3)
+        alpha, dist, _ = _aim(map_from_base, speed_mps, path, g, c)
         curvature = 2.0 * math.sin(alpha) / dist
         if g.all_wheel_steer:
             delta = math.atan(curvature * g.wheelbase_m / 2.0)
