@@ -24,6 +24,7 @@ class LocalPathConfig:
         behind_m, ahead_m: route length planned behind and ahead of the rear axle.
         waypoint_step_m: spacing of the shifted waypoints the Bezier chain passes through.
         pullover_m: route length of the lateral move into a bay; merge_m likewise out of it.
+        settle_m: straight run along the curb between the end of the pull-over curve and the spot.
         lane_half_width_m: half the lane width used to bound the nudge when the map has no layer.
     """
 
@@ -31,6 +32,7 @@ class LocalPathConfig:
     ahead_m: float = 60.0
     waypoint_step_m: float = 2.0
     pullover_m: float = 16.0
+    settle_m: float = 5.0
     merge_m: float = 18.0
     lane_half_width_m: float = 1.75
     field: PotentialFieldConfig = field(default_factory=PotentialFieldConfig)
@@ -58,7 +60,9 @@ class LocalPathPlanner:
                 hint_s_m=float(s_m[0]) + 30.0,
                 window_m=80.0,
             ).s_m
-            s1 = _unwrap_near(spot_rear_s, float(s_m[0]), self.route) - 1.0
+            # End the curve a few metres before the spot so the last stretch is straight and parallel to
+            # the curb: a lookahead controller needs that run to settle its lateral error before stopping.
+            s1 = _unwrap_near(spot_rear_s, float(s_m[0]), self.route) - c.settle_m
             return lateral_transition_m(s_m, s1 - c.pullover_m, s1, 0.0, spot_d)
         if decision.state == BehaviourState.MERGING and decision.merge_from_s_m is not None:
             start_d = spot_d if spot_d is not None else ego_d_m

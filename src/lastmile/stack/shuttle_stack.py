@@ -96,7 +96,9 @@ class ShuttleStack:
         self.mission = MissionManager(
             stop_order=tuple(rs.stop.id for rs in layers.stops), serve_all=config.serve_all_stops
         )
-        self.fsm = BehaviourStateMachine(layers=layers, geometry=geometry, mission=self.mission, config=config.decision)
+        self.fsm = BehaviourStateMachine(
+            layers=layers, geometry=geometry, mission=self.mission, config=config.decision
+        )
         self.planner = LocalPathPlanner(self.route, geometry.width_m / 2.0, config.path)
         self.longitudinal = WatonobusLongitudinalController(config.longitudinal)
         self.lateral = make_lateral_controller(config.lateral_controller, geometry, config.lateral)
@@ -111,7 +113,9 @@ class ShuttleStack:
         self._trajectory: Trajectory | None = None
         self._path: Polyline | None = None
         self._tracks: TrackedObjects = empty_tracks(Stamp(0))
-        self._command = ActuatorCommand(stamp=Stamp(0), accel_mps2=-1.0, steer_front_rad=0.0, steer_rear_rad=0.0)
+        self._command = ActuatorCommand(
+            stamp=Stamp(0), accel_mps2=-1.0, steer_front_rad=0.0, steer_rear_rad=0.0
+        )
         self._last_state = BehaviourState.NORMAL_DRIVING
 
     # ------------------------------------------------------------------------------------------------
@@ -140,10 +144,17 @@ class ShuttleStack:
         if self._tick % c.planning_period_ticks == 0:
             status = self._status(now)
         self._tick += 1
-        beats = tuple(
-            Heartbeat(stamp=now, module=m, healthy=True) for m in ("localization", "tracking", "decision", "planning", "control")
-        ) if status is not None else ()
-        return StackOutput(command=self._command, status=status, decision=self._decision, hmi=tuple(hmi), heartbeats=beats)
+        beats = (
+            tuple(
+                Heartbeat(stamp=now, module=m, healthy=True)
+                for m in ("localization", "tracking", "decision", "planning", "control")
+            )
+            if status is not None
+            else ()
+        )
+        return StackOutput(
+            command=self._command, status=status, decision=self._decision, hmi=tuple(hmi), heartbeats=beats
+        )
 
     def _ingest(self, frame: SensorFrame) -> None:
         if isinstance(frame, WheelOdometryFrame):
@@ -189,7 +200,9 @@ class ShuttleStack:
     def _plan(self, now: Stamp) -> None:
         if self._decision is None or self._route_s is None:
             return
-        obstacles = route_obstacles(self._tracks, self.route, self._route_s, self.geometry.front_from_rear_axle_m)
+        obstacles = route_obstacles(
+            self._tracks, self.route, self._route_s, self.geometry.front_from_rear_axle_m
+        )
         self._trajectory = self.planner.plan(now, self._route_s, self._route_d, self._decision, obstacles)
         self._path = Polyline(self._trajectory.points[:, :2])
 
@@ -198,7 +211,9 @@ class ShuttleStack:
         dt = self.config.control_period_ticks * self.config.tick_us / 1e6
         if d is None or path is None or not est.valid or self._route_s is None:
             # No pose or plan yet: hold the brakes.
-            self._command = ActuatorCommand(stamp=now, accel_mps2=-1.5, steer_front_rad=0.0, steer_rear_rad=0.0)
+            self._command = ActuatorCommand(
+                stamp=now, accel_mps2=-1.5, steer_front_rad=0.0, steer_rear_rad=0.0
+            )
             self.longitudinal.reset(est.speed_mps if est.valid else 0.0)
             return
         pose = est.map_from_base
