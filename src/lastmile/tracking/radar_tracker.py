@@ -1,8 +1,8 @@
-"""Radar object tracker: Hungarian association, constant-velocity Kalman filters, M-of-N confirmation.
+"""Radar object tracker: gated Hungarian association, constant-velocity Kalman filters, M-of-N lifecycle.
 
-Radar object lists carry position and over-ground velocity, so the filter measures all four states.
-Several radars feed one tracker; frames are applied in the order given (full out-of-order rollback is
-issue #4's aUToTrack design).
+Radar object lists carry position and over-ground velocity, so each track's filter measures all four
+of its states. Several radars (front, rear) feed one tracker in the map frame. Tracks live in one
+struct-of-arrays table so that a frame costs a few dozen NumPy calls whatever the number of tracks.
 """
 
 from __future__ import annotations
@@ -13,21 +13,44 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from lastmile.core.errors import MessageError
+from lastmile.core.errors import ConfigError, MessageError
 from lastmile.core.geometry import SE2
 from lastmile.core.object_class import ObjectClass
 from lastmile.core.objects import TRACK_COLUMNS, TrackedObjects, empty_tracks
-from lastmile.core.sensor_frames import RadarFrame
-from lastmile.core.stamp import Stamp
+from lastmile.core.sensor_frames import RADAR_COLUMNS, RadarFrame
+from lastmile.core.stamp import US_PER_S, Stamp
+from lastmile.tracking import cv_kalman
+from lastmile.tracking.radar_class import RadarClassConfig, classify_radar_tracks
 
-# Footprints by class (length, width) in m: radar object lists carry no extent.
-_SIZE = {
+# Footprints by class (length_m, width_m): radar object lists carry no extent.
+_FOOTPRINT_M = {
     ObjectClass.UNKNOWN: (1.0, 1.0),
     ObjectClass.CAR: (4.5, 1.8),
-    ObjectClass.PEDESTRIAN: (0.5, 0.5),
+    ObjectClass.PEDESTRIAN: (0.6, 0.6),
     ObjectClass.CYCLIST: (1.8, 0.6),
-    ObjectClass.ANIMAL: (0.5, 0.3),
+    ObjectClass.ANIMAL: (0.8, 0.4),
 }
+_LENGTH_BY_CLASS = np.array([_FOOTPRINT_M[ObjectClass(i)][0] for i in range(len(ObjectClass))])
+_WIDTH_BY_CLASS = np.array([_FOOTPRINT_M[ObjectClass(i)][1] for i in range(len(ObjectClass))])
+
+# Columns of the internal track table (float64; stamps in microseconds are exact below 2**53).
+_X, _Y, _VX, _VY = 0, 1, 2, 3
+_PP, _PV, _VV = 4, 5, 6
+_T_US, _BORN_US, _SEEN_US = 7, 8, 9
+_HITS, _CHANCES, _CONFIRMED, _SENSORS = 10, 11, 12, 13
+_YAW, _RCS_SUM, _MAX_SPEED, _ID = 14, 15, 16, 17
+_NCOL = 18
+_STATE = slice(_X, _VY + 1)
+_COV = slice(_PP, _VV + 1)
+
+_MAX_SENSORS = 52  # sensor bits live in a float64 column: exact below 2**53
+
+_OUT_X, _OUT_VY = TRACK_COLUMNS.index("x_m"), TRACK_COLUMNS.index("vy_mps")
+_OUT_LENGTH, _OUT_WIDTH = TRACK_COLUMNS.index("length_m"), TRACK_COLUMNS.index("width_m")
+_OUT_YAW, _OUT_CLASS = TRACK_COLUMNS.index("yaw_rad"), TRACK_COLUMNS.index("class_id")
+_OUT_STD, _OUT_AGE = TRACK_COLUMNS.index("pos_std_m"), TRACK_COLUMNS.index("age_s")
+
+_INFEASIBLE = 1e9
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -35,155 +58,292 @@ class RadarTrackerConfig:
     """Tracker parameters.
 
     Attributes:
-        gate_m: largest position distance at which a detection may update a track.
-        accel_noise_mps2: white-acceleration process noise of the constant-velocity model.
-        pos_noise_m, vel_noise_mps: measurement noise (one sigma) of radar positions and velocities.
-        confirm_hits, confirm_window: a track is confirmed after this many hits in its first updates.
-        expire_s: a track unseen this long is deleted.
-        max_tracks: hard bound on live tracks (clutter storms must not grow memory without limit).
+        gate_m: largest position distance at which a detection may update a track, m (a hard cap:
+            an uncertain track must not swallow everything near it).
+        gate_chi2: bound on the 4-dof squared Mahalanobis distance of position and velocity;
+            18.5 is the 0.999 quantile.
+        accel_noise_mps2: white-acceleration process noise of the constant-velocity model, m/s^2 per
+            sqrt(Hz) (pedestrians and cars turning or braking gently).
+        pos_noise_m: radar position noise (one sigma) at zero range, m.
+        pos_noise_per_m: growth of position noise with range (azimuth error), m per m.
+        vel_noise_mps: radar over-ground velocity noise (one sigma), m/s.
+        confirm_hits: M of M-of-N: a tentative track is confirmed after this many detections ...
+        confirm_window: ... within its first N chances (frames from radars that have seen it).
+        t_expire_s: a track without detections for this long is deleted, s.
+        max_tracks: hard bound on live tracks; births beyond it are dropped (clutter storms must not
+            grow memory or time without limit).
+        min_speed_for_yaw_mps: below this speed the yaw is held, not taken from the velocity, m/s.
+        classes: the RCS and speed model behind ``class_id``.
     """
 
-    gate_m: float = 2.5
+    gate_m: float = 3.0
+    gate_chi2: float = 18.5
     accel_noise_mps2: float = 1.5
-    pos_noise_m: float = 0.3
-    vel_noise_mps: float = 0.3
+    pos_noise_m: float = 0.15
+    pos_noise_per_m: float = 0.005
+    vel_noise_mps: float = 0.2
     confirm_hits: int = 3
     confirm_window: int = 5
-    expire_s: float = 0.6
+    t_expire_s: float = 0.6
     max_tracks: int = 200
+    min_speed_for_yaw_mps: float = 0.5
+    classes: RadarClassConfig = field(default_factory=RadarClassConfig)
+
+    def __post_init__(self) -> None:
+        for name in (
+            "gate_m",
+            "gate_chi2",
+            "accel_noise_mps2",
+            "pos_noise_m",
+            "vel_noise_mps",
+            "t_expire_s",
+        ):
+            value = getattr(self, name)
+            if not (value > 0 and math.isfinite(value)):
+                raise ConfigError(f"RadarTrackerConfig.{name}: expected a positive number, got {value}")
+        if not self.pos_noise_per_m >= 0:
+            raise ConfigError(
+                "RadarTrackerConfig.pos_noise_per_m: expected a non-negative number, "
+                f"got {self.pos_noise_per_m}"
+            )
+        if not 1 <= self.confirm_hits <= self.confirm_window:
+            raise ConfigError(
+                "RadarTrackerConfig: expected 1 <= confirm_hits <= confirm_window, "
+                f"got {self.confirm_hits} and {self.confirm_window}"
+            )
+        if self.max_tracks < 1:
+            raise ConfigError(f"RadarTrackerConfig.max_tracks: expected at least 1, got {self.max_tracks}")
 
 
-@dataclass(slots=True)
-class _Track:
-    id: int
-    x: np.ndarray  # (4,) x, y, vx, vy
-    p: np.ndarray  # (4, 4)
-    stamp_us: int
-    born_us: int
-    last_seen_us: int
-    hits: int = 1
-    updates: int = 1
-    confirmed: bool = False
-    rcs_sum: float = 0.0
-    yaw_rad: float = 0.0
-    max_speed_mps: float = 0.0
-
-    def cls(self) -> ObjectClass:
-        rcs = self.rcs_sum / max(self.hits, 1)
-        if rcs >= 2.0:
-            return ObjectClass.CAR
-        if rcs < -11.0 and self.max_speed_mps < 1.0:
-            return ObjectClass.ANIMAL
-        if -10.0 <= rcs < 1.0:
-            return ObjectClass.CYCLIST if self.max_speed_mps > 3.0 else ObjectClass.PEDESTRIAN
-        return ObjectClass.UNKNOWN
-
-
-@dataclass
 class RadarObjectTracker:
-    """Tracks in the map frame from radar object lists."""
+    """Multi-object tracker in the map frame fed by radar object lists.
 
-    config: RadarTrackerConfig = field(default_factory=RadarTrackerConfig)
-    _tracks: list[_Track] = field(default_factory=list)
-    _next_id: int = 1
+    Lifecycle: every unmatched detection births a tentative track; a tentative track is confirmed
+    after ``confirm_hits`` detections within ``confirm_window`` chances and deleted as soon as it can
+    no longer make it; any track unseen for ``t_expire_s`` is deleted. Only confirmed tracks are
+    reported. A chance is a frame from a radar that has already detected the track, so the rear radar
+    does not count against an object only the front radar can see.
+    """
+
+    def __init__(self, config: RadarTrackerConfig | None = None) -> None:
+        self.config = config or RadarTrackerConfig()
+        self._table = np.zeros((0, _NCOL))
+        self._next_id = 1
+        self._sensor_bits: dict[str, int] = {}
+        self._latest_us = 0
+        self._accel_var = self.config.accel_noise_mps2**2
+        self._vel_var = self.config.vel_noise_mps**2
+
+    def __len__(self) -> int:
+        """Live tracks, tentative ones included."""
+        return int(self._table.shape[0])
 
     def update(self, frame: RadarFrame, map_from_base: SE2, base_from_sensor: SE2) -> None:
-        """Associate one radar frame with the tracks and update them."""
+        """Fuse one radar frame.
+
+        Args:
+            frame: the radar's object list at its capture stamp (positions and over-ground
+                velocities in the radar frame).
+            map_from_base: the vehicle pose at ``frame.stamp``.
+            base_from_sensor: the radar's mounting on the vehicle.
+
+        Raises:
+            MessageError: a negative stamp, or objects that are not a finite (N, 6) array.
+        """
+        objects = frame.objects
         if frame.stamp < 0:
             raise MessageError(f"RadarFrame.stamp: expected a non-negative stamp, got {frame.stamp}")
-        c = self.config
+        if objects.ndim != 2 or objects.shape[1] != len(RADAR_COLUMNS) or not np.isfinite(objects).all():
+            raise MessageError(
+                f"RadarFrame.objects: expected a finite (N, {len(RADAR_COLUMNS)}) array, "
+                f"got shape {objects.shape} with non-finite values or wrong columns"
+            )
         t_us = int(frame.stamp)
-        map_from_sensor = map_from_base.compose(base_from_sensor)
-        obj = frame.objects
-        if len(obj):
-            pos = map_from_sensor.apply_points(obj[:, 0:2])
-            cs, sn = math.cos(map_from_sensor.yaw_rad), math.sin(map_from_sensor.yaw_rad)
-            vel = np.c_[cs * obj[:, 2] - sn * obj[:, 3], sn * obj[:, 2] + cs * obj[:, 3]]
-            z = np.c_[pos, vel]
-        else:
-            z = np.zeros((0, 4))
-        predicted = [self._predicted(t, t_us) for t in self._tracks]
-        assigned: set[int] = set()
-        if len(z) and predicted:
-            cost = np.full((len(predicted), len(z)), 1e6)
-            for i, (x, _) in enumerate(predicted):
-                d = np.hypot(z[:, 0] - x[0], z[:, 1] - x[1])
-                cost[i] = np.where(d < c.gate_m, d, 1e6)
-            rows, cols = linear_sum_assignment(cost)
-            for i, j in zip(rows.tolist(), cols.tolist(), strict=True):
-                if cost[i, j] >= 1e6:
-                    continue
-                self._correct(self._tracks[i], predicted[i], z[j], float(obj[j, 4]), t_us)
-                assigned.add(j)
-        for j in range(len(z)):
-            if j not in assigned and len(self._tracks) < c.max_tracks:
-                self._birth(z[j], float(obj[j, 4]), t_us)
-        for t in self._tracks:
-            if t.last_seen_us != t_us and t.stamp_us <= t_us:
-                t.updates += 1
-        self._tracks = [
-            t
-            for t in self._tracks
-            if (t_us - t.last_seen_us) / 1e6 <= c.expire_s
-            and (t.confirmed or t.updates < c.confirm_window or t.hits >= c.confirm_hits)
-        ]
-
-    def _predicted(self, t: _Track, t_us: int) -> tuple[np.ndarray, np.ndarray]:
-        # A frame older than the track's state predicts it backward: an approximation until rollback.
-        # TODO(#4): rollback
-        dt = (t_us - t.stamp_us) / 1e6
-        f = np.eye(4)
-        f[0, 2] = f[1, 3] = dt
-        q = self.config.accel_noise_mps2**2
-        adt = abs(dt)
-        g = np.array([[adt**2 / 2, 0], [0, adt**2 / 2], [adt, 0], [0, adt]])
-        return f @ t.x, f @ t.p @ f.T + q * (g @ g.T)
-
-    def _correct(
-        self, t: _Track, pred: tuple[np.ndarray, np.ndarray], z: np.ndarray, rcs: float, t_us: int
-    ) -> None:
-        c = self.config
-        x, p = pred
-        r = np.diag([c.pos_noise_m**2] * 2 + [c.vel_noise_mps**2] * 2)
-        k = p @ np.linalg.inv(p + r)
-        t.x = x + k @ (z - x)
-        t.p = (np.eye(4) - k) @ p
-        t.stamp_us = max(t.stamp_us, t_us)
-        t.last_seen_us = max(t.last_seen_us, t_us)
-        t.hits += 1
-        t.updates += 1
-        t.rcs_sum += rcs
-        speed = math.hypot(t.x[2], t.x[3])
-        t.max_speed_mps = max(t.max_speed_mps, speed)
-        if speed > 0.5:
-            t.yaw_rad = math.atan2(t.x[3], t.x[2])
-        if t.hits >= c.confirm_hits:
-            t.confirmed = True
-
-    def _birth(self, z: np.ndarray, rcs: float, t_us: int) -> None:
-        c = self.config
-        p = np.diag([c.pos_noise_m**2] * 2 + [c.vel_noise_mps**2] * 2)
-        track = _Track(self._next_id, z.copy(), p, t_us, t_us, t_us, rcs_sum=rcs)
-        track.max_speed_mps = math.hypot(z[2], z[3])
-        self._tracks.append(track)
-        self._next_id += 1
+        self._latest_us = max(self._latest_us, t_us)
+        bit = self._sensor_bit(frame.sensor_id)
+        z, pos_var = self._to_map(objects, map_from_base.compose(base_from_sensor))
+        table = self._table
+        n_tracks = table.shape[0]
+        matched_tracks = np.zeros(0, dtype=np.intp)
+        matched_dets = np.zeros(0, dtype=np.intp)
+        if n_tracks and len(z):
+            # Tracks are predicted to the frame stamp, backwards for those already past it (a frame
+            # from a slower radar). TODO(#4): rollback
+            dt_s = (t_us - table[:, _T_US]) / US_PER_S
+            pred_state, pred_cov = cv_kalman.predict(table[:, _STATE], table[:, _COV], dt_s, self._accel_var)
+            matched_tracks, matched_dets = self._associate(pred_state, pred_cov, z, pos_var)
+            if len(matched_tracks):
+                self._correct(matched_tracks, matched_dets, pred_state, pred_cov, z, pos_var, objects, t_us)
+        self._count_chances(matched_tracks, bit)
+        self._birth(z, pos_var, objects, matched_dets, t_us, bit)
+        self._prune()
 
     def tracks(self, stamp: Stamp) -> TrackedObjects:
-        """Confirmed tracks predicted to ``stamp`` (map frame)."""
-        rows, ids = [], []
-        for t in self._tracks:
-            if not t.confirmed:
-                continue
-            x, p = self._predicted(t, int(stamp))
-            cls = t.cls()
-            length, width = _SIZE[cls]
-            row = [0.0] * len(TRACK_COLUMNS)
-            row[0:4] = x.tolist()
-            row[4:8] = [length, width, t.yaw_rad, float(cls)]
-            row[8] = math.sqrt(max(p[0, 0], p[1, 1]))
-            row[9] = (int(stamp) - t.born_us) / 1e6
-            rows.append(row)
-            ids.append(t.id)
-        if not rows:
+        """Confirmed tracks predicted to ``stamp``, in the map frame, with every TRACK_COLUMNS filled.
+
+        Tracks unseen for longer than ``t_expire_s`` at ``stamp`` are left out (they are deleted at
+        the next frame).
+        """
+        table = self._table
+        if table.shape[0]:
+            live = (table[:, _CONFIRMED] > 0) & (
+                stamp - table[:, _SEEN_US] <= self.config.t_expire_s * US_PER_S
+            )
+            table = table[live]
+        if table.shape[0] == 0:
             return empty_tracks(stamp)
-        return TrackedObjects(stamp=stamp, ids=np.array(ids, dtype=np.int64), table=np.array(rows))
+        c = self.config
+        dt_s = (stamp - table[:, _T_US]) / US_PER_S
+        state, cov = cv_kalman.predict(table[:, _STATE], table[:, _COV], dt_s, self._accel_var)
+        hits = table[:, _HITS]
+        cls = classify_radar_tracks(table[:, _RCS_SUM] / hits, hits, table[:, _MAX_SPEED], c.classes)
+        cls_index = cls.astype(np.intp)
+        speed = np.hypot(state[:, 2], state[:, 3])
+        moving = speed > c.min_speed_for_yaw_mps
+        out = np.empty((table.shape[0], len(TRACK_COLUMNS)))
+        out[:, _OUT_X : _OUT_VY + 1] = state
+        out[:, _OUT_LENGTH] = _LENGTH_BY_CLASS[cls_index]
+        out[:, _OUT_WIDTH] = _WIDTH_BY_CLASS[cls_index]
+        out[:, _OUT_YAW] = np.where(moving, np.arctan2(state[:, 3], state[:, 2]), table[:, _YAW])
+        out[:, _OUT_CLASS] = cls
+        out[:, _OUT_STD] = np.sqrt(cov[:, 0])
+        out[:, _OUT_AGE] = (stamp - table[:, _BORN_US]) / US_PER_S
+        return TrackedObjects(stamp=stamp, ids=table[:, _ID].astype(np.int64), table=out)
+
+    # --------------------------------------------------------------------------------------------
+    def _sensor_bit(self, sensor_id: str) -> float:
+        bit = self._sensor_bits.get(sensor_id)
+        if bit is None:
+            if len(self._sensor_bits) >= _MAX_SENSORS:
+                raise MessageError(
+                    f"RadarFrame.sensor_id: expected at most {_MAX_SENSORS} distinct radars, got "
+                    f"{sensor_id!r} after {sorted(self._sensor_bits)}"
+                )
+            bit = self._sensor_bits[sensor_id] = len(self._sensor_bits)
+        return float(1 << bit)
+
+    def _to_map(self, objects: np.ndarray, map_from_sensor: SE2) -> tuple[np.ndarray, np.ndarray]:
+        """Detections as (D, 4) map-frame x, y, vx, vy and their (D,) position variances."""
+        c, s = math.cos(map_from_sensor.yaw_rad), math.sin(map_from_sensor.yaw_rad)
+        x, y, vx, vy = objects[:, 0], objects[:, 1], objects[:, 2], objects[:, 3]
+        z = np.empty((objects.shape[0], 4))
+        z[:, 0] = map_from_sensor.x_m + c * x - s * y
+        z[:, 1] = map_from_sensor.y_m + s * x + c * y
+        z[:, 2] = c * vx - s * vy
+        z[:, 3] = s * vx + c * vy
+        pos_std = self.config.pos_noise_m + self.config.pos_noise_per_m * np.hypot(x, y)
+        return z, pos_std * pos_std
+
+    def _associate(
+        self, state: np.ndarray, cov: np.ndarray, z: np.ndarray, pos_var: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Hungarian assignment on the negative log-likelihood of gated pairs."""
+        c = self.config
+        d2, nll, dist2 = cv_kalman.gate_costs(state, cov, z, pos_var, self._vel_var)
+        feasible = (d2 <= c.gate_chi2) & (dist2 <= c.gate_m * c.gate_m)
+        if not feasible.any():
+            empty = np.zeros(0, dtype=np.intp)
+            return empty, empty
+        rows = np.flatnonzero(feasible.any(axis=1))
+        cols = np.flatnonzero(feasible.any(axis=0))
+        if len(rows) == 1 and len(cols) == 1:
+            return rows, cols
+        # A flat penalty on gated-out pairs keeps the problem square-free for SciPy; such pairs are
+        # dropped afterwards, so they never update a track.
+        cost = np.where(feasible, nll, _INFEASIBLE)[np.ix_(rows, cols)]
+        r, k = linear_sum_assignment(cost)
+        keep = cost[r, k] < _INFEASIBLE
+        return rows[r[keep]], cols[k[keep]]
+
+    def _correct(
+        self,
+        tracks: np.ndarray,
+        dets: np.ndarray,
+        pred_state: np.ndarray,
+        pred_cov: np.ndarray,
+        z: np.ndarray,
+        pos_var: np.ndarray,
+        objects: np.ndarray,
+        t_us: int,
+    ) -> None:
+        c = self.config
+        rows = self._table[tracks]
+        new_state, new_cov = cv_kalman.update(
+            pred_state[tracks], pred_cov[tracks], z[dets], pos_var[dets], self._vel_var
+        )
+        # A track already past this frame's stamp takes the older detection as if it were its newest
+        # and is predicted forward again. For a constant-velocity model the mean is close to a true
+        # rollback; the covariance is slightly inflated (process noise counted over the gap twice).
+        ahead_s = np.maximum(rows[:, _T_US] - t_us, 0.0) / US_PER_S
+        if ahead_s.any():
+            new_state, new_cov = cv_kalman.predict(new_state, new_cov, ahead_s, self._accel_var)
+        rows[:, _STATE] = new_state
+        rows[:, _COV] = new_cov
+        np.maximum(rows[:, _T_US], t_us, out=rows[:, _T_US])
+        np.maximum(rows[:, _SEEN_US], t_us, out=rows[:, _SEEN_US])
+        rows[:, _HITS] += 1.0
+        rows[:, _RCS_SUM] += objects[dets, 4]
+        confirmed = (rows[:, _CONFIRMED] > 0) | (rows[:, _HITS] >= c.confirm_hits)
+        rows[:, _CONFIRMED] = confirmed
+        speed = np.hypot(new_state[:, 2], new_state[:, 3])
+        # Speed evidence for the class counts only once confirmed: a newborn's velocity is one raw,
+        # noisy measurement.
+        rows[confirmed, _MAX_SPEED] = np.maximum(rows[confirmed, _MAX_SPEED], speed[confirmed])
+        moving = speed > c.min_speed_for_yaw_mps
+        rows[moving, _YAW] = np.arctan2(new_state[moving, 3], new_state[moving, 2])
+        self._table[tracks] = rows
+
+    def _count_chances(self, matched_tracks: np.ndarray, bit: float) -> None:
+        table = self._table
+        if not table.shape[0]:
+            return
+        sensors = table[:, _SENSORS].astype(np.int64)
+        ibit = int(bit)
+        sensors[matched_tracks] |= ibit
+        table[:, _SENSORS] = sensors
+        table[:, _CHANCES] += (sensors & ibit) > 0
+
+    def _birth(
+        self,
+        z: np.ndarray,
+        pos_var: np.ndarray,
+        objects: np.ndarray,
+        matched_dets: np.ndarray,
+        t_us: int,
+        bit: float,
+    ) -> None:
+        c = self.config
+        free = np.ones(len(z), dtype=bool)
+        free[matched_dets] = False
+        born = np.flatnonzero(free)[: max(c.max_tracks - self._table.shape[0], 0)]
+        if not len(born):
+            return
+        rows = np.zeros((len(born), _NCOL))
+        rows[:, _STATE] = z[born]
+        rows[:, _PP] = pos_var[born]
+        rows[:, _VV] = self._vel_var
+        rows[:, [_T_US, _BORN_US, _SEEN_US]] = float(t_us)
+        rows[:, _HITS] = 1.0
+        rows[:, _CHANCES] = 1.0
+        rows[:, _CONFIRMED] = 1.0 if c.confirm_hits <= 1 else 0.0
+        rows[:, _SENSORS] = bit
+        # A still newborn has no heading to show; 0 (map +x) is as good a guess as any.
+        moving = np.hypot(z[born, 2], z[born, 3]) > c.min_speed_for_yaw_mps
+        rows[:, _YAW] = np.where(moving, np.arctan2(z[born, 3], z[born, 2]), 0.0)
+        rows[:, _RCS_SUM] = objects[born, 4]
+        rows[:, _ID] = np.arange(self._next_id, self._next_id + len(born))
+        self._next_id += len(born)
+        self._table = np.concatenate((self._table, rows))
+
+    def _prune(self) -> None:
+        c = self.config
+        table = self._table
+        if not table.shape[0]:
+            return
+        fresh = self._latest_us - table[:, _SEEN_US] <= c.t_expire_s * US_PER_S
+        hopeless = (table[:, _CONFIRMED] == 0) & (
+            table[:, _CHANCES] - table[:, _HITS] > c.confirm_window - c.confirm_hits
+        )
+        keep = fresh & ~hopeless
+        if not keep.all():
+            self._table = table[keep]
