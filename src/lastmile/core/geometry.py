@@ -100,14 +100,13 @@ def convex_polygons_overlap(a: FloatArray, b: FloatArray) -> bool:
 
 
 def point_in_polygon(x_m: float, y_m: float, polygon: FloatArray) -> bool:
-    """Even-odd rule test of one point against an (N, 2) polygon (closed implicitly)."""
-    inside = False
-    n = len(polygon)
-    j = n - 1
-    for i in range(n):
-        xi, yi = polygon[i]
-        xj, yj = polygon[j]
-        if (yi > y_m) != (yj > y_m) and x_m < (xj - xi) * (y_m - yi) / (yj - yi) + xi:
-            inside = not inside
-        j = i
-    return inside
+    """Even-odd rule test of one point against an (N, 2) polygon (closed implicitly), vectorised."""
+    poly = np.asarray(polygon, dtype=float)
+    xi, yi = poly[:, 0], poly[:, 1]
+    xj, yj = np.roll(xi, 1), np.roll(yi, 1)
+    crosses = (yi > y_m) != (yj > y_m)
+    if not crosses.any():
+        return False
+    xi, yi, xj, yj = xi[crosses], yi[crosses], xj[crosses], yj[crosses]
+    x_cross = (xj - xi) * (y_m - yi) / (yj - yi) + xi  # yj != yi wherever the edge crosses y_m
+    return bool(np.count_nonzero(x_m < x_cross) % 2)

@@ -2,13 +2,19 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from lastmile.core.errors import MapError
 from lastmile.core.polyline import Polyline
-from lastmile.hdmap.model import BusStop, Crosswalk, HDMap, StopLine
+from lastmile.hdmap.model import BusStop, Crosswalk, HDMap, Landmark, StopLine
+
+# road_type codes
+NORMAL, INTERSECTION, CROSSWALK, BUS_BAY, DRIVEWAY = 0, 1, 2, 3, 4
+# intersection_type codes
+NO_INTERSECTION, ALL_WAY_STOP, UNCONTROLLED = 0, 1, 2
+LANDMARK_RADIUS_M = 40.0  # a landmark is "nearby" when a sensor on the shuttle could see it
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -44,7 +50,12 @@ class SLayerDatabase:
         s_m: (N,) record positions, equally spaced by ``step_m``.
         speed_limit_mps, lane_left_d_m, lane_right_d_m, curb_right_d_m: (N,) layers; lane and curb
             offsets are signed distances from the centre line, left positive (NaN: no curb nearby).
-        road_type: (N,) int8 codes: 0 normal, 1 intersection, 2 crosswalk, 3 bus bay, 4 driveway.
+        road_type: (N,) int8 codes: 0 normal, 1 intersection, 2 crosswalk, 3 bus bay, 4 driveway
+            (a junction without control, such as a parking-lot entrance).
+        intersection_type: (N,) int8 codes: 0 none, 1 all-way stop, 2 uncontrolled junction.
+        lanelet_id: (N,) int64, the route lanelet each record lies on.
+        landmark_start, landmark_index: landmarks within LANDMARK_RADIUS_M of record i are
+            ``hdmap.landmarks[j]`` for j in ``landmark_index[landmark_start[i]:landmark_start[i + 1]]``.
         stops, crosswalks, stop_lines: features located on the route, in s order.
     """
 
@@ -60,16 +71,39 @@ class SLayerDatabase:
     stops: tuple[RouteStop, ...] = ()
     crosswalks: tuple[RouteCrosswalk, ...] = ()
     stop_lines: tuple[RouteStopLine, ...] = ()
+    intersection_type: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int8))
+    lanelet_id: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    landmark_start: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    landmark_index: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
 
     def __post_init__(self) -> None:
         n = len(self.s_m)
-        for name in ("speed_limit_mps", "lane_left_d_m", "lane_right_d_m", "curb_right_d_m", "road_type"):
+        # Hand-made databases (tests) may leave the map-derived layers out: no junctions, no landmarks.
+        for name, size in (("intersection_type", n), ("lanelet_id", n), ("landmark_start", n + 1)):
+            arr = getattr(self, name)
+            if arr.size == 0 and size > 0:
+                object.__setattr__(self, name, np.zeros(size, dtype=arr.dtype))
+        names = ("speed_limit_mps", "lane_left_d_m", "lane_right_d_m", "curb_right_d_m", "road_type")
+        for name in (*names, "intersection_type", "lanelet_id"):
             arr = getattr(self, name)
             if arr.shape != (n,):
                 raise MapError(f"SLayerDatabase.{name}: expected shape ({n},), got {arr.shape}")
             arr.setflags(write=False)
         if self.step_m <= 0:
             raise MapError(f"SLayerDatabase.step_m: expected a positive step, got {self.step_m}")
+        if self.landmark_start.shape != (n + 1,):
+            raise MapError(
+                f"SLayerDatabase.landmark_start: expected shape ({n + 1},), got {self.landmark_start.shape}"
+            )
+
+    @classmethod
+    def build(
+        cls, hdmap: HDMap, lanelet_ids: tuple[int, ...], step_m: float = 1.0, closed: bool = False
+    ) -> SLayerDatabase:
+        """Cut the route through ``lanelet_ids`` every ``step_m`` and fill every layer from the map."""
+        from lastmile.hdmap.layer_builder import build_layers  # the builder needs this class itself
+
+        return build_layers(cls, hdmap, lanelet_ids, step_m, closed)
 
     @property
     def length_m(self) -> float:
@@ -89,3 +123,9 @@ class SLayerDatabase:
 
     def curb_right_at(self, s_m: float) -> float:
         return float(self.curb_right_d_m[self.record_index(s_m)])
+
+    def landmarks_near(self, s_m: float) -> tuple[Landmark, ...]:
+        """Landmarks a sensor could see from the record at ``s_m``, nearest first."""
+        i = self.record_index(s_m)
+        idx = self.landmark_index[self.landmark_start[i] : self.landmark_start[i + 1]]
+        return tuple(self.hdmap.landmarks[j] for j in idx.tolist())

@@ -1,7 +1,7 @@
 """The typed map the stack and the simulator use, independent of the file format it came from.
 
-The Lanelet2 loader that fills it (and the built-in campus map generator) arrive with issue #2's
-hdmap work; this module fixes the shape every consumer codes against.
+``loader.load_map`` fills it from a Lanelet2 OSM file; every consumer codes against these types, never
+against ``lanelet2`` objects, so the hot loops stay in NumPy and plain Python.
 """
 
 from __future__ import annotations
@@ -14,6 +14,7 @@ import numpy as np
 from lastmile.core.errors import MapError
 from lastmile.core.geometry import FloatArray, point_in_polygon
 from lastmile.core.polyline import Polyline
+from lastmile.hdmap.drivable import DrivableRaster
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -98,6 +99,20 @@ class Landmark:
     subtype: str = ""
 
 
+@dataclass(frozen=True, slots=True, kw_only=True)
+class MapArea:
+    """A Lanelet2 area ("building", "parking", "vegetation", ...) as an (N, 2) outline."""
+
+    id: int
+    subtype: str
+    polygon: FloatArray
+    name: str = ""
+
+
+# Lanelet subtypes a car may drive on; crosswalks, walkways, bicycle lanes and rails are not.
+DRIVABLE_SUBTYPES = frozenset({"road", "highway", "bus_lane", "play_street", "emergency_lane"})
+
+
 @dataclass(frozen=True, kw_only=True)
 class HDMap:
     """A road map: lanelets and the features a shuttle service needs."""
@@ -111,7 +126,10 @@ class HDMap:
     all_way_stops: tuple[AllWayStop, ...] = ()
     landmarks: tuple[Landmark, ...] = ()
     curbs: tuple[Polyline, ...] = ()
+    areas: tuple[MapArea, ...] = ()
     _polygons: dict[int, tuple[FloatArray, FloatArray, FloatArray]] = field(default_factory=dict, repr=False)
+    _raster: dict[int, DrivableRaster] = field(default_factory=dict, repr=False)
+    _box_cache: dict[int, tuple[list[int], FloatArray, FloatArray]] = field(default_factory=dict, repr=False)
 
     def __post_init__(self) -> None:
         if not self.lanelets:
@@ -130,23 +148,49 @@ class HDMap:
         return tuple(self.successor_ids.get(lanelet_id, ()))
 
     def lanelet_at(self, x_m: float, y_m: float) -> int | None:
-        """A lanelet whose outline contains the point (drivable ones before crosswalks), else None."""
+        """A lanelet whose outline contains the point (drivable ones first), else None."""
+        ids, lo, hi = self._boxes()
+        hit = (lo[:, 0] <= x_m) & (x_m <= hi[:, 0]) & (lo[:, 1] <= y_m) & (y_m <= hi[:, 1])
         found: int | None = None
-        for lid, (poly, lo, hi) in self._polygons.items():
-            if lo[0] <= x_m <= hi[0] and lo[1] <= y_m <= hi[1] and point_in_polygon(x_m, y_m, poly):
-                if self.lanelets[lid].subtype != "crosswalk":
+        for k in np.flatnonzero(hit).tolist():
+            lid = ids[k]
+            if point_in_polygon(x_m, y_m, self._polygons[lid][0]):
+                if self.lanelets[lid].subtype in DRIVABLE_SUBTYPES:
                     return lid
                 found = lid
         return found
 
+    def _boxes(self) -> tuple[list[int], FloatArray, FloatArray]:
+        boxes = self._box_cache.get(0)
+        if boxes is None:
+            ids = list(self._polygons)
+            lo = np.array([self._polygons[i][1] for i in ids])
+            hi = np.array([self._polygons[i][2] for i in ids])
+            boxes = self._box_cache[0] = (ids, lo, hi)
+        return boxes
+
     def is_drivable(self, xy_m: FloatArray) -> np.ndarray:
-        """(N,) bool: which of the (N, 2) points lie on a lanelet other than a crosswalk."""
+        """(N,) bool: which of the (N, 2) points lie on a drivable lanelet.
+
+        A raster answers most points at once; only points in cells that a lanelet edge crosses get
+        the exact polygon test, so the answer is exact and a query costs microseconds.
+        """
         pts = np.asarray(xy_m, dtype=float).reshape(-1, 2)
-        out = np.zeros(len(pts), dtype=bool)
-        for i, (x, y) in enumerate(pts.tolist()):
-            lid = self.lanelet_at(x, y)
-            out[i] = lid is not None and self.lanelets[lid].subtype != "crosswalk"
+        raster = self._raster.get(0)
+        if raster is None:
+            drivable = [
+                p[0] for lid, p in self._polygons.items() if self.lanelets[lid].subtype in DRIVABLE_SUBTYPES
+            ]
+            raster = self._raster[0] = DrivableRaster(drivable)
+        verdict = raster.classify(pts)
+        out = verdict == DrivableRaster.INSIDE
+        for i in np.flatnonzero(verdict == DrivableRaster.EDGE).tolist():
+            lid = self.lanelet_at(float(pts[i, 0]), float(pts[i, 1]))
+            out[i] = lid is not None and self.lanelets[lid].subtype in DRIVABLE_SUBTYPES
         return out
+
+    def polygon_of(self, lanelet_id: int) -> FloatArray:
+        return self._polygons[lanelet_id][0]
 
     @property
     def bounds_m(self) -> tuple[float, float, float, float]:
