@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 from typing import Annotated
 
@@ -9,7 +10,6 @@ import typer
 
 from lastmile import __version__
 from lastmile.core.errors import LastmileError
-from lastmile.sim.weather import parse_weather
 
 app = typer.Typer(
     add_completion=False, no_args_is_help=True, help="Autonomous campus shuttle: stack, simulator, tools."
@@ -24,25 +24,51 @@ def version() -> None:
 
 @app.command()
 def run(
-    minutes: Annotated[float, typer.Option(help="Simulated minutes of service.")] = 10.0,
-    seed: Annotated[int, typer.Option(help="Seed; one seed repeats a run bit for bit.")] = 0,
-    weather: Annotated[str, typer.Option(help="clear, rain, snow or fog.")] = "clear",
+    minutes: Annotated[float | None, typer.Option(help="Simulated minutes of service [default: 10].")] = None,
+    seed: Annotated[
+        int | None, typer.Option(help="Seed; one seed repeats a run bit for bit [default: 0].")
+    ] = None,
+    weather: Annotated[str | None, typer.Option(help="clear, rain, snow or fog [default: clear].")] = None,
     out: Annotated[Path, typer.Option(help="Run directory to write.")] = Path("runs/latest"),
-    scenario: Annotated[Path | None, typer.Option(help="Scenario TOML file.")] = None,
+    scenario: Annotated[
+        Path | None, typer.Option(help="Scenario TOML file (default: the campus service).")
+    ] = None,
 ) -> None:
-    """Simulate the shuttle service in closed loop and write a run directory (in progress, issue #2)."""
+    """Simulate the shuttle service in closed loop and write a run directory with report.md."""
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
     try:
-        parse_weather(weather)
-        if not minutes > 0:
-            raise LastmileError(f"--minutes: expected a positive number, got {minutes}")
-        if scenario is not None and not scenario.is_file():
-            raise LastmileError(f"--scenario: expected a TOML file, got no such file {scenario}")
+        from lastmile.runner.closed_loop import evaluate_run, run_scenario
+        from lastmile.sim.scenario import default_service, load_scenario
+        from lastmile.sim.weather import parse_weather
+
+        spec = load_scenario(scenario) if scenario is not None else default_service()
+        overrides: dict[str, object] = {}
+        if minutes is not None:
+            overrides["minutes"] = minutes
+        if seed is not None:
+            overrides["seed"] = seed
+        if weather is not None:
+            parse_weather(weather)
+            overrides["weather"] = weather
+        spec = dataclasses.replace(spec, **overrides)  # type: ignore[arg-type]
+        with Progress(
+            TextColumn("[bold]simulating[/bold] {task.description}"),
+            BarColumn(),
+            TextColumn("{task.completed:.0f}/{task.total:.0f} s"),
+            TimeElapsedColumn(),
+        ) as bar:
+            task = bar.add_task(f"{spec.name} seed {spec.seed} {spec.weather}", total=spec.minutes * 60.0)
+            log = run_scenario(spec, progress=lambda done, total: bar.update(task, completed=done))
+        metrics = evaluate_run(log, out)
     except LastmileError as exc:
         typer.echo(f"lastmile run: {exc}", err=True)
         raise typer.Exit(2) from None
-    # Said plainly rather than faked: the runner that joins sim, stack and evaluation is not built yet.
-    typer.echo("lastmile run: the closed-loop runner is not built yet (issue #2 in progress)", err=True)
-    raise typer.Exit(3)
+    typer.echo(
+        f"wrote {out}/report.md: {metrics['distance_m']:.0f} m, {metrics['stops_served']} stops served, "
+        f"{metrics['collisions_total']} collisions, {metrics['takeovers']} takeovers, "
+        f"real-time factor {log.timing['realtime_factor']:.1f}x"
+    )
 
 
 def main() -> None:

@@ -66,8 +66,9 @@ def test_requested_stop_runs_pullover_onboarding_and_merging(straight_layers):
     fsm.mission.on_call(StopCallFrame(stamp=Stamp(0), stop_id="S1", source="stop_button"))
     d = fsm.step(_inp(0.0, 170.0, v=5.0))
     assert d.state == BehaviourState.PULLOVER and d.pullover_spot is not None
-    # The spot keeps a curb gap of 0.15 m: centre line 1.15 m left of the curb at d = -4.75.
-    assert abs(d.pullover_spot.y_m - (-4.75 + 0.15 + 1.0)) < 1e-9
+    # The spot keeps the configured curb gap: centre line gap + half width left of the curb at d = -4.75.
+    gap = fsm.config.curb_gap_target_m
+    assert abs(d.pullover_spot.y_m - (-4.75 + gap + 1.0)) < 1e-9
     front = d.stop_at_s_m
     assert 204.6 <= front <= 224.0
     rear = front - G.front_from_rear_axle_m

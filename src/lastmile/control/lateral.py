@@ -36,7 +36,7 @@ class LateralController(Protocol):
     """Turns a path and the pose into wheel angles (front, rear)."""
 
     def step(
-        self, dt_s: float, map_from_base: SE2, speed_mps: float, path: Polyline
+        self, dt_s: float, map_from_base: SE2, speed_mps: float, path: Polyline, rear_steer: bool = True
     ) -> tuple[float, float]: ...
 
 
@@ -54,10 +54,15 @@ def _lookahead_point(path: Polyline, ref: SE2, lookahead_m: float) -> tuple[floa
 
 
 def _aim(
-    map_from_base: SE2, speed_mps: float, path: Polyline, g: VehicleGeometry, c: LateralConfig
+    map_from_base: SE2,
+    speed_mps: float,
+    path: Polyline,
+    g: VehicleGeometry,
+    c: LateralConfig,
+    all_wheel: bool,
 ) -> tuple[float, float, float]:
     """Heading error to the lookahead point (rad), distance to it (m) and the lookahead distance (m)."""
-    ref = _reference_pose(map_from_base, g, g.all_wheel_steer)
+    ref = _reference_pose(map_from_base, g, all_wheel)
     lookahead = max(c.lookahead_min_m, c.lookahead_time_s * speed_mps)
     lx, ly = _lookahead_point(path, ref, lookahead)
     error = wrap_angle_rad(math.atan2(ly - ref.y_m, lx - ref.x_m) - ref.yaw_rad)
@@ -73,9 +78,13 @@ class LookaheadHeadingPid:
         self._integral = 0.0
         self._last_error: float | None = None
 
-    def step(self, dt_s: float, map_from_base: SE2, speed_mps: float, path: Polyline) -> tuple[float, float]:
+    def step(
+        self, dt_s: float, map_from_base: SE2, speed_mps: float, path: Polyline, rear_steer: bool = True
+    ) -> tuple[float, float]:
+        """``rear_steer=False`` keeps the rear wheels straight (at a curb, so the tail cannot swing in)."""
         g, c = self.geometry, self.config
-        error, _, lookahead = _aim(map_from_base, speed_mps, path, g, c)
+        all_wheel = g.all_wheel_steer and rear_steer
+        error, _, lookahead = _aim(map_from_base, speed_mps, path, g, c, all_wheel)
         if speed_mps > 0.1:
             self._integral = min(
                 max(self._integral + error * dt_s, -c.integral_limit_rad_s), c.integral_limit_rad_s
@@ -83,11 +92,11 @@ class LookaheadHeadingPid:
         derivative = 0.0 if self._last_error is None else (error - self._last_error) / dt_s
         self._last_error = error
         scale = g.wheelbase_m / lookahead
-        if g.all_wheel_steer:
+        if all_wheel:
             scale /= 2.0  # opposite rear steer doubles the yaw rate per wheel angle
         delta = scale * (c.kp * error + c.ki * self._integral + c.kd * derivative)
         delta = min(max(delta, -g.max_steer_rad), g.max_steer_rad)
-        return delta, (-delta if g.all_wheel_steer else 0.0)
+        return delta, (-delta if all_wheel else 0.0)
 
 
 class PurePursuitController:
@@ -97,16 +106,20 @@ class PurePursuitController:
         self.geometry = geometry
         self.config = config or LateralConfig()
 
-    def step(self, dt_s: float, map_from_base: SE2, speed_mps: float, path: Polyline) -> tuple[float, float]:
+    def step(
+        self, dt_s: float, map_from_base: SE2, speed_mps: float, path: Polyline, rear_steer: bool = True
+    ) -> tuple[float, float]:
+        """``rear_steer=False`` keeps the rear wheels straight (at a curb, so the tail cannot swing in)."""
         g, c = self.geometry, self.config
-        alpha, dist, _ = _aim(map_from_base, speed_mps, path, g, c)
+        all_wheel = g.all_wheel_steer and rear_steer
+        alpha, dist, _ = _aim(map_from_base, speed_mps, path, g, c, all_wheel)
         curvature = 2.0 * math.sin(alpha) / dist
-        if g.all_wheel_steer:
+        if all_wheel:
             delta = math.atan(curvature * g.wheelbase_m / 2.0)
         else:
             delta = math.atan(curvature * g.wheelbase_m)
         delta = min(max(delta, -g.max_steer_rad), g.max_steer_rad)
-        return delta, (-delta if g.all_wheel_steer else 0.0)
+        return delta, (-delta if all_wheel else 0.0)
 
 
 LATERAL_CONTROLLERS: dict[str, type[LookaheadHeadingPid] | type[PurePursuitController]] = {

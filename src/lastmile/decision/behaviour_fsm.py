@@ -47,6 +47,14 @@ class DecisionConfig:
             reach the shuttle within rear_tta_s.
         curb_gap_target_m: distance kept between the shuttle's side and the curb at a stop.
         crosswalk_margin_m: how far beyond a crosswalk's ends a waiting pedestrian counts as crossing.
+        merge_room_m: room kept free ahead of a stopped shuttle's front so it can pull out around a
+            car parked further along the bay (with min_gap_m + 0.5 beyond it).
+        spot_scan_m: how far ahead of the front the pull-over spot scan looks. WATonoBus scans 20 m;
+            our docking approach (curve, swing-in, 24 m platform) is longer than that, and a spot that
+            moves back once a parked car comes into view leaves no room to swing in, so we look as far
+            as the radar tracks reliably.
+        transition_m: route length a pull-over needs (the planner's curve plus its straight settle),
+            kept clear of obstacles when the spot is chosen.
     """
 
     cruise_speed_mps: float = 20.0 / 3.6
@@ -62,9 +70,11 @@ class DecisionConfig:
     doorway_clear_s: float = 3.0
     rear_check_m: float = 60.0
     rear_tta_s: float = 7.0
-    curb_gap_target_m: float = 0.15
+    curb_gap_target_m: float = 0.2
     crosswalk_margin_m: float = 2.0
-    transition_m: float = 16.0
+    transition_m: float = 32.0
+    merge_room_m: float = 5.0
+    spot_scan_m: float = 40.0
 
 
 @dataclass(slots=True)
@@ -307,6 +317,9 @@ class BehaviourStateMachine:
         c, g = self.config, self.geometry
         lane_right = float(self.layers.lane_right_at(rs.s_start_m + 1.0))
         if not self.spot_committed:
+            # The spot is chosen anew every cycle from what the 20 m scan sees (WATonoBus, Sec. bus-stop
+            # handling): a car parked further along the bay only shows up as the shuttle nears it.
+            stopping_m = inp.speed_mps**2 / (2.0 * 1.0)
             request = SpotRequest(
                 platform_start_s_m=rs.s_start_m,
                 platform_end_s_m=rs.s_end_m,
@@ -316,16 +329,18 @@ class BehaviourStateMachine:
                 transition_m=c.transition_m * 0.5,
                 margin_m=c.min_gap_m + 0.5,
                 preferred_front_s_m=0.5 * (rs.s_start_m + rs.s_end_m) + g.length_m / 2.0,
+                exit_m=c.merge_room_m,
+                earliest_front_s_m=front_s + stopping_m if self.spot_front_s_m is not None else -math.inf,
             )
-            # WATonoBus scans up to 20 m ahead of the shuttle; beyond that the bay is assumed free until seen.
-            seen = [o for o in obstacles if o.ds_m < 20.0 + o.length_m]
+            seen = [o for o in obstacles if o.ds_m < c.spot_scan_m + o.length_m]
             spot = choose_spot(request, seen)
-            if spot is None:
-                self.spot_front_s_m = None
-            else:
+            if spot is not None or self.spot_front_s_m is None:
                 self.spot_front_s_m = spot
-            start_transition = (self.spot_front_s_m or rs.s_end_m) - g.length_m - c.transition_m
-            if front_s - g.front_from_rear_axle_m >= start_transition - 2.0:
+            # Committed once the spot is within the scan with room to spare: it no longer moves.
+            if (
+                self.spot_front_s_m is not None
+                and self._ahead(self.spot_front_s_m + c.merge_room_m, front_s) < 20.0
+            ):
                 self.spot_committed = True
         if self.spot_front_s_m is None:
             if self._ahead(rs.s_end_m, front_s) < 0.0:

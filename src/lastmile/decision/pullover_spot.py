@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 from lastmile.core.route_obstacles import RouteObstacle
@@ -18,6 +19,9 @@ class SpotRequest:
         vehicle_length_m: shuttle length.
         transition_m: route length the lateral move into the bay needs, kept clear of obstacles.
         margin_m: clearance to obstacles in front of and behind the chosen spot.
+        exit_m: further room kept free ahead of the front bumper, so that the merge curve has left the
+            bay before it reaches a car parked further along it.
+        earliest_front_s_m: the nearest front position the shuttle can still stop at.
         preferred_front_s_m: where the front bumper goes when the stop is empty (door mid-platform).
     """
 
@@ -29,6 +33,8 @@ class SpotRequest:
     transition_m: float
     margin_m: float
     preferred_front_s_m: float
+    exit_m: float = 0.0
+    earliest_front_s_m: float = -math.inf
 
 
 def choose_spot(request: SpotRequest, obstacles: list[RouteObstacle], step_m: float = 0.5) -> float | None:
@@ -43,12 +49,12 @@ def choose_spot(request: SpotRequest, obstacles: list[RouteObstacle], step_m: fl
         in_bay = o.d_m - o.width_m / 2.0 < r.bay_edge_d_m and o.d_m + o.width_m / 2.0 > r.curb_d_m
         if in_bay:
             blocked.append((o.s_m - o.length_m / 2.0 - r.margin_m, o.s_m + o.length_m / 2.0 + r.margin_m))
-    lo = r.platform_start_s_m + r.vehicle_length_m
+    lo = max(r.platform_start_s_m + r.vehicle_length_m, r.earliest_front_s_m)
     hi = r.platform_end_s_m
     candidates: list[float] = []
     s = lo
     while s <= hi + 1e-9:
-        body = (s - r.vehicle_length_m, s)
+        body = (s - r.vehicle_length_m, s + r.exit_m)
         approach = (s - r.vehicle_length_m - r.transition_m, s - r.vehicle_length_m)
         if not any(_overlap(body, b) or _overlap(approach, b) for b in blocked):
             candidates.append(s)

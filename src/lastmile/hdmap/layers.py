@@ -115,6 +115,13 @@ class SLayerDatabase:
             s_m %= self.length_m
         return int(min(max(int(s_m // self.step_m), 0), len(self.s_m) - 1))
 
+    def record_indices(self, s_m: np.ndarray) -> np.ndarray:
+        """Vectorised ``record_index`` for an array of s."""
+        s = np.asarray(s_m, dtype=float)
+        if self.centerline.closed:
+            s = s % self.length_m
+        return np.clip((s // self.step_m).astype(np.int64), 0, len(self.s_m) - 1)
+
     def speed_limit_at(self, s_m: float) -> float:
         return float(self.speed_limit_mps[self.record_index(s_m)])
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -24,27 +25,51 @@ class LocalPathConfig:
         behind_m, ahead_m: route length planned behind and ahead of the rear axle.
         waypoint_step_m: spacing of the shifted waypoints the Bezier chain passes through.
         pullover_m: route length of the lateral move into a bay; merge_m likewise out of it.
-        settle_m: straight run along the curb between the end of the pull-over curve and the spot.
+        settle_m: run along the curb between the end of the front's pull-over curve and the spot, in
+            which the rear swings in parallel.
         lane_half_width_m: half the lane width used to bound the nudge when the map has no layer.
+        curb_clearance_m: the least gap the planned body keeps to the curb, tapers included.
     """
 
     behind_m: float = 5.0
     ahead_m: float = 60.0
     waypoint_step_m: float = 2.0
-    pullover_m: float = 16.0
-    settle_m: float = 5.0
+    pullover_m: float = 20.0
+    settle_m: float = 8.0
     merge_m: float = 18.0
     lane_half_width_m: float = 1.75
+    curb_clearance_m: float = 0.08
     field: PotentialFieldConfig = field(default_factory=PotentialFieldConfig)
 
 
-class LocalPathPlanner:
-    """Plans the geometric path each planning cycle (10 Hz); speed is left to the controller."""
+CurbLookup = Callable[[FloatArray], FloatArray]
 
-    def __init__(self, route: Polyline, half_width_m: float, config: LocalPathConfig | None = None) -> None:
+
+class LocalPathPlanner:
+    """Plans the geometric path each planning cycle (10 Hz); speed is left to the controller.
+
+    With ``curb_right_d_m`` (route s -> signed curb offset, NaN where there is none) the pull-over and
+    merge curves are pushed away from the curb wherever the body (``body_behind_m`` behind the path
+    point to ``body_ahead_m`` ahead of it) would come closer than ``curb_clearance_m``: a bay's taper
+    is shallower than its platform, and a curve that starts early would cut it.
+    """
+
+    def __init__(
+        self,
+        route: Polyline,
+        half_width_m: float,
+        config: LocalPathConfig | None = None,
+        curb_right_d_m: CurbLookup | None = None,
+        body_behind_m: float = 0.0,
+        body_ahead_m: float = 0.0,
+    ) -> None:
         self.route = route
         self.half_width_m = half_width_m
         self.config = config or LocalPathConfig()
+        self.curb_right_d_m = curb_right_d_m
+        self._body_offsets = np.linspace(
+            -body_behind_m, body_ahead_m, max(2, round(body_ahead_m + body_behind_m) * 2 + 1)
+        )
 
     def offsets_m(
         self, s_m: FloatArray, decision: BehaviourDecision, obstacles: list[RouteObstacle], ego_d_m: float
@@ -63,11 +88,11 @@ class LocalPathPlanner:
             # End the curve a few metres before the spot so the last stretch is straight and parallel to
             # the curb: a lookahead controller needs that run to settle its lateral error before stopping.
             s1 = _unwrap_near(spot_rear_s, float(s_m[0]), self.route) - c.settle_m
-            return lateral_transition_m(s_m, s1 - c.pullover_m, s1, 0.0, spot_d)
+            return self._off_the_curb(s_m, self._pullover_offsets_m(s_m, s1 - c.pullover_m, s1, spot_d))
         if decision.state == BehaviourState.MERGING and decision.merge_from_s_m is not None:
             start_d = spot_d if spot_d is not None else ego_d_m
             s0 = _unwrap_near(decision.merge_from_s_m, float(s_m[0]), self.route)
-            return lateral_transition_m(s_m, s0, s0 + c.merge_m, start_d, 0.0)
+            return self._off_the_curb(s_m, lateral_transition_m(s_m, s0, s0 + c.merge_m, start_d, 0.0))
         if decision.state == BehaviourState.EMERGENCY_STOP and abs(ego_d_m) > 0.5:
             return np.full_like(s_m, ego_d_m)
         return nudge_offsets_m(
@@ -101,6 +126,41 @@ class LocalPathPlanner:
         path_s = np.r_[0.0, np.cumsum(ds)]
         points = np.c_[xy, yaw, kappa, path_s]
         return Trajectory(stamp=stamp, points=points, route_s0_m=float(s[0]))
+
+    def _pullover_offsets_m(self, s_m: FloatArray, s0_m: float, s1_m: float, spot_d_m: float) -> FloatArray:
+        """Rear-axle offsets whose body front never swings past the spot line.
+
+        A rigid body whose rear axle follows d(s) puts its front, l metres ahead, at about
+        d + l d'(s); on a curve that flattens onto the curb line that overshoots by up to 3 D l^2 / L^2
+        (0.37 m for D = 3.5 m, l = 3.75 m, L = 20 m). So the Bezier is laid for the front, and the rear
+        axle's offsets are its first-order lag over l (d + l d' = front): the body then approaches the
+        curb front first and swings in parallel, never crossing the line, as a bus driver docks.
+        """
+        ahead = float(self._body_offsets[-1])
+        if ahead <= 0.0:
+            return lateral_transition_m(s_m, s0_m, s1_m, 0.0, spot_d_m)
+        step = 0.25
+        grid = np.arange(s0_m - step, max(float(s_m[-1]), s0_m) + step, step)
+        front = lateral_transition_m(grid + ahead, s0_m, s1_m, 0.0, spot_d_m)
+        if self.curb_right_d_m is not None:  # the front corner leads: it must not cut the taper either
+            curb = self.curb_right_d_m(grid + ahead)
+            floor = np.where(np.isnan(curb), -np.inf, curb) + self.config.curb_clearance_m + self.half_width_m
+            front = np.maximum(front, floor)
+        alpha = 1.0 - math.exp(-step / ahead)
+        rear = np.empty_like(front)
+        acc = 0.0
+        for i, f in enumerate(front.tolist()):
+            acc += alpha * (f - acc)
+            rear[i] = acc
+        return np.where(s_m < grid[0], 0.0, np.interp(s_m, grid, rear))
+
+    def _off_the_curb(self, s_m: FloatArray, d_m: FloatArray) -> FloatArray:
+        if self.curb_right_d_m is None:
+            return d_m
+        curb = self.curb_right_d_m((s_m[:, None] + self._body_offsets[None, :]).ravel()).reshape(len(s_m), -1)
+        curb = np.where(np.isnan(curb), -np.inf, curb)  # no curb (an opening): nothing to keep off
+        floor = curb.max(axis=1) + self.config.curb_clearance_m + self.half_width_m
+        return np.maximum(d_m, floor)
 
     def _spot_d(self, decision: BehaviourDecision) -> float | None:
         spot = decision.pullover_spot

@@ -46,6 +46,11 @@ class Agent:
     def radius_m(self) -> float:
         return 0.5 * math.hypot(self.length_m, self.width_m)
 
+    @property
+    def steps_while_away(self) -> bool:
+        """Whether the world keeps stepping this agent while it is off the map (to bring it back)."""
+        return False
+
     def step(self, world: World, dt_s: float) -> None:
         """Advance the agent by ``dt_s``; the base agent stands still."""
 
@@ -170,11 +175,17 @@ class WalkingAgent(Agent):
     respawn: bool = False
     idle_until_s: float = 0.0
 
+    @property
+    def steps_while_away(self) -> bool:
+        return self.respawn
+
     def step(self, world: World, dt_s: float) -> None:
         total = math.dist(self.start_xy, self.end_xy)
         if self.done:
             if self.respawn and world.t_s >= self.idle_until_s:
+                # A new pedestrian turns up at a kerb; the last one walked off after crossing.
                 self.done = False
+                self.active = True
                 self.progress_m = 0.0
                 self.x_m, self.y_m = self.start_xy
             else:
@@ -207,12 +218,11 @@ class WalkingAgent(Agent):
             self.walking = False
             self.speed_mps = 0.0
             self.done = True
+            self.active = False  # off the road and away: it no longer stands at the kerb
             if self.respawn:
                 # Next pedestrian arrives at the other kerb after an exponential gap (Poisson arrivals).
                 self.start_xy, self.end_xy = self.end_xy, self.start_xy
                 self.idle_until_s = world.t_s + float(world.agent_rng.exponential(world.pedestrian_gap_s))
-            else:
-                self.active = False
 
 
 def agent_arrays(agents: list[Agent]) -> np.ndarray:

@@ -36,7 +36,7 @@ class ParkedCar:
     """A car parked in a stop's bay at its downstream end, partly blocking the stop."""
 
     stop: str = "S1"
-    from_end_m: float = 3.0
+    from_end_m: float = 1.0
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -122,7 +122,7 @@ def default_service(seed: int = 0, minutes: float = 10.0, weather: str = "clear"
             CrosswalkPedestrians(crosswalk=2, first_after_s=60.0),
         ),
         walkers=(
-            Walker(kind="pedestrian", route_s_m=900.0),
+            Walker(kind="pedestrian", route_s_m=1080.0),
             Walker(
                 kind="goose", route_s_m=1500.0, speed_mps=0.35, trigger_m=40.0, min_trigger_m=20.0, gap_s=0.0
             ),

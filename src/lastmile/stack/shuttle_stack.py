@@ -7,13 +7,14 @@ estimation whenever a frame arrives.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 from lastmile.control.lateral import LateralConfig, make_lateral_controller
 from lastmile.control.longitudinal import LongitudinalConfig, WatonobusLongitudinalController, stopping_gap_m
-from lastmile.core.geometry import SE2
+from lastmile.core.geometry import SE2, FloatArray
 from lastmile.core.objects import TrackedObjects, empty_tracks
 from lastmile.core.polyline import Polyline
 from lastmile.core.route_obstacles import route_obstacles
@@ -91,7 +92,10 @@ class ShuttleStack:
         self.config = config
         self.route: Polyline = layers.centerline
         self.profiler = ModuleProfiler()
-        self.ekf = PoseEkf(config.ekf)
+        # The EKF's zero-slip point is where the body has no sideways velocity: mid-wheelbase when the
+        # rear wheels steer opposite to the front, the rear axle otherwise. A property of the vehicle.
+        zero_slip_m = geometry.wheelbase_m / 2.0 if geometry.all_wheel_steer else 0.0
+        self.ekf = PoseEkf(dataclasses.replace(config.ekf, zero_slip_offset_m=zero_slip_m))
         self.tracker = RadarObjectTracker(config.tracker)
         self.mission = MissionManager(
             stop_order=tuple(rs.stop.id for rs in layers.stops), serve_all=config.serve_all_stops
@@ -99,7 +103,14 @@ class ShuttleStack:
         self.fsm = BehaviourStateMachine(
             layers=layers, geometry=geometry, mission=self.mission, config=config.decision
         )
-        self.planner = LocalPathPlanner(self.route, geometry.width_m / 2.0, config.path)
+        self.planner = LocalPathPlanner(
+            self.route,
+            geometry.width_m / 2.0,
+            config.path,
+            curb_right_d_m=self._curb_right_d_m,
+            body_behind_m=geometry.rear_overhang_m,
+            body_ahead_m=geometry.length_m - geometry.rear_overhang_m,
+        )
         self.longitudinal = WatonobusLongitudinalController(config.longitudinal)
         self.lateral = make_lateral_controller(config.lateral_controller, geometry, config.lateral)
         self._tick = 0
@@ -155,6 +166,9 @@ class ShuttleStack:
         return StackOutput(
             command=self._command, status=status, decision=self._decision, hmi=tuple(hmi), heartbeats=beats
         )
+
+    def _curb_right_d_m(self, s_m: FloatArray) -> FloatArray:
+        return self.layers.curb_right_d_m[self.layers.record_indices(s_m)]
 
     def _ingest(self, frame: SensorFrame) -> None:
         if isinstance(frame, WheelOdometryFrame):
@@ -230,7 +244,10 @@ class ShuttleStack:
         v_ref = self.longitudinal.reference_speed_mps(self._trajectory, path_s, d.speed_limit_mps)
         accel = self.longitudinal.step(dt, est.speed_mps, v_ref, gap)
         emergency = d.state == BehaviourState.EMERGENCY_STOP and est.speed_mps > 0.05
-        steer_f, steer_r = self.lateral.step(dt, pose, est.speed_mps, path)
+        # In a bay the rear wheels stay straight: counter-steering them would swing the tail into the
+        # curb as the shuttle turns out of (or straightens into) the bay.
+        at_curb = d.state in (BehaviourState.PULLOVER, BehaviourState.ONBOARDING, BehaviourState.MERGING)
+        steer_f, steer_r = self.lateral.step(dt, pose, est.speed_mps, path, rear_steer=not at_curb)
         self._command = ActuatorCommand(
             stamp=now,
             accel_mps2=accel,

@@ -89,7 +89,7 @@ class Simulation:
             self.sensors.push_stop_call(tick * self.tick_us, stop_id, source)
         self.passengers.new_calls.clear()
         for agent in w.agents:
-            if agent.active:
+            if agent.active or agent.steps_while_away:
                 agent.step(w, self.dt_s)
         w.update_intersections()
 
@@ -242,7 +242,8 @@ def _build_agents(scenario: Scenario, hdmap: HDMap, service_route: Polyline) -> 
     for group in scenario.crosswalk_pedestrians:
         if not 0 <= group.crosswalk < len(hdmap.crosswalks):
             raise ConfigError(
-                f"crosswalk_pedestrians.crosswalk: expected 0..{len(hdmap.crosswalks) - 1}, got {group.crosswalk}"
+                "crosswalk_pedestrians.crosswalk: expected "
+                f"0..{len(hdmap.crosswalks) - 1}, got {group.crosswalk}"
             )
         centre = np.asarray(hdmap.crosswalks[group.crosswalk].polygon, dtype=float).mean(axis=0)
         f = service_route.project(float(centre[0]), float(centre[1]))
@@ -300,7 +301,7 @@ def _walker(
         y_m=start[1],
         yaw_rad=math.atan2(end[1] - start[1], end[0] - start[0]),
         speed_mps=0.0,
-        length_m=0.5 if small else 0.5,
+        length_m=0.5,
         width_m=0.3 if small else 0.5,
         rcs_dbsm=RCS_DBSM[cls],
         start_xy=start,

@@ -84,8 +84,13 @@ def _run(scenario: Scenario, progress: ProgressCallback | None) -> RunLog:
         state = out.decision.state if out.decision is not None else None
         if state is not None and state != last_state:
             writer.add_event(
-                t_s, "state_change", **{"from": last_state.value if last_state else "", "to": state.value,
-                                        "reason": out.decision.reason if out.decision else ""}
+                t_s,
+                "state_change",
+                **{
+                    "from": last_state.value if last_state else "",
+                    "to": state.value,
+                    "reason": out.decision.reason if out.decision else "",
+                },
             )
             if state == BehaviourState.EMERGENCY_STOP and out.decision is not None:
                 writer.add_event(t_s, "emergency_stop", reason=out.decision.reason)
@@ -96,7 +101,14 @@ def _run(scenario: Scenario, progress: ProgressCallback | None) -> RunLog:
             s = sim.world.ego.state
             code = STATE_NAMES.index(state.value) if state is not None else -1
             writer.add_ego_row(
-                t_s, s.x_m, s.y_m, s.yaw_rad, s.speed_mps, s.accel_mps2, s.steer_front_rad, float(code),
+                t_s,
+                s.x_m,
+                s.y_m,
+                s.yaw_rad,
+                s.speed_mps,
+                s.accel_mps2,
+                s.steer_front_rad,
+                code,
                 sim.judge.route_s_m,
             )
         if len(sim.judge.events) > emitted:

@@ -16,11 +16,11 @@ from pathlib import Path
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-from rich.console import Console  # noqa: E402
-from rich.table import Table  # noqa: E402
+from rich.console import Console
+from rich.table import Table
 
-from lastmile.runner.closed_loop import run_scenario  # noqa: E402
-from lastmile.sim.scenario import default_service  # noqa: E402
+from lastmile.runner.closed_loop import run_scenario
+from lastmile.sim.scenario import default_service
 
 TARGET_RTF = 20.0
 
@@ -52,20 +52,27 @@ def main() -> None:
         table.add_column(col, justify="right")
     for r in rows:
         table.add_row(
-            str(r["seed"]), f"{r['realtime_factor']:.1f}", f"{r['wall_s']:.1f}", f"{r['stack_tick_mean_ms']:.3f}",
+            str(r["seed"]),
+            f"{r['realtime_factor']:.1f}",
+            f"{r['wall_s']:.1f}",
+            f"{r['stack_tick_mean_ms']:.3f}",
             f"{r['realtime_factor'] / TARGET_RTF:.2f}",
         )
     table.add_row("median", f"{median_rtf:.1f}", "", "", f"{median_rtf / TARGET_RTF:.2f}")
     console = Console()
     console.print(table)
-    modules = Table(title="stack modules (seed %d), ms per call" % rows[0]["seed"])
+    modules = Table(title=f"stack modules (seed {rows[0]['seed']}), ms per call")
     for col in ("module", "p50", "p95", "max", "calls"):
         modules.add_column(col, justify="right")
     for name, m in rows[0]["modules"].items():
-        modules.add_row(name, f"{m['p50_ms']:.3f}", f"{m['p95_ms']:.3f}", f"{m['max_ms']:.2f}", str(m["calls"]))
+        modules.add_row(
+            name, f"{m['p50_ms']:.3f}", f"{m['p95_ms']:.3f}", f"{m['max_ms']:.2f}", str(m["calls"])
+        )
     console.print(modules)
     args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps({"median_realtime_factor": median_rtf, "target": TARGET_RTF, "runs": rows}, indent=2))
+    args.json.write_text(
+        json.dumps({"median_realtime_factor": median_rtf, "target": TARGET_RTF, "runs": rows}, indent=2)
+    )
 
 
 if __name__ == "__main__":

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import functools
+from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -16,26 +18,26 @@ SEEDS = (0, 1, 2, 3, 4)
 
 
 @functools.cache
-def _run(seed: int) -> tuple[RunLog, dict]:
+def _run(seed: int) -> tuple[RunLog, dict[str, Any]]:
     log = run_scenario(default_service(seed=seed))
     return log, compute_metrics(log)
 
 
 @pytest.mark.parametrize("seed", SEEDS)
-def test_default_service_has_no_collision_and_no_takeover(seed):
+def test_default_service_has_no_collision_and_no_takeover(seed: int) -> None:
     log, m = _run(seed)
     assert m["collisions_total"] == 0, log.events_of("collision")
     assert m["takeovers"] == 0, log.events_of("takeover")
 
 
 @pytest.mark.parametrize("seed", SEEDS)
-def test_default_service_breaks_no_rule(seed):
+def test_default_service_breaks_no_rule(seed: int) -> None:
     log, m = _run(seed)
     assert m["rule_violations"] == 0, log.events_of("rule_violation")
 
 
 @pytest.mark.parametrize("seed", SEEDS)
-def test_every_stop_with_a_waiting_rider_is_served_at_the_curb(seed):
+def test_every_stop_with_a_waiting_rider_is_served_at_the_curb(seed: int) -> None:
     log, m = _run(seed)
     served = log.events_of("stop_served")
     assert m["stops_missed"] == 0, log.events_of("stop_missed")
@@ -46,7 +48,26 @@ def test_every_stop_with_a_waiting_rider_is_served_at_the_curb(seed):
 
 
 @pytest.mark.parametrize("seed", SEEDS)
-def test_the_shuttle_stops_at_the_all_way_stop(seed):
+def test_the_shuttle_stops_at_the_all_way_stop(seed: int) -> None:
     log, _ = _run(seed)
     entries = log.events_of("intersection_entry")
     assert entries and all(e.data["order_ok"] for e in entries)
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_the_default_service_completes_its_loop_perceiving_through_radar(seed: int) -> None:
+    log, m = _run(seed)
+    assert log.events_of("loop_completed"), "the shuttle did not complete a loop in 10 minutes"
+    assert m["perception_mode"] == "radar_tracking" and m["seed"] == seed
+
+
+def test_same_seed_same_metrics(tmp_path: Path) -> None:
+    """Two runs of one seed write byte-identical metrics.json."""
+    from lastmile.runner.closed_loop import evaluate_run
+
+    texts = []
+    for name in ("a", "b"):
+        log = run_scenario(default_service(seed=3, minutes=2.0))
+        evaluate_run(log, tmp_path / name)
+        texts.append((tmp_path / name / "metrics.json").read_bytes())
+    assert texts[0] == texts[1]
