@@ -9,16 +9,10 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 from lastmile.core.stamp import Stamp
-from lastmile.core.vehicle import VehicleGeometry
 from lastmile.core.vehicle_messages import StackOutput
-from lastmile.hdmap.layers import SLayerDatabase
-from lastmile.hdmap.loader import load_campus_map
-from lastmile.hdmap.routing import campus_shuttle_loop, route_polyline
+from lastmile.runner.closed_loop import TICK_US, build_closed_loop
 from lastmile.sim.scenario import Scenario
 from lastmile.sim.simulation import Simulation
-from lastmile.stack.shuttle_stack import ShuttleStack, StackConfig
-
-TICK_US = 10_000
 
 
 @dataclass
@@ -29,15 +23,7 @@ class Step:
 
 
 def steps(scenario: Scenario, until: Callable[[Step], bool] | None = None) -> Iterator[Step]:
-    hdmap = load_campus_map()
-    loop = campus_shuttle_loop(hdmap)
-    geometry = VehicleGeometry()
-    sim = Simulation(scenario, hdmap, route_polyline(hdmap, loop, closed=True), geometry, TICK_US)
-    stack = ShuttleStack(
-        SLayerDatabase.build(hdmap, loop, step_m=1.0, closed=True),
-        geometry,
-        StackConfig(tick_us=TICK_US, radar_mounts=sim.radar_mounts, serve_all_stops=scenario.serve_all_stops),
-    )
+    _, sim, stack = build_closed_loop(scenario)
     for tick in range(round(scenario.minutes * 60e6 / TICK_US)):
         sim.advance_world(tick)
         out = stack.tick(Stamp(tick * TICK_US), sim.sensor_frames(tick))

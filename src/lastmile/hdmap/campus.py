@@ -91,7 +91,7 @@ def build_campus_map() -> Any:
     b = _Builder()
     ring_out, ring_in = _ring(b)
     _intersection(b, ring_out, ring_in)
-    _parking(b, ring_out)
+    _parking(b)
     for cw in lay.CROSSWALKS:
         _crosswalk(b, cw)
     for spec in lay.BUILDINGS:
@@ -200,7 +200,7 @@ def _intersection(b: _Builder, ring_out: dict[float, Any], ring_in: dict[float, 
     b.map.add(rule)
 
 
-def _parking(b: _Builder, ring_out: dict[float, Any]) -> None:
+def _parking(b: _Builder) -> None:
     """Entrance and exit of the north parking lot, right turns off and onto the ring's outer lane."""
     xp, throat, lot = lay.PARK_X_M, lay.PARK_THROAT_Y_M, lay.PARK_LOT_Y_M
     xin, xout = xp + lay.PARK_HALF_M, xp - lay.PARK_HALF_M
@@ -223,7 +223,6 @@ def _parking(b: _Builder, ring_out: dict[float, Any]) -> None:
     )
     corners = [(xp - 40.0, lot), (xp + 40.0, lot), (xp + 40.0, lot + 40.0), (xp - 40.0, lot + 40.0)]
     b.area(corners, "parking", "curbstone", name="Lot N")
-    del ring_out  # the ring's lanelets there already end and start where these turns meet them
 
 
 def _crosswalk(b: _Builder, spec: lay.CrosswalkSpec) -> None:

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -128,8 +129,6 @@ class HDMap:
     curbs: tuple[Polyline, ...] = ()
     areas: tuple[MapArea, ...] = ()
     _polygons: dict[int, tuple[FloatArray, FloatArray, FloatArray]] = field(default_factory=dict, repr=False)
-    _raster: dict[int, DrivableRaster] = field(default_factory=dict, repr=False)
-    _box_cache: dict[int, tuple[list[int], FloatArray, FloatArray]] = field(default_factory=dict, repr=False)
 
     def __post_init__(self) -> None:
         if not self.lanelets:
@@ -149,7 +148,7 @@ class HDMap:
 
     def lanelet_at(self, x_m: float, y_m: float) -> int | None:
         """A lanelet whose outline contains the point (drivable ones first), else None."""
-        ids, lo, hi = self._boxes()
+        ids, lo, hi = self._boxes
         hit = (lo[:, 0] <= x_m) & (x_m <= hi[:, 0]) & (lo[:, 1] <= y_m) & (y_m <= hi[:, 1])
         found: int | None = None
         for k in np.flatnonzero(hit).tolist():
@@ -160,14 +159,18 @@ class HDMap:
                 found = lid
         return found
 
+    @cached_property
     def _boxes(self) -> tuple[list[int], FloatArray, FloatArray]:
-        boxes = self._box_cache.get(0)
-        if boxes is None:
-            ids = list(self._polygons)
-            lo = np.array([self._polygons[i][1] for i in ids])
-            hi = np.array([self._polygons[i][2] for i in ids])
-            boxes = self._box_cache[0] = (ids, lo, hi)
-        return boxes
+        ids = list(self._polygons)
+        lo = np.array([self._polygons[i][1] for i in ids])
+        hi = np.array([self._polygons[i][2] for i in ids])
+        return ids, lo, hi
+
+    @cached_property
+    def _raster(self) -> DrivableRaster:
+        return DrivableRaster(
+            [p[0] for lid, p in self._polygons.items() if self.lanelets[lid].subtype in DRIVABLE_SUBTYPES]
+        )
 
     def is_drivable(self, xy_m: FloatArray) -> np.ndarray:
         """(N,) bool: which of the (N, 2) points lie on a drivable lanelet.
@@ -176,13 +179,7 @@ class HDMap:
         the exact polygon test, so the answer is exact and a query costs microseconds.
         """
         pts = np.asarray(xy_m, dtype=float).reshape(-1, 2)
-        raster = self._raster.get(0)
-        if raster is None:
-            drivable = [
-                p[0] for lid, p in self._polygons.items() if self.lanelets[lid].subtype in DRIVABLE_SUBTYPES
-            ]
-            raster = self._raster[0] = DrivableRaster(drivable)
-        verdict = raster.classify(pts)
+        verdict = self._raster.classify(pts)
         out = verdict == DrivableRaster.INSIDE
         for i in np.flatnonzero(verdict == DrivableRaster.EDGE).tolist():
             lid = self.lanelet_at(float(pts[i, 0]), float(pts[i, 1]))

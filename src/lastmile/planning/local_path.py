@@ -7,6 +7,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.signal import lfilter
 
 from lastmile.core.geometry import FloatArray
 from lastmile.core.polyline import Polyline
@@ -147,11 +148,7 @@ class LocalPathPlanner:
             floor = np.where(np.isnan(curb), -np.inf, curb) + self.config.curb_clearance_m + self.half_width_m
             front = np.maximum(front, floor)
         alpha = 1.0 - math.exp(-step / ahead)
-        rear = np.empty_like(front)
-        acc = 0.0
-        for i, f in enumerate(front.tolist()):
-            acc += alpha * (f - acc)
-            rear[i] = acc
+        rear = lfilter([alpha], [1.0, alpha - 1.0], front)  # rear += alpha * (front - rear), from 0
         return np.where(s_m < grid[0], 0.0, np.interp(s_m, grid, rear))
 
     def _off_the_curb(self, s_m: FloatArray, d_m: FloatArray) -> FloatArray:

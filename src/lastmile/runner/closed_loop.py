@@ -17,6 +17,7 @@ from lastmile.evaluation.metrics import compute_metrics, write_metrics, write_ti
 from lastmile.evaluation.report import write_report
 from lastmile.hdmap.layers import SLayerDatabase
 from lastmile.hdmap.loader import load_campus_map
+from lastmile.hdmap.model import HDMap
 from lastmile.hdmap.routing import campus_shuttle_loop, route_polyline
 from lastmile.recorder.run_log import STATE_NAMES, RunLog, RunLogWriter, RunMeta
 from lastmile.sim.scenario import Scenario
@@ -36,7 +37,8 @@ def run_scenario(scenario: Scenario, progress: ProgressCallback | None = None) -
         return _run(scenario, progress)
 
 
-def _run(scenario: Scenario, progress: ProgressCallback | None) -> RunLog:
+def build_closed_loop(scenario: Scenario) -> tuple[HDMap, Simulation, ShuttleStack]:
+    """The campus map, the simulator for ``scenario`` and a stack configured for it."""
     hdmap = load_campus_map()
     loop_ids = campus_shuttle_loop(hdmap)
     service_route = route_polyline(hdmap, loop_ids, closed=True)
@@ -54,6 +56,11 @@ def _run(scenario: Scenario, progress: ProgressCallback | None) -> RunLog:
             serve_all_stops=scenario.serve_all_stops,
         ),
     )
+    return hdmap, sim, stack
+
+
+def _run(scenario: Scenario, progress: ProgressCallback | None) -> RunLog:
+    hdmap, sim, stack = build_closed_loop(scenario)
     duration_s = scenario.minutes * 60.0
     meta = RunMeta(
         seed=scenario.seed,
