@@ -77,6 +77,7 @@ def _run(scenario: Scenario, progress: ProgressCallback | None) -> RunLog:
     last_state: BehaviourState | None = None
     emitted = 0
     wall_start = time.perf_counter()
+    cpu_start = time.process_time()
     stack_wall = 0.0
     for tick in range(ticks):
         now = Stamp(tick * TICK_US)
@@ -124,9 +125,13 @@ def _run(scenario: Scenario, progress: ProgressCallback | None) -> RunLog:
         if progress is not None and tick % 100 == 0:
             progress(t_s, duration_s)
     wall = time.perf_counter() - wall_start
+    cpu = time.process_time() - cpu_start
     timing: dict[str, Any] = {
         "wall_s": wall,
         "realtime_factor": duration_s / wall if wall > 0 else None,
+        # CPU seconds of this process: the one-core figure when other work shares the machine.
+        "cpu_s": cpu,
+        "realtime_factor_cpu": duration_s / cpu if cpu > 0 else None,
         "stack_wall_s": stack_wall,
         "stack_tick_mean_ms": 1e3 * stack_wall / max(ticks, 1),
         "modules": stack.profiler.summary(),

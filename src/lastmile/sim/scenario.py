@@ -41,12 +41,23 @@ class ParkedCar:
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class CrosswalkPedestrians:
-    """Pedestrians crossing at crosswalk number ``crosswalk`` (0-based), Poisson with ``mean_gap_s``."""
+    """Pedestrians crossing at crosswalk number ``crosswalk`` (0-based), Poisson with ``mean_gap_s``.
+
+    Each one after the first walks ``approach_m`` along the sidewalk up to the kerb before judging the
+    gap, so that it is in view before it can step out.
+    """
 
     crosswalk: int = 0
     mean_gap_s: float = 40.0
     first_after_s: float = 5.0
     speed_mps: float = 1.3
+    approach_m: float = 4.0
+
+    def __post_init__(self) -> None:
+        check_range("crosswalk_pedestrians.mean_gap_s", self.mean_gap_s, 0.1, 3600.0)
+        check_range("crosswalk_pedestrians.first_after_s", self.first_after_s, 0.0, 24 * 3600.0)
+        check_range("crosswalk_pedestrians.speed_mps", self.speed_mps, 0.1, 4.0)
+        check_range("crosswalk_pedestrians.approach_m", self.approach_m, 0.0, 50.0)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

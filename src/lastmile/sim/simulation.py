@@ -258,6 +258,8 @@ def _build_agents(scenario: Scenario, hdmap: HDMap, service_route: Polyline) -> 
                 3.5,
                 respawn=True,
                 start_after_s=group.first_after_s,
+                mean_gap_s=group.mean_gap_s,
+                approach_m=group.approach_m,
             )
         )
     for walker in scenario.walkers:
@@ -292,6 +294,8 @@ def _walker(
     gap_s: float,
     respawn: bool = False,
     start_after_s: float = 0.0,
+    mean_gap_s: float = 30.0,
+    approach_m: float = 0.0,
 ) -> WalkingAgent:
     small = cls == ObjectClass.ANIMAL
     return WalkingAgent(
@@ -310,4 +314,6 @@ def _walker(
         gap_s=gap_s,
         respawn=respawn,
         start_after_s=start_after_s,
+        mean_gap_s=mean_gap_s,
+        approach_m=approach_m,
     )
