@@ -9,7 +9,7 @@ from typing import Annotated
 import typer
 
 from lastmile import __version__
-from lastmile.core.errors import LastmileError
+from lastmile.core.errors import ConfigError, LastmileError
 
 app = typer.Typer(
     add_completion=False, no_args_is_help=True, help="Autonomous campus shuttle: stack, simulator, tools."
@@ -68,6 +68,75 @@ def run(
         f"wrote {out}/report.md: {metrics['distance_m']:.0f} m, {metrics['stops_served']} stops served, "
         f"{metrics['collisions_total']} collisions, {metrics['takeovers']} takeovers, "
         f"real-time factor {log.timing['realtime_factor']:.1f}x"
+    )
+
+
+@app.command()
+def sweep(
+    suite: Annotated[str | None, typer.Option(help="A named suite: iso22737.")] = None,
+    generate: Annotated[
+        int | None, typer.Option(help="Generate this many scenarios from the scenario space.")
+    ] = None,
+    scenarios: Annotated[
+        Path | None, typer.Option(help="A folder of scenario TOML files to run as they are.")
+    ] = None,
+    seed: Annotated[int, typer.Option(help="Seed of the suite or of the generator.")] = 0,
+    engine: Annotated[str, typer.Option(help="local (process pool) or ray.")] = "local",
+    workers: Annotated[int | None, typer.Option(help="Local worker processes [default: all cores].")] = None,
+    ray_address: Annotated[
+        str | None, typer.Option(help="Ray cluster address (default: start Ray on this machine).")
+    ] = None,
+    out: Annotated[Path, typer.Option(help="Output folder.")] = Path("runs/sweep"),
+) -> None:
+    """Run many scenarios; writes summary.json, report.md and every scenario file under OUT."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    try:
+        from lastmile.evaluation.sweep_report import write_sweep_report
+        from lastmile.runner.sweep import generic_cases, run_sweep
+        from lastmile.sim.scenario import load_scenario
+        from lastmile.sim.scenario_generator import ScenarioSpace, sample_scenarios
+        from lastmile.sim.suites import SUITES
+
+        chosen = [x for x in (suite, generate, scenarios) if x is not None]
+        if len(chosen) != 1:
+            raise ConfigError(
+                f"sweep: expected exactly one of --suite, --generate, --scenarios, got {len(chosen)}"
+            )
+        if suite is not None:
+            if suite not in SUITES:
+                raise ConfigError(f"sweep --suite: expected one of {sorted(SUITES)}, got {suite!r}")
+            cases = SUITES[suite](seed)
+            title = f"Sweep: suite {suite} (seed {seed})"
+        elif generate is not None:
+            cases = generic_cases(sample_scenarios(ScenarioSpace(), generate, seed))
+            title = f"Sweep: {generate} generated scenarios (seed {seed})"
+        else:
+            assert scenarios is not None
+            files = sorted(scenarios.glob("*.toml"))
+            if not files:
+                raise ConfigError(f"sweep --scenarios: expected TOML files in {scenarios}, got none")
+            cases = generic_cases([load_scenario(f) for f in files], group=str(scenarios))
+            title = f"Sweep: {len(files)} scenarios from {scenarios}"
+        with Progress(
+            TextColumn("[bold]sweep[/bold]"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn()
+        ) as bar:
+            task = bar.add_task("scenarios", total=len(cases))
+            summary = run_sweep(
+                cases,
+                out,
+                engine=engine,
+                workers=workers,
+                ray_address=ray_address,
+                progress=lambda done, total: bar.update(task, completed=done),
+            )
+        report = write_sweep_report(summary, out, title)
+    except LastmileError as exc:
+        typer.echo(f"lastmile sweep: {exc}", err=True)
+        raise typer.Exit(2) from None
+    typer.echo(
+        f"wrote {report}: {summary['passed']}/{summary['scenarios']} passed, "
+        f"{summary['collisions_at_fault']} at-fault collisions"
     )
 
 
