@@ -140,5 +140,62 @@ def sweep(
     )
 
 
+experiment_app = typer.Typer(no_args_is_help=True, help="Reproduce the papers' experiments.")
+app.add_typer(experiment_app, name="experiment")
+
+
+@experiment_app.command("v2i")
+def experiment_v2i(
+    laps: Annotated[int, typer.Option(help="Laps per vehicle.")] = 20,
+    seeds: Annotated[str, typer.Option(help="Comma-separated seeds to average over.")] = "0,1,2",
+    rate_hz: Annotated[float, typer.Option(help="Crossing camera broadcast rate (NUS: 5 or 1).")] = 5.0,
+    out: Annotated[Path, typer.Option(help="Output folder.")] = Path("runs/v2i"),
+) -> None:
+    """NUS's infrastructure-sensor experiment: time gained at a crossing against laps (Fig. 12)."""
+    import json
+
+    from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+
+    try:
+        from lastmile.evaluation.v2i_report import write_v2i_report
+        from lastmile.sim.infrastructure import CrossingCameraConfig
+        from lastmile.sim.v2i_experiment import V2iConfig, run_v2i_experiment
+
+        try:
+            seed_list = tuple(int(x) for x in seeds.split(","))
+        except ValueError:
+            raise ConfigError(
+                f"experiment v2i --seeds: expected integers like 0,1,2, got {seeds!r}"
+            ) from None
+        if laps < 1:
+            raise ConfigError(f"experiment v2i --laps: expected at least 1, got {laps}")
+        config = V2iConfig(camera=CrossingCameraConfig(rate_hz=rate_hz))
+        with Progress(SpinnerColumn(), TextColumn("[bold]v2i[/bold] simulating"), TimeElapsedColumn()) as bar:
+            bar.add_task("v2i")
+            result = run_v2i_experiment(config, laps=laps, seeds=seed_list)
+        data = {
+            "laps": result.laps,
+            "rate_hz": result.rate_hz,
+            "seeds": list(result.seeds),
+            "rows": [
+                {
+                    "speed_mps": speed,
+                    "vehicles": n,
+                    "cumulative_gain_s": gain,
+                    "mean_lap_base_s": result.mean_lap_base_s[(speed, n)],
+                    "mean_lap_infra_s": result.mean_lap_infra_s[(speed, n)],
+                }
+                for (speed, n), gain in result.cumulative_gain_s.items()
+            ],
+        }
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "v2i.json").write_text(json.dumps(data, indent=2))
+        report = write_v2i_report(data, out)
+    except LastmileError as exc:
+        typer.echo(f"lastmile experiment v2i: {exc}", err=True)
+        raise typer.Exit(2) from None
+    typer.echo(f"wrote {report} and {out / 'fig12.png'}")
+
+
 def main() -> None:
     app()
