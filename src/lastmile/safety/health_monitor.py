@@ -211,8 +211,8 @@ class HealthMonitor:
         """One malfunction signal per unhealthy module, at the module's ``failure_level``."""
         out = []
         for h in health.modules:
-            if h.healthy:
-                continue
+            if h.healthy or (h.last_beat_us < 0 and not h.silent):
+                continue  # healthy, or still within the startup grace (not ready is not a fault)
             m = self._modules[h.module]
             if h.silent:
                 kind = MalfunctionKind.MODULE_SILENT
