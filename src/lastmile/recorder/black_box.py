@@ -141,7 +141,8 @@ def write_mcap(
         for log_us, topic, msg in entries:
             log_ns = log_us * 1000
             name, schema_bytes = mcap_codec.schema_of(msg)
-            stamp_ns = int(getattr(msg, "stamp", log_us)) * 1000
+            # MCAP times are unsigned; a frame captured before the loop's zero gets publish time 0.
+            stamp_ns = max(int(getattr(msg, "stamp", log_us)), 0) * 1000
             w.add_message(
                 channel(topic, name, schema_bytes),
                 log_time=log_ns,
