@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import struct
 from collections import Counter
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -164,24 +165,19 @@ def read_recording(path: str | Path) -> Recording:
     if p.is_dir():
         chunks = sorted(p.glob("chunk_*.mcap"))
         if not chunks:
-            raise RecordingError(
-                f"replay: expected an MCAP file or a spool directory with chunk_*.mcap, got {p}"
-            )
+            raise RecordingError(f"expected an MCAP file or a spool directory with chunk_*.mcap, got {p}")
         parts = [read_recording(c) for c in chunks]
         msgs = tuple(sorted((m for r in parts for m in r.messages), key=lambda m: m.log_time_us))
         chans = tuple(c for r in parts for c in r.channels)
         return Recording(path=p, messages=msgs, channels=_merge_channels(chans))
     if not p.is_file():
-        raise RecordingError(f"replay: expected an MCAP file, got {p} (no such file)")
+        raise RecordingError(f"expected an MCAP file, got {p} (no such file)")
     try:
         with open(p, "rb") as fh:
             return _load_stream(p, fh)
-    except (McapError, ValueError, KeyError, EOFError, OSError) as exc:
-        if isinstance(exc, RecordingError):
-            raise
-        raise RecordingError(
-            f"replay: expected a readable MCAP file, got {p}: {type(exc).__name__}: {exc}"
-        ) from None
+    except (McapError, ValueError, KeyError, EOFError, OSError, struct.error) as exc:
+        # Truncated or foreign bytes surface from the mcap reader as any of these.
+        raise RecordingError(f"expected a readable MCAP file, got {p}: {type(exc).__name__}: {exc}") from None
 
 
 def _merge_channels(chans: tuple[ChannelSummary, ...]) -> tuple[ChannelSummary, ...]:
