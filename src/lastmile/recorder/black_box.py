@@ -12,6 +12,7 @@ import json
 import os
 import signal
 import threading
+import time
 from collections import deque
 from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -47,6 +48,8 @@ EVENT_SCHEMA = "lastmile.BlackBoxEvent"
 EVENT_METADATA = "black_box_event"
 SUMMARY_METADATA = "operator_summary"
 PROFILE = "lastmile.black_box"
+
+_YIELD_EVERY_S = 0.001
 
 Entry = tuple[int, str, Any]
 """(log time in microseconds, topic, message): what the window holds."""
@@ -112,8 +115,12 @@ def write_mcap(
     events: Sequence[dict[str, Any]] = (),
     metadata: dict[str, dict[str, str]] | None = None,
     compression: str = "zstd",
+    yield_gil: bool = False,
 ) -> Path:
     """Write entries (and event records) to ``path`` atomically: a temporary name, then a rename.
+
+    With ``yield_gil`` (background writes) the thread gives up the GIL after every millisecond of
+    work, so a busy loop waits about that long instead of the interpreter's 5 ms switch interval.
 
     Returns:
         ``path``; a reader never sees a half-written file under that name.
@@ -138,6 +145,7 @@ def write_mcap(
             return channels[key]
 
         seq = 0
+        last_yield = time.perf_counter()
         for log_us, topic, msg in entries:
             log_ns = log_us * 1000
             name, schema_bytes = mcap_codec.schema_of(msg)
@@ -151,6 +159,9 @@ def write_mcap(
                 sequence=seq,
             )
             seq += 1
+            if yield_gil and time.perf_counter() - last_yield > _YIELD_EVERY_S:
+                time.sleep(0)
+                last_yield = time.perf_counter()
             for view_topic, view_schema, payload in mcap_codec.foxglove_views(topic, msg):
                 w.add_message(
                     channel(view_topic, view_schema),
@@ -213,6 +224,8 @@ class BlackBox:
         self._window: deque[Entry] = deque()
         self._newest_us = 0
         self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="black-box")
+        # Start the writer thread now: spawning it inside the first trigger would cost the loop ~ms.
+        self._executor.submit(lambda: None).result()
         self._pending: list[Future[Path]] = []
         self._last_trigger: dict[str, tuple[int, Future[Path]]] = {}
         self._count = 0
@@ -299,10 +312,14 @@ class BlackBox:
         """Write the window now, in the calling thread (for a crash or SIGTERM: no thread to rely on)."""
         t = self._newest_us if now_us is None else now_us
         ev = self._event(kind, t, reason, None)
-        return self._write(self._path(kind, t), tuple(self._window), ev)
+        return self._write(self._path(kind, t), tuple(self._window), ev, background=False)
 
-    def _write(self, path: Path, entries: Sequence[Entry], event: dict[str, Any]) -> Path:
-        out = write_mcap(path, entries, events=[event], compression=self.config.compression)
+    def _write(
+        self, path: Path, entries: Sequence[Entry], event: dict[str, Any], background: bool = True
+    ) -> Path:
+        out = write_mcap(
+            path, entries, events=[event], compression=self.config.compression, yield_gil=background
+        )
         with self._lock:
             self.dumps.append(out)
         return out
@@ -346,7 +363,7 @@ class BlackBox:
             self._pending.append(future)
 
     def _write_chunk(self, path: Path, entries: Sequence[Entry]) -> Path:
-        write_mcap(path, entries, compression=self.config.compression)
+        write_mcap(path, entries, compression=self.config.compression, yield_gil=True)
         # Chunks wholly older than the window are of no more use.
         horizon = entries[-1][0] - self.config.window_us - (self.config.spool_chunk_us or 0)
         for old in sorted(self.spool_dir.glob("chunk_*.mcap")):
