@@ -74,7 +74,8 @@ class SensorSpec:
         rate_hz: expected frame rate, > 0.
         max_latency_us: arrival minus capture stamp above this is a latency spike.
         frozen_after: this many identical payloads in a row mean a frozen driver (None: not checked, for
-            streams that legitimately repeat, such as door state or odometry at standstill).
+            streams that legitimately repeat, such as door state or odometry at standstill). A freeze is
+            seen ``(frozen_after - 1)`` periods after it starts: keep that within one period + 100 ms.
         min_points: a LiDAR sweep with fewer points is blocked (0: not checked).
         silent_level, frozen_level: override the default levels for this stream (a rear radar matters
             less than the front LiDAR); None keeps :data:`DEFAULT_LEVELS`.
@@ -83,7 +84,7 @@ class SensorSpec:
     key: str
     rate_hz: float
     max_latency_us: int = 300_000
-    frozen_after: int | None = 5
+    frozen_after: int | None = 3
     min_points: int = 0
     silent_level: FailSafeLevel | None = None
     frozen_level: FailSafeLevel | None = None
@@ -108,11 +109,11 @@ def default_sensor_specs() -> tuple[SensorSpec, ...]:
     """The simulator's default suite (sim/sensors.py): GNSS 10 Hz, IMU and odometry 50 Hz, radars 20 Hz."""
     return (
         SensorSpec(key="gnss", rate_hz=10.0),
-        SensorSpec(key="imu", rate_hz=50.0, frozen_after=10),
+        SensorSpec(key="imu", rate_hz=50.0, frozen_after=5),
         SensorSpec(key="odom", rate_hz=50.0, frozen_after=None),
         SensorSpec(key="door", rate_hz=10.0, frozen_after=None, silent_level=FailSafeLevel.TAKEOVER_REQUEST),
-        SensorSpec(key="radar_front", rate_hz=20.0, frozen_after=5),
-        SensorSpec(key="radar_rear", rate_hz=20.0, frozen_after=5, silent_level=FailSafeLevel.SPEED_LIMIT),
+        SensorSpec(key="radar_front", rate_hz=20.0),
+        SensorSpec(key="radar_rear", rate_hz=20.0, silent_level=FailSafeLevel.SPEED_LIMIT),
     )
 
 
@@ -294,6 +295,8 @@ class ReliabilityMonitor:
         self._pose_at_us = -1
         self._ever_valid = False
         self._route_s: float | None = None
+        self._location_for_us = -1
+        self._location_found: list[tuple[MalfunctionKind, str]] = []
         self._last_fix_us: int | None = None
         self._gnss_seen = False
         self._gate: deque[tuple[int, int]] = deque()
@@ -492,29 +495,28 @@ class ReliabilityMonitor:
         est = self._pose
         if est is None or not est.valid:
             return
+        if self._location_for_us != self._pose_at_us:
+            # The map and route look-ups cost tens of microseconds: once per new pose, not per check.
+            self._location_for_us = self._pose_at_us
+            self._location_found = self._location_faults(est)
+        for kind, reason in self._location_found:
+            self._emit(out, now_us, "odd", kind, reason)
+
+    def _location_faults(self, est: LocalizationEstimate) -> list[tuple[MalfunctionKind, str]]:
+        found: list[tuple[MalfunctionKind, str]] = []
         pose = est.map_from_base
         if self.hdmap is not None and not bool(self.hdmap.is_drivable(np.array([[pose.x_m, pose.y_m]]))[0]):
-            self._emit(
-                out,
-                now_us,
-                "odd",
-                K.OFF_MAP,
-                f"pose ({pose.x_m:.1f}, {pose.y_m:.1f}) not on a drivable lanelet",
-            )
+            found.append((K.OFF_MAP, f"pose ({pose.x_m:.1f}, {pose.y_m:.1f}) not on a drivable lanelet"))
         if self.route is not None:
+            limit = self.config.route_offset_max_m
             f = self.route.project(pose.x_m, pose.y_m, hint_s_m=self._route_s, window_m=30.0)
-            if abs(f.d_m) > self.config.route_offset_max_m:
+            if abs(f.d_m) > limit:
                 # The windowed projection may have lost the route; confirm with a global one.
                 f = self.route.project(pose.x_m, pose.y_m)
             self._route_s = f.s_m
-            if abs(f.d_m) > self.config.route_offset_max_m:
-                self._emit(
-                    out,
-                    now_us,
-                    "odd",
-                    K.OFF_ROUTE,
-                    f"{abs(f.d_m):.1f} m from the route > {self.config.route_offset_max_m:.1f} m",
-                )
+            if abs(f.d_m) > limit:
+                found.append((K.OFF_ROUTE, f"{abs(f.d_m):.1f} m from the route > {limit:.1f} m"))
+        return found
 
     def _localization(self, now_us: int, out: list[MalfunctionSignal]) -> None:
         c = self.config
