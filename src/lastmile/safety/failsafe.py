@@ -40,6 +40,9 @@ PULLOVER_BLOCKERS = frozenset(
     }
 )
 
+# Levels above NONE, most severe first (precomputed: iterating an Enum is slow in a per-tick loop).
+_LEVELS_DOWN = tuple(sorted((lv for lv in FailSafeLevel if lv != FailSafeLevel.NONE), reverse=True))
+
 # Road types of the s-layer database where a shuttle may stop at the curb: normal road, bus bay.
 _PULLOVER_ROAD_TYPES = (0, 3)
 
@@ -154,9 +157,9 @@ class FailSafeArbiter:
                 continue
             if sig.kind in PULLOVER_BLOCKERS:
                 blockers = True
-            for higher_or_equal in FailSafeLevel:
-                if FailSafeLevel.NONE < higher_or_equal <= lv:
-                    self._last_seen[higher_or_equal] = int(now_us)
+            for covered in _LEVELS_DOWN:
+                if covered <= lv:
+                    self._last_seen[covered] = int(now_us)
             cap = sig.speed_cap_mps
             if cap is None and lv == FailSafeLevel.SPEED_LIMIT:
                 cap = c.default_speed_cap_mps
@@ -169,9 +172,7 @@ class FailSafeArbiter:
                 self._reasons[top] = tuple(s.reason for s in worst_first if s.level > FailSafeLevel.NONE)
 
         held = FailSafeLevel.NONE
-        for lv in sorted(FailSafeLevel, reverse=True):
-            if lv == FailSafeLevel.NONE:
-                continue
+        for lv in _LEVELS_DOWN:
             seen = self._last_seen.get(lv)
             if seen is not None and now_us - seen < c.clear_hold_us[lv]:
                 held = lv
@@ -208,7 +209,7 @@ class FailSafeArbiter:
         if held == FailSafeLevel.EMERGENCY_STOP:
             speed_cap = 0.0
         reasons: tuple[str, ...] = ()
-        for lv in sorted(FailSafeLevel, reverse=True):
+        for lv in _LEVELS_DOWN:
             if lv <= held and lv in self._reasons:
                 reasons = self._reasons[lv]
                 break

@@ -288,6 +288,9 @@ class ReliabilityMonitor:
         self.config = config or ReliabilityConfig()
         self.hdmap = hdmap
         self.route = route
+        if hdmap is not None:
+            # The map builds its drivable raster on first use (about a second): do it now, not mid-drive.
+            hdmap.is_drivable(np.zeros((1, 2)))
         self._streams = {s.key: _Stream(s) for s in self.config.sensors}
         self._unknown_garbage: dict[str, tuple[int, str]] = {}
         self._started_us: int | None = None
