@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import itertools
+import json
 from pathlib import Path
 
 import numpy as np
@@ -145,3 +146,48 @@ def test_a_file_that_is_not_mcap_is_one_clear_error(tmp_path: Path) -> None:
         read_recording(bad)
     with pytest.raises(RecordingError, match="no such file"):
         read_recording(tmp_path / "missing.mcap")
+
+
+def _conforms(schema: dict, value: object, where: str) -> None:
+    """The parts of JSON Schema our Foxglove schemas use: object, array, required, number/integer/string."""
+    kind = schema.get("type")
+    if kind == "object":
+        assert isinstance(value, dict), where
+        for name in schema.get("required", []):
+            assert name in value, f"{where}: missing {name}"
+        for name, sub in schema.get("properties", {}).items():
+            if name in value:
+                _conforms(sub, value[name], f"{where}.{name}")
+    elif kind == "array":
+        assert isinstance(value, list), where
+        for i, item in enumerate(value):
+            _conforms(schema["items"], item, f"{where}[{i}]")
+    elif kind == "integer":
+        assert isinstance(value, int) and not isinstance(value, bool), where
+    elif kind == "number":
+        assert isinstance(value, int | float) and not isinstance(value, bool), where
+    elif kind == "string":
+        assert isinstance(value, str), where
+    elif "oneOf" in schema:
+        assert value in [c["const"] for c in schema["oneOf"]], where
+
+
+def test_every_foxglove_message_has_the_fields_its_schema_requires(
+    dumped: tuple[Path, BlackBox, list],
+) -> None:
+    seen = set()
+    with open(dumped[0], "rb") as fh:
+        for schema, channel, message in make_reader(fh).iter_messages():
+            assert (
+                schema is not None and schema.encoding == "jsonschema" and channel.message_encoding == "json"
+            )
+            if schema.name.startswith("foxglove.") and schema.name not in seen:
+                seen.add(schema.name)
+                _conforms(json.loads(schema.data), json.loads(message.data), schema.name)
+    assert seen == {
+        "foxglove.PointCloud",
+        "foxglove.PoseInFrame",
+        "foxglove.FrameTransform",
+        "foxglove.SceneUpdate",
+        "foxglove.Log",
+    }

@@ -70,6 +70,7 @@ _TEXT = _obj(
     text=_STR,
 )
 _KEY_VALUE = _obj("foxglove.KeyValuePair", key=_STR, value=_STR)
+_ANY_ITEMS = {"type": "array", "items": {"type": "object"}}
 _ENTITY = _obj(
     "foxglove.SceneEntity",
     timestamp=_TIME,
@@ -78,11 +79,17 @@ _ENTITY = _obj(
     lifetime=_DURATION,
     frame_locked={"type": "boolean"},
     metadata={"type": "array", "items": _KEY_VALUE},
+    arrows=_ANY_ITEMS,
     cubes={"type": "array", "items": _CUBE},
+    spheres=_ANY_ITEMS,
+    cylinders=_ANY_ITEMS,
     lines={"type": "array", "items": _LINE},
+    triangles=_ANY_ITEMS,
     texts={"type": "array", "items": _TEXT},
+    models=_ANY_ITEMS,
 )
-_ENTITY["required"] = ["timestamp", "frame_id", "id", "lifetime", "frame_locked"]
+# Foxglove's schema requires every primitive list (empty when unused).
+PRIMITIVE_LISTS = ("arrows", "cubes", "spheres", "cylinders", "lines", "triangles", "texts", "models")
 
 SCHEMAS: dict[str, dict[str, Any]] = {
     "foxglove.PointCloud": _obj(
@@ -199,5 +206,8 @@ def entity(stamp_us: int, entity_id: str, frame_id: str = MAP_FRAME, **primitive
         "frame_locked": False,
         "metadata": [],
     }
-    out.update(primitives)
+    for name in PRIMITIVE_LISTS:
+        out[name] = list(primitives.pop(name, []))
+    if primitives:
+        raise ValueError(f"entity: expected primitives among {PRIMITIVE_LISTS}, got {sorted(primitives)}")
     return out
