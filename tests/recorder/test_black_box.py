@@ -11,6 +11,7 @@ import pytest
 from mcap.reader import make_reader
 
 from lastmile.core.errors import ConfigError
+from lastmile.core.geometry import SE2
 from lastmile.core.sensor_frames import LidarSweep
 from lastmile.core.stamp import Stamp
 from lastmile.core.vehicle_messages import ActuatorCommand
@@ -41,7 +42,7 @@ def test_window_keeps_exactly_the_last_30_s(tmp_path: Path) -> None:
 @pytest.fixture(scope="module")
 def dumped(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, BlackBox, list]:
     out = tmp_path_factory.mktemp("bb")
-    bb = BlackBox(BlackBoxConfig(out_dir=out))
+    bb = BlackBox(BlackBoxConfig(out_dir=out, sensor_mounts={"lidar_top": SE2(1.2, 0.0, 0.0)}))
     last = max(record_ticks(bb, 0, 3500))  # 35 s of ticks
     snapshot = list(bb.window())
     future = bb.trigger("takeover", last, "operator braked for a pedestrian")
@@ -73,6 +74,7 @@ def test_trigger_writes_the_window_with_foxglove_schemas(dumped: tuple[Path, Bla
     assert channel_topics["/sensors/lidar/lidar_top"] == "foxglove.PointCloud"
     assert channel_topics["/tf"] == "foxglove.FrameTransform"
     assert channel_topics["/viz/tracking/tracks"] == "foxglove.SceneUpdate"
+    assert channel_topics["/tf_static"] == "foxglove.FrameTransform"  # base_link -> lidar_top
     assert stats.message_start_time == (34_990_000 - WINDOW_US + TICK_US) * 1000  # (newest - 30 s, newest]
     assert stats.message_end_time == 34_990_000 * 1000
     ev = meta["black_box_event"]

@@ -14,9 +14,9 @@ import signal
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from types import FrameType
 from typing import Any
@@ -25,6 +25,7 @@ from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 
 from lastmile.core.errors import ConfigError
+from lastmile.core.geometry import SE2
 from lastmile.core.sensor_frames import (
     CameraDetections,
     DoorSensorFrame,
@@ -65,6 +66,8 @@ class BlackBoxConfig:
     spool_chunk_us: if set, the window is also written continuously as finalized MCAP chunks of this
         length under ``out_dir/spool``, so even SIGKILL leaves all but the last chunk readable.
     compression: MCAP chunk compression ("zstd", "lz4" or "none").
+    sensor_mounts: base_from_sensor pose per sensor id, written as ``/tf_static`` transforms
+        (base_link -> sensor id) so Foxglove can place point clouds, which are in their sensor's frame.
     """
 
     out_dir: Path
@@ -72,6 +75,7 @@ class BlackBoxConfig:
     cooldown_us: int = 5_000_000
     spool_chunk_us: int | None = None
     compression: str = "zstd"
+    sensor_mounts: Mapping[str, SE2] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if self.window_us <= 0:
@@ -116,6 +120,7 @@ def write_mcap(
     metadata: dict[str, dict[str, str]] | None = None,
     compression: str = "zstd",
     yield_gil: bool = False,
+    sensor_mounts: Mapping[str, SE2] | None = None,
 ) -> Path:
     """Write entries (and event records) to ``path`` atomically: a temporary name, then a rename.
 
@@ -146,6 +151,25 @@ def write_mcap(
 
         seq = 0
         last_yield = time.perf_counter()
+        if sensor_mounts and entries:
+            t0_us = entries[0][0]
+            for sensor_id, mount in sorted(sensor_mounts.items()):
+                pose = fx.planar_pose(mount.x_m, mount.y_m, mount.yaw_rad)
+                tf = {
+                    "timestamp": fx.time_of(t0_us),
+                    "parent_frame_id": fx.BASE_FRAME,
+                    "child_frame_id": sensor_id,
+                    "translation": pose["position"],
+                    "rotation": pose["orientation"],
+                }
+                w.add_message(
+                    channel("/tf_static", "foxglove.FrameTransform"),
+                    log_time=t0_us * 1000,
+                    data=json.dumps(tf).encode(),
+                    publish_time=t0_us * 1000,
+                    sequence=seq,
+                )
+                seq += 1
         for log_us, topic, msg in entries:
             log_ns = log_us * 1000
             name, schema_bytes = mcap_codec.schema_of(msg)
@@ -317,8 +341,14 @@ class BlackBox:
     def _write(
         self, path: Path, entries: Sequence[Entry], event: dict[str, Any], background: bool = True
     ) -> Path:
+        c = self.config
         out = write_mcap(
-            path, entries, events=[event], compression=self.config.compression, yield_gil=background
+            path,
+            entries,
+            events=[event],
+            compression=c.compression,
+            yield_gil=background,
+            sensor_mounts=c.sensor_mounts,
         )
         with self._lock:
             self.dumps.append(out)
@@ -363,7 +393,8 @@ class BlackBox:
             self._pending.append(future)
 
     def _write_chunk(self, path: Path, entries: Sequence[Entry]) -> Path:
-        write_mcap(path, entries, compression=self.config.compression, yield_gil=True)
+        c = self.config
+        write_mcap(path, entries, compression=c.compression, yield_gil=True, sensor_mounts=c.sensor_mounts)
         # Chunks wholly older than the window are of no more use.
         horizon = entries[-1][0] - self.config.window_us - (self.config.spool_chunk_us or 0)
         for old in sorted(self.spool_dir.glob("chunk_*.mcap")):
