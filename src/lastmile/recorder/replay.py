@@ -94,24 +94,30 @@ class Recording:
         """Messages of one topic, in log-time order."""
         return [m.message for m in self.messages if m.topic == topic]
 
-    def ticks(self) -> Iterator[tuple[Stamp, tuple[SensorFrame, ...]]]:
+    def ticks(self, tick_us: int | None = None) -> Iterator[tuple[Stamp, tuple[SensorFrame, ...]]]:
         """(now, frames) in loop order: exactly the input ``stack.tick(now, frames)`` saw, for playback.
 
         Frames are grouped by the tick they were delivered at (their log time) and kept in delivery
         order, which need not be capture order, just as the loop handed them over.
+
+        Args:
+            tick_us: the loop's base tick. Given, every tick from the first recorded one to the last is
+                yielded, with no frames where none arrived: a stack counts its ticks to schedule its
+                modules, so playback must not skip any. None: only ticks that delivered frames.
         """
-        batch: list[SensorFrame] = []
-        now: int | None = None
+        grouped: dict[int, list[SensorFrame]] = {}
         for m in self.messages:
-            if type(m.message).__name__ not in _SENSOR_TYPES:
-                continue
-            if now is not None and m.log_time_us != now:
-                yield Stamp(now), tuple(batch)
-                batch = []
-            now = m.log_time_us
-            batch.append(m.message)
-        if now is not None:
-            yield Stamp(now), tuple(batch)
+            if type(m.message).__name__ in _SENSOR_TYPES:
+                grouped.setdefault(m.log_time_us, []).append(m.message)
+        if tick_us is None:
+            for now in sorted(grouped):
+                yield Stamp(now), tuple(grouped[now])
+            return
+        if tick_us <= 0:
+            raise RecordingError(f"ticks: expected a positive tick_us, got {tick_us}")
+        first, last = self.span_us
+        for now in range(first, last + 1, tick_us):
+            yield Stamp(now), tuple(grouped.get(now, ()))
 
     def frames_in_capture_order(self) -> list[SensorFrame]:
         """Every sensor frame sorted by capture stamp (stable for equal stamps)."""
