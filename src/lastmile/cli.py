@@ -197,5 +197,47 @@ def experiment_v2i(
     typer.echo(f"wrote {report} and {out / 'fig12.png'}")
 
 
+@app.command()
+def replay(
+    file: Annotated[Path, typer.Argument(help="Black-box MCAP file (or a spool directory of chunks).")],
+    render: Annotated[
+        Path | None, typer.Option(help="Render a top-down PNG sequence into this directory.")
+    ] = None,
+    fps: Annotated[float, typer.Option(help="Frames per second of recorded time when rendering.")] = 10.0,
+) -> None:
+    """Summarise a black-box recording (channels, counts, time span, events); optionally render PNGs."""
+    from rich.console import Console
+    from rich.table import Table
+
+    from lastmile.recorder.replay import read_recording, render_png_sequence
+
+    try:
+        if not fps > 0:
+            raise ConfigError(f"--fps: expected a positive rate, got {fps}")
+        rec = read_recording(file)
+    except LastmileError as exc:
+        typer.echo(f"lastmile replay: {exc}", err=True)
+        raise typer.Exit(2) from None
+    console = Console()
+    first, last = rec.span_us
+    table = Table(title=f"{file}: {len(rec.messages)} messages, {first / 1e6:.2f} s to {last / 1e6:.2f} s")
+    for col in ("topic", "schema", "messages", "first [s]", "last [s]"):
+        table.add_column(col, justify="right" if col in ("messages", "first [s]", "last [s]") else "left")
+    for ch in rec.channels:
+        table.add_row(
+            ch.topic, ch.schema, str(ch.count), f"{ch.first_us / 1e6:.2f}", f"{ch.last_us / 1e6:.2f}"
+        )
+    console.print(table)
+    for ev in rec.events:
+        console.print(
+            f"event: {ev.get('trigger')} at {int(ev.get('time_us', 0)) / 1e6:.2f} s: {ev.get('reason')}"
+        )
+    summary = rec.operator_summary
+    console.print(f"operator summary: {summary}" if summary is not None else "operator summary: (none yet)")
+    if render is not None:
+        paths = render_png_sequence(rec, render, fps=fps)
+        console.print(f"wrote {len(paths)} frames to {render}")
+
+
 def main() -> None:
     app()
