@@ -1,3 +1,4 @@
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -130,6 +131,32 @@ def test_a_lasting_offset_is_rejected_until_it_forces_a_reset():
     est = run.ekf.estimate(Stamp(15_000_000 - 20_000))
     x, y, _ = _unicycle(15.0 - 0.02)
     assert math.hypot(est.map_from_base.x_m - x - 100.0, est.map_from_base.y_m - y) < 0.1
+
+
+def test_multipath_jumps_in_changing_directions_never_force_a_reset():
+    # Reflections: 4 m jumps whose direction changes every fix. The rejected fixes disagree with each
+    # other, so the filter keeps dead reckoning instead of restarting from a wrong fix.
+    config = PoseEkfConfig(zero_slip_offset_m=0.0, reset_after_rejections=20)
+    rng = np.random.default_rng(3)
+    ekf = PoseEkf(config)
+    worst = 0.0
+    for k in range(15 * 50):
+        t = k * 0.02
+        ekf.predict(stamp_from_s(t), V + rng.normal(0, 0.02), W + rng.normal(0, 0.003))
+        if k % 5 == 0:
+            fix = _fix(t, _unicycle, rng)
+            if t >= 5.0:
+                angle = rng.uniform(-math.pi, math.pi)
+                fix = dataclasses.replace(
+                    fix, x_m=fix.x_m + 4.0 * math.cos(angle), y_m=fix.y_m + 4.0 * math.sin(angle)
+                )
+            ekf.update_gnss(fix)
+        if t >= 5.0:
+            x, y, _ = _unicycle(t)
+            est = ekf.estimate(stamp_from_s(t))
+            worst = max(worst, math.hypot(est.map_from_base.x_m - x, est.map_from_base.y_m - y))
+    assert ekf.rejected_fixes >= 95 and ekf.resets == 0
+    assert worst < 1.0  # dead reckoning, not a jump onto a reflected fix
 
 
 def test_fixes_without_a_solution_are_skipped_and_the_estimate_is_invalid_before_the_first_fix():

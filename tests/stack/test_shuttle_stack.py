@@ -14,6 +14,7 @@ from lastmile.core.sensor_frames import (
 from lastmile.core.stamp import Stamp
 from lastmile.core.vehicle import VehicleGeometry
 from lastmile.core.vehicle_messages import BehaviourState
+from lastmile.safety.reliability_monitor import ReliabilityConfig, SensorSpec
 from lastmile.sim.vehicle_model import ActuatorDynamics, KinematicBicycle, VehicleState
 from lastmile.stack.shuttle_stack import ShuttleStack, StackConfig
 
@@ -21,8 +22,19 @@ G = VehicleGeometry()
 FRONT = SE2(G.front_from_rear_axle_m, 0.0, 0.0)
 
 
+# The sensors this rig feeds, which the stack's reliability monitor expects at their rates.
+RIG_SENSORS = (
+    SensorSpec(key="gnss", rate_hz=10.0),
+    SensorSpec(key="imu", rate_hz=50.0, frozen_after=None),  # a noiseless test IMU repeats itself
+    SensorSpec(key="odom", rate_hz=50.0, frozen_after=None),
+    SensorSpec(key="door", rate_hz=10.0, frozen_after=None),
+    SensorSpec(key="front", rate_hz=20.0, frozen_after=None),
+)
+
+
 def _drive(layers, seconds, obstacle_x=None, call=None, door_open_after=None):
-    stack = ShuttleStack(layers, G, StackConfig(radar_mounts={"front": FRONT}))
+    config = StackConfig(radar_mounts={"front": FRONT}, reliability=ReliabilityConfig(sensors=RIG_SENSORS))
+    stack = ShuttleStack(layers, G, config)
     car = KinematicBicycle(G, ActuatorDynamics(), VehicleState(20.0, 0.0, 0.0))
     states, door_cmds, onboard_y = [], [], []
     door_open = False
@@ -52,17 +64,15 @@ def _drive(layers, seconds, obstacle_x=None, call=None, door_open_after=None):
             frames.append(DoorSensorFrame(stamp=now, door_open=door_open, person_in_doorway=False))
         if tick == 1 and call is not None:
             frames.append(StopCallFrame(stamp=now, stop_id=call, source="stop_button"))
-        if tick % 5 == 0 and obstacle_x is not None:
-            mount = SE2(s.x_m, s.y_m, s.yaw_rad).compose(FRONT)
-            rel = mount.inverse().apply(obstacle_x, 0.0)
-            if 0 < rel[0] < 60:
-                frames.append(
-                    RadarFrame(
-                        stamp=now,
-                        sensor_id="front",
-                        objects=np.array([[rel[0], rel[1], 0.0, 0.0, -15.0, 0.0]]),
-                    )
-                )
+        if tick % 5 == 0:
+            objects = np.zeros((0, 6))
+            if obstacle_x is not None:
+                mount = SE2(s.x_m, s.y_m, s.yaw_rad).compose(FRONT)
+                rel = mount.inverse().apply(obstacle_x, 0.0)
+                if 0 < rel[0] < 60:
+                    objects = np.array([[rel[0], rel[1], 0.0, 0.0, -15.0, 0.0]])
+            # The radar reports every cycle, an empty list when it sees nothing.
+            frames.append(RadarFrame(stamp=now, sensor_id="front", objects=objects))
         out = stack.tick(now, frames)
         cmd = out.command
         car.step(0.01, cmd.accel_mps2, cmd.steer_front_rad, cmd.steer_rear_rad, cmd.emergency_brake)

@@ -10,6 +10,7 @@ import numpy as np
 from lastmile.core.arrays import frozen_array
 from lastmile.core.errors import MessageError
 from lastmile.core.geometry import SE2
+from lastmile.core.safety_messages import SafetyDirective
 from lastmile.core.stamp import Stamp
 
 
@@ -153,3 +154,4 @@ class StackOutput:
     hmi: tuple[HmiMessage, ...] = field(default_factory=tuple)
     heartbeats: tuple[Heartbeat, ...] = field(default_factory=tuple)
     takeover_request: bool = False
+    safety: SafetyDirective | None = None

@@ -18,6 +18,7 @@ from lastmile.core.object_class import ObjectClass
 from lastmile.core.objects import TrackedObjects
 from lastmile.core.polyline import Polyline
 from lastmile.core.route_obstacles import RouteObstacle, route_obstacles
+from lastmile.core.safety_messages import FailSafeLevel, SafetyDirective
 from lastmile.core.stamp import Stamp
 from lastmile.core.vehicle import VehicleGeometry
 from lastmile.core.vehicle_messages import BehaviourDecision, BehaviourState, Trajectory
@@ -90,6 +91,7 @@ class DecisionInput:
     door_open: bool
     person_in_doorway: bool
     trajectory: Trajectory | None
+    safety: SafetyDirective | None = None
 
 
 @dataclass(slots=True)
@@ -153,6 +155,7 @@ class BehaviourStateMachine:
 
         constraints += self._in_path(obstacles, inp, front_s)
         constraints += self._crosswalks(inp.tracks, front_s)
+        speed_cap = self._obey_safety(inp.safety, t_s, constraints, speed_cap)
 
         if self.state == BehaviourState.EMERGENCY_STOP:
             return self._emergency(inp, t_s, constraints, front_s)
@@ -433,7 +436,9 @@ class BehaviourStateMachine:
     ) -> BehaviourDecision:
         c = self.config
         close = [k for k in constraints if k.emergency_ok and k.stop_front_s_m - front_s < c.min_gap_m + 2.0]
-        if inp.speed_mps < 0.05 and not close:
+        ordered = inp.safety is not None and inp.safety.emergency_stop
+        # An e-stop the safety module ordered holds until the fail-safe releases it (operator reset).
+        if inp.speed_mps < 0.05 and not close and not ordered:
             if self.emergency_clear_since_s is None:
                 self.emergency_clear_since_s = t_s
             elif t_s - self.emergency_clear_since_s > 1.0:
@@ -454,6 +459,21 @@ class BehaviourStateMachine:
             risk_track_id=close[0].track_id if close else -1,
             reason="emergency stop",
         )
+
+    def _obey_safety(
+        self, sd: SafetyDirective | None, t_s: float, constraints: list[_Constraint], cap: float
+    ) -> float:
+        """The fail-safe's directive: a speed cap, a stop point for the minimal risk manoeuvre, an e-stop."""
+        if sd is None or sd.level == FailSafeLevel.NONE:
+            return cap
+        if sd.emergency_stop:
+            self.request_emergency(t_s, "safety: " + "; ".join(sd.reasons))
+        if sd.speed_cap_mps is not None:
+            cap = min(cap, sd.speed_cap_mps)
+        if sd.level >= FailSafeLevel.MINIMAL_RISK_MANOEUVRE and sd.mrm_stop_s_m is not None:
+            # A comfortable stop at the arbiter's point (never an emergency brake for it).
+            constraints.append(_Constraint(sd.mrm_stop_s_m, "minimal risk manoeuvre", emergency_ok=False))
+        return cap
 
     def request_emergency(self, t_s: float, why: str) -> None:
         """The e-stop button or a safety monitor: every state can reach emergency stop."""

@@ -10,6 +10,7 @@ latency exceeds the odometry's) be inserted at their own stamp and the newer inp
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
 
 from lastmile.core.errors import ConfigError, MessageError
@@ -40,7 +41,10 @@ class PoseEkfConfig:
         gate_chi2: chi-square bound (2 dof, position) beyond which a fix is rejected as an outlier;
             13.8 is the 0.999 quantile.
         reset_after_rejections: this many consecutive rejected fixes mean the filter, not the
-            receiver, is wrong: the next fix re-initialises it.
+            receiver, is wrong: the next fix re-initialises it, provided the rejected fixes agree
+            with each other (a drifted filter sees one consistent offset; multipath jumps around).
+        reset_consistency_m: how far the rejected fixes' innovations may spread about their mean
+            for a reset, m.
         max_pos_std_m: the estimate is marked invalid while its position sigma (largest axis)
             exceeds this, m.
         history_s: how far back a late input is inserted at its own stamp, s; older ones are dropped.
@@ -56,6 +60,7 @@ class PoseEkfConfig:
     zero_slip_offset_m: float = 1.45
     gate_chi2: float = 13.8
     reset_after_rejections: int = 20
+    reset_consistency_m: float = 1.0
     max_pos_std_m: float = 1.0
     history_s: float = 1.0
 
@@ -117,6 +122,9 @@ class PoseEkf:
         self.resets = 0
         """Re-initialisations after ``reset_after_rejections`` consecutive rejections."""
         self._consecutive_rejections = 0
+        self._rejected_innovations: deque[tuple[float, float]] = deque(
+            maxlen=self.config.reset_after_rejections
+        )
         self._reset_on_arrival = False
         prior = [0.0] * 15
         prior[_PACKED[_X][_X]] = prior[_PACKED[_Y][_Y]] = _UNKNOWN_VAR
@@ -349,7 +357,11 @@ class PoseEkf:
             if first_time:
                 self.rejected_fixes += 1
                 self._consecutive_rejections += 1
-                if self._consecutive_rejections >= self.config.reset_after_rejections:
+                self._rejected_innovations.append((dx, dy))
+                if (
+                    self._consecutive_rejections >= self.config.reset_after_rejections
+                    and self._innovations_agree()
+                ):
                     # The filter has been wrong for a while (long drift, a bad reset): trust the fix.
                     self._consecutive_rejections = 0
                     self._reset_on_arrival = True
@@ -358,11 +370,19 @@ class PoseEkf:
             return snap, False
         if first_time:
             self._consecutive_rejections = 0
+            self._rejected_innovations.clear()
         s, p = self._scalar_update(s, p, _X, dx, r_pos)
         s, p = self._scalar_update(s, p, _Y, fix.y_m - s[_Y], r_pos)
         s, p = self._scalar_update(s, p, _YAW, wrap_angle_rad(fix.yaw_rad - s[_YAW]), fix.yaw_std_rad**2)
         s, p = self._scalar_update(s, p, _V, fix.speed_mps - s[_V], self._r_gnss_speed)
         return (t_us, True, w_in, (s[0], s[1], wrap_angle_rad(s[2]), s[3], s[4]), p), True
+
+    def _innovations_agree(self) -> bool:
+        inn = self._rejected_innovations
+        mx = sum(d[0] for d in inn) / len(inn)
+        my = sum(d[1] for d in inn) / len(inn)
+        spread = max(math.hypot(dx - mx, dy - my) for dx, dy in inn)
+        return spread <= self.config.reset_consistency_m
 
     def _initialise(self, snap: _Snapshot, fix: GnssInsFrame) -> _Snapshot:
         """Pose from the fix; speed and bias (and their covariance) kept from the odometry so far."""

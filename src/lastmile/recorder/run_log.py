@@ -112,6 +112,9 @@ EVENT_SCHEMAS: dict[str, dict[str, str]] = {
     "fault_start": {"kind": "str", "target": "str"},
     "fault_end": {"kind": "str", "target": "str"},
     "stack_crash": {"error": "str"},
+    "safety": {"level": "str", "mrm": "str", "reason": "str"},
+    "hardware_watchdog": {"reason": "str"},
+    "recording": {"path": "str", "trigger": "str"},
 }
 """Required ``data`` fields (name -> "int" | "float" | "bool" | "str") of the known event kinds."""
 

@@ -11,6 +11,7 @@ from typing import Any
 
 from threadpoolctl import threadpool_limits
 
+from lastmile.core.safety_messages import FailSafeLevel
 from lastmile.core.stamp import Stamp
 from lastmile.core.vehicle import VehicleGeometry
 from lastmile.core.vehicle_messages import BehaviourState, StackOutput
@@ -21,7 +22,9 @@ from lastmile.hdmap.layers import SLayerDatabase
 from lastmile.hdmap.loader import load_campus_map
 from lastmile.hdmap.model import HDMap
 from lastmile.hdmap.routing import campus_shuttle_loop, route_polyline
+from lastmile.recorder.black_box import BlackBox, BlackBoxConfig
 from lastmile.recorder.run_log import STATE_NAMES, RunLog, RunLogWriter, RunMeta
+from lastmile.safety.hardware_watchdog import HardwareWatchdog
 from lastmile.sim.scenario import Scenario
 from lastmile.sim.simulation import Simulation
 from lastmile.stack.shuttle_stack import ShuttleStack, StackConfig
@@ -33,10 +36,16 @@ PERCEPTION_MODE = "radar_tracking"  # the stack perceives through simulated rada
 ProgressCallback = Callable[[float, float], None]
 
 
-def run_scenario(scenario: Scenario, progress: ProgressCallback | None = None) -> RunLog:
-    """Simulate ``scenario``; returns the run log (wall-clock figures only in ``log.timing``)."""
+def run_scenario(
+    scenario: Scenario, progress: ProgressCallback | None = None, black_box_dir: Path | None = None
+) -> RunLog:
+    """Simulate ``scenario``; returns the run log (wall-clock figures only in ``log.timing``).
+
+    With ``black_box_dir``, the stack's black box keeps the last 30 s and writes it there as MCAP on a
+    takeover, an emergency stop, a collision or a crash of the stack (``recording`` events say where).
+    """
     with threadpool_limits(limits=1):  # small matrices: BLAS threads only compete with the loop
-        return _run(scenario, progress)
+        return _run(scenario, progress, black_box_dir)
 
 
 def build_closed_loop(scenario: Scenario) -> tuple[HDMap, Simulation, ShuttleStack]:
@@ -61,11 +70,13 @@ def build_closed_loop(scenario: Scenario) -> tuple[HDMap, Simulation, ShuttleSta
             serve_all_stops=scenario.serve_all_stops,
             decision=decision,
         ),
+        # Module faults of the scenario reach the stack through its fault-injection port.
+        fault_hook=lambda module, now_us: sim.faults.module_fault(module, now_us / 1e6),
     )
     return hdmap, sim, stack
 
 
-def _run(scenario: Scenario, progress: ProgressCallback | None) -> RunLog:
+def _run(scenario: Scenario, progress: ProgressCallback | None, black_box_dir: Path | None) -> RunLog:
     hdmap, sim, stack = build_closed_loop(scenario)
     duration_s = scenario.minutes * 60.0
     meta = RunMeta(
@@ -91,6 +102,16 @@ def _run(scenario: Scenario, progress: ProgressCallback | None) -> RunLog:
     cpu_start = time.process_time()
     stack_wall = 0.0
     stack_alive = True
+    # The vehicle's independent hardware trigger: full brake if the stack's command stream stops.
+    watchdog = HardwareWatchdog()
+    watchdog_tripped = False
+    box = (
+        BlackBox(BlackBoxConfig(out_dir=black_box_dir, sensor_mounts=sim.radar_mounts))
+        if black_box_dir is not None
+        else None
+    )
+    last_level = FailSafeLevel.NONE
+    operator_had_control = False
     for tick in range(ticks):
         now = Stamp(tick * TICK_US)
         t_s = tick * TICK_US / 1e6
@@ -106,12 +127,42 @@ def _run(scenario: Scenario, progress: ProgressCallback | None) -> RunLog:
                 out = stack.tick(now, frames)
             except Exception as exc:
                 # On a vehicle this is a crashed process: the stack is gone for the rest of the run
-                # and the vehicle's hardware watchdog brakes (the simulator's answer to no command).
+                # and the vehicle's hardware watchdog brakes.
                 stack_alive = False
-                writer.add_event(t_s, "stack_crash", error=f"{type(exc).__name__}: {exc}")
+                error = f"{type(exc).__name__}: {exc}"
+                writer.add_event(t_s, "stack_crash", error=error)
+                if box is not None:
+                    box.dump("crash", reason=error, now_us=int(now))
             stack_wall += time.perf_counter() - t0
-        sim.apply_command(out.command if out is not None else None)
+        command = out.command if out is not None else None
+        brake = watchdog.observe(int(now), command)
+        if brake is not None:
+            if not watchdog_tripped:
+                writer.add_event(t_s, "hardware_watchdog", reason="no fresh command for 100 ms")
+                watchdog_tripped = True
+            command = brake
+        sim.apply_command(command)
         sim.referee(out.takeover_request if out is not None else False)
+        directive = out.safety if out is not None else None
+        if directive is not None and directive.level != last_level:
+            writer.add_event(
+                t_s,
+                "safety",
+                level=directive.level.name,
+                mrm=directive.mrm.name,
+                reason="; ".join(directive.reasons),
+            )
+            last_level = directive.level
+        # The safety driver handing back is the operator's reset of a latched emergency stop.
+        if operator_had_control and not sim.operator.in_control and stack_alive:
+            stack.safety.arbiter.operator_reset()
+        operator_had_control = sim.operator.in_control
+        if box is not None:
+            box.record_frames(int(now), frames)
+            if out is not None:
+                box.record_output(int(now), out)
+                if directive is not None and directive.level != FailSafeLevel.NONE:
+                    box.record(int(now), "/safety/directive", directive)
         state = out.decision.state if out is not None and out.decision is not None else None
         if out is not None and state is not None and state != last_state:
             writer.add_event(
@@ -125,6 +176,7 @@ def _run(scenario: Scenario, progress: ProgressCallback | None) -> RunLog:
             )
             if state == BehaviourState.EMERGENCY_STOP and out.decision is not None:
                 writer.add_event(t_s, "emergency_stop", reason=out.decision.reason)
+                _trigger(box, "emergency_stop", now, out.decision.reason)
             last_state = state
         for msg in out.hmi if out is not None else ():
             writer.add_event(t_s, "hmi", screen=msg.screen, text=msg.text, sound=msg.sound)
@@ -143,10 +195,20 @@ def _run(scenario: Scenario, progress: ProgressCallback | None) -> RunLog:
                 sim.judge.route_s_m,
             )
         if len(sim.judge.events) > emitted:
-            writer.add_events(sim.judge.events[emitted:])
+            fresh = sim.judge.events[emitted:]
+            writer.add_events(fresh)
             emitted = len(sim.judge.events)
+            for _, event_kind, data in fresh:
+                if event_kind in ("takeover", "collision"):
+                    _trigger(box, event_kind, now, str(data))
         if progress is not None and tick % 100 == 0:
             progress(t_s, duration_s)
+    if box is not None:
+        box.close()
+        for path in sorted(box.dumps):
+            # blackbox_<trigger>_<t>s_<n>.mcap
+            trigger, t_text = path.stem.split("_")[1:3]
+            writer.add_event(float(t_text.rstrip("s")), "recording", path=str(path), trigger=trigger)
     wall = time.perf_counter() - wall_start
     cpu = time.process_time() - cpu_start
     timing: dict[str, Any] = {
@@ -163,6 +225,12 @@ def _run(scenario: Scenario, progress: ProgressCallback | None) -> RunLog:
     if progress is not None:
         progress(duration_s, duration_s)
     return writer.finish()
+
+
+def _trigger(box: BlackBox | None, kind: str, now: Stamp, reason: str) -> None:
+    """Ask the black box to write its window, in the background (repeats within 5 s join one file)."""
+    if box is not None:
+        box.trigger(kind, int(now), reason)
 
 
 def evaluate_run(log: RunLog, run_dir: Path) -> dict[str, Any]:

@@ -61,19 +61,75 @@ def _check_no_rule_violation(log: RunLog, m: dict[str, Any]) -> CheckResult:
     )
 
 
-def _check_fault_answered(log: RunLog, m: dict[str, Any]) -> CheckResult:
-    """The injected fault was detected in time and answered by the expected fail-safe level.
+# What the fail-safe must answer each injected fault with (at least this level), and within how long
+# of the fault's start: one period of the affected sensor or module plus 100 ms (issue #5).
+EXPECTED_RESPONSE: dict[tuple[str, str], tuple[str, int]] = {
+    ("dropout", "radar_front"): ("MINIMAL_RISK_MANOEUVRE", 50_000),
+    ("dropout", "radar_rear"): ("SPEED_LIMIT", 50_000),
+    ("frozen", "radar_front"): ("MINIMAL_RISK_MANOEUVRE", 50_000),
+    ("latency_spike", "radar_front"): ("SPEED_LIMIT", 50_000),
+    ("out_of_order", "radar_front"): ("SPEED_LIMIT", 50_000),
+    ("garbage", "radar_front"): ("MINIMAL_RISK_MANOEUVRE", 50_000),
+    ("blind", "radar_front"): ("MINIMAL_RISK_MANOEUVRE", 50_000),
+    ("dropout", "gnss"): ("MINIMAL_RISK_MANOEUVRE", 100_000),
+    ("nan", "gnss"): ("MINIMAL_RISK_MANOEUVRE", 100_000),
+    ("nan", "imu"): ("MINIMAL_RISK_MANOEUVRE", 20_000),
+    ("nan", "odom"): ("MINIMAL_RISK_MANOEUVRE", 20_000),
+    ("garbage", "odom"): ("MINIMAL_RISK_MANOEUVRE", 20_000),
+    ("frozen", "odom"): ("MINIMAL_RISK_MANOEUVRE", 20_000),
+    ("gnss_outage", "gnss"): ("SPEED_LIMIT", 100_000),
+    ("gnss_multipath", "gnss"): ("SPEED_LIMIT", 100_000),
+    ("map_misalignment", "map"): ("SPEED_LIMIT", 100_000),
+    ("module_hang", "planning"): ("MINIMAL_RISK_MANOEUVRE", 100_000),
+    ("module_raise", "tracking"): ("MINIMAL_RISK_MANOEUVRE", 100_000),
+}
+LEVELS = ("NONE", "SPEED_LIMIT", "TAKEOVER_REQUEST", "MINIMAL_RISK_MANOEUVRE", "EMERGENCY_STOP")
 
-    The stack reports what its safety module decided as ``safety`` events; the sweep compares them
-    with the injected faults (``fault_start`` events) in :mod:`lastmile.evaluation.fault_response`.
-    """
-    faults = _events(log, "fault_start")
-    answers = _events(log, "safety")
-    if not faults:
+
+def fault_response(log: RunLog) -> list[dict[str, Any]]:
+    """Per injected fault: when the fail-safe first answered, at what level, and the bound it had."""
+    out = []
+    safety = [(e.t_s, e.data["level"]) for e in log.events_of("safety")]
+    for start in log.events_of("fault_start"):
+        kind, target = str(start.data["kind"]), str(start.data["target"])
+        expected, period_us = EXPECTED_RESPONSE.get((kind, target), ("MINIMAL_RISK_MANOEUVRE", 100_000))
+        bound_s = (period_us + 100_000) / 1e6
+        answers = [(t, lvl) for t, lvl in safety if t >= start.t_s - 1e-9 and lvl != "NONE"]
+        first = answers[0] if answers else None
+        top = max((LEVELS.index(lvl) for t, lvl in answers if t <= start.t_s + 10.0), default=0)
+        out.append(
+            {
+                "fault": f"{kind}:{target}",
+                "expected_level": expected,
+                "bound_s": round(bound_s, 3),
+                "detected_after_s": None if first is None else round(first[0] - start.t_s, 3),
+                "first_level": None if first is None else first[1],
+                "max_level_10s": LEVELS[top],
+                "ok": first is not None
+                and first[0] - start.t_s <= bound_s + 1e-9
+                and top >= LEVELS.index(expected),
+            }
+        )
+    return out
+
+
+def _check_fault_answered(log: RunLog, m: dict[str, Any]) -> CheckResult:
+    """Every injected fault detected within its bound and answered at (at least) the expected level."""
+    responses = fault_response(log)
+    if not responses:
         return CheckResult(ok=False, detail="no fault was injected")
-    if not answers:
-        return CheckResult(ok=False, detail="no safety response logged (no safety monitor in the stack)")
-    return CheckResult(ok=True, detail=f"{len(answers)} safety responses")
+    bad = [r for r in responses if not r["ok"]]
+    if not bad:
+        worst = max(r["detected_after_s"] for r in responses)
+        return CheckResult(ok=True, detail=f"answered within {worst:.2f} s")
+    r = bad[0]
+    if r["detected_after_s"] is None:
+        return CheckResult(ok=False, detail=f"{r['fault']} never detected")
+    return CheckResult(
+        ok=False,
+        detail=f"{r['fault']}: {r['first_level']} after {r['detected_after_s']:.2f} s "
+        f"(expected {r['expected_level']} within {r['bound_s']:.2f} s; reached {r['max_level_10s']})",
+    )
 
 
 def _check_no_stack_crash(log: RunLog, m: dict[str, Any]) -> CheckResult:
@@ -94,12 +150,17 @@ CHECKS: dict[str, Callable[[RunLog, dict[str, Any]], CheckResult]] = {
 
 
 def run_case(scenario_path: str, checks: tuple[str, ...], group: str) -> dict[str, Any]:
-    """Run one scenario file and judge it: a row of the sweep table (no wall-clock figures in it)."""
+    """Run one scenario file and judge it: a row of the sweep table (no wall-clock figures in it).
+
+    Black-box recordings go to ``recordings/<scenario name>/`` beside the ``scenarios`` folder.
+    """
     # Imported here so that a worker process pays for the loop only when it runs a case.
     from lastmile.runner.closed_loop import run_scenario
 
-    scenario = load_scenario(Path(scenario_path))
-    log = run_scenario(scenario)
+    path = Path(scenario_path)
+    sweep_dir = path.parent.parent
+    scenario = load_scenario(path)
+    log = run_scenario(scenario, black_box_dir=sweep_dir / "recordings" / scenario.name)
     m = compute_metrics(log)
     results = {name: CHECKS[name](log, m) for name in checks}
     incidents = [
@@ -126,7 +187,15 @@ def run_case(scenario_path: str, checks: tuple[str, ...], group: str) -> dict[st
         "rule_violations": m["rule_violations"],
         "distance_m": m["distance_m"],
         "incidents": incidents,
-        "recording": None,
+        "fault_response": fault_response(log),
+        # Relative to the sweep's folder, so that rows compare equal wherever the sweep ran.
+        "recording": next(
+            (
+                str(Path(str(e.data["path"])).relative_to(path.parent.parent))
+                for e in log.events_of("recording")
+            ),
+            None,
+        ),
     }
 
 

@@ -110,7 +110,7 @@ def default_sensor_specs() -> tuple[SensorSpec, ...]:
     return (
         SensorSpec(key="gnss", rate_hz=10.0),
         SensorSpec(key="imu", rate_hz=50.0, frozen_after=5),
-        SensorSpec(key="odom", rate_hz=50.0, frozen_after=None),
+        SensorSpec(key="odom", rate_hz=50.0, frozen_after=5),
         SensorSpec(key="door", rate_hz=10.0, frozen_after=None, silent_level=FailSafeLevel.TAKEOVER_REQUEST),
         SensorSpec(key="radar_front", rate_hz=20.0),
         SensorSpec(key="radar_rear", rate_hz=20.0, silent_level=FailSafeLevel.SPEED_LIMIT),
@@ -163,7 +163,7 @@ class ReliabilityConfig:
     pos_std_max_m: float = 1.0
     covariance_speed_cap_mps: float = 0.5
     gnss_lost_us: int = 2_000_000
-    gate_rejections_max: int = 3
+    gate_rejections_max: int = 1
     gate_window_us: int = 2_000_000
     startup_grace_us: int = 2_000_000
 
@@ -215,7 +215,11 @@ def sensor_key(frame: SensorFrame) -> str | None:
 
 
 def _payload_digest(frame: SensorFrame) -> tuple[object, ...] | None:
-    """Everything but the stamp, hashable; None when there is no content to compare (empty lists)."""
+    """Everything but the stamp, hashable; None when there is no content to compare (empty lists, or
+    odometry at standstill, which legitimately repeats; moving, wheel-speed noise makes every frame
+    differ, so a repeat there is a frozen driver)."""
+    if isinstance(frame, WheelOdometryFrame) and frame.speed_mps < 0.1:
+        return None
     parts: list[object] = []
     for f in fields(frame):
         if f.name == "stamp":
@@ -230,8 +234,15 @@ def _payload_digest(frame: SensorFrame) -> tuple[object, ...] | None:
     return tuple(parts)
 
 
+PLAUSIBLE_SPEED_MPS = 15.0  # odometry or GNSS speed: a 20 km/h shuttle never reaches it
+PLAUSIBLE_YAW_RATE_RADPS = 2.0  # beyond what its steering allows at any speed
+PLAUSIBLE_ACCEL_MPS2 = 15.0
+PLAUSIBLE_RADAR_RANGE_M = 250.0  # beyond every automotive radar's reach
+PLAUSIBLE_RADAR_SPEED_MPS = 70.0  # over-ground speed of anything on a campus road
+
+
 def _garbage(frame: SensorFrame) -> str:
-    """Why a frame's content is unusable ('' if it is fine)."""
+    """Why a frame's content is unusable ('' if it is fine): invalid, non-finite or implausible."""
     try:
         frame.validate()
     except MessageError as exc:
@@ -240,6 +251,26 @@ def _garbage(frame: SensorFrame) -> str:
         value = getattr(frame, f.name)
         if isinstance(value, float) and not math.isfinite(value):
             return f"{type(frame).__name__}.{f.name} is {value}"
+    return _implausible(frame)
+
+
+def _implausible(frame: SensorFrame) -> str:
+    """Finite values a working sensor cannot report on this vehicle (a corrupt bus or a failing unit)."""
+    if isinstance(frame, WheelOdometryFrame) and not 0.0 <= frame.speed_mps <= PLAUSIBLE_SPEED_MPS:
+        return f"odometry speed {frame.speed_mps:.1f} m/s outside [0, {PLAUSIBLE_SPEED_MPS}]"
+    if isinstance(frame, GnssInsFrame) and abs(frame.speed_mps) > PLAUSIBLE_SPEED_MPS:
+        return f"GNSS speed {frame.speed_mps:.1f} m/s above {PLAUSIBLE_SPEED_MPS}"
+    if isinstance(frame, ImuFrame) and (
+        abs(frame.yaw_rate_radps) > PLAUSIBLE_YAW_RATE_RADPS
+        or max(abs(frame.accel_x_mps2), abs(frame.accel_y_mps2)) > PLAUSIBLE_ACCEL_MPS2
+    ):
+        return f"IMU yaw rate {frame.yaw_rate_radps:.2f} rad/s or acceleration beyond physical limits"
+    if isinstance(frame, RadarFrame) and len(frame.objects):
+        obj = frame.objects
+        far = float(np.hypot(obj[:, 0], obj[:, 1]).max())
+        fast = float(np.hypot(obj[:, 2], obj[:, 3]).max())
+        if far > PLAUSIBLE_RADAR_RANGE_M or fast > PLAUSIBLE_RADAR_SPEED_MPS:
+            return f"radar objects at {far:.0f} m or {fast:.0f} m/s: beyond the sensor's physics"
     return ""
 
 
@@ -301,6 +332,7 @@ class ReliabilityMonitor:
         self._location_for_us = -1
         self._location_found: list[tuple[MalfunctionKind, str]] = []
         self._last_fix_us: int | None = None
+        self._fix_dropped_us: int | None = None
         self._gnss_seen = False
         self._gate: deque[tuple[int, int]] = deque()
         self._gate_total: int | None = None
@@ -361,6 +393,9 @@ class ReliabilityMonitor:
             self._gnss_seen = True
             if frame.fix_ok:
                 self._last_fix_us = int(now_us)
+                self._fix_dropped_us = None
+            elif self._fix_dropped_us is None:
+                self._fix_dropped_us = int(now_us)
 
     def observe_localization(self, now_us: int, estimate: LocalizationEstimate) -> None:
         """The EKF's estimate (once per check is enough)."""
@@ -555,6 +590,18 @@ class ReliabilityMonitor:
             if now_us - since > c.gnss_lost_us:
                 self._emit(
                     out, now_us, "sensor:gnss", K.GNSS_LOST, f"no GNSS fix for {(now_us - since) / 1e6:.1f} s"
+                )
+            elif self._last_fix_us is not None and self._fix_dropped_us is not None:
+                # The receiver says it lost its fix: slow down at once while the EKF dead-reckons, and
+                # call the operator if the fix does not come back within gnss_lost_us.
+                self._emit(
+                    out,
+                    now_us,
+                    "sensor:gnss",
+                    K.GNSS_LOST,
+                    "GNSS receiver reports no fix",
+                    FailSafeLevel.SPEED_LIMIT,
+                    cap=c.covariance_speed_cap_mps,
                 )
         while self._gate and self._gate[0][0] <= now_us - c.gate_window_us:
             self._gate.popleft()

@@ -49,7 +49,7 @@ MODULE_FAULTS = ("module_hang", "module_raise")
 SCALAR_SENSORS = ("gnss", "imu", "odom")
 SENSORS = ("gnss", "imu", "odom", "door", "radar_front", "radar_rear")
 """Sensor targets the simulator has today (LiDAR and camera targets join when those sensors do)."""
-STACK_MODULES = ("estimation", "tracking", "decision", "planning", "control")
+STACK_MODULES = ("localization", "tracking", "decision", "planning", "control")
 FAULT_MENU: tuple[tuple[FaultKind, str], ...] = (
     ("dropout", "radar_front"),
     ("dropout", "radar_rear"),
@@ -81,7 +81,7 @@ class FaultSpec:
         kind: what goes wrong (see the module docstring and README for each kind's effect).
         target: a sensor ("gnss", "imu", "odom", "door", "radar_front", "radar_rear") for sensor
             faults, "gnss" for GNSS faults, "map" for a map misalignment, a stack module
-            ("estimation", "tracking", "decision", "planning", "control") for module faults.
+            ("localization", "tracking", "decision", "planning", "control") for module faults.
         start_s, duration_s: when, in simulated seconds.
         latency_ms: extra latency of a latency spike.
         jitter_ms: the spread of random extra latency that delivers frames out of order.

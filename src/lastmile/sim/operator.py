@@ -43,6 +43,9 @@ class OperatorModel:
     def step(self, stack_requests_takeover: bool, door_open: bool) -> None:
         w, c = self.judge.world, self.config
         if self.in_control:
+            if stack_requests_takeover:
+                # The stack still asks for the driver: they keep control (one takeover, not many).
+                self.in_control_until_s = w.t_s + c.hold_s
             return
         s = w.ego.state
         reason = ""

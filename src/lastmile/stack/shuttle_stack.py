@@ -9,15 +9,17 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 from lastmile.control.lateral import LateralConfig, make_lateral_controller
 from lastmile.control.longitudinal import LongitudinalConfig, WatonobusLongitudinalController, stopping_gap_m
+from lastmile.core.errors import MessageError
 from lastmile.core.geometry import SE2, FloatArray
 from lastmile.core.objects import TrackedObjects, empty_tracks
 from lastmile.core.polyline import Polyline
 from lastmile.core.route_obstacles import route_obstacles
+from lastmile.core.safety_messages import FailSafeLevel, SafetyDirective
 from lastmile.core.sensor_frames import (
     DoorSensorFrame,
     GnssInsFrame,
@@ -44,6 +46,10 @@ from lastmile.decision.mission import MissionManager
 from lastmile.hdmap.layers import SLayerDatabase
 from lastmile.localization.ekf import PoseEkf, PoseEkfConfig
 from lastmile.planning.local_path import LocalPathConfig, LocalPathPlanner
+from lastmile.safety.failsafe import FailSafeArbiter, apply_safety_gate
+from lastmile.safety.health_monitor import HealthMonitor, ModuleSpec
+from lastmile.safety.reliability_monitor import ReliabilityConfig, ReliabilityMonitor, SensorSpec
+from lastmile.safety.supervisor import SafetySupervisor
 from lastmile.stack.profiler import ModuleProfiler
 from lastmile.tracking.radar_tracker import RadarObjectTracker, RadarTrackerConfig
 
@@ -55,6 +61,17 @@ HMI_TEXT = {
     BehaviourState.MERGING: ("rear", "Merging - please wait", "indicator_left"),
     BehaviourState.EMERGENCY_STOP: ("inside", "Emergency stop - please hold on", "alarm"),
 }
+
+
+DEFAULT_SENSORS = (
+    SensorSpec(key="gnss", rate_hz=10.0),
+    SensorSpec(key="imu", rate_hz=50.0, frozen_after=5),
+    SensorSpec(key="odom", rate_hz=50.0, frozen_after=5),
+    SensorSpec(key="door", rate_hz=10.0, frozen_after=None, silent_level=FailSafeLevel.TAKEOVER_REQUEST),
+    SensorSpec(key="front", rate_hz=20.0),
+    SensorSpec(key="rear", rate_hz=20.0, silent_level=FailSafeLevel.SPEED_LIMIT),
+)
+"""The simulator's sensor suite as the reliability monitor watches it (radars by their sensor ids)."""
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -81,12 +98,40 @@ class StackConfig:
     lateral: LateralConfig = field(default_factory=LateralConfig)
     ekf: PoseEkfConfig = field(default_factory=PoseEkfConfig)
     tracker: RadarTrackerConfig = field(default_factory=RadarTrackerConfig)
+    reliability: ReliabilityConfig = field(default_factory=lambda: ReliabilityConfig(sensors=DEFAULT_SENSORS))
+
+
+MODULE_PERIODS_US = {
+    "localization": 10_000,
+    "tracking": 100_000,
+    "decision": 100_000,
+    "planning": 100_000,
+    "control": 20_000,
+}
+"""The stack's modules and how often each runs (and so pulses its heartbeat)."""
+# Losing the pose or the actuation loop leaves nothing to stop comfortably with: an e-stop. Any other
+# module failing still leaves pose and control for a minimal risk manoeuvre.
+MODULE_FAILURE_LEVEL = {"localization": FailSafeLevel.EMERGENCY_STOP, "control": FailSafeLevel.EMERGENCY_STOP}
+
+
+ModuleFaultHook = Callable[[str, int], str | None]
+"""Fault-injection port for validation: (module, now_us) -> "hang", "raise" or None."""
+
+
+def _injected_fault() -> None:
+    raise RuntimeError("injected module fault")
 
 
 class ShuttleStack:
     """Implements :class:`lastmile.core.vehicle.VehicleSoftware`."""
 
-    def __init__(self, layers: SLayerDatabase, geometry: VehicleGeometry, config: StackConfig) -> None:
+    def __init__(
+        self,
+        layers: SLayerDatabase,
+        geometry: VehicleGeometry,
+        config: StackConfig,
+        fault_hook: ModuleFaultHook | None = None,
+    ) -> None:
         self.layers = layers
         self.geometry = geometry
         self.config = config
@@ -128,44 +173,107 @@ class ShuttleStack:
             stamp=Stamp(0), accel_mps2=-1.0, steer_front_rad=0.0, steer_rear_rad=0.0
         )
         self._last_state = BehaviourState.NORMAL_DRIVING
+        # Safety watches the modules from the side: heartbeats through guarded calls, the inputs as
+        # they arrive, and a directive the decision and the actuator gate obey.
+        self.safety = SafetySupervisor(
+            HealthMonitor(
+                [
+                    ModuleSpec(
+                        name=name,
+                        period_us=period,
+                        failure_level=MODULE_FAILURE_LEVEL.get(name, FailSafeLevel.MINIMAL_RISK_MANOEUVRE),
+                    )
+                    for name, period in MODULE_PERIODS_US.items()
+                ]
+            ),
+            ReliabilityMonitor(config.reliability, layers.hdmap, self.route),
+            FailSafeArbiter(layers=layers),
+        )
+        self._directive: SafetyDirective | None = None
+        self.fault_hook = fault_hook
+        self.rejected_frames = 0
 
     # ------------------------------------------------------------------------------------------------
     def tick(self, now: Stamp, frames: Sequence[SensorFrame]) -> StackOutput:
         p = self.profiler
         hmi: list[HmiMessage] = []
+        self.safety.observe_frames(now, frames)
         with p.measure("estimation"):
-            for frame in frames:
-                self._ingest(frame)
+            self._guarded("localization", now, self._ingest_all, frames)
         c = self.config
         status = None
-        if self._tick % c.planning_period_ticks == 0:
+        planning_cycle = self._tick % c.planning_period_ticks == 0
+        if planning_cycle:
             with p.measure("tracking"):
-                self._tracks = self.tracker.tracks(now)
+                tracks = self._guarded("tracking", now, self.tracker.tracks, now)
+                if isinstance(tracks, TrackedObjects):
+                    self._tracks = tracks
             with p.measure("decision"):
-                self._decide(now)
+                self._guarded("decision", now, self._decide, now)
             with p.measure("planning"):
-                self._plan(now)
+                self._guarded("planning", now, self._plan, now)
             if self._decision is not None and self._decision.state != self._last_state:
                 screen, text, sound = HMI_TEXT[self._decision.state]
                 hmi.append(HmiMessage(stamp=now, screen=screen, text=text, sound=sound))
                 self._last_state = self._decision.state
         if self._tick % c.control_period_ticks == 0:
             with p.measure("control"):
-                self._control(now)
-        if self._tick % c.planning_period_ticks == 0:
+                self._guarded("control", now, self._control, now)
+        with p.measure("safety"):
+            directive = self._supervise(now, planning_cycle)
+        if planning_cycle:
             status = self._status(now)
         self._tick += 1
-        beats = (
-            tuple(
-                Heartbeat(stamp=now, module=m, healthy=True)
-                for m in ("localization", "tracking", "decision", "planning", "control")
-            )
-            if status is not None
-            else ()
-        )
+        command = apply_safety_gate(self._command, directive, self._speed_mps)
         return StackOutput(
-            command=self._command, status=status, decision=self._decision, hmi=tuple(hmi), heartbeats=beats
+            command=command,
+            status=status,
+            decision=self._decision,
+            hmi=tuple(hmi),
+            heartbeats=self._heartbeats(now) if planning_cycle else (),
+            takeover_request=directive.takeover_request,
+            safety=directive,
         )
+
+    def _guarded(self, module: str, now: Stamp, fn: Callable[..., object], *args: object) -> object:
+        fault = self.fault_hook(module, int(now)) if self.fault_hook is not None else None
+        if fault == "hang":
+            return None  # a hung module neither runs nor pulses: its watchdog must notice
+        if fault == "raise":
+            fn, args = _injected_fault, ()
+        return self.safety.health.guarded_call(module, now, fn, *args)
+
+    def _supervise(self, now: Stamp, planning_cycle: bool) -> SafetyDirective:
+        est = self.ekf.estimate(now)
+        front_s = self._route_s + self.geometry.front_from_rear_axle_m if self._route_s is not None else None
+        directive = self.safety.step(
+            now,
+            estimate=est if planning_cycle else None,
+            gate_rejections_total=self.ekf.rejected_fixes,
+            speed_mps=est.speed_mps if est.valid else self._speed_mps,
+            route_s_m=front_s,
+        )
+        self._directive = directive
+        return directive
+
+    def _heartbeats(self, now: Stamp) -> tuple[Heartbeat, ...]:
+        health = self.safety.last_health
+        if health is None:
+            return ()
+        return tuple(
+            Heartbeat(stamp=now, module=m.module, healthy=m.healthy, reason=m.reason) for m in health.modules
+        )
+
+    def _ingest_all(self, frames: Sequence[SensorFrame]) -> None:
+        for frame in frames:
+            try:
+                frame.validate()
+            except MessageError:
+                # A corrupt frame is dropped, never fed to a filter; the reliability monitor has
+                # already flagged its stream as garbage.
+                self.rejected_frames += 1
+                continue
+            self._ingest(frame)
 
     def _curb_right_d_m(self, s_m: FloatArray) -> FloatArray:
         return self.layers.curb_right_d_m[self.layers.record_indices(s_m)]
@@ -208,6 +316,7 @@ class ShuttleStack:
                 door_open=self._door_open,
                 person_in_doorway=self._person_in_doorway,
                 trajectory=self._trajectory,
+                safety=self._directive,
             )
         )
 
