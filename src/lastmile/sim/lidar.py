@@ -1,0 +1,545 @@
+"""Simulated spinning LiDARs as WATonoBus mounts them: raw sweeps with per-point time and ego-motion skew.
+
+Each sensor fires columns of channels while it turns once per period (10 Hz). The ray of every column
+starts from the sensor pose *at that column's time* (interpolated from the ego track the caller
+passes), so a moving shuttle skews its own sweep as on the real vehicle; road users move during the
+sweep too. Returns come from :mod:`lastmile.sim.lidar_raycast` (prisms) and the ground model of
+:mod:`lastmile.sim.lidar_ground`; range noise, intensity and weather are applied here.
+
+The stack receives only :class:`lastmile.core.sensor_frames.LidarSweep`; the per-point ground truth
+(:class:`LidarTruth`) stays on the simulator side for benchmarks.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from lastmile.core.arrays import frozen_array
+from lastmile.core.errors import ConfigError, MessageError
+from lastmile.core.object_class import ObjectClass
+from lastmile.core.rng import component_rng
+from lastmile.core.sensor_frames import LidarSweep
+from lastmile.core.stamp import Stamp
+from lastmile.core.vehicle import VehicleGeometry
+from lastmile.sim.lidar_ground import bank_height_m
+from lastmile.sim.lidar_raycast import (
+    Columns,
+    Hits,
+    box_pairs,
+    cast,
+    cylinder_pairs,
+    segment_pairs,
+)
+from lastmile.sim.lidar_scene import (
+    NO_OBJECT,
+    REFLECTIVITY,
+    Boxes,
+    Cylinders,
+    DynamicObjects,
+    PointLabel,
+    Segments,
+    StaticLidarScene,
+)
+from lastmile.sim.lidar_weather import LidarWeather
+
+# Velodyne VLP-32C beam elevations (deg): dense around the horizon where small objects are far.
+VLP32C_ELEVATIONS_DEG = (
+    -25.0, -15.639, -11.31, -8.843, -7.254, -6.148, -5.333, -4.667, -4.0, -3.667, -3.333, -3.0,
+    -2.667, -2.333, -2.0, -1.667, -1.333, -1.0, -0.667, -0.333, 0.0, 0.333, 0.667, 1.0, 1.333,
+    1.667, 2.333, 3.333, 4.667, 7.0, 10.333, 15.0,
+)  # fmt: skip
+# A 16-channel blind-spot unit looks mostly down at the road beside the shuttle.
+BLIND_SPOT_ELEVATIONS_DEG = tuple(float(e) for e in np.linspace(-40.0, 10.0, 16))
+# Detection threshold: a 10 % diffuse target at normal incidence is just seen at ``max_range_m``.
+REFERENCE_REFLECTIVITY = 0.10
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class LidarSpec:
+    """One spinning LiDAR: mounting on the base frame (rear axle, x forward, z up from the road).
+
+    The unit is mounted level (no roll or pitch); ``yaw_rad`` turns its x axis from the base's.
+
+    Attributes:
+        elevations_deg: beam elevations, any order; ring numbers count from the lowest beam.
+        azimuth_res_deg: horizontal step between columns (360 / res columns per sweep).
+        period_us: one revolution (100 ms at 10 Hz); the sweep's stamp is its first column.
+        clockwise: spin direction seen from above (Velodyne and Robosense spin clockwise).
+        start_azimuth_rad: sensor-frame azimuth of the first column (pi: the sweep starts behind).
+        latency_us: from the end of the sweep to its delivery to the stack.
+    """
+
+    sensor_id: str
+    x_m: float
+    y_m: float
+    z_m: float
+    yaw_rad: float
+    elevations_deg: tuple[float, ...]
+    azimuth_res_deg: float = 0.2
+    period_us: int = 100_000
+    max_range_m: float = 100.0
+    min_range_m: float = 0.5
+    range_noise_std_m: float = 0.02
+    clockwise: bool = True
+    start_azimuth_rad: float = math.pi
+    latency_us: int = 20_000
+
+    def __post_init__(self) -> None:
+        for name in ("x_m", "y_m", "z_m", "yaw_rad", "start_azimuth_rad"):
+            value = getattr(self, name)
+            if not math.isfinite(value):
+                raise ConfigError(f"LidarSpec {self.sensor_id!r}.{name}: expected a finite number, got {value}")
+        for name in ("azimuth_res_deg", "max_range_m", "min_range_m", "range_noise_std_m"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0.0):
+                raise ConfigError(f"LidarSpec {self.sensor_id!r}.{name}: expected a finite number >= 0, got {value}")
+        if not 0.01 <= self.azimuth_res_deg <= 5.0:
+            raise ConfigError(
+                f"LidarSpec {self.sensor_id!r}.azimuth_res_deg: expected 0.01..5 deg, got {self.azimuth_res_deg}"
+            )
+        if self.period_us <= 0 or self.latency_us < 0:
+            raise ConfigError(
+                f"LidarSpec {self.sensor_id!r}: expected period_us > 0 and latency_us >= 0, got "
+                f"{self.period_us}, {self.latency_us}"
+            )
+        if not self.min_range_m < self.max_range_m:
+            raise ConfigError(
+                f"LidarSpec {self.sensor_id!r}: expected min_range_m < max_range_m, got "
+                f"{self.min_range_m} >= {self.max_range_m}"
+            )
+        els = self.elevations_deg
+        if not els or not all(math.isfinite(e) and -89.0 < e < 89.0 for e in els) or len(set(els)) != len(els):
+            raise ConfigError(
+                f"LidarSpec {self.sensor_id!r}.elevations_deg: expected distinct finite angles in (-89, 89), got {els}"
+            )
+
+    @property
+    def n_columns(self) -> int:
+        return round(360.0 / self.azimuth_res_deg)
+
+    @property
+    def n_rays(self) -> int:
+        return self.n_columns * len(self.elevations_deg)
+
+
+def default_lidar_rig(geometry: VehicleGeometry) -> tuple[LidarSpec, ...]:
+    """WATonoBus-style rig: a 32-channel unit on the front face, 16-channel blind-spot units each side.
+
+    The front unit sits 1.9 m up on the nose (its rear half is blocked by the body, as on the
+    vehicle); the side units sit 0.9 m up at mid-wheelbase facing outwards.
+    """
+    mid = geometry.wheelbase_m / 2.0
+    side_y = geometry.width_m / 2.0 + 0.05
+    return (
+        LidarSpec(
+            sensor_id="front",
+            x_m=geometry.front_from_rear_axle_m + 0.05,
+            y_m=0.0,
+            z_m=1.9,
+            yaw_rad=0.0,
+            elevations_deg=VLP32C_ELEVATIONS_DEG,
+            azimuth_res_deg=0.2,
+            max_range_m=100.0,
+        ),
+        LidarSpec(
+            sensor_id="left",
+            x_m=mid,
+            y_m=side_y,
+            z_m=0.9,
+            yaw_rad=math.pi / 2.0,
+            elevations_deg=BLIND_SPOT_ELEVATIONS_DEG,
+            azimuth_res_deg=0.4,
+            max_range_m=40.0,
+        ),
+        LidarSpec(
+            sensor_id="right",
+            x_m=mid,
+            y_m=-side_y,
+            z_m=0.9,
+            yaw_rad=-math.pi / 2.0,
+            elevations_deg=BLIND_SPOT_ELEVATIONS_DEG,
+            azimuth_res_deg=0.4,
+            max_range_m=40.0,
+        ),
+    )
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class EgoTrack:
+    """Poses of the base (rear axle) in the map frame over a sweep; linearly interpolated.
+
+    Attributes:
+        t_us: (T,) int64 strictly increasing capture times; a single pose means standing still.
+        x_m, y_m, yaw_rad: (T,) float64.
+    """
+
+    t_us: np.ndarray
+    x_m: np.ndarray
+    y_m: np.ndarray
+    yaw_rad: np.ndarray
+
+    def __post_init__(self) -> None:
+        t = np.asarray(self.t_us, dtype=np.int64).reshape(-1)
+        object.__setattr__(self, "t_us", t)
+        for name in ("x_m", "y_m", "yaw_rad"):
+            arr = frozen_array(getattr(self, name), np.float64, None, f"EgoTrack.{name}")
+            if len(arr) != len(t):
+                raise MessageError(f"EgoTrack.{name}: expected {len(t)} values like t_us, got {len(arr)}")
+            object.__setattr__(self, name, arr)
+        if len(t) == 0 or np.any(np.diff(t) <= 0):
+            raise MessageError(f"EgoTrack.t_us: expected strictly increasing times, got {t.tolist()[:5]}")
+
+    @staticmethod
+    def constant(
+        t0_us: int, x_m: float, y_m: float, yaw_rad: float, speed_mps: float = 0.0, yaw_rate_radps: float = 0.0,
+        duration_us: int = 100_000,
+    ) -> EgoTrack:
+        """A track at constant speed and yaw rate from ``t0_us`` over ``duration_us`` (11 samples)."""
+        t = t0_us + np.linspace(0, duration_us, 11).round().astype(np.int64)
+        dt = (t - t0_us) * 1e-6
+        yaw = yaw_rad + yaw_rate_radps * dt
+        if abs(yaw_rate_radps) < 1e-9:
+            x = x_m + speed_mps * dt * math.cos(yaw_rad)
+            y = y_m + speed_mps * dt * math.sin(yaw_rad)
+        else:
+            rad = speed_mps / yaw_rate_radps
+            x = x_m + rad * (np.sin(yaw) - math.sin(yaw_rad))
+            y = y_m - rad * (np.cos(yaw) - math.cos(yaw_rad))
+        return EgoTrack(t_us=t, x_m=x, y_m=y, yaw_rad=yaw)
+
+    def at(self, t_us: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(x, y, yaw) at the given times; held at the ends outside the track."""
+        t = np.asarray(t_us, dtype=np.float64)
+        tt = self.t_us.astype(np.float64)
+        yaw = np.unwrap(self.yaw_rad)
+        return np.interp(t, tt, self.x_m), np.interp(t, tt, self.y_m), np.interp(t, tt, yaw)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class LidarTruth:
+    """Ground truth of one sweep, point for point with the sweep's rows (simulator side only).
+
+    Attributes:
+        label: (N,) int8 :class:`PointLabel`.
+        object_id: (N,) int64 agent id for ``OBJECT`` points, else -1.
+        object_class: (N,) int8 :class:`ObjectClass` for ``OBJECT`` points, else 0.
+        xyz_map_m: (N, 3) float64 the true (noise-free) hit point in the map frame.
+    """
+
+    label: np.ndarray
+    object_id: np.ndarray
+    object_class: np.ndarray
+    xyz_map_m: np.ndarray = field(repr=False)
+
+
+class LidarSimulator:
+    """Casts every sensor of a rig against a static scene and the road users of the moment.
+
+    Args:
+        scene: the campus as primitives (:func:`lastmile.sim.lidar_scene.static_scene`).
+        specs: the rig (:func:`default_lidar_rig`).
+        weather: LiDAR weather terms (:func:`lastmile.sim.lidar_weather.lidar_weather`).
+        seed: the run seed; every sensor draws from its own stream ``sensor.lidar.<id>``.
+        geometry: the shuttle, whose body blocks the rays that point at it.
+        body_height_m: height of the shuttle's body box.
+    """
+
+    def __init__(
+        self,
+        scene: StaticLidarScene,
+        specs: tuple[LidarSpec, ...],
+        weather: LidarWeather,
+        seed: int,
+        geometry: VehicleGeometry,
+        body_height_m: float = 2.6,
+    ) -> None:
+        if not isinstance(weather, LidarWeather):
+            raise ConfigError(f"LidarSimulator.weather: expected a LidarWeather, got {type(weather).__name__}")
+        ids = [s.sensor_id for s in specs]
+        if not ids or len(set(ids)) != len(ids):
+            raise ConfigError(f"LidarSimulator.specs: expected distinct sensor ids, got {ids}")
+        if weather.snow_on_road and scene.ground is None:
+            raise ConfigError("LidarSimulator: snow on the road needs a scene with a ground raster, got none")
+        self.scene = scene
+        self.specs = {s.sensor_id: s for s in specs}
+        self.weather = weather
+        self.geometry = geometry
+        self._rng = {s.sensor_id: component_rng(seed, f"sensor.lidar.{s.sensor_id}") for s in specs}
+        self._self_block = {s.sensor_id: _self_blocked(s, geometry, body_height_m) for s in specs}
+        seg = scene.segments
+        self._seg_mid = 0.5 * (seg.p0 + seg.p1)
+        self._seg_half = 0.5 * np.hypot(*(seg.p1 - seg.p0).T)
+        self._threshold = {s.sensor_id: REFERENCE_REFLECTIVITY / s.max_range_m**2 for s in specs}
+
+    def sweep(self, sensor_id: str, stamp: Stamp, ego: EgoTrack, objects: DynamicObjects, objects_t_us: int) -> LidarSweep:
+        """The sweep of ``sensor_id`` that starts at ``stamp``; road users are as given at ``objects_t_us``."""
+        return self.sweep_with_truth(sensor_id, stamp, ego, objects, objects_t_us)[0]
+
+    def sweep_with_truth(
+        self, sensor_id: str, stamp: Stamp, ego: EgoTrack, objects: DynamicObjects, objects_t_us: int
+    ) -> tuple[LidarSweep, LidarTruth]:
+        """As :meth:`sweep`, with the per-point ground truth for benchmarks."""
+        spec = self.specs.get(sensor_id)
+        if spec is None:
+            raise ConfigError(f"LidarSimulator: expected a sensor id in {list(self.specs)}, got {sensor_id!r}")
+        rng = self._rng[sensor_id]
+        weather = self.weather
+        order = np.argsort(spec.elevations_deg)
+        el = np.radians(np.asarray(spec.elevations_deg, dtype=np.float64)[order])
+        tan_el, cos_el, sin_el = np.tan(el), np.cos(el), np.sin(el)
+        n_col, n_ch = spec.n_columns, len(el)
+        cols, az = self._columns(spec, int(stamp), ego, objects_t_us)
+
+        table, pairs = self._primitives(spec, cols, objects)
+        hits = cast(cols, tan_el, (table["z_min"], table["z_max"]), pairs, spec.max_range_m)
+        ground_r, ground_label, ground_xy_ok = self._ground(spec, cols, tan_el)
+        del ground_xy_ok
+
+        use_ground = ground_r < hits.range_h_m
+        r_h = np.where(use_ground, ground_r, hits.range_h_m)
+        prim = np.where(use_ground, -1, hits.prim)
+        label = np.where(use_ground, ground_label, table["label"][prim])
+        cos_inc = np.where(use_ground, np.abs(sin_el)[None, :], hits.cos_incidence)
+        rng_m = r_h / cos_el[None, :]
+        valid = np.isfinite(rng_m) & ~self._self_block[sensor_id]
+
+        refl = np.where(use_ground, _ground_reflectivity(ground_label), table["refl"][prim])
+        retro = ~use_ground & table["retro"][prim]
+        alpha = weather.extinction_per_m
+        with np.errstate(divide="ignore", invalid="ignore"):
+            power = np.where(retro, refl, refl * np.sqrt(np.maximum(cos_inc, 0.02)))
+            power = power * np.exp(-2.0 * alpha * rng_m) / np.maximum(rng_m, 1e-3) ** 2
+        valid &= (power >= self._threshold[sensor_id]) & (rng_m >= spec.min_range_m) & (rng_m <= spec.max_range_m)
+
+        idx = np.flatnonzero(valid.reshape(-1))
+        if weather.dropout_prob > 0.0:
+            idx = idx[rng.random(len(idx)) >= weather.dropout_prob]
+        flat = lambda a: a.reshape(-1)[idx]  # noqa: E731 - a local gather shorthand
+        true_range = flat(rng_m)
+        noisy = true_range + rng.normal(0.0, spec.range_noise_std_m * weather.range_noise_factor, len(idx))
+        cos_i, refl_i, retro_i = flat(np.broadcast_to(cos_inc, (n_col, n_ch))), flat(refl), flat(retro)
+        intensity = _intensity(true_range, cos_i, refl_i, retro_i, alpha, rng)
+        label_i = flat(label).astype(np.int8)
+        prim_i = flat(prim)
+        obj_id = table["obj_id"][prim_i]
+        obj_cls = table["cls"][prim_i]
+        col_i, ch_i = idx // n_ch, idx % n_ch
+
+        # Precipitation echoes: single points near the window; a drop in front hides what is behind.
+        if weather.echoes_per_kray > 0.0:
+            n_echo = int(rng.poisson(weather.echoes_per_kray * n_col * n_ch / 1000.0))
+            ray = rng.integers(0, n_col * n_ch, n_echo)
+            e_rng = spec.min_range_m + rng.exponential(weather.echo_mean_range_m, n_echo)
+            e_int = rng.uniform(0.0, 12.0, n_echo)
+            ok = (e_rng <= min(weather.echo_max_range_m, spec.max_range_m)) & ~self._self_block[sensor_id].reshape(-1)[ray]
+            ray, e_rng, e_int = ray[ok], e_rng[ok], e_int[ok]
+            ray, first = np.unique(ray, return_index=True)
+            e_rng, e_int = e_rng[first], e_int[first]
+            pos = np.searchsorted(idx, ray)
+            exists = (pos < len(idx)) & (idx[np.minimum(pos, len(idx) - 1)] == ray)
+            nearer = ~exists | (e_rng < noisy[np.minimum(pos, len(idx) - 1)])
+            ray, e_rng, e_int, pos, exists = ray[nearer], e_rng[nearer], e_int[nearer], pos[nearer], exists[nearer]
+            # Replace the hidden returns, then add echoes on rays that had none.
+            rp = pos[exists]
+            noisy[rp], true_range[rp], intensity[rp] = e_rng[exists], e_rng[exists], e_int[exists]
+            label_i[rp], obj_id[rp], obj_cls[rp] = PointLabel.WEATHER_NOISE, NO_OBJECT, 0
+            new = ray[~exists]
+            all_idx = np.concatenate([idx, new])
+            sort = np.argsort(all_idx, kind="stable")
+            idx = all_idx[sort]
+            noisy = np.concatenate([noisy, e_rng[~exists]])[sort]
+            true_range = np.concatenate([true_range, e_rng[~exists]])[sort]
+            intensity = np.concatenate([intensity, e_int[~exists]])[sort]
+            label_i = np.concatenate([label_i, np.full(len(new), PointLabel.WEATHER_NOISE, np.int8)])[sort]
+            obj_id = np.concatenate([obj_id, np.full(len(new), NO_OBJECT)])[sort]
+            obj_cls = np.concatenate([obj_cls, np.zeros(len(new), np.int8)])[sort]
+            col_i, ch_i = idx // n_ch, idx % n_ch
+
+        az_i = az[col_i]
+        ce, se = cos_el[ch_i], sin_el[ch_i]
+        t_off = (col_i * spec.period_us) // n_col
+        points = np.empty((len(idx), 6), dtype=np.float32)
+        points[:, 0] = noisy * ce * np.cos(az_i)
+        points[:, 1] = noisy * ce * np.sin(az_i)
+        points[:, 2] = noisy * se
+        points[:, 3] = np.clip(np.round(intensity), 0.0, 255.0)
+        points[:, 4] = ch_i
+        points[:, 5] = t_off
+        th = np.arctan2(cols.direction[col_i, 1], cols.direction[col_i, 0])
+        horiz = true_range * ce
+        xyz = np.column_stack(
+            [cols.origin[col_i, 0] + horiz * np.cos(th), cols.origin[col_i, 1] + horiz * np.sin(th), cols.z_m + true_range * se]
+        )
+        truth = LidarTruth(label=label_i, object_id=obj_id.astype(np.int64), object_class=obj_cls, xyz_map_m=xyz)
+        return LidarSweep(stamp=stamp, sensor_id=sensor_id, points=points), truth
+
+    # --- pieces --------------------------------------------------------------------------------
+    def _columns(self, spec: LidarSpec, stamp_us: int, ego: EgoTrack, objects_t_us: int) -> tuple[Columns, np.ndarray]:
+        n_col = spec.n_columns
+        k = np.arange(n_col)
+        t_us = stamp_us + (k * spec.period_us) // n_col
+        x, y, yaw = ego.at(t_us)
+        c, s = np.cos(yaw), np.sin(yaw)
+        origin = np.column_stack([x + c * spec.x_m - s * spec.y_m, y + s * spec.x_m + c * spec.y_m])
+        sign = -1.0 if spec.clockwise else 1.0
+        az = spec.start_azimuth_rad + sign * np.radians(spec.azimuth_res_deg) * k
+        theta = yaw + spec.yaw_rad + az
+        spin = np.maximum.accumulate(sign * (theta - theta[0]))
+        cols = Columns(
+            origin=origin,
+            direction=np.column_stack([np.cos(theta), np.sin(theta)]),
+            t_s=(t_us - objects_t_us) * 1e-6,
+            spin=spin,
+            theta0_rad=float(theta[0]),
+            sign=sign,
+            z_m=spec.z_m,
+        )
+        return cols, az
+
+    def _primitives(
+        self, spec: LidarSpec, cols: Columns, objects: DynamicObjects
+    ) -> tuple[dict[str, np.ndarray], tuple[np.ndarray, ...]]:
+        """One table of every primitive in reach and the (column, primitive) pairs against it."""
+        reach = spec.max_range_m + float(np.hypot(*(cols.origin[-1] - cols.origin[0])))
+        centre = 0.5 * (cols.origin[0] + cols.origin[-1])
+        seg = self.scene.segments
+        near = np.hypot(*(self._seg_mid - centre).T) - self._seg_half <= reach
+        if self.weather.snow_on_road:
+            near &= seg.label != PointLabel.CURB  # the snow bank buries the curb face
+        near_seg = np.flatnonzero(near)
+        seg = Segments(**{f: getattr(seg, f)[near_seg] for f in Segments.__dataclass_fields__})
+        cyl_s = self.scene.cylinders
+        near_cyl = np.flatnonzero(np.hypot(*(cyl_s.centre - centre).T) <= reach)
+        cyl = _concat_cylinders(
+            Cylinders(**{f: getattr(cyl_s, f)[near_cyl] for f in Cylinders.__dataclass_fields__}), objects.cylinders
+        )
+        box = objects.boxes
+        n_seg, n_cyl = len(seg), len(cyl)
+        # The last row is a sentinel that index -1 ("no primitive") reads.
+        table = {
+            "z_min": np.concatenate([seg.z_min_m, cyl.z_min_m, box.z_min_m, [0.0]]),
+            "z_max": np.concatenate([seg.z_max_m, cyl.z_max_m, box.z_max_m, [0.0]]),
+            "label": np.concatenate([seg.label, cyl.label, box.label, [PointLabel.ROAD]]).astype(np.int8),
+            "obj_id": np.concatenate([np.full(n_seg, NO_OBJECT), cyl.object_id, box.object_id, [NO_OBJECT]]),
+            "cls": np.concatenate([np.zeros(n_seg, np.int8), cyl.object_class, box.object_class, [0]]).astype(np.int8),
+            "refl": np.concatenate([seg.reflectivity, cyl.reflectivity, box.reflectivity, [0.0]]),
+            "retro": np.concatenate([seg.retro, cyl.retro, np.zeros(len(box), bool), [False]]),
+        }
+        parts = [segment_pairs(cols, seg), cylinder_pairs(cols, cyl), box_pairs(cols, box)]
+        offsets = (0, n_seg, n_seg + n_cyl)
+        pairs = tuple(
+            np.concatenate([p[i] + (off if i == 0 else 0) for p, off in zip(parts, offsets, strict=True)])
+            for i in range(5)
+        )
+        return table, pairs
+
+    def _ground(self, spec: LidarSpec, cols: Columns, tan_el: np.ndarray) -> tuple[np.ndarray, np.ndarray, None]:
+        """Horizontal distance to the ground and its label per (column, channel) (inf: not downward)."""
+        n_col, n_ch = len(cols), len(tan_el)
+        r = np.full((n_col, n_ch), np.inf)
+        label = np.full((n_col, n_ch), PointLabel.ROAD, dtype=np.int8)
+        down = np.flatnonzero(tan_el < 0.0)
+        if len(down) == 0:
+            return r, label, None
+        oz = cols.z_m
+        t = tan_el[down][None, :]
+        r0 = np.broadcast_to(-oz / t, (n_col, len(down)))
+        ground = self.scene.ground
+        if ground is None:
+            r[:, down] = r0
+            return r, label, None
+        o, d = cols.origin, cols.direction
+
+        def xy_at(rr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            return o[:, 0:1] + rr * d[:, 0:1], o[:, 1:2] + rr * d[:, 1:2]
+
+        far = r0 > spec.max_range_m
+        road0 = ground.is_road(*xy_at(r0)) | far
+        hc = self.scene.curb_height_m
+        rs = (hc - oz) / t if oz > hc else r0
+        rs = np.broadcast_to(rs, (n_col, len(down)))
+        road_s = ground.is_road(*xy_at(rs))
+        # Road where the z=0 plane is met on road; sidewalk where the raised plane is met off road; a
+        # ray that passes over road and dips below sidewalk level met the curb face (cast elsewhere),
+        # except where no curb is mapped (road ends), where it is kept on the road plane.
+        side = ~road0 & ~road_s
+        rr = np.where(side, rs, r0)
+        lab = np.where(side, PointLabel.SIDEWALK, PointLabel.ROAD).astype(np.int8)
+        w = self.weather
+        if w.snow_on_road:
+            at_curb = ~road0 & road_s
+            rr = np.where(at_curb, rs, rr)
+            on_road = ~side
+            # Two fixed-point steps onto the snow surface: the bank slopes gently, so they converge.
+            for _ in range(2):
+                dist = ground.curb_distance_m(*xy_at(rr))
+                h = np.where(on_road, bank_height_m(dist, hc, w.snow_bank_width_m, w.snow_cover_lane_m), 0.0)
+                rr = np.where(on_road, (np.minimum(h, oz - 1e-3) - oz) / t, rr)
+            lab = np.where(on_road & (h > 0.005), PointLabel.SNOW, lab).astype(np.int8)
+        r[:, down] = rr
+        label[:, down] = lab
+        return r, label, None
+
+
+def _ground_reflectivity(label: np.ndarray) -> np.ndarray:
+    table = np.zeros(int(max(PointLabel)) + 1)
+    for lab, value in REFLECTIVITY.items():
+        table[int(lab)] = value
+    return table[label]
+
+
+def _intensity(
+    range_m: np.ndarray, cos_inc: np.ndarray, refl: np.ndarray, retro: np.ndarray, alpha: float, rng: np.random.Generator
+) -> np.ndarray:
+    """0..255 intensity: reflectivity x incidence x atmospheric loss x a mild range fall-off, with noise.
+
+    Retro-reflective sheeting returns most of the beam whatever the incidence (~200-250); diffuse
+    surfaces follow Lambert (with a floor: real surfaces are not perfectly diffuse).
+    """
+    shape = np.where(retro, 0.85 + 0.1 * cos_inc, 0.3 + 0.7 * cos_inc)
+    value = 255.0 * refl * shape * np.exp(-2.0 * alpha * range_m) / (1.0 + (range_m / 150.0) ** 2)
+    return value + rng.normal(0.0, 1.0, len(value)) * (1.5 + 0.03 * value)
+
+
+def _concat_cylinders(a: Cylinders, b: Cylinders) -> Cylinders:
+    return Cylinders(**{f: np.concatenate([getattr(a, f), getattr(b, f)]) for f in Cylinders.__dataclass_fields__})
+
+
+def _self_blocked(spec: LidarSpec, geometry: VehicleGeometry, body_height_m: float) -> np.ndarray:
+    """(C, K) rays (channels by ascending elevation) that hit the shuttle's own body.
+
+    Sensor and body are rigid, so this is fixed per sensor; the driver crops these returns, as a
+    real LiDAR driver crops its vehicle's box.
+    """
+    order = np.argsort(spec.elevations_deg)
+    tan_el = np.tan(np.radians(np.asarray(spec.elevations_deg, dtype=np.float64)[order]))
+    n_col = spec.n_columns
+    k = np.arange(n_col)
+    sign = -1.0 if spec.clockwise else 1.0
+    theta = spec.yaw_rad + spec.start_azimuth_rad + sign * np.radians(spec.azimuth_res_deg) * k
+    cols = Columns(
+        origin=np.tile([spec.x_m, spec.y_m], (n_col, 1)),
+        direction=np.column_stack([np.cos(theta), np.sin(theta)]),
+        t_s=np.zeros(n_col),
+        spin=np.maximum.accumulate(sign * (theta - theta[0])),
+        theta0_rad=float(theta[0]),
+        sign=sign,
+        z_m=spec.z_m,
+    )
+    body = DynamicObjects.empty().with_box(
+        x_m=geometry.length_m / 2.0 - geometry.rear_overhang_m,
+        y_m=0.0,
+        yaw_rad=0.0,
+        length_m=geometry.length_m,
+        width_m=geometry.width_m,
+        height_m=body_height_m,
+        label=PointLabel.EGO,
+        object_class=ObjectClass.UNKNOWN,
+    ).boxes
+    hits: Hits = cast(cols, tan_el, (body.z_min_m, body.z_max_m), box_pairs(cols, body), spec.max_range_m)
+    blocked = np.isfinite(hits.range_h_m)
+    blocked.setflags(write=False)
+    return blocked
