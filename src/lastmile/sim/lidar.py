@@ -291,9 +291,9 @@ class LidarSimulator:
         el = np.radians(np.asarray(spec.elevations_deg, dtype=np.float64)[order])
         tan_el, cos_el, sin_el = np.tan(el), np.cos(el), np.sin(el)
         n_col, n_ch = spec.n_columns, len(el)
-        cols, az = self._columns(spec, int(stamp), ego, objects_t_us)
+        cols, az = self.columns(spec, int(stamp), ego, objects_t_us)
 
-        table, pairs = self._primitives(spec, cols, objects)
+        table, pairs = self.primitives(spec, cols, objects)
         hits = cast(cols, tan_el, (table["z_min"], table["z_max"]), pairs, spec.max_range_m)
         ground_r, ground_label, ground_xy_ok = self._ground(spec, cols, tan_el)
         del ground_xy_ok
@@ -377,7 +377,7 @@ class LidarSimulator:
         return LidarSweep(stamp=stamp, sensor_id=sensor_id, points=points), truth
 
     # --- pieces --------------------------------------------------------------------------------
-    def _columns(self, spec: LidarSpec, stamp_us: int, ego: EgoTrack, objects_t_us: int) -> tuple[Columns, np.ndarray]:
+    def columns(self, spec: LidarSpec, stamp_us: int, ego: EgoTrack, objects_t_us: int) -> tuple[Columns, np.ndarray]:
         n_col = spec.n_columns
         k = np.arange(n_col)
         t_us = stamp_us + (k * spec.period_us) // n_col
@@ -399,7 +399,7 @@ class LidarSimulator:
         )
         return cols, az
 
-    def _primitives(
+    def primitives(
         self, spec: LidarSpec, cols: Columns, objects: DynamicObjects
     ) -> tuple[dict[str, np.ndarray], tuple[np.ndarray, ...]]:
         """One table of every primitive in reach and the (column, primitive) pairs against it."""
