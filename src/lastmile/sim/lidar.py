@@ -214,8 +214,14 @@ class EgoTrack:
         """(x, y, yaw) at the given times; held at the ends outside the track."""
         t = np.asarray(t_us, dtype=np.float64)
         tt = self.t_us.astype(np.float64)
-        yaw = np.unwrap(self.yaw_rad)
-        return np.interp(t, tt, self.x_m), np.interp(t, tt, self.y_m), np.interp(t, tt, yaw)
+        return np.interp(t, tt, self.x_m), np.interp(t, tt, self.y_m), np.interp(t, tt, self._yaw_unwrapped)
+
+    @property
+    def _yaw_unwrapped(self) -> np.ndarray:
+        yaw = self.yaw_rad
+        if len(yaw) < 2 or np.all(np.abs(np.diff(yaw)) < math.pi):
+            return yaw
+        return np.unwrap(yaw)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -295,35 +301,34 @@ class LidarSimulator:
 
         table, pairs = self.primitives(spec, cols, objects)
         hits = cast(cols, tan_el, (table["z_min"], table["z_max"]), pairs, spec.max_range_m)
-        ground_r, ground_label, ground_xy_ok = self._ground(spec, cols, tan_el)
-        del ground_xy_ok
-
-        use_ground = ground_r < hits.range_h_m
-        r_h = np.where(use_ground, ground_r, hits.range_h_m)
-        prim = np.where(use_ground, -1, hits.prim)
+        # From here on only rays that can return matter: not into the body, not into the sky.
+        blocked = self._self_block[sensor_id].reshape(-1)
+        hit_r = hits.range_h_m.reshape(-1)
+        ch_all = np.tile(np.arange(n_ch), n_col)
+        cand = np.flatnonzero(~blocked & (np.isfinite(hit_r) | (tan_el[ch_all] < 0.0)))
+        c_col, c_ch = cand // n_ch, cand % n_ch
+        ground_r, ground_label = self._ground(spec, cols, tan_el, c_col, c_ch)
+        use_ground = ground_r < hit_r[cand]
+        r_h = np.where(use_ground, ground_r, hit_r[cand])
+        prim = np.where(use_ground, -1, hits.prim.reshape(-1)[cand])
         label = np.where(use_ground, ground_label, table["label"][prim])
-        cos_inc = np.where(use_ground, np.abs(sin_el)[None, :], hits.cos_incidence)
-        rng_m = r_h / cos_el[None, :]
-        valid = np.isfinite(rng_m) & ~self._self_block[sensor_id]
-
+        cos_inc = np.where(use_ground, np.abs(sin_el)[c_ch], hits.cos_incidence.reshape(-1)[cand])
+        rng_m = r_h / cos_el[c_ch]
         refl = np.where(use_ground, _ground_reflectivity(ground_label), table["refl"][prim])
         retro = ~use_ground & table["retro"][prim]
         alpha = weather.extinction_per_m
-        with np.errstate(divide="ignore", invalid="ignore"):
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             power = np.where(retro, refl, refl * np.sqrt(np.maximum(cos_inc, 0.02)))
             power = power * np.exp(-2.0 * alpha * rng_m) / np.maximum(rng_m, 1e-3) ** 2
-        valid &= (power >= self._threshold[sensor_id]) & (rng_m >= spec.min_range_m) & (rng_m <= spec.max_range_m)
-
-        idx = np.flatnonzero(valid.reshape(-1))
+        keep = (power >= self._threshold[sensor_id]) & (rng_m >= spec.min_range_m) & (rng_m <= spec.max_range_m)
         if weather.dropout_prob > 0.0:
-            idx = idx[rng.random(len(idx)) >= weather.dropout_prob]
-        flat = lambda a: a.reshape(-1)[idx]  # noqa: E731 - a local gather shorthand
-        true_range = flat(rng_m)
+            keep[keep] = rng.random(int(keep.sum())) >= weather.dropout_prob
+        idx = cand[keep]
+        true_range = rng_m[keep]
         noisy = true_range + rng.normal(0.0, spec.range_noise_std_m * weather.range_noise_factor, len(idx))
-        cos_i, refl_i, retro_i = flat(np.broadcast_to(cos_inc, (n_col, n_ch))), flat(refl), flat(retro)
-        intensity = _intensity(true_range, cos_i, refl_i, retro_i, alpha, rng)
-        label_i = flat(label).astype(np.int8)
-        prim_i = flat(prim)
+        intensity = _intensity(true_range, cos_inc[keep], refl[keep], retro[keep], alpha, rng)
+        label_i = label[keep].astype(np.int8)
+        prim_i = prim[keep]
         obj_id = table["obj_id"][prim_i]
         obj_cls = table["cls"][prim_i]
         col_i, ch_i = idx // n_ch, idx % n_ch
@@ -358,26 +363,23 @@ class LidarSimulator:
             obj_cls = np.concatenate([obj_cls, np.zeros(len(new), np.int8)])[sort]
             col_i, ch_i = idx // n_ch, idx % n_ch
 
-        az_i = az[col_i]
         ce, se = cos_el[ch_i], sin_el[ch_i]
         t_off = (col_i * spec.period_us) // n_col
         points = np.empty((len(idx), 6), dtype=np.float32)
-        points[:, 0] = noisy * ce * np.cos(az_i)
-        points[:, 1] = noisy * ce * np.sin(az_i)
+        points[:, 0] = noisy * ce * np.cos(az)[col_i]
+        points[:, 1] = noisy * ce * np.sin(az)[col_i]
         points[:, 2] = noisy * se
         points[:, 3] = np.clip(np.round(intensity), 0.0, 255.0)
         points[:, 4] = ch_i
         points[:, 5] = t_off
-        th = np.arctan2(cols.direction[col_i, 1], cols.direction[col_i, 0])
-        horiz = true_range * ce
-        xyz = np.column_stack(
-            [cols.origin[col_i, 0] + horiz * np.cos(th), cols.origin[col_i, 1] + horiz * np.sin(th), cols.z_m + true_range * se]
-        )
+        horiz = (true_range * ce)[:, None]
+        xyz = np.column_stack([cols.origin[col_i] + horiz * cols.direction[col_i], cols.z_m + true_range * se])
         truth = LidarTruth(label=label_i, object_id=obj_id.astype(np.int64), object_class=obj_cls, xyz_map_m=xyz)
         return LidarSweep(stamp=stamp, sensor_id=sensor_id, points=points), truth
 
     # --- pieces --------------------------------------------------------------------------------
     def columns(self, spec: LidarSpec, stamp_us: int, ego: EgoTrack, objects_t_us: int) -> tuple[Columns, np.ndarray]:
+        """The sweep's firing columns in the map frame and their (C,) sensor-frame azimuths."""
         n_col = spec.n_columns
         k = np.arange(n_col)
         t_us = stamp_us + (k * spec.period_us) // n_col
@@ -402,7 +404,11 @@ class LidarSimulator:
     def primitives(
         self, spec: LidarSpec, cols: Columns, objects: DynamicObjects
     ) -> tuple[dict[str, np.ndarray], tuple[np.ndarray, ...]]:
-        """One table of every primitive in reach and the (column, primitive) pairs against it."""
+        """One table of every primitive in reach and the (column, primitive) pairs against it.
+
+        The table's columns are (P + 1,) arrays (the last row is a sentinel for "nothing hit"); the
+        pairs are (prim, col, r_in, r_out, cos_2d) as :func:`lastmile.sim.lidar_raycast.cast` takes them.
+        """
         reach = spec.max_range_m + float(np.hypot(*(cols.origin[-1] - cols.origin[0])))
         centre = 0.5 * (cols.origin[0] + cols.origin[-1])
         seg = self.scene.segments
@@ -436,31 +442,32 @@ class LidarSimulator:
         )
         return table, pairs
 
-    def _ground(self, spec: LidarSpec, cols: Columns, tan_el: np.ndarray) -> tuple[np.ndarray, np.ndarray, None]:
-        """Horizontal distance to the ground and its label per (column, channel) (inf: not downward)."""
-        n_col, n_ch = len(cols), len(tan_el)
-        r = np.full((n_col, n_ch), np.inf)
-        label = np.full((n_col, n_ch), PointLabel.ROAD, dtype=np.int8)
-        down = np.flatnonzero(tan_el < 0.0)
+    def _ground(
+        self, spec: LidarSpec, cols: Columns, tan_el: np.ndarray, col: np.ndarray, ch: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Horizontal distance to the ground and its label for the rays (col, ch) (inf: not downward)."""
+        n = len(col)
+        r = np.full(n, np.inf)
+        label = np.full(n, PointLabel.ROAD, dtype=np.int8)
+        down = np.flatnonzero(tan_el[ch] < 0.0)
         if len(down) == 0:
-            return r, label, None
+            return r, label
         oz = cols.z_m
-        t = tan_el[down][None, :]
-        r0 = np.broadcast_to(-oz / t, (n_col, len(down)))
+        t = tan_el[ch[down]]
+        r0 = -oz / t
         ground = self.scene.ground
         if ground is None:
-            r[:, down] = r0
-            return r, label, None
-        o, d = cols.origin, cols.direction
+            r[down] = r0
+            return r, label
+        o, d = cols.origin[col[down]], cols.direction[col[down]]
 
         def xy_at(rr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-            return o[:, 0:1] + rr * d[:, 0:1], o[:, 1:2] + rr * d[:, 1:2]
+            return o[:, 0] + rr * d[:, 0], o[:, 1] + rr * d[:, 1]
 
         far = r0 > spec.max_range_m
         road0 = ground.is_road(*xy_at(r0)) | far
         hc = self.scene.curb_height_m
         rs = (hc - oz) / t if oz > hc else r0
-        rs = np.broadcast_to(rs, (n_col, len(down)))
         road_s = ground.is_road(*xy_at(rs))
         # Road where the z=0 plane is met on road; sidewalk where the raised plane is met off road; a
         # ray that passes over road and dips below sidewalk level met the curb face (cast elsewhere),
@@ -474,14 +481,15 @@ class LidarSimulator:
             rr = np.where(at_curb, rs, rr)
             on_road = ~side
             # Two fixed-point steps onto the snow surface: the bank slopes gently, so they converge.
+            h = np.zeros(len(rr))
             for _ in range(2):
                 dist = ground.curb_distance_m(*xy_at(rr))
                 h = np.where(on_road, bank_height_m(dist, hc, w.snow_bank_width_m, w.snow_cover_lane_m), 0.0)
                 rr = np.where(on_road, (np.minimum(h, oz - 1e-3) - oz) / t, rr)
             lab = np.where(on_road & (h > 0.005), PointLabel.SNOW, lab).astype(np.int8)
-        r[:, down] = rr
-        label[:, down] = lab
-        return r, label, None
+        r[down] = rr
+        label[down] = lab
+        return r, label
 
 
 def _ground_reflectivity(label: np.ndarray) -> np.ndarray:
