@@ -53,7 +53,16 @@ def lane_pose(s_m: float, d_m: float = -1.75) -> tuple[float, float, float]:
 
 
 def agents_at(s_m: float) -> list[Agent]:
-    def at(ds: float, d: float, cls: ObjectClass, length: float, width: float, speed: float, yaw_off: float, i: int) -> Agent:
+    def at(
+        ds: float,
+        d: float,
+        cls: ObjectClass,
+        length: float,
+        width: float,
+        speed: float,
+        yaw_off: float,
+        i: int,
+    ) -> Agent:
         x, y, h = lane_pose(s_m + ds, d)
         return Agent(id=i, cls=cls, x_m=x, y_m=y, yaw_rad=h + yaw_off, speed_mps=speed, length_m=length,
                      width_m=width, rcs_dbsm=0.0)  # fmt: skip
@@ -141,7 +150,12 @@ def brute_force_ranges(
         ok = (r_out >= r_in) & (r_out > 0)
         best = np.minimum(best, np.where(ok, np.maximum(r_in, 1e-6), np.inf).min(axis=2))
     best[best > spec.max_range_m] = np.inf
-    return ours_s, (time.perf_counter() - t0) / best.size, best, np.where(ours > spec.max_range_m, np.inf, ours)
+    return (
+        ours_s,
+        (time.perf_counter() - t0) / best.size,
+        best,
+        np.where(ours > spec.max_range_m, np.inf, ours),
+    )
 
 
 def main() -> None:
@@ -172,16 +186,24 @@ def main() -> None:
                 ego = EgoTrack.constant(k * 100_000, x, y, h, speed_mps=5.0)
                 stamp = Stamp(k * 100_000)
                 t = time.perf_counter()
-                sweeps = [sim.sweep(spec.sensor_id, stamp, ego, objects, k * 100_000 + 100_000) for spec in rig]
+                sweeps = [
+                    sim.sweep(spec.sensor_id, stamp, ego, objects, k * 100_000 + 100_000) for spec in rig
+                ]
                 times.append(time.perf_counter() - t)
                 points.append(sum(len(sw.points) for sw in sweeps))
                 if k < 3:
                     ego0 = EgoTrack.constant(0, x, y, h, speed_mps=5.0)
-                    ours_s, naive_s, naive, ours = brute_force_ranges(sim, "front", ego0, objects, args.baseline_every)
+                    ours_s, naive_s, naive, ours = brute_force_ranges(
+                        sim, "front", ego0, objects, args.baseline_every
+                    )
                     rays_rig = sum(sp.n_rays for sp in rig)
                     baseline.append(naive_s * rays_rig)
                     cast_only.append(ours_s * rays_rig)
-                    agree.append(float(np.mean(np.isclose(naive, ours, atol=1e-6) | (np.isinf(naive) & np.isinf(ours)))))
+                    agree.append(
+                        float(
+                            np.mean(np.isclose(naive, ours, atol=1e-6) | (np.isinf(naive) & np.isinf(ours)))
+                        )
+                    )
             rows.append(
                 {
                     "weather": weather,
@@ -193,8 +215,21 @@ def main() -> None:
                     "naive_agreement": min(agree),
                 }
             )
-    table = Table(title=f"simulated LiDAR rig ({sum(s.n_rays for s in rig)} rays/frame), one core, median of {args.frames} frames")
-    for col in ("weather", "place", "ms/frame", "points", "cast ms", "naive cast ms", "speed-up", "rays agree", "vs 30 ms"):
+    table = Table(
+        title=f"simulated LiDAR rig ({sum(s.n_rays for s in rig)} rays/frame), one core, "
+        f"median of {args.frames} frames"
+    )
+    for col in (
+        "weather",
+        "place",
+        "ms/frame",
+        "points",
+        "cast ms",
+        "naive cast ms",
+        "speed-up",
+        "rays agree",
+        "vs 30 ms",
+    ):
         table.add_column(col, justify="right")
     for r in rows:
         table.add_row(
@@ -212,7 +247,8 @@ def main() -> None:
     ratio = statistics.median(r["naive_ms_per_rig_frame"] / r["cast_ms_per_rig_frame"] for r in rows)
     Console().print(table)
     Console().print(
-        f"median {overall:.1f} ms per rig frame (target < {TARGET_MS:g}); primitive casting: naive NumPy all-rays x all-primitives {ratio:.0f}x slower; "
+        f"median {overall:.1f} ms per rig frame (target < {TARGET_MS:g}); primitive casting: "
+        f"naive NumPy all-rays x all-primitives {ratio:.0f}x slower; "
         f"static scene build {build_s:.2f} s"
     )
     args.json.parent.mkdir(parents=True, exist_ok=True)

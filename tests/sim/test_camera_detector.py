@@ -26,9 +26,9 @@ EXACT = CameraDetectorConfig(
 )
 
 
-def scene(*rows: tuple[float, ...], pose: SE2 = SE2(0.0, 0.0, 0.0)) -> CameraScene:
-    """Rows: x, y, yaw, length, width, height, class, id (map frame)."""
-    return CameraScene(map_from_base=pose, boxes=np.array(rows, dtype=float).reshape(-1, 8))
+def scene(*rows: tuple[float, ...]) -> CameraScene:
+    """Rows: x, y, yaw, length, width, height, class, id (map frame); the shuttle at the origin."""
+    return CameraScene(map_from_base=SE2(0.0, 0.0, 0.0), boxes=np.array(rows, dtype=float).reshape(-1, 8))
 
 
 def car(x: float, y: float, oid: int = 1, height: float = 1.5) -> tuple[float, ...]:
@@ -56,7 +56,9 @@ def test_object_in_view_is_boxed_around_its_projection() -> None:
     dets, ids = exact().detect_with_truth(scene(car(20.0, 1.0)), Stamp(0))
     assert ids.tolist() == [1]
     x, y = 20.0, 1.0
-    corners = np.array([[x + sx * 2.25, y + sy * 0.9, z] for sx in (-1, 1) for sy in (-1, 1) for z in (0.0, 1.5)])
+    corners = np.array(
+        [[x + sx * 2.25, y + sy * 0.9, z] for sx in (-1, 1) for sy in (-1, 1) for z in (0.0, 1.5)]
+    )
     uv = FRONT.project(FRONT.to_camera(corners))
     expected = [*uv.min(axis=0), *uv.max(axis=0)]
     assert dets.boxes[0, :4] == pytest.approx(expected, abs=1e-3)
@@ -117,7 +119,10 @@ def test_snow_and_darkness_cost_detections_and_add_false_boxes() -> None:
 
 def test_same_seed_same_detections() -> None:
     s = scene(car(20.0, 1.0), pedestrian(15.0, -3.0, 2))
-    runs = [CameraDetectorModel(FRONT, Weather.SNOW, 0.5, seed).detect(s, Stamp(0)).boxes.tobytes() for seed in (1, 1)]
+    runs = [
+        CameraDetectorModel(FRONT, Weather.SNOW, 0.5, seed).detect(s, Stamp(0)).boxes.tobytes()
+        for seed in (1, 1)
+    ]
     assert runs[0] == runs[1]
 
 

@@ -14,6 +14,7 @@ from lastmile.core.errors import ConfigError, MessageError
 from lastmile.core.object_class import ObjectClass
 from lastmile.core.stamp import Stamp
 from lastmile.core.vehicle import VehicleGeometry
+from lastmile.sim.agents import Agent
 from lastmile.sim.lidar import EgoTrack, LidarSimulator, LidarSpec, default_lidar_rig
 from lastmile.sim.lidar_scene import (
     REFLECTIVITY,
@@ -30,7 +31,9 @@ RIG = default_lidar_rig(GEOM)
 FRONT = RIG[0]
 
 
-def flat_scene(walls: list[tuple[float, float, float, float, float, float, PointLabel, bool]]) -> StaticLidarScene:
+def flat_scene(
+    walls: list[tuple[float, float, float, float, float, float, PointLabel, bool]],
+) -> StaticLidarScene:
     """A flat world (ground plane at z = 0, no raster) with the given walls (x0, y0, x1, y1, z0, z1)."""
     a = np.array([w[:6] for w in walls], dtype=float).reshape(-1, 6)
     labels = np.array([int(w[6]) for w in walls], dtype=np.int8)
@@ -44,7 +47,11 @@ def flat_scene(walls: list[tuple[float, float, float, float, float, float, Point
         retro=np.array([w[7] for w in walls], dtype=bool),
     )
     empty = DynamicObjects.empty().cylinders
-    return StaticLidarScene(segments=segs, cylinders=Cylinders(**{f: getattr(empty, f) for f in Cylinders.__dataclass_fields__}), ground=None)
+    return StaticLidarScene(
+        segments=segs,
+        cylinders=Cylinders(**{f: getattr(empty, f) for f in Cylinders.__dataclass_fields__}),
+        ground=None,
+    )
 
 
 def sim(scene: StaticLidarScene, weather: LidarWeather | None = None, seed: int = 0) -> LidarSimulator:
@@ -80,19 +87,15 @@ def test_box_ahead_is_hit_at_its_range() -> None:
 
 def test_pedestrian_behind_car_gets_no_points() -> None:
     def walker(objs: DynamicObjects) -> DynamicObjects:
-        ped = DynamicObjects.empty()
-        from lastmile.sim.agents import Agent
-
-        ped = DynamicObjects.from_agents(
-            [Agent(id=9, cls=ObjectClass.PEDESTRIAN, x_m=FRONT.x_m + 30.0, y_m=0.0, yaw_rad=0.0, speed_mps=0.0,
-                   length_m=0.5, width_m=0.5, rcs_dbsm=-5.0)]
+        person = Agent(
+            id=9, cls=ObjectClass.PEDESTRIAN, x_m=FRONT.x_m + 30.0, y_m=0.0, yaw_rad=0.0, speed_mps=0.0,
+            length_m=0.5, width_m=0.5, rcs_dbsm=-5.0,
         )  # fmt: skip
-        return DynamicObjects(
-            boxes=objs.boxes,
-            cylinders=ped.cylinders,
-        )
+        return DynamicObjects(boxes=objs.boxes, cylinders=DynamicObjects.from_agents([person]).cylinders)
 
-    alone = sim(flat_scene([])).sweep_with_truth("front", Stamp(0), STILL, walker(DynamicObjects.empty()), 100_000)[1]
+    alone = sim(flat_scene([])).sweep_with_truth(
+        "front", Stamp(0), STILL, walker(DynamicObjects.empty()), 100_000
+    )[1]
     assert (alone.object_id == 9).sum() > 20  # seen when nothing stands in front
     # A van taller than the sensor (1.9 m): a car would let the beams over its roof reach the head.
     van = front_box(10.0, height_m=2.4)
@@ -113,7 +116,9 @@ def test_timestamps_follow_azimuth_and_the_body_is_cropped() -> None:
     behind = np.abs(np.arctan2(sweep.points[:, 1], sweep.points[:, 0])) > math.radians(120.0)
     assert behind.sum() == 0
     bx = sweep.points[:, 0] + FRONT.x_m
-    inside = (bx > -GEOM.rear_overhang_m) & (bx < GEOM.front_from_rear_axle_m) & (np.abs(sweep.points[:, 1]) < 1.0)
+    inside = (
+        (bx > -GEOM.rear_overhang_m) & (bx < GEOM.front_from_rear_axle_m) & (np.abs(sweep.points[:, 1]) < 1.0)
+    )
     assert inside.sum() == 0
 
 
@@ -152,7 +157,9 @@ def test_same_seed_same_sweep_bit_for_bit() -> None:
     scene = flat_scene([(25.0, -30.0, 25.0, 30.0, 0.0, 5.0, PointLabel.BUILDING, False)])
     snow = replace(lidar_weather("snow"), snow_bank_width_m=0.0)  # flakes only: the flat world has no curbs
     runs = [
-        sim(scene, snow, seed).sweep("front", Stamp(0), EgoTrack.constant(0, 0, 0, 0, 3.0), front_box(8.0), 0).points
+        sim(scene, snow, seed)
+        .sweep("front", Stamp(0), EgoTrack.constant(0, 0, 0, 0, 3.0), front_box(8.0), 0)
+        .points
         for seed in (4, 4, 5)
     ]
     assert runs[0].tobytes() == runs[1].tobytes()
@@ -166,8 +173,12 @@ def test_wall_points_lie_on_the_wall_for_any_pose(distance: float, yaw: float) -
     c, s = math.cos(yaw), math.sin(yaw)
     sx, sy = FRONT.x_m * c, FRONT.x_m * s  # the front sensor in the map
     cx, cy = sx + distance * c, sy + distance * s  # a wall across the heading, ``distance`` ahead
-    wall = flat_scene([(cx + 20 * s, cy - 20 * c, cx - 20 * s, cy + 20 * c, 0.0, 4.0, PointLabel.BUILDING, False)])
-    sweep, truth = sim(wall).sweep_with_truth("front", Stamp(0), EgoTrack.constant(0, 0.0, 0.0, yaw), DynamicObjects.empty(), 0)
+    wall = flat_scene(
+        [(cx + 20 * s, cy - 20 * c, cx - 20 * s, cy + 20 * c, 0.0, 4.0, PointLabel.BUILDING, False)]
+    )
+    sweep, truth = sim(wall).sweep_with_truth(
+        "front", Stamp(0), EgoTrack.constant(0, 0.0, 0.0, yaw), DynamicObjects.empty(), 0
+    )
     on = truth.label == PointLabel.BUILDING
     assert on.sum() > 0
     assert np.all(np.abs(sweep.points[on, 0] - distance) < 0.12)
@@ -179,7 +190,9 @@ def test_bad_configs_raise_clear_errors() -> None:
     with pytest.raises(ConfigError, match="x_m"):
         LidarSpec(sensor_id="f", x_m=float("nan"), y_m=0.0, z_m=1.0, yaw_rad=0.0, elevations_deg=(0.0,))
     with pytest.raises(ConfigError, match="azimuth_res_deg"):
-        LidarSpec(sensor_id="f", x_m=0.0, y_m=0.0, z_m=1.0, yaw_rad=0.0, elevations_deg=(0.0,), azimuth_res_deg=-0.2)
+        LidarSpec(
+            sensor_id="f", x_m=0.0, y_m=0.0, z_m=1.0, yaw_rad=0.0, elevations_deg=(0.0,), azimuth_res_deg=-0.2
+        )
     with pytest.raises(ConfigError, match="echoes_per_kray"):
         LidarWeather(echoes_per_kray=-1.0)
     with pytest.raises(ConfigError, match="expected one of"):

@@ -50,7 +50,9 @@ def rig_in_map(
 def sensor_to_map(points: np.ndarray, spec: LidarSpec, x_m: float, y_m: float) -> np.ndarray:
     c, s = math.cos(spec.yaw_rad), math.sin(spec.yaw_rad)
     px, py = points[:, 0].astype(float), points[:, 1].astype(float)
-    return np.column_stack([x_m + spec.x_m + c * px - s * py, y_m + spec.y_m + s * px + c * py, points[:, 2] + spec.z_m])
+    return np.column_stack(
+        [x_m + spec.x_m + c * px - s * py, y_m + spec.y_m + s * px + c * py, points[:, 2] + spec.z_m]
+    )
 
 
 def band_z(pts: np.ndarray, d0: float, d1: float) -> float:
@@ -113,7 +115,9 @@ def test_retro_reflective_sign_returns_high_intensity() -> None:
         ]
     )
     sim = LidarSimulator(scene, RIG, lidar_weather("clear"), 0, GEOM)
-    sweep, truth = sim.sweep_with_truth("front", Stamp(0), EgoTrack.constant(0, 0, 0, 0), DynamicObjects.empty(), 0)
+    sweep, truth = sim.sweep_with_truth(
+        "front", Stamp(0), EgoTrack.constant(0, 0, 0, 0), DynamicObjects.empty(), 0
+    )
     intensity = sweep.points[:, 3]
     assert np.median(intensity[truth.label == PointLabel.SIGN]) > 200
     assert np.median(intensity[truth.label == PointLabel.BUILDING]) < 120

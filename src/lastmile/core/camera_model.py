@@ -50,7 +50,9 @@ class PinholeCamera:
         for name in ("fx_px", "fy_px", "cx_px", "cy_px", "x_m", "y_m", "z_m", "yaw_rad", "pitch_rad"):
             value = getattr(self, name)
             if not (isinstance(value, int | float) and math.isfinite(value)):
-                raise ConfigError(f"PinholeCamera {self.camera_id!r}.{name}: expected a finite number, got {value!r}")
+                raise ConfigError(
+                    f"PinholeCamera {self.camera_id!r}.{name}: expected a finite number, got {value!r}"
+                )
         if self.fx_px <= 0 or self.fy_px <= 0 or self.width_px <= 0 or self.height_px <= 0:
             raise ConfigError(
                 f"PinholeCamera {self.camera_id!r}: expected positive focal lengths and image size, got "

@@ -31,7 +31,9 @@ from lastmile.sim.weather import Weather
 _NEAR_M = 0.2
 _RASTER_PX = 8  # occlusion raster cell (pixels)
 # Box edges of a unit cube's 8 corners (bottom 0-3, top 4-7), for clipping at the near plane.
-_EDGES = np.array([[0, 1], [1, 2], [2, 3], [3, 0], [4, 5], [5, 6], [6, 7], [7, 4], [0, 4], [1, 5], [2, 6], [3, 7]])
+_EDGES = np.array(
+    [[0, 1], [1, 2], [2, 3], [3, 0], [4, 5], [5, 6], [6, 7], [7, 4], [0, 4], [1, 5], [2, 6], [3, 7]]
+)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -51,10 +53,18 @@ CAMERA_WEATHER = {
         detect_factor=1.0, range_factor=1.0, false_positive_factor=1.0, noise_factor=1.0, confusion_factor=1.0
     ),
     Weather.RAIN: CameraWeather(
-        detect_factor=0.95, range_factor=0.85, false_positive_factor=2.0, noise_factor=1.3, confusion_factor=1.5
+        detect_factor=0.95,
+        range_factor=0.85,
+        false_positive_factor=2.0,
+        noise_factor=1.3,
+        confusion_factor=1.5,
     ),
     Weather.SNOW: CameraWeather(
-        detect_factor=0.9, range_factor=0.75, false_positive_factor=3.0, noise_factor=1.5, confusion_factor=2.0
+        detect_factor=0.9,
+        range_factor=0.75,
+        false_positive_factor=3.0,
+        noise_factor=1.5,
+        confusion_factor=2.0,
     ),
     Weather.FOG: CameraWeather(
         detect_factor=0.9, range_factor=0.5, false_positive_factor=1.5, noise_factor=1.3, confusion_factor=1.5
@@ -110,10 +120,14 @@ class CameraDetectorConfig:
         ):
             value = getattr(self, name)
             if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0.0):
-                raise ConfigError(f"CameraDetectorConfig.{name}: expected a finite number >= 0, got {value!r}")
+                raise ConfigError(
+                    f"CameraDetectorConfig.{name}: expected a finite number >= 0, got {value!r}"
+                )
         for name in ("min_visible_fraction", "confusion_prob", "night_detect_factor"):
             if getattr(self, name) > 1.0:
-                raise ConfigError(f"CameraDetectorConfig.{name}: expected a probability <= 1, got {getattr(self, name)}")
+                raise ConfigError(
+                    f"CameraDetectorConfig.{name}: expected a probability <= 1, got {getattr(self, name)}"
+                )
         for cls, p in self.detect_prob.items():
             if not 0.0 <= p <= 1.0:
                 raise ConfigError(f"CameraDetectorConfig.detect_prob[{cls.name}]: expected 0..1, got {p}")
@@ -134,7 +148,16 @@ class CameraScene:
     @staticmethod
     def from_agents(map_from_base: SE2, agents: list[Agent]) -> CameraScene:
         rows = [
-            (a.x_m, a.y_m, a.yaw_rad, a.length_m, a.width_m, CLASS_HEIGHT_M.get(a.cls, 1.0), float(a.cls), float(a.id))
+            (
+                a.x_m,
+                a.y_m,
+                a.yaw_rad,
+                a.length_m,
+                a.width_m,
+                CLASS_HEIGHT_M.get(a.cls, 1.0),
+                float(a.cls),
+                float(a.id),
+            )
             for a in agents
             if a.active
         ]
@@ -145,12 +168,26 @@ def default_cameras(geometry: VehicleGeometry) -> tuple[PinholeCamera, ...]:
     """A front and a rear 2048 x 1536 camera (3.2 MP, as WATonoBus' Basler units), 70 deg wide."""
     return (
         PinholeCamera.from_fov(
-            "front", 2048, 1536, 70.0, geometry.front_from_rear_axle_m - 0.2, 0.0, 2.2, pitch_rad=math.radians(5.0)
+            "front",
+            2048,
+            1536,
+            70.0,
+            geometry.front_from_rear_axle_m - 0.2,
+            0.0,
+            2.2,
+            pitch_rad=math.radians(5.0),
         ),
         PinholeCamera.from_fov(
-            "rear", 2048, 1536, 70.0, -geometry.rear_overhang_m + 0.2, 0.0, 2.2, yaw_rad=math.pi,
+            "rear",
+            2048,
+            1536,
+            70.0,
+            -geometry.rear_overhang_m + 0.2,
+            0.0,
+            2.2,
+            yaw_rad=math.pi,
             pitch_rad=math.radians(5.0),
-        ),  # fmt: skip
+        ),
     )
 
 
@@ -201,7 +238,9 @@ class CameraDetectorModel:
     def detect_with_truth(self, scene: CameraScene, stamp: Stamp) -> tuple[CameraDetections, np.ndarray]:
         """As :meth:`detect`, with the (N,) object id behind each box (-1 for a false positive)."""
         if not isinstance(scene, CameraScene):
-            raise ConfigError(f"CameraDetectorModel.detect: expected a CameraScene, got {type(scene).__name__}")
+            raise ConfigError(
+                f"CameraDetectorModel.detect: expected a CameraScene, got {type(scene).__name__}"
+            )
         cam, cfg, fx, rng = self.camera, self.config, self.effects, self._rng
         dark = 1.0 - self.daylight
         light = 1.0 - dark * (1.0 - cfg.night_detect_factor)
@@ -213,7 +252,13 @@ class CameraDetectorModel:
             # Small boxes are found less often: certain from twice the minimum height (darker: larger).
             min_h = cfg.min_height_px * (1.0 + dark)
             size = min(1.0, max(0.0, (height_px - min_h) / min_h))
-            p = cfg.detect_prob.get(c, 0.5) * fx.detect_factor * light * (0.5 + 0.5 * size) * (0.6 + 0.4 * visible)
+            p = (
+                cfg.detect_prob.get(c, 0.5)
+                * fx.detect_factor
+                * light
+                * (0.5 + 0.5 * size)
+                * (0.6 + 0.4 * visible)
+            )
             if rng.random() >= p:
                 continue
             if rng.random() < min(1.0, cfg.confusion_prob * fx.confusion_factor * (1.0 + dark)):
@@ -231,7 +276,9 @@ class CameraDetectorModel:
             score = float(np.clip(0.3 + 0.7 * p + rng.normal(0.0, 0.05), 0.05, 0.99))
             rows.append((*box, float(c), score))
             ids.append(int(oid))
-        for _ in range(int(rng.poisson(cfg.false_positives_per_frame * fx.false_positive_factor * (1.0 + dark)))):
+        for _ in range(
+            int(rng.poisson(cfg.false_positives_per_frame * fx.false_positive_factor * (1.0 + dark)))
+        ):
             h = float(rng.uniform(cfg.min_height_px, 150.0))
             w = h * float(rng.uniform(0.4, 1.6))
             u = float(rng.uniform(0.0, cam.width_px - w))
@@ -240,7 +287,9 @@ class CameraDetectorModel:
             rows.append((u, v, u + w, v + h, cls_fp, float(rng.uniform(0.25, 0.55))))
             ids.append(-1)
         boxes = np.array(rows, dtype=np.float32).reshape(-1, 6)
-        return CameraDetections(stamp=stamp, camera_id=cam.camera_id, boxes=boxes), np.array(ids, dtype=np.int64)
+        return CameraDetections(stamp=stamp, camera_id=cam.camera_id, boxes=boxes), np.array(
+            ids, dtype=np.int64
+        )
 
     def _visible_boxes(self, scene: CameraScene) -> list[tuple[float, ...]]:
         """(u0, v0, u1, v1, visible_fraction, class, id, height_px) of the objects left after the geometry
@@ -279,8 +328,8 @@ class CameraDetectorModel:
         covered = np.zeros((cam.height_px // _RASTER_PX + 1, cam.width_px // _RASTER_PX + 1), dtype=bool)
         out: list[tuple[float, ...]] = []
         for _, u0, v0, u1, v1, truncation, cls, oid in projected:
-            r0, r1 = int(v0 // _RASTER_PX), int(math.ceil(v1 / _RASTER_PX))
-            c0, c1 = int(u0 // _RASTER_PX), int(math.ceil(u1 / _RASTER_PX))
+            r0, r1 = int(v0 // _RASTER_PX), math.ceil(v1 / _RASTER_PX)
+            c0, c1 = int(u0 // _RASTER_PX), math.ceil(u1 / _RASTER_PX)
             cells = covered[r0:r1, c0:c1]
             unoccluded = 1.0 - float(cells.mean()) if cells.size else 0.0
             cells[:] = True

@@ -36,7 +36,6 @@ from lastmile.sim.lidar_raycast import (
 from lastmile.sim.lidar_scene import (
     NO_OBJECT,
     REFLECTIVITY,
-    Boxes,
     Cylinders,
     DynamicObjects,
     PointLabel,
@@ -91,14 +90,19 @@ class LidarSpec:
         for name in ("x_m", "y_m", "z_m", "yaw_rad", "start_azimuth_rad"):
             value = getattr(self, name)
             if not math.isfinite(value):
-                raise ConfigError(f"LidarSpec {self.sensor_id!r}.{name}: expected a finite number, got {value}")
+                raise ConfigError(
+                    f"LidarSpec {self.sensor_id!r}.{name}: expected a finite number, got {value}"
+                )
         for name in ("azimuth_res_deg", "max_range_m", "min_range_m", "range_noise_std_m"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
-                raise ConfigError(f"LidarSpec {self.sensor_id!r}.{name}: expected a finite number >= 0, got {value}")
+                raise ConfigError(
+                    f"LidarSpec {self.sensor_id!r}.{name}: expected a finite number >= 0, got {value}"
+                )
         if not 0.01 <= self.azimuth_res_deg <= 5.0:
             raise ConfigError(
-                f"LidarSpec {self.sensor_id!r}.azimuth_res_deg: expected 0.01..5 deg, got {self.azimuth_res_deg}"
+                f"LidarSpec {self.sensor_id!r}.azimuth_res_deg: expected 0.01..5 deg, "
+                f"got {self.azimuth_res_deg}"
             )
         if self.period_us <= 0 or self.latency_us < 0:
             raise ConfigError(
@@ -111,9 +115,14 @@ class LidarSpec:
                 f"{self.min_range_m} >= {self.max_range_m}"
             )
         els = self.elevations_deg
-        if not els or not all(math.isfinite(e) and -89.0 < e < 89.0 for e in els) or len(set(els)) != len(els):
+        if (
+            not els
+            or not all(math.isfinite(e) and -89.0 < e < 89.0 for e in els)
+            or len(set(els)) != len(els)
+        ):
             raise ConfigError(
-                f"LidarSpec {self.sensor_id!r}.elevations_deg: expected distinct finite angles in (-89, 89), got {els}"
+                f"LidarSpec {self.sensor_id!r}.elevations_deg: expected distinct finite angles "
+                f"in (-89, 89), got {els}"
             )
 
     @property
@@ -194,7 +203,12 @@ class EgoTrack:
 
     @staticmethod
     def constant(
-        t0_us: int, x_m: float, y_m: float, yaw_rad: float, speed_mps: float = 0.0, yaw_rate_radps: float = 0.0,
+        t0_us: int,
+        x_m: float,
+        y_m: float,
+        yaw_rad: float,
+        speed_mps: float = 0.0,
+        yaw_rate_radps: float = 0.0,
         duration_us: int = 100_000,
     ) -> EgoTrack:
         """A track at constant speed and yaw rate from ``t0_us`` over ``duration_us`` (11 samples)."""
@@ -263,7 +277,9 @@ class LidarSimulator:
         body_height_m: float = 2.6,
     ) -> None:
         if not isinstance(weather, LidarWeather):
-            raise ConfigError(f"LidarSimulator.weather: expected a LidarWeather, got {type(weather).__name__}")
+            raise ConfigError(
+                f"LidarSimulator.weather: expected a LidarWeather, got {type(weather).__name__}"
+            )
         ids = [s.sensor_id for s in specs]
         if not ids or len(set(ids)) != len(ids):
             raise ConfigError(f"LidarSimulator.specs: expected distinct sensor ids, got {ids}")
@@ -280,8 +296,10 @@ class LidarSimulator:
         self._seg_half = 0.5 * np.hypot(*(seg.p1 - seg.p0).T)
         self._threshold = {s.sensor_id: REFERENCE_REFLECTIVITY / s.max_range_m**2 for s in specs}
 
-    def sweep(self, sensor_id: str, stamp: Stamp, ego: EgoTrack, objects: DynamicObjects, objects_t_us: int) -> LidarSweep:
-        """The sweep of ``sensor_id`` that starts at ``stamp``; road users are as given at ``objects_t_us``."""
+    def sweep(
+        self, sensor_id: str, stamp: Stamp, ego: EgoTrack, objects: DynamicObjects, objects_t_us: int
+    ) -> LidarSweep:
+        """The sweep of ``sensor_id`` starting at ``stamp``; road users as they were at ``objects_t_us``."""
         return self.sweep_with_truth(sensor_id, stamp, ego, objects, objects_t_us)[0]
 
     def sweep_with_truth(
@@ -290,7 +308,9 @@ class LidarSimulator:
         """As :meth:`sweep`, with the per-point ground truth for benchmarks."""
         spec = self.specs.get(sensor_id)
         if spec is None:
-            raise ConfigError(f"LidarSimulator: expected a sensor id in {list(self.specs)}, got {sensor_id!r}")
+            raise ConfigError(
+                f"LidarSimulator: expected a sensor id in {list(self.specs)}, got {sensor_id!r}"
+            )
         rng = self._rng[sensor_id]
         weather = self.weather
         order = np.argsort(spec.elevations_deg)
@@ -320,7 +340,9 @@ class LidarSimulator:
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             power = np.where(retro, refl, refl * np.sqrt(np.maximum(cos_inc, 0.02)))
             power = power * np.exp(-2.0 * alpha * rng_m) / np.maximum(rng_m, 1e-3) ** 2
-        keep = (power >= self._threshold[sensor_id]) & (rng_m >= spec.min_range_m) & (rng_m <= spec.max_range_m)
+        keep = (
+            (power >= self._threshold[sensor_id]) & (rng_m >= spec.min_range_m) & (rng_m <= spec.max_range_m)
+        )
         if weather.dropout_prob > 0.0:
             keep[keep] = rng.random(int(keep.sum())) >= weather.dropout_prob
         idx = cand[keep]
@@ -339,14 +361,22 @@ class LidarSimulator:
             ray = rng.integers(0, n_col * n_ch, n_echo)
             e_rng = spec.min_range_m + rng.exponential(weather.echo_mean_range_m, n_echo)
             e_int = rng.uniform(0.0, 12.0, n_echo)
-            ok = (e_rng <= min(weather.echo_max_range_m, spec.max_range_m)) & ~self._self_block[sensor_id].reshape(-1)[ray]
+            ok = (e_rng <= min(weather.echo_max_range_m, spec.max_range_m)) & ~self._self_block[
+                sensor_id
+            ].reshape(-1)[ray]
             ray, e_rng, e_int = ray[ok], e_rng[ok], e_int[ok]
             ray, first = np.unique(ray, return_index=True)
             e_rng, e_int = e_rng[first], e_int[first]
             pos = np.searchsorted(idx, ray)
             exists = (pos < len(idx)) & (idx[np.minimum(pos, len(idx) - 1)] == ray)
             nearer = ~exists | (e_rng < noisy[np.minimum(pos, len(idx) - 1)])
-            ray, e_rng, e_int, pos, exists = ray[nearer], e_rng[nearer], e_int[nearer], pos[nearer], exists[nearer]
+            ray, e_rng, e_int, pos, exists = (
+                ray[nearer],
+                e_rng[nearer],
+                e_int[nearer],
+                pos[nearer],
+                exists[nearer],
+            )
             # Replace the hidden returns, then add echoes on rays that had none.
             rp = pos[exists]
             noisy[rp], true_range[rp], intensity[rp] = e_rng[exists], e_rng[exists], e_int[exists]
@@ -373,12 +403,18 @@ class LidarSimulator:
         points[:, 4] = ch_i
         points[:, 5] = t_off
         horiz = (true_range * ce)[:, None]
-        xyz = np.column_stack([cols.origin[col_i] + horiz * cols.direction[col_i], cols.z_m + true_range * se])
-        truth = LidarTruth(label=label_i, object_id=obj_id.astype(np.int64), object_class=obj_cls, xyz_map_m=xyz)
+        xyz = np.column_stack(
+            [cols.origin[col_i] + horiz * cols.direction[col_i], cols.z_m + true_range * se]
+        )
+        truth = LidarTruth(
+            label=label_i, object_id=obj_id.astype(np.int64), object_class=obj_cls, xyz_map_m=xyz
+        )
         return LidarSweep(stamp=stamp, sensor_id=sensor_id, points=points), truth
 
     # --- pieces --------------------------------------------------------------------------------
-    def columns(self, spec: LidarSpec, stamp_us: int, ego: EgoTrack, objects_t_us: int) -> tuple[Columns, np.ndarray]:
+    def columns(
+        self, spec: LidarSpec, stamp_us: int, ego: EgoTrack, objects_t_us: int
+    ) -> tuple[Columns, np.ndarray]:
         """The sweep's firing columns in the map frame and their (C,) sensor-frame azimuths."""
         n_col = spec.n_columns
         k = np.arange(n_col)
@@ -420,7 +456,8 @@ class LidarSimulator:
         cyl_s = self.scene.cylinders
         near_cyl = np.flatnonzero(np.hypot(*(cyl_s.centre - centre).T) <= reach)
         cyl = _concat_cylinders(
-            Cylinders(**{f: getattr(cyl_s, f)[near_cyl] for f in Cylinders.__dataclass_fields__}), objects.cylinders
+            Cylinders(**{f: getattr(cyl_s, f)[near_cyl] for f in Cylinders.__dataclass_fields__}),
+            objects.cylinders,
         )
         box = objects.boxes
         n_seg, n_cyl = len(seg), len(cyl)
@@ -430,7 +467,9 @@ class LidarSimulator:
             "z_max": np.concatenate([seg.z_max_m, cyl.z_max_m, box.z_max_m, [0.0]]),
             "label": np.concatenate([seg.label, cyl.label, box.label, [PointLabel.ROAD]]).astype(np.int8),
             "obj_id": np.concatenate([np.full(n_seg, NO_OBJECT), cyl.object_id, box.object_id, [NO_OBJECT]]),
-            "cls": np.concatenate([np.zeros(n_seg, np.int8), cyl.object_class, box.object_class, [0]]).astype(np.int8),
+            "cls": np.concatenate([np.zeros(n_seg, np.int8), cyl.object_class, box.object_class, [0]]).astype(
+                np.int8
+            ),
             "refl": np.concatenate([seg.reflectivity, cyl.reflectivity, box.reflectivity, [0.0]]),
             "retro": np.concatenate([seg.retro, cyl.retro, np.zeros(len(box), bool), [False]]),
         }
@@ -500,7 +539,12 @@ def _ground_reflectivity(label: np.ndarray) -> np.ndarray:
 
 
 def _intensity(
-    range_m: np.ndarray, cos_inc: np.ndarray, refl: np.ndarray, retro: np.ndarray, alpha: float, rng: np.random.Generator
+    range_m: np.ndarray,
+    cos_inc: np.ndarray,
+    refl: np.ndarray,
+    retro: np.ndarray,
+    alpha: float,
+    rng: np.random.Generator,
 ) -> np.ndarray:
     """0..255 intensity: reflectivity x incidence x atmospheric loss x a mild range fall-off, with noise.
 
@@ -513,7 +557,9 @@ def _intensity(
 
 
 def _concat_cylinders(a: Cylinders, b: Cylinders) -> Cylinders:
-    return Cylinders(**{f: np.concatenate([getattr(a, f), getattr(b, f)]) for f in Cylinders.__dataclass_fields__})
+    return Cylinders(
+        **{f: np.concatenate([getattr(a, f), getattr(b, f)]) for f in Cylinders.__dataclass_fields__}
+    )
 
 
 def _self_blocked(spec: LidarSpec, geometry: VehicleGeometry, body_height_m: float) -> np.ndarray:
@@ -537,16 +583,20 @@ def _self_blocked(spec: LidarSpec, geometry: VehicleGeometry, body_height_m: flo
         sign=sign,
         z_m=spec.z_m,
     )
-    body = DynamicObjects.empty().with_box(
-        x_m=geometry.length_m / 2.0 - geometry.rear_overhang_m,
-        y_m=0.0,
-        yaw_rad=0.0,
-        length_m=geometry.length_m,
-        width_m=geometry.width_m,
-        height_m=body_height_m,
-        label=PointLabel.EGO,
-        object_class=ObjectClass.UNKNOWN,
-    ).boxes
+    body = (
+        DynamicObjects.empty()
+        .with_box(
+            x_m=geometry.length_m / 2.0 - geometry.rear_overhang_m,
+            y_m=0.0,
+            yaw_rad=0.0,
+            length_m=geometry.length_m,
+            width_m=geometry.width_m,
+            height_m=body_height_m,
+            label=PointLabel.EGO,
+            object_class=ObjectClass.UNKNOWN,
+        )
+        .boxes
+    )
     hits: Hits = cast(cols, tan_el, (body.z_min_m, body.z_max_m), box_pairs(cols, body), spec.max_range_m)
     blocked = np.isfinite(hits.range_h_m)
     blocked.setflags(write=False)

@@ -8,6 +8,7 @@ vectorised integer indexing: tens of thousands of ground hits per sweep cost abo
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -102,7 +103,7 @@ class GroundRaster:
         code = np.full((self.height, self.width), _FAR, dtype=np.uint8)
         band = CURB_BAND_M
         for xy in self._curbs:
-            for p, q in zip(xy[:-1], xy[1:], strict=True):
+            for p, q in itertools.pairwise(xy):
                 lo = np.minimum(p, q) - band
                 hi = np.maximum(p, q) + band
                 c0 = max(0, int((lo[0] - self.x0_m) / RESOLUTION_M))
@@ -136,7 +137,9 @@ def check_bank(bank_width_m: float, cover_m: float) -> None:
         )
 
 
-def bank_height_m(dist_m: np.ndarray, curb_height_m: float, bank_width_m: float, cover_m: float) -> np.ndarray:
+def bank_height_m(
+    dist_m: np.ndarray, curb_height_m: float, bank_width_m: float, cover_m: float
+) -> np.ndarray:
     """Height of ploughed snow at a road point ``dist_m`` from the curb.
 
     Flat at curb height over ``cover_m`` of the lane (snow covering part of the lane), then a linear

@@ -11,6 +11,7 @@ Every solid is a vertical prism standing on the ground, so a ray is intersected 
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 from enum import IntEnum
@@ -203,7 +204,7 @@ def build_static_scene(hdmap: HDMap, curb_height_m: float = CURB_HEIGHT_M) -> St
     cyl: list[tuple[float, ...]] = []
 
     def walls(xy: np.ndarray, z0: float, z1: float, label: PointLabel, retro: bool) -> None:
-        for p, q in zip(xy[:-1], xy[1:], strict=True):
+        for p, q in itertools.pairwise(xy):
             if math.dist(p, q) > 1e-6:
                 seg.append((p[0], p[1], q[0], q[1], z0, z1, label, REFLECTIVITY[label], float(retro)))
 

@@ -72,7 +72,9 @@ class LidarWeather:
             if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0.0):
                 raise ConfigError(f"LidarWeather.{name}: expected a finite number >= 0, got {value!r}")
         if self.dropout_prob >= 1.0:
-            raise ConfigError(f"LidarWeather.dropout_prob: expected a probability < 1, got {self.dropout_prob}")
+            raise ConfigError(
+                f"LidarWeather.dropout_prob: expected a probability < 1, got {self.dropout_prob}"
+            )
         if self.echo_mean_range_m <= 0.0:
             raise ConfigError(f"LidarWeather.echo_mean_range_m: expected > 0, got {self.echo_mean_range_m}")
         check_bank(self.snow_bank_width_m, self.snow_cover_lane_m)
@@ -96,12 +98,18 @@ LIDAR_WEATHER: dict[Weather, LidarWeather] = {
         snow_bank_width_m=0.6,
     ),
     Weather.FOG: LidarWeather(
-        extinction_per_m=0.035, echoes_per_kray=0.5, echo_mean_range_m=2.0, dropout_prob=0.02, range_noise_factor=1.2
+        extinction_per_m=0.035,
+        echoes_per_kray=0.5,
+        echo_mean_range_m=2.0,
+        dropout_prob=0.02,
+        range_noise_factor=1.2,
     ),
 }
 
 
-def lidar_weather(weather: Weather | str, intensity: float = 1.0, snow_cover_lane_m: float = 0.0) -> LidarWeather:
+def lidar_weather(
+    weather: Weather | str, intensity: float = 1.0, snow_cover_lane_m: float = 0.0
+) -> LidarWeather:
     """The LiDAR terms of ``weather`` at ``intensity`` (0: none of it, 1: the table, 2: twice as heavy).
 
     Raises:
