@@ -17,10 +17,10 @@ fog        0.035           0.5                2.0 m       0.02        1.2       
 - Extinction alpha: fog of 85 m meteorological visibility has alpha = 3.0 / 85 m ~ 0.035 /m
   (Koschmieder); heavy rain (~25 mm/h) ~ 0.006 /m and moderate snowfall ~ 0.012 /m at 905 nm
   (Rasshofer et al. 2011, Filgueira et al. 2017). The two-way loss exp(-2 alpha R) multiplies the
-  returned power, so weak targets drop out first: in fog a 10 % target is lost beyond ~35 m.
+  returned power, so weak targets drop out first: in fog a 10 % target is lost beyond ~32 m.
 - Echoes: falling drops and flakes return single points concentrated within a few metres of the
   window (Charron et al. 2018: snow points mostly under 5-10 m, low intensity); with 12 per 1000 rays
-  the front unit sees ~690 flake points per sweep in snow, the whole rig ~1000.
+  the whole rig shows ~460 flake points per frame in snow (rays into the shuttle's body get none).
 - Snow bank: ploughed snow fills the curb step; ``snow_cover_lane_m`` more of the lane lies under
   snow at curb height (a scenario setting, 0 by default).
 """
