@@ -134,6 +134,28 @@ class LidarSpec:
         return self.n_columns * len(self.elevations_deg)
 
 
+def lidar_specs_from_config(rows: list[dict[str, object]]) -> tuple[LidarSpec, ...]:
+    """LiDAR specs from config tables (as read from TOML), one per sensor.
+
+    Raises:
+        ConfigError: an unknown key, a missing one, or a value :class:`LidarSpec` refuses.
+    """
+    known = set(LidarSpec.__dataclass_fields__)
+    out = []
+    for i, row in enumerate(rows):
+        unknown = sorted(set(row) - known)
+        if unknown:
+            raise ConfigError(f"lidar[{i}]: expected keys among {sorted(known)}, got unknown {unknown}")
+        values = dict(row)
+        if "elevations_deg" in values:
+            values["elevations_deg"] = tuple(float(e) for e in values["elevations_deg"])  # type: ignore[attr-defined]
+        try:
+            out.append(LidarSpec(**values))  # type: ignore[arg-type]
+        except TypeError as exc:
+            raise ConfigError(f"lidar[{i}]: expected every LidarSpec field, got {exc}") from None
+    return tuple(out)
+
+
 def default_lidar_rig(geometry: VehicleGeometry) -> tuple[LidarSpec, ...]:
     """WATonoBus-style rig: a 32-channel unit on the front face, 16-channel blind-spot units each side.
 

@@ -18,7 +18,7 @@ from enum import IntEnum
 
 import numpy as np
 
-from lastmile.core.errors import ConfigError
+from lastmile.core.errors import ConfigError, MessageError
 from lastmile.core.object_class import ObjectClass
 from lastmile.hdmap.model import HDMap
 from lastmile.sim.agents import Agent
@@ -271,6 +271,12 @@ class DynamicObjects:
         for a in agents:
             if not a.active:
                 continue
+            values = (a.x_m, a.y_m, a.yaw_rad, a.speed_mps, a.length_m, a.width_m)
+            if not all(math.isfinite(v) for v in values) or a.length_m <= 0 or a.width_m <= 0:
+                raise MessageError(
+                    f"agent {a.id}: expected a finite pose and speed and a positive footprint, got "
+                    f"x={a.x_m}, y={a.y_m}, yaw={a.yaw_rad}, v={a.speed_mps}, {a.length_m} x {a.width_m} m"
+                )
             height = CLASS_HEIGHT_M.get(a.cls, 1.0)
             refl = CLASS_REFLECTIVITY.get(a.cls, 0.25)
             vx, vy = a.vx_mps, a.vy_mps
