@@ -317,6 +317,14 @@ class LidarSimulator:
         self._seg_mid = 0.5 * (seg.p0 + seg.p1)
         self._seg_half = 0.5 * np.hypot(*(seg.p1 - seg.p0).T)
         self._threshold = {s.sensor_id: REFERENCE_REFLECTIVITY / s.max_range_m**2 for s in specs}
+        # Per sensor, fixed: beam trigonometry by ascending elevation and the rays that may hit ground.
+        self._beams: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        self._ground_rays: dict[str, np.ndarray] = {}
+        for s in specs:
+            el = np.radians(np.sort(np.asarray(s.elevations_deg, dtype=np.float64)))
+            self._beams[s.sensor_id] = (np.tan(el), np.cos(el), np.sin(el))
+            down = np.broadcast_to(el < 0.0, (s.n_columns, len(el)))
+            self._ground_rays[s.sensor_id] = (~self._self_block[s.sensor_id] & down).reshape(-1)
 
     def sweep(
         self, sensor_id: str, stamp: Stamp, ego: EgoTrack, objects: DynamicObjects, objects_t_us: int
@@ -335,10 +343,8 @@ class LidarSimulator:
             )
         rng = self._rng[sensor_id]
         weather = self.weather
-        order = np.argsort(spec.elevations_deg)
-        el = np.radians(np.asarray(spec.elevations_deg, dtype=np.float64)[order])
-        tan_el, cos_el, sin_el = np.tan(el), np.cos(el), np.sin(el)
-        n_col, n_ch = spec.n_columns, len(el)
+        tan_el, cos_el, sin_el = self._beams[sensor_id]
+        n_col, n_ch = spec.n_columns, len(tan_el)
         cols, az = self.columns(spec, int(stamp), ego, objects_t_us)
 
         table, pairs = self.primitives(spec, cols, objects)
@@ -346,8 +352,7 @@ class LidarSimulator:
         # From here on only rays that can return matter: not into the body, not into the sky.
         blocked = self._self_block[sensor_id].reshape(-1)
         hit_r = hits.range_h_m.reshape(-1)
-        ch_all = np.tile(np.arange(n_ch), n_col)
-        cand = np.flatnonzero(~blocked & (np.isfinite(hit_r) | (tan_el[ch_all] < 0.0)))
+        cand = np.flatnonzero(self._ground_rays[sensor_id] | (np.isfinite(hit_r) & ~blocked))
         c_col, c_ch = cand // n_ch, cand % n_ch
         ground_r, ground_label = self._ground(spec, cols, tan_el, c_col, c_ch)
         use_ground = ground_r < hit_r[cand]
