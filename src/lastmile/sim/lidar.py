@@ -330,12 +330,25 @@ class LidarSimulator:
         self, sensor_id: str, stamp: Stamp, ego: EgoTrack, objects: DynamicObjects, objects_t_us: int
     ) -> LidarSweep:
         """The sweep of ``sensor_id`` starting at ``stamp``; road users as they were at ``objects_t_us``."""
-        return self.sweep_with_truth(sensor_id, stamp, ego, objects, objects_t_us)[0]
+        return self._sweep(sensor_id, stamp, ego, objects, objects_t_us, with_truth=False)[0]
 
     def sweep_with_truth(
         self, sensor_id: str, stamp: Stamp, ego: EgoTrack, objects: DynamicObjects, objects_t_us: int
     ) -> tuple[LidarSweep, LidarTruth]:
         """As :meth:`sweep`, with the per-point ground truth for benchmarks."""
+        sweep, truth = self._sweep(sensor_id, stamp, ego, objects, objects_t_us, with_truth=True)
+        assert truth is not None  # asked for
+        return sweep, truth
+
+    def _sweep(
+        self,
+        sensor_id: str,
+        stamp: Stamp,
+        ego: EgoTrack,
+        objects: DynamicObjects,
+        objects_t_us: int,
+        with_truth: bool,
+    ) -> tuple[LidarSweep, LidarTruth | None]:
         spec = self.specs.get(sensor_id)
         if spec is None:
             raise ConfigError(
@@ -429,6 +442,9 @@ class LidarSimulator:
         points[:, 3] = np.clip(np.round(intensity), 0.0, 255.0)
         points[:, 4] = ch_i
         points[:, 5] = t_off
+        sweep = LidarSweep(stamp=stamp, sensor_id=sensor_id, points=points)
+        if not with_truth:
+            return sweep, None
         horiz = (true_range * ce)[:, None]
         xyz = np.column_stack(
             [cols.origin[col_i] + horiz * cols.direction[col_i], cols.z_m + true_range * se]
@@ -436,7 +452,7 @@ class LidarSimulator:
         truth = LidarTruth(
             label=label_i, object_id=obj_id.astype(np.int64), object_class=obj_cls, xyz_map_m=xyz
         )
-        return LidarSweep(stamp=stamp, sensor_id=sensor_id, points=points), truth
+        return sweep, truth
 
     # --- pieces --------------------------------------------------------------------------------
     def columns(
@@ -527,32 +543,35 @@ class LidarSimulator:
             return r, label
         o, d = cols.origin[col[down]], cols.direction[col[down]]
 
-        def xy_at(rr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-            return o[:, 0] + rr * d[:, 0], o[:, 1] + rr * d[:, 1]
+        def xy_at(rr: np.ndarray, sel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            return o[sel, 0] + rr * d[sel, 0], o[sel, 1] + rr * d[sel, 1]
 
-        far = r0 > spec.max_range_m
-        road0 = ground.is_road(*xy_at(r0)) | far
+        everywhere = np.arange(len(down))
+        road0 = ground.is_road(*xy_at(r0, everywhere)) | (r0 > spec.max_range_m)
         hc = self.scene.curb_height_m
         rs = (hc - oz) / t if oz > hc else r0
-        road_s = ground.is_road(*xy_at(rs))
         # Road where the z=0 plane is met on road; sidewalk where the raised plane is met off road; a
         # ray that passes over road and dips below sidewalk level met the curb face (cast elsewhere),
         # except where no curb is mapped (road ends), where it is kept on the road plane.
+        off = np.flatnonzero(~road0)
+        road_s = np.zeros(len(down), dtype=bool)
+        road_s[off] = ground.is_road(*xy_at(rs[off], off))
         side = ~road0 & ~road_s
         rr = np.where(side, rs, r0)
         lab = np.where(side, PointLabel.SIDEWALK, PointLabel.ROAD).astype(np.int8)
         w = self.weather
         if w.snow_on_road:
-            at_curb = ~road0 & road_s
-            rr = np.where(at_curb, rs, rr)
-            on_road = ~side
+            rr = np.where(~road0 & road_s, rs, rr)
+            on = np.flatnonzero(~side)
+            r_on, t_on = rr[on], t[on]
             # Two fixed-point steps onto the snow surface: the bank slopes gently, so they converge.
-            h = np.zeros(len(rr))
+            h = np.zeros(len(on))
             for _ in range(2):
-                dist = ground.curb_distance_m(*xy_at(rr))
-                h = np.where(on_road, bank_height_m(dist, hc, w.snow_bank_width_m, w.snow_cover_lane_m), 0.0)
-                rr = np.where(on_road, (np.minimum(h, oz - 1e-3) - oz) / t, rr)
-            lab = np.where(on_road & (h > 0.005), PointLabel.SNOW, lab).astype(np.int8)
+                dist = ground.curb_distance_m(*xy_at(r_on, on))
+                h = bank_height_m(dist, hc, w.snow_bank_width_m, w.snow_cover_lane_m)
+                r_on = (np.minimum(h, oz - 1e-3) - oz) / t_on
+            rr[on] = r_on
+            lab[on[h > 0.005]] = PointLabel.SNOW
         r[down] = rr
         label[down] = lab
         return r, label
