@@ -36,8 +36,9 @@ from lastmile.hdmap.campus_layout import RING
 from lastmile.hdmap.loader import load_campus_map
 from lastmile.sim.agents import Agent
 from lastmile.sim.camera import CameraDetectorModel, CameraScene, default_cameras
-from lastmile.sim.lidar import EgoTrack, LidarSimulator, default_lidar_rig
+from lastmile.sim.lidar import LidarSimulator
 from lastmile.sim.lidar_raycast import cast
+from lastmile.sim.lidar_rig import EgoTrack, default_lidar_rig
 from lastmile.sim.lidar_scene import DynamicObjects, static_scene
 from lastmile.sim.lidar_weather import lidar_weather
 from lastmile.sim.weather import Weather

@@ -15,7 +15,8 @@ from lastmile.core.object_class import ObjectClass
 from lastmile.core.stamp import Stamp
 from lastmile.core.vehicle import VehicleGeometry
 from lastmile.sim.agents import Agent
-from lastmile.sim.lidar import EgoTrack, LidarSimulator, LidarSpec, default_lidar_rig
+from lastmile.sim.lidar import LidarSimulator
+from lastmile.sim.lidar_rig import EgoTrack, LidarSpec, default_lidar_rig
 from lastmile.sim.lidar_scene import (
     REFLECTIVITY,
     Cylinders,

@@ -12,8 +12,8 @@ from hypothesis import strategies as st
 from lastmile.core.errors import ConfigError, MessageError
 from lastmile.core.object_class import ObjectClass
 from lastmile.sim.agents import Agent
-from lastmile.sim.lidar import lidar_specs_from_config
 from lastmile.sim.lidar_raycast import Columns, box_pairs, cast, cylinder_pairs, segment_pairs
+from lastmile.sim.lidar_rig import lidar_specs_from_config
 from lastmile.sim.lidar_scene import DynamicObjects, Segments
 
 

@@ -11,7 +11,8 @@ import pytest
 from lastmile.core.stamp import Stamp
 from lastmile.core.vehicle import VehicleGeometry
 from lastmile.hdmap.loader import load_campus_map
-from lastmile.sim.lidar import EgoTrack, LidarSimulator, LidarSpec, LidarTruth, default_lidar_rig
+from lastmile.sim.lidar import LidarSimulator, LidarTruth
+from lastmile.sim.lidar_rig import EgoTrack, LidarSpec, default_lidar_rig
 from lastmile.sim.lidar_scene import DynamicObjects, PointLabel, StaticLidarScene, static_scene
 from lastmile.sim.lidar_weather import LidarWeather, lidar_weather
 from tests.sim.test_lidar_geometry import flat_scene

@@ -18,7 +18,8 @@ from lastmile.core.geometry import SE2
 from lastmile.core.sensor_frames import SensorFrame
 from lastmile.core.stamp import Stamp
 from lastmile.sim.camera import CameraDetectorConfig, CameraDetectorModel, CameraScene, default_cameras
-from lastmile.sim.lidar import EgoTrack, LidarSimulator, LidarSpec, default_lidar_rig
+from lastmile.sim.lidar import LidarSimulator
+from lastmile.sim.lidar_rig import EgoTrack, LidarSpec, default_lidar_rig
 from lastmile.sim.lidar_scene import DynamicObjects, static_scene
 from lastmile.sim.lidar_weather import lidar_weather
 from lastmile.sim.world import World
