@@ -82,8 +82,12 @@ def test_snow_bank_hides_the_curb_step(campus: StaticLidarScene) -> None:
 
 
 def test_snow_can_cover_part_of_the_lane(campus: StaticLidarScene) -> None:
-    pts, _, _ = rig_in_map(campus, lidar_weather("snow", snow_cover_lane_m=1.0))
+    weather = lidar_weather("snow", snow_cover_lane_m=1.0)
+    pts, _, _ = rig_in_map(campus, weather)
     assert band_z(pts, 0.3, 0.9) == pytest.approx(0.15, abs=0.04)
+    bare = weather.bare_road_from_curb_m
+    assert bare == pytest.approx(1.6)
+    assert band_z(pts, bare + 0.05, bare + 0.6) == pytest.approx(0.0, abs=0.02)  # the road is bare again
 
 
 def test_snowflakes_add_near_range_points(campus: StaticLidarScene) -> None:

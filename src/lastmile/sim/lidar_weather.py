@@ -83,6 +83,15 @@ class LidarWeather:
     def snow_on_road(self) -> bool:
         return self.snow_bank_width_m > 0.0 or self.snow_cover_lane_m > 0.0
 
+    @property
+    def bare_road_from_curb_m(self) -> float:
+        """How far from the curb the road surface is bare again (0 without snow on the road).
+
+        Ground truth for boundary benchmarks: under snow the drivable edge a LiDAR can see is here,
+        not at the buried curb (WATonoBus fig. 5 shows the same offset between map curb and snow).
+        """
+        return self.snow_cover_lane_m + self.snow_bank_width_m
+
 
 LIDAR_WEATHER: dict[Weather, LidarWeather] = {
     Weather.CLEAR: LidarWeather(),
