@@ -42,7 +42,7 @@ def drive(rig: RawSensorRig, world: World, ticks: int) -> list[tuple[int, object
 
 def test_rig_delivers_sweeps_each_period_and_camera_boxes_of_the_car_ahead() -> None:
     world = campus_world(Weather.CLEAR)
-    rig = RawSensorRig(world, seed=0, tick_us=TICK_US)
+    rig = RawSensorRig(world, seed=0, tick_us=TICK_US, keep_truth=True)
     frames = drive(rig, world, 31)
     sweeps = [(t, f, lat) for t, f, lat in frames if isinstance(f, LidarSweep)]
     assert [(t, f.sensor_id) for t, f, _ in sweeps] == [
@@ -57,6 +57,9 @@ def test_rig_delivers_sweeps_each_period_and_camera_boxes_of_the_car_ahead() -> 
     ahead = front.points[(np.abs(front.points[:, 1]) < 0.5) & (front.points[:, 2] > -1.0)]
     sensor_x_start = 250.0 + 4.0 * 0.2 + rig.lidar_specs[0].x_m
     assert np.min(ahead[:, 0]) == pytest.approx(272.75 - sensor_x_start - 4.0 * 0.05, abs=0.3)
+    truth = rig.lidar_truth["front"]
+    assert len(truth.label) == len(front.points)
+    assert set(truth.object_id[truth.object_id >= 0].tolist()) == {5}
     cams = [f for _, f, _ in frames if isinstance(f, CameraDetections) and f.camera_id == "front"]
     assert len(cams) == 4  # ticks 0, 10, 20, 30
     assert sum(len(c.boxes) for c in cams) >= 3

@@ -18,7 +18,7 @@ from lastmile.core.geometry import SE2
 from lastmile.core.sensor_frames import SensorFrame
 from lastmile.core.stamp import Stamp
 from lastmile.sim.camera import CameraDetectorConfig, CameraDetectorModel, CameraScene, default_cameras
-from lastmile.sim.lidar import LidarSimulator
+from lastmile.sim.lidar import LidarSimulator, LidarTruth
 from lastmile.sim.lidar_rig import EgoTrack, LidarSpec, default_lidar_rig
 from lastmile.sim.lidar_scene import DynamicObjects, static_scene
 from lastmile.sim.lidar_weather import lidar_weather
@@ -38,6 +38,8 @@ class RawSensorRig:
         weather_intensity: 0..2 scale of the precipitation / fog terms (1: reference event).
         snow_cover_lane_m: lane width next to the curb under snow (a scenario setting).
         camera_period_ticks: camera frame period in base ticks (10 ms ticks: 10 -> 10 Hz).
+        keep_truth: keep each sensor's latest ground truth in :attr:`lidar_truth` (per-point labels)
+            and :attr:`camera_truth` (object id per box, -1 false positive) for quality benchmarks.
     """
 
     def __init__(
@@ -52,6 +54,7 @@ class RawSensorRig:
         snow_cover_lane_m: float = 0.0,
         camera_period_ticks: int = 10,
         camera_config: CameraDetectorConfig | None = None,
+        keep_truth: bool = False,
     ) -> None:
         if tick_us <= 0 or camera_period_ticks <= 0:
             raise ConfigError(
@@ -79,6 +82,9 @@ class RawSensorRig:
             for cam in (cameras or default_cameras(world.geometry))
         )
         self.camera_period_ticks = camera_period_ticks
+        self.keep_truth = keep_truth
+        self.lidar_truth: dict[str, LidarTruth] = {}
+        self.camera_truth: dict[str, np.ndarray] = {}
         longest = max(s.period_us for s in self.lidar_specs)
         self._history: deque[tuple[int, float, float, float]] = deque(maxlen=longest // tick_us + 2)
 
@@ -100,10 +106,17 @@ class RawSensorRig:
             track = EgoTrack(
                 t_us=hist[:, 0].astype(np.int64), x_m=hist[:, 1], y_m=hist[:, 2], yaw_rad=hist[:, 3]
             )
-            sweep = self.lidar.sweep(spec.sensor_id, Stamp(start), track, objects, now)
+            if self.keep_truth:
+                sweep, truth = self.lidar.sweep_with_truth(spec.sensor_id, Stamp(start), track, objects, now)
+                self.lidar_truth[spec.sensor_id] = truth
+            else:
+                sweep = self.lidar.sweep(spec.sensor_id, Stamp(start), track, objects, now)
             out.append((sweep, spec.period_us + spec.latency_us))
         if tick % self.camera_period_ticks == 0:
             scene = CameraScene.from_agents(SE2(s.x_m, s.y_m, s.yaw_rad), self.world.agents)
             for cam in self.cameras:
-                out.append((cam.detect(scene, Stamp(now)), cam.config.latency_us))
+                dets, ids = cam.detect_with_truth(scene, Stamp(now))
+                if self.keep_truth:
+                    self.camera_truth[cam.camera_id] = ids
+                out.append((dets, cam.config.latency_us))
         return out
