@@ -112,6 +112,17 @@ def test_fog_shortens_the_range(campus: StaticLidarScene) -> None:
     assert fog < 60.0
 
 
+def test_wet_road_in_rain_returns_dimmer(campus: StaticLidarScene) -> None:
+    def road_intensity(weather: LidarWeather) -> float:
+        sim = LidarSimulator(campus, RIG, weather, 0, GEOM)
+        sweep, truth = sim.sweep_with_truth(
+            "front", Stamp(0), EgoTrack.constant(0, 250.0, -1.75, 0.0), DynamicObjects.empty(), 0
+        )
+        return float(np.median(sweep.points[truth.label == PointLabel.ROAD, 3]))
+
+    assert road_intensity(lidar_weather("rain")) < 0.7 * road_intensity(lidar_weather("clear"))
+
+
 def test_retro_reflective_sign_returns_high_intensity() -> None:
     scene = flat_scene(
         [

@@ -161,7 +161,8 @@ class LidarSimulator:
         label = np.where(use_ground, ground_label, table["label"][prim])
         cos_inc = np.where(use_ground, np.abs(sin_el)[c_ch], hits.cos_incidence.reshape(-1)[cand])
         rng_m = r_h / cos_el[c_ch]
-        refl = np.where(use_ground, _ground_reflectivity(ground_label), table["refl"][prim])
+        ground_refl = _ground_reflectivity(ground_label, weather.wet_surface_factor)
+        refl = np.where(use_ground, ground_refl, table["refl"][prim])
         retro = ~use_ground & table["retro"][prim]
         alpha = weather.extinction_per_m
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
@@ -364,10 +365,13 @@ class LidarSimulator:
         return r, label
 
 
-def _ground_reflectivity(label: np.ndarray) -> np.ndarray:
+def _ground_reflectivity(label: np.ndarray, wet_factor: float) -> np.ndarray:
+    """Diffuse reflectivity of ground hits; a wet road and sidewalk mirror the beam away."""
     table = np.zeros(int(max(PointLabel)) + 1)
     for lab, value in REFLECTIVITY.items():
         table[int(lab)] = value
+    table[int(PointLabel.ROAD)] *= wet_factor
+    table[int(PointLabel.SIDEWALK)] *= wet_factor
     return table[label]
 
 

@@ -21,6 +21,8 @@ fog        0.035           0.5                2.0 m       0.02        1.2       
 - Echoes: falling drops and flakes return single points concentrated within a few metres of the
   window (Charron et al. 2018: snow points mostly under 5-10 m, low intensity); with 12 per 1000 rays
   the whole rig shows ~460 flake points per frame in snow (rays into the shuttle's body get none).
+- Wet surfaces (rain): a water film halves the road's and sidewalk's diffuse return (wet asphalt
+  returns 30-60 % of dry at 905 nm), so far ground points fade first.
 - Snow bank: ploughed snow fills the curb step; ``snow_cover_lane_m`` more of the lane lies under
   snow at curb height (a scenario setting, 0 by default).
 """
@@ -48,6 +50,8 @@ class LidarWeather:
         range_noise_factor: multiplies the sensor's range noise.
         snow_bank_width_m: width of the slope from curb height down to the road next to a curb.
         snow_cover_lane_m: width of lane next to the curb covered at curb height.
+        wet_surface_factor: multiplies the road's and sidewalk's diffuse reflectivity (a film of
+            water reflects the beam forward, away from the sensor: dimmer and shorter ground returns).
     """
 
     extinction_per_m: float = 0.0
@@ -58,6 +62,7 @@ class LidarWeather:
     range_noise_factor: float = 1.0
     snow_bank_width_m: float = 0.0
     snow_cover_lane_m: float = 0.0
+    wet_surface_factor: float = 1.0
 
     def __post_init__(self) -> None:
         for name in (
@@ -71,6 +76,10 @@ class LidarWeather:
             value = getattr(self, name)
             if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0.0):
                 raise ConfigError(f"LidarWeather.{name}: expected a finite number >= 0, got {value!r}")
+        if not (math.isfinite(self.wet_surface_factor) and 0.0 < self.wet_surface_factor <= 1.0):
+            raise ConfigError(
+                f"LidarWeather.wet_surface_factor: expected a number in (0, 1], got {self.wet_surface_factor}"
+            )
         if self.dropout_prob >= 1.0:
             raise ConfigError(
                 f"LidarWeather.dropout_prob: expected a probability < 1, got {self.dropout_prob}"
@@ -96,7 +105,11 @@ class LidarWeather:
 LIDAR_WEATHER: dict[Weather, LidarWeather] = {
     Weather.CLEAR: LidarWeather(),
     Weather.RAIN: LidarWeather(
-        extinction_per_m=0.006, echoes_per_kray=2.0, dropout_prob=0.01, range_noise_factor=1.5
+        extinction_per_m=0.006,
+        echoes_per_kray=2.0,
+        dropout_prob=0.01,
+        range_noise_factor=1.5,
+        wet_surface_factor=0.5,
     ),
     Weather.SNOW: LidarWeather(
         extinction_per_m=0.012,
@@ -140,5 +153,6 @@ def lidar_weather(
         echoes_per_kray=ref.echoes_per_kray * intensity,
         dropout_prob=min(0.5, ref.dropout_prob * intensity),
         range_noise_factor=1.0 + (ref.range_noise_factor - 1.0) * intensity,
+        wet_surface_factor=1.0 - (1.0 - ref.wet_surface_factor) * min(intensity, 1.0),
         snow_cover_lane_m=snow_cover_lane_m,
     )
