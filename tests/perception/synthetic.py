@@ -190,3 +190,14 @@ def campus_scene(rng: np.random.Generator, n_cars: int = 6, n_peds: int = 8, n_g
         boxes.append(Box((x - 0.08, -4.5, 0.15), (x + 0.08, -4.34, 4.0), label=8))
     boxes.append(Box((25.0, -4.6, 1.8), (25.03, -3.9, 2.5), retro=True, label=7))
     return Scene(boxes=tuple(boxes))
+
+
+def base_cloud(
+    scene: Scene, lidar: Lidar, rng: np.random.Generator, snowflakes: int = 0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A parked bus's sweep in the base frame: (N, 3) xyz, (N,) intensity, (N,) box index (-1, -2)."""
+    sw, box = sweep(scene, lidar, 0, rng, snowflakes=snowflakes)
+    p = sw.points.astype(np.float64)
+    B = lidar.base_from_sensor
+    xyz = p[:, :3] @ B[:3, :3].T + B[:3, 3]
+    return xyz, p[:, 3], box

@@ -42,7 +42,11 @@ class AdaptiveGridConfig:
         threshold_per_m: growth of the tolerance per metre of range (lenient far away, where
             beam divergence, pitch noise and range noise grow).
         threshold_max_m: cap of the tolerance.
-        seed_window_m: first-pass window around the prior surface for choosing fit points.
+        seed_window_m: first pass: only points at most this far above the prior surface (the inner
+            ring's plane, extrapolated) can be seeds.
+        max_below_m: ... and at most this far below it (deeper returns are noise).
+        seed_quantile: the seeds' reference height is this quantile of a region's heights.
+        seed_band_m: seeds lie within this of that reference.
         max_slope: steepest road-surface slope accepted for a cell's plane (rise over run).
         min_fit_points: fewer points than this keep the prior (inner ring's) plane.
         prior_weight: regularisation pulling a cell's plane toward its prior (in squared-metre units
@@ -55,7 +59,10 @@ class AdaptiveGridConfig:
     threshold_near_m: float = 0.12
     threshold_per_m: float = 0.004
     threshold_max_m: float = 0.35
-    seed_window_m: float = 0.45
+    seed_window_m: float = 1.0
+    max_below_m: float = 1.0
+    seed_band_m: float = 0.15
+    seed_quantile: float = 0.2
     max_slope: float = 0.2
     min_fit_points: int = 8
     prior_weight: float = 4.0
@@ -72,7 +79,7 @@ class AdaptiveGridConfig:
                 f"AdaptiveGridConfig.sectors_per_ring: expected {len(e) - 1} positive counts, "
                 f"got {self.sectors_per_ring}"
             )
-        for name in ("threshold_near_m", "threshold_max_m", "seed_window_m", "max_slope"):
+        for name in ("threshold_near_m", "threshold_max_m", "seed_window_m", "max_slope", "max_below_m", "seed_band_m"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise ConfigError(f"AdaptiveGridConfig.{name}: expected a positive number, got {v}")
@@ -81,6 +88,8 @@ class AdaptiveGridConfig:
                 "AdaptiveGridConfig: expected threshold_per_m >= 0 and threshold_max_m >= threshold_near_m, "
                 f"got {self.threshold_per_m}, {self.threshold_max_m} < {self.threshold_near_m}"
             )
+        if not 0.0 < self.seed_quantile < 1.0:
+            raise ConfigError(f"AdaptiveGridConfig.seed_quantile: expected in (0, 1), got {self.seed_quantile}")
         if self.min_fit_points < 3 or self.iterations < 1 or self.prior_weight < 0:
             raise ConfigError(
                 "AdaptiveGridConfig: expected min_fit_points >= 3, iterations >= 1, prior_weight >= 0, got "
@@ -137,20 +146,42 @@ class AdaptiveGridGroundSegmenter:
             region = sec * 2 + road[idx]
             planes = prior.reshape(-1, 3).copy()
             px, py, pz = x[idx], y[idx], z[idx]
-            window = np.full(len(idx), cfg.seed_window_m)
+            window = tol[idx]
             for it in range(cfg.iterations + 1):
                 pl = planes[region]
                 res = pz - (pl[:, 0] + pl[:, 1] * px + pl[:, 2] * py)
                 if it == cfg.iterations:
                     break
-                use = np.abs(res) <= window
-                # Tukey-like weights: points near the surface count most, snow and object feet least.
-                w = np.where(use, (1.0 - (res / window) ** 2) ** 2, 0.0)
+                if it == 0:
+                    # Seeds: points within seed_band_m of the region's low quantile (not its
+                    # minimum: the foot of a curb face or one deep noise return would win that).
+                    sane = (res >= -cfg.max_below_m) & (res <= cfg.seed_window_m)
+                    low = _low_quantile(res[sane], region[sane], 2 * n_sec, cfg)
+                    rel = res - low[region]
+                    use = sane & (rel >= -cfg.seed_band_m) & (rel <= cfg.seed_band_m)
+                    w = np.where(use, 1.0, 0.0)
+                else:
+                    use = np.abs(res) <= window
+                    # Tukey weights: points near the surface count most, snow and object feet least.
+                    w = np.where(use, (1.0 - (res / window) ** 2) ** 2, 0.0)
                 planes = _fit_planes(px, py, pz, w, region, 2 * n_sec, prior.reshape(-1, 3), cfg)
-                window = tol[idx]
             ground[idx] = res <= tol[idx]
             prev_planes, prev_sectors = planes.reshape(n_sec, 2, 3), n_sec
         return ground
+
+
+_HIST_BIN_M = 0.05
+
+
+def _low_quantile(res: np.ndarray, region: np.ndarray, n_regions: int, cfg: AdaptiveGridConfig) -> np.ndarray:
+    """Per-region ``seed_quantile`` of residuals, from a 5 cm histogram (no per-region sort)."""
+    n_bins = int(math.ceil((cfg.max_below_m + cfg.seed_window_m) / _HIST_BIN_M)) + 1
+    b = np.clip(((res + cfg.max_below_m) / _HIST_BIN_M).astype(np.int64), 0, n_bins - 1)
+    hist = np.bincount(region * n_bins + b, minlength=n_regions * n_bins).reshape(n_regions, n_bins)
+    cum = np.cumsum(hist, axis=1)
+    target = np.maximum(cum[:, -1] * cfg.seed_quantile, 1)
+    k = np.argmax(cum >= target[:, None], axis=1)
+    return (k + 0.5) * _HIST_BIN_M - cfg.max_below_m
 
 
 def _fit_planes(

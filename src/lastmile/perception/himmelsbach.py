@@ -5,6 +5,8 @@ bin's prototype is its lowest point, as (range, z). Walking outward, prototypes 
 current line while the least-squares fit stays flat enough (|m| <= max_slope), stays low when it is
 nearly flat (|m| <= small_slope requires |b| <= max_intercept_m, which rejects car roofs and
 walls' tops) and fits well (RMSE <= max_rmse_m); otherwise the line is closed and a new one starts.
+A closed line is ground only if it also starts within ``max_step_m`` of the previous ground line
+of its segment (T_d_prev), so a roof seen alone in its segment is not ground.
 A point is ground when it lies no more than ``ground_distance_m`` above its bin's line. All segments
 advance in lockstep, so the Python loop runs once per bin, not once per bin and segment.
 """
@@ -34,6 +36,10 @@ class HimmelsbachConfig:
         max_intercept_m: T_b, height at range 0 allowed for nearly flat lines.
         max_rmse_m: T_RMSE, worst fit accepted.
         ground_distance_m: T_d_ground, tolerance above the line.
+        max_step_m: T_d_prev, largest height jump between a line's start and the previous ground
+            line, plus max_slope per metre of unseen ground between them (lines starting higher
+            are object surfaces: roofs, wall tops).
+        max_gap_m: a prototype farther than this from the line's last one starts a new line.
     """
 
     n_segments: int = 180
@@ -44,6 +50,8 @@ class HimmelsbachConfig:
     max_intercept_m: float = 0.3
     max_rmse_m: float = 0.08
     ground_distance_m: float = 0.2
+    max_step_m: float = 0.3
+    max_gap_m: float = 4.0
 
     def __post_init__(self) -> None:
         if self.n_segments < 4:
@@ -101,10 +109,18 @@ class HimmelsbachGroundSegmenter:
         srr = np.zeros(S)
         srz = np.zeros(S)
         szz = np.zeros(S)
+        r_first = np.zeros(S)  # range of the current line's first prototype
+        r_last = np.zeros(S)
+        z_first = np.zeros(S)
         line_id = np.zeros(S, dtype=np.int64)
         bin_line = np.full((S, B), -1, dtype=np.int64)
         line_m = np.zeros((S, B + 1))
         line_b = np.zeros((S, B + 1))
+        valid = np.zeros((S, B + 1), dtype=bool)
+        # The last ground line of each segment; the road under the bus (z = 0) before any.
+        prev_m = np.zeros(S)
+        prev_b = np.zeros(S)
+        prev_end = np.zeros(S)  # range where the last ground line ended
         rows = np.arange(S)
 
         def fit(
@@ -112,8 +128,30 @@ class HimmelsbachGroundSegmenter:
         ) -> tuple[np.ndarray, np.ndarray]:
             den = c * a_rr - a_r * a_r
             m = np.where(den > 1e-12, (c * a_rz - a_r * a_z) / np.where(den > 1e-12, den, 1.0), 0.0)
-            bb = (a_z - m * a_r) / np.maximum(c, 1.0)
-            return m, bb
+            return m, (a_z - m * a_r) / np.maximum(c, 1.0)
+
+        def close(seg_rows: np.ndarray) -> None:
+            """Record the current lines of ``seg_rows`` and judge whether they are ground."""
+            m, b = fit(cnt[seg_rows], sr[seg_rows], sz[seg_rows], srr[seg_rows], srz[seg_rows])
+            one = cnt[seg_rows] == 1
+            # A one-point line continues the previous ground line's slope through its point.
+            m = np.where(one, prev_m[seg_rows], m)
+            b = np.where(one, z_first[seg_rows] - m * r_first[seg_rows], b)
+            flat_ok = (np.abs(m) > cfg.small_slope) | (np.abs(b) <= cfg.max_intercept_m) | one
+            # Continuity (Himmelsbach's T_d_prev): a line must start where the last ground line
+            # would be; a roof or a wall top seen alone in its segment does not.
+            r0 = r_first[seg_rows]
+            step = np.abs((m * r0 + b) - (prev_m[seg_rows] * r0 + prev_b[seg_rows]))
+            # Across unseen ground (the blind zone, an occluded stretch) the terrain may have turned
+            # by up to max_slope per metre.
+            allowed = cfg.max_step_m + cfg.max_slope * np.maximum(r0 - prev_end[seg_rows], 0.0)
+            ok = (np.abs(m) <= cfg.max_slope) & flat_ok & (step <= allowed) & (cnt[seg_rows] > 0)
+            line_m[seg_rows, line_id[seg_rows]] = m
+            line_b[seg_rows, line_id[seg_rows]] = b
+            valid[seg_rows, line_id[seg_rows]] = ok
+            prev_m[seg_rows] = np.where(ok, m, prev_m[seg_rows])
+            prev_b[seg_rows] = np.where(ok, b, prev_b[seg_rows])
+            prev_end[seg_rows] = np.where(ok, r_last[seg_rows], prev_end[seg_rows])
 
         for j in range(B):
             act = has[:, j]
@@ -127,17 +165,18 @@ class HimmelsbachGroundSegmenter:
             rmse = np.sqrt(np.maximum(sse, 0.0) / c2)
             good = (np.abs(m2) <= cfg.max_slope) & (rmse <= cfg.max_rmse_m)
             good &= (np.abs(m2) > cfg.small_slope) | (np.abs(b2) <= cfg.max_intercept_m)
-            # A line of fewer than two points has no slope yet: it always takes the next point.
-            accept = act & ((cnt < 2) | good)
+            good &= rj - r_last <= cfg.max_gap_m
+            accept = act & ((cnt == 0) | good)
             restart = act & ~accept
-            # Close the lines that fail: record their fit, then start a new line at this prototype.
             if restart.any():
-                m_old, b_old = fit(cnt, sr, sz, srr, srz)
                 rs = rows[restart]
-                line_m[rs, line_id[rs]] = m_old[rs]
-                line_b[rs, line_id[rs]] = b_old[rs]
+                close(rs)
                 line_id[rs] += 1
                 cnt[rs], sr[rs], sz[rs], srr[rs], srz[rs], szz[rs] = 0, 0, 0, 0, 0, 0
+            new = act & (cnt == 0)
+            r_first[new] = rj
+            z_first[new] = zj[new]
+            r_last[act] = rj
             cnt[act] += 1
             sr[act] += rj
             sz[act] += zj[act]
@@ -145,16 +184,8 @@ class HimmelsbachGroundSegmenter:
             srz[act] += rj * zj[act]
             szz[act] += zj[act] * zj[act]
             bin_line[act, j] = line_id[act]
-        m_last, b_last = fit(cnt, sr, sz, srr, srz)
-        line_m[rows, line_id] = m_last
-        line_b[rows, line_id] = b_last
-        # A one-point line is flat at its own height; keep it only if it is low (as for flat lines).
-        single = cnt == 1
-        line_m[rows[single], line_id[single]] = 0.0
+        close(rows)
 
-        valid = (np.abs(line_m) <= cfg.max_slope) & (
-            (np.abs(line_m) > cfg.small_slope) | (np.abs(line_b) <= cfg.max_intercept_m)
-        )
         # Bins without a prototype use the nearest line before them in range (after them at the start).
         filled = _fill_forward(bin_line)
         seg_b = filled[seg, b]
