@@ -138,7 +138,7 @@ def sweep(
     out_r = np.full(len(A), np.inf)
     out_box = np.full(len(A), -1)
     # The vehicle moves during the sweep: cast each column group from where the sensor is then.
-    groups = np.array_split(np.arange(len(A)), 20)
+    groups = np.array_split(np.arange(len(A)), 100)  # 1 ms of motion per group
     for g in groups:
         t_s = (stamp_us + T[g].mean()) / 1e6
         origin = B[:3, 3] + np.array([ego_speed_mps * t_s, 0.0, 0.0])

@@ -87,5 +87,3 @@ def test_bad_inputs_raise():
         detect_curb(np.zeros((10, 3)), np.zeros((1, 2)))
     with pytest.raises(ConfigError, match="residual_degree"):
         CurbConfig(residual_degree=3)
-
-

@@ -97,7 +97,7 @@ class PoseTrajectory:
         return PoseTrajectory(
             stamps_us=np.array([int(f.stamp) for f in ordered], dtype=np.int64),
             xyz_m=np.array([[f.x_m, f.y_m, z_m] for f in ordered]),
-            quat_xyzw=Rotation.from_euler("z", yaw).as_quat(),
+            quat_xyzw=Rotation.from_euler("z", np.asarray(yaw)[:, None]).as_quat(),
             max_extrapolation_us=max_extrapolation_us,
         )
 
