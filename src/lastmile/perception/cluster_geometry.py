@@ -4,8 +4,9 @@ For every cluster that passes the range-dependent size filter: height span, mean
 convex hull and the minimum-area oriented rectangle. The hull is the polygon of the cluster's
 support points in ``hull_directions`` evenly spaced directions: every vertex is a true hull vertex,
 and the true hull lies within ``diameter * (1 / cos(pi / hull_directions) - 1)`` of it (0.5 % of the
-cluster's size with 32 directions). The rectangle is exact for that polygon: rotating calipers, since
-the optimal rectangle has a side on a hull edge. One pass of array operations serves every cluster,
+cluster's size with 32 directions). The rectangle's orientation is the optimum for that polygon
+(rotating calipers: the optimal rectangle has a side on a hull edge); its extents come from all the
+cluster's points, so the box always contains the whole cluster. One pass of array operations serves every cluster,
 so hundreds of clusters cost a few milliseconds rather than a Qhull call each. aUToronto (6.2.2) found
 that splitting the cloud by intensity before clustering breaks reflective objects apart, so
 intensity is used only after clustering: a cluster shaped like a barrel, a barricade or a sign gets
@@ -204,11 +205,16 @@ def describe_clusters(
     dv = vv.max(axis=2) - vv.min(axis=2)
     k = np.argmin(du * dv, axis=1)
     r = np.arange(len(kept))
-    um = (uu[r, k].max(axis=1) + uu[r, k].min(axis=1)) / 2
-    vm = (vv[r, k].max(axis=1) + vv[r, k].min(axis=1)) / 2
     ck, sk = c[r, k], s[r, k]
+    # Extents along the chosen axes from every point, so the box holds the whole cluster even
+    # where the direction-sampled hull missed a vertex.
+    pu = ck[row] * xy[:, 0] + sk[row] * xy[:, 1]
+    pv = -sk[row] * xy[:, 0] + ck[row] * xy[:, 1]
+    u0, u1 = np.minimum.reduceat(pu, starts), np.maximum.reduceat(pu, starts)
+    v0, v1 = np.minimum.reduceat(pv, starts), np.maximum.reduceat(pv, starts)
+    um, vm = (u0 + u1) / 2, (v0 + v1) / 2
     bx, by = um * ck - vm * sk, um * sk + vm * ck
-    L, W, yaw = du[r, k], dv[r, k], theta[r, k]
+    L, W, yaw = u1 - u0, v1 - v0, theta[r, k]
     swap = W > L
     L, W = np.where(swap, W, L), np.where(swap, L, W)
     yaw = np.where(swap, yaw + math.pi / 2, yaw)

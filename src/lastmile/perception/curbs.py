@@ -39,13 +39,15 @@ class CurbConfig:
     """Parameters in metres.
 
     Attributes:
-        band_m: half-width of the search band around the map curb (map error up to 0.5 m plus margin).
+        band_m: half-width of the search band around the map curb: map error up to 0.5 m, a snow
+            bank spilling up to 0.5 m onto the road, plus margin.
         slice_m: length of the map partition slices along the curb.
         s_min_m, s_max_m: stations along the map curb considered (relative to its first vertex).
         bin_m: lateral bin width inside a slice.
         step_min_m: height above the road surface that makes a bin raised (a curb is 0.1-0.2 m).
         max_gap_m: largest empty lateral gap inside the chain of raised bins (sparse rings leave
-            empty bins on a sidewalk; a wider gap may be the free space in front of an object).
+            wide empty stretches on a sidewalk; the Huber fit over slices absorbs the odd slice
+            where an object's shadow bridges a gap).
         road_fit_width_m: width of the road strip, beyond the band, used for the surface fit.
         snow_reject_m: points this far above the surface get zero weight in the fit.
         residual_degree: degree of the lateral residual polynomial r(s) (0 to 2).
@@ -55,13 +57,13 @@ class CurbConfig:
         below_road_m: points deeper than this under the fitted road are ignored as noise.
     """
 
-    band_m: float = 1.0
+    band_m: float = 1.5
     slice_m: float = 1.0
     s_min_m: float = 0.0
     s_max_m: float = 30.0
     bin_m: float = 0.1
     step_min_m: float = 0.06
-    max_gap_m: float = 0.5
+    max_gap_m: float = 2.0
     road_fit_width_m: float = 2.5
     snow_reject_m: float = 0.08
     residual_degree: int = 1
@@ -282,9 +284,11 @@ def detect_curb(
 def _huber_polyfit(x: FloatArray, y: FloatArray, degree: int, delta_m: float = 0.1) -> FloatArray:
     """Polynomial fit with Huber reweighting (a slice fooled by a parked object loses its pull)."""
     deg = min(degree, len(x) - 1)
-    w = np.ones_like(x)
-    coef = np.polyfit(x, y, deg)
-    for _ in range(5):
+    # Start from the median offset, not a least-squares fit a few wild slices could tilt.
+    r0 = np.abs(y - np.median(y))
+    w = np.where(r0 <= delta_m, 1.0, delta_m / np.maximum(r0, 1e-12))
+    coef = np.polyfit(x, y, deg, w=np.sqrt(w))
+    for _ in range(8):
         coef = np.polyfit(x, y, deg, w=np.sqrt(w))
         r = np.abs(y - np.polyval(coef, x))
         w = np.where(r <= delta_m, 1.0, delta_m / np.maximum(r, 1e-12))

@@ -95,6 +95,8 @@ class LidarPipelineResult:
 
     Attributes:
         cloud: the merged cloud after cropping (base frame at ``cloud.stamp``).
+        source_index: (N,) int64 row of each cloud point in the concatenation of the input sweeps
+            (in the order given), so per-point ground truth can be matched in evaluation.
         ground: (N,) bool ground points of ``cloud``.
         noise: (N,) bool points removed by the weather filter.
         labels: (N,) int64 cluster label, -1 for ground and noise.
@@ -105,6 +107,7 @@ class LidarPipelineResult:
     """
 
     cloud: MergedCloud
+    source_index: np.ndarray
     ground: np.ndarray
     noise: np.ndarray
     labels: np.ndarray
@@ -167,9 +170,10 @@ class LidarPipeline:
         x, y, z = pts[:, 0], pts[:, 1], pts[:, 2]
         roi = (x >= c.x_min_m) & (x <= c.x_max_m) & (np.abs(y) <= c.half_width_m) & (z <= c.z_max_m)
         ego = (x >= c.ego_x_min_m) & (x <= c.ego_x_max_m) & (np.abs(y) <= c.ego_half_width_m)
+        source_index = np.flatnonzero(roi & ~ego)
         cloud = MergedCloud(
             stamp=merged.stamp,
-            points=pts[roi & ~ego],
+            points=pts[source_index],
             sensor_ids=merged.sensor_ids,
             compensated=merged.compensated,
         )
@@ -211,6 +215,7 @@ class LidarPipeline:
         ms["total"] = (t7 - t0) * 1e3
         return LidarPipelineResult(
             cloud=cloud,
+            source_index=source_index,
             ground=ground,
             noise=noise,
             labels=labels,
