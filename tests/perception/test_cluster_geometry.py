@@ -44,15 +44,16 @@ def test_box_contains_the_points_and_is_near_minimal(seed, n, length, width, yaw
         xyz, np.full(n, 40.0), np.zeros(n, np.int64), ClusterGeometryConfig(min_points_floor=1)
     )
     assert len(cs) == 1
-    x, y, L, W, th = (cs.table[0, i] for i in (0, 1, 4, 5, 6))
+    x, y, box_l, box_w, th = (cs.table[0, i] for i in (0, 1, 4, 5, 6))
     u = (xy[:, 0] - x) * math.cos(th) + (xy[:, 1] - y) * math.sin(th)
     v = -(xy[:, 0] - x) * math.sin(th) + (xy[:, 1] - y) * math.cos(th)
-    assert np.all(np.abs(u) <= L / 2 + 1e-9) and np.all(np.abs(v) <= W / 2 + 1e-9)
+    assert np.all(np.abs(u) <= box_l / 2 + 1e-9) and np.all(np.abs(v) <= box_w / 2 + 1e-9)
     # Near-minimal: the 32-direction hull lies within delta of the exact hull, so each side is at
     # most 2 delta longer than for the exact minimum-area rectangle (rotating calipers on Qhull's).
     diameter = float(np.max(np.hypot(*(xy[:, None, :] - xy[None, :, :]).transpose(2, 0, 1))))
     delta = diameter * (1 / math.cos(math.pi / 32) - 1)
-    assert L * W <= _exact_min_area(xy) + 4 * delta * diameter + 4 * delta**2 + 1e-9
+    bound = _exact_min_area(xy) + 4 * delta * diameter + 4 * delta**2 + 1e-9
+    assert box_l * box_w <= bound
     hull = cs.hull(0)
     assert set(map(tuple, hull)).issubset(set(map(tuple, xy)))  # hull vertices are input points
 

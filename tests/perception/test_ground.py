@@ -62,7 +62,7 @@ def test_adaptive_grid_uses_separate_road_and_off_road_planes():
     # have to split the difference, separate road/off-road planes fit both.
     scene = Scene(profile_y=(-30.0, -3.51, -3.5, 30.0), profile_z=(0.35, 0.35, 0.0, 0.0))
     rng = np.random.default_rng(2)
-    xyz, _, box = base_cloud(scene, default_rig()[0], rng)
+    xyz, _, _ = base_cloud(scene, default_rig()[0], rng)
     keep = np.hypot(xyz[:, 0], xyz[:, 1]) < 30
     xyz = xyz[keep]
     seg = AdaptiveGridGroundSegmenter()

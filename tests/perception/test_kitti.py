@@ -30,7 +30,7 @@ def test_every_labelled_object_within_40_m_with_20_points_is_one_cluster(ground_
     for name in FRAMES:
         frame = load_frame(name)
         xyz = frame.velo[:, :3].astype(np.float64)
-        base = xyz + [0.0, 0.0, VELODYNE_HEIGHT_M]  # flat road at z = 0
+        base = xyz + np.array([0.0, 0.0, VELODYNE_HEIGHT_M])  # flat road at z = 0
         ground = make_ground_segmenter(ground_name).segment(base)
         ng = np.flatnonzero(~ground)
         labels = np.full(len(xyz), -1)

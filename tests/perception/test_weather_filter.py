@@ -54,8 +54,8 @@ def test_radius_grows_with_range_so_sparse_far_objects_survive():
     # Five points 0.12 m apart: too sparse for the 0.1 m radius at 5 m, fine at 30 m where the
     # radius is 5 * 30 m * 0.2 deg = 0.52 m.
     offsets = np.c_[np.zeros(5), np.arange(5) * 0.12, np.zeros(5)]
-    near = offsets + [5.0, 0, 1]
-    far = offsets + [30.0, 0, 1]
+    near = offsets + np.array([5.0, 0, 1])
+    far = offsets + np.array([30.0, 0, 1])
     cfg = DrorConfig(max_range_m=100.0)
     assert not dror_keep_mask(near, cfg).any()
     assert dror_keep_mask(far, cfg).all()

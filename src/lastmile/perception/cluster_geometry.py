@@ -6,11 +6,13 @@ support points in ``hull_directions`` evenly spaced directions: every vertex is 
 and the true hull lies within ``diameter * (1 / cos(pi / hull_directions) - 1)`` of it (0.5 % of the
 cluster's size with 32 directions). The rectangle's orientation is the optimum for that polygon
 (rotating calipers: the optimal rectangle has a side on a hull edge); its extents come from all the
-cluster's points, so the box always contains the whole cluster. One pass of array operations serves every cluster,
-so hundreds of clusters cost a few milliseconds rather than a Qhull call each. aUToronto (6.2.2) found
-that splitting the cloud by intensity before clustering breaks reflective objects apart, so
-intensity is used only after clustering: a cluster shaped like a barrel, a barricade or a sign gets
-that kind, with high confidence when its mean intensity exceeds ``reflective_intensity``.
+cluster's points, so the box always contains the whole cluster. One pass of array operations
+serves every cluster, so hundreds of clusters cost milliseconds rather than a Qhull call each.
+
+aUToronto (6.2.2) found that splitting the cloud by intensity before clustering breaks reflective
+objects apart, so intensity is used only after clustering: a cluster shaped like a barrel, a
+barricade or a sign gets that kind, with high confidence when its mean intensity exceeds
+``reflective_intensity``.
 """
 
 from __future__ import annotations

@@ -79,7 +79,15 @@ class AdaptiveGridConfig:
                 f"AdaptiveGridConfig.sectors_per_ring: expected {len(e) - 1} positive counts, "
                 f"got {self.sectors_per_ring}"
             )
-        for name in ("threshold_near_m", "threshold_max_m", "seed_window_m", "max_slope", "max_below_m", "seed_band_m"):
+        positive = (
+            "threshold_near_m",
+            "threshold_max_m",
+            "seed_window_m",
+            "max_slope",
+            "max_below_m",
+            "seed_band_m",
+        )
+        for name in positive:
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise ConfigError(f"AdaptiveGridConfig.{name}: expected a positive number, got {v}")
@@ -89,7 +97,9 @@ class AdaptiveGridConfig:
                 f"got {self.threshold_per_m}, {self.threshold_max_m} < {self.threshold_near_m}"
             )
         if not 0.0 < self.seed_quantile < 1.0:
-            raise ConfigError(f"AdaptiveGridConfig.seed_quantile: expected in (0, 1), got {self.seed_quantile}")
+            raise ConfigError(
+                f"AdaptiveGridConfig.seed_quantile: expected in (0, 1), got {self.seed_quantile}"
+            )
         if self.min_fit_points < 3 or self.iterations < 1 or self.prior_weight < 0:
             raise ConfigError(
                 "AdaptiveGridConfig: expected min_fit_points >= 3, iterations >= 1, prior_weight >= 0, got "
@@ -175,7 +185,7 @@ _HIST_BIN_M = 0.05
 
 def _low_quantile(res: np.ndarray, region: np.ndarray, n_regions: int, cfg: AdaptiveGridConfig) -> np.ndarray:
     """Per-region ``seed_quantile`` of residuals, from a 5 cm histogram (no per-region sort)."""
-    n_bins = int(math.ceil((cfg.max_below_m + cfg.seed_window_m) / _HIST_BIN_M)) + 1
+    n_bins = math.ceil((cfg.max_below_m + cfg.seed_window_m) / _HIST_BIN_M) + 1
     b = np.clip(((res + cfg.max_below_m) / _HIST_BIN_M).astype(np.int64), 0, n_bins - 1)
     hist = np.bincount(region * n_bins + b, minlength=n_regions * n_bins).reshape(n_regions, n_bins)
     cum = np.cumsum(hist, axis=1)
