@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 from lastmile.core.errors import ConfigError
 from lastmile.perception.ground import make_ground_segmenter
 from lastmile.perception.weather_filter import DrorConfig, dror_keep_mask
-from tests.perception.synthetic import base_cloud, campus_scene, default_rig
+from tests.perception.synthetic import base_cloud, campus_scene, default_rig, sweep
 
 
 def test_snowflakes_are_removed_and_object_points_kept():
@@ -64,3 +64,14 @@ def test_radius_grows_with_range_so_sparse_far_objects_survive():
 def test_config_is_validated():
     with pytest.raises(ConfigError, match="min_neighbours"):
         DrorConfig(min_neighbours=0)
+
+
+def test_scan_line_shortcut_gives_the_same_mask():
+    rng = np.random.default_rng(8)
+    lidar = default_rig()[0]
+    sw, _ = sweep(campus_scene(rng), lidar, 0, rng, snowflakes=400)
+    p = sw.points.astype(np.float64)
+    key = p[:, 4].astype(np.int64)  # one sensor: the ring is the scan line
+    full = dror_keep_mask(p[:, :3], DrorConfig())
+    fast = dror_keep_mask(p[:, :3], DrorConfig(), scan_key=key)
+    assert np.array_equal(full, fast) and (~full).sum() > 100

@@ -116,7 +116,10 @@ def merge_sweeps(
             out[row : row + n, :3] = deskew_points(pts[:, :3], t, trajectory, B, ref, time_bin_us)
         else:
             Bf = B.astype(np.float32)
-            out[row : row + n, :3] = pts[:, :3] @ Bf[:3, :3].T + Bf[:3, 3]
+            for i in range(3):
+                out[row : row + n, i] = (
+                    pts[:, 0] * Bf[i, 0] + pts[:, 1] * Bf[i, 1] + pts[:, 2] * Bf[i, 2] + Bf[i, 3]
+                )
         out[row : row + n, 3:5] = pts[:, 3:5]
         out[row : row + n, 5] = k
         row += n

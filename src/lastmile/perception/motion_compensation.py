@@ -185,6 +185,10 @@ def deskew_points(
     M = trajectory.matrices_at(np.append(centres, ref_us))
     ref_from_map = np.linalg.inv(M[-1])
     T = ref_from_map @ M[:-1] @ B  # (n_bins, 4, 4): base(ref) <- sensor(t_bin)
-    Tf = T.astype(np.float32)
-    out = np.einsum("nij,nj->ni", Tf[bins, :3, :3], p) + Tf[bins, :3, 3]
-    return out.astype(np.float32, copy=False)
+    # Written-out products on gathered rows: faster than einsum or matmul with an inner size of 3.
+    Tf = T[:, :3, :].reshape(n_bins, 12).astype(np.float32)[bins]
+    x, y, z = p[:, 0], p[:, 1], p[:, 2]
+    out = np.empty_like(p)
+    for i in range(3):
+        out[:, i] = Tf[:, 4 * i] * x + Tf[:, 4 * i + 1] * y + Tf[:, 4 * i + 2] * z + Tf[:, 4 * i + 3]
+    return out

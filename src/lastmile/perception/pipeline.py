@@ -187,7 +187,8 @@ class LidarPipeline:
         noise = np.zeros(len(xyz), dtype=bool)
         if cfg.weather_filter and len(ng):
             sensor_xy = _sensor_xy(cloud, base_from_sensor)
-            keep = dror_keep_mask(xyz[ng], cfg.dror, sensor_xy[ng])
+            scan = cloud.points[ng, 5].astype(np.int64) * 1000 + cloud.points[ng, 4].astype(np.int64)
+            keep = dror_keep_mask(xyz[ng], cfg.dror, sensor_xy[ng], scan)
             noise[ng[~keep]] = True
             ng = ng[keep]
         t4 = time.perf_counter()

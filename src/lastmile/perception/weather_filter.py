@@ -5,9 +5,9 @@ returns many neighbours. A fixed search radius would delete sparse far objects, 
 with range as the beam spacing does: ``radius = max(min_radius_m, multiplier * range * azimuth_step)``.
 A point with fewer than ``min_neighbours`` other points inside its radius is removed.
 
-Exact shortcut: points sharing a voxel of side ``min_radius_m / sqrt(3)`` are all within
-``min_radius_m`` of each other, so a point whose voxel holds ``min_neighbours + 1`` points surely
-passes and skips the KD-tree query. Only the rest (sparse points, where snow lives) are queried.
+Exact shortcut: a point whose neighbours along its own scan line (same sensor and ring, nearest in
+azimuth) already give it ``min_neighbours`` points inside its radius surely passes and skips the
+KD-tree query; only the rest (ends of ring segments, sparse points: where snow lives) are queried.
 """
 
 from __future__ import annotations
@@ -53,7 +53,10 @@ class DrorConfig:
 
 
 def dror_keep_mask(
-    xyz_m: npt.ArrayLike, config: DrorConfig | None = None, sensor_xy_m: npt.ArrayLike | None = None
+    xyz_m: npt.ArrayLike,
+    config: DrorConfig | None = None,
+    sensor_xy_m: npt.ArrayLike | None = None,
+    scan_key: npt.ArrayLike | None = None,
 ) -> npt.NDArray[np.bool_]:
     """(N,) bool, True for points DROR keeps.
 
@@ -62,6 +65,10 @@ def dror_keep_mask(
         config: filter parameters.
         sensor_xy_m: (N, 2) horizontal position of the LiDAR that measured each point (ranges are
             measured from it); None measures from the origin.
+        scan_key: (N,) int, e.g. ``sensor_index * 1000 + ring``: points sharing a key lie on one
+            scan line. When given, a point with ``min_neighbours`` scan-line neighbours (the
+            nearest in azimuth on each side) inside its radius is kept without a KD-tree query;
+            the result is the same, only faster.
     """
     cfg = config or DrorConfig()
     p = np.asarray(xyz_m, dtype=np.float64).reshape(-1, 3)
@@ -70,20 +77,22 @@ def dror_keep_mask(
     if n == 0:
         return keep
     if sensor_xy_m is None:
-        rng = np.hypot(p[:, 0], p[:, 1])
+        dx, dy = p[:, 0], p[:, 1]
     else:
         s = np.asarray(sensor_xy_m, dtype=np.float64)
         if s.shape != (n, 2):
             raise MessageError(f"dror_keep_mask.sensor_xy_m: expected ({n}, 2), got {s.shape}")
-        rng = np.hypot(p[:, 0] - s[:, 0], p[:, 1] - s[:, 1])
+        dx, dy = p[:, 0] - s[:, 0], p[:, 1] - s[:, 1]
+    rng = np.hypot(dx, dy)
     radius = np.maximum(cfg.min_radius_m, cfg.multiplier * rng * cfg.azimuth_step_rad)
-    side = cfg.min_radius_m / math.sqrt(3.0) * (1.0 - 1e-6)
-    vox = np.floor((p - p.min(axis=0)) / side).astype(np.int64)
-    dims = vox.max(axis=0) + 1
-    key = (vox[:, 0] * dims[1] + vox[:, 1]) * dims[2] + vox[:, 2]
-    _, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
-    sure = counts[inverse.ravel()] > cfg.min_neighbours
-    test = np.flatnonzero(~sure & (rng <= cfg.max_range_m))
+    candidate = rng <= cfg.max_range_m
+    sure = np.zeros(n, dtype=bool)
+    if scan_key is not None:
+        key = np.asarray(scan_key).reshape(-1)
+        if key.shape != (n,):
+            raise MessageError(f"dror_keep_mask.scan_key: expected ({n},), got {key.shape}")
+        sure = _scan_line_sure(p, key, np.arctan2(dy, dx), radius, cfg.min_neighbours)
+    test = np.flatnonzero(candidate & ~sure)
     if len(test) == 0:
         return keep
     # Only points that can lie within a tested point's radius enter the tree.
@@ -94,3 +103,21 @@ def dror_keep_mask(
     dist, _ = tree.query(p[test], k=cfg.min_neighbours + 1, distance_upper_bound=r_max)
     keep[test] = dist[:, -1] <= radius[test]
     return keep
+
+
+def _scan_line_sure(
+    p: np.ndarray, key: np.ndarray, azimuth: np.ndarray, radius: np.ndarray, k: int
+) -> np.ndarray:
+    """Points with at least ``k`` of their ``k`` azimuth neighbours on each side within radius."""
+    order = np.lexsort((azimuth, key))
+    ps, ks, rs = p[order], key[order], radius[order]
+    count = np.zeros(len(p), dtype=np.int64)
+    for off in range(1, k + 1):
+        same = ks[off:] == ks[:-off]
+        d = ps[off:] - ps[:-off]
+        near = same & ((d * d).sum(axis=1) <= np.minimum(rs[off:], rs[:-off]) ** 2)
+        count[off:] += near  # neighbour behind
+        count[:-off] += near  # neighbour ahead
+    sure = np.zeros(len(p), dtype=bool)
+    sure[order] = count >= k
+    return sure
