@@ -204,7 +204,7 @@ def main() -> None:
     args = parser.parse_args()
     if hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
-    console = Console()
+    console = Console(width=150)
 
     rows = clustering_rows(args.repeats)
     t = Table(title=f"(a) clustering the non-ground points of a 100k-point sweep, eps {EPS_M} m, one core")

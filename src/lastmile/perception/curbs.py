@@ -203,7 +203,7 @@ def detect_curb(
             f"detect_curb.map_curb_xy_m: expected a finite (M >= 2, 2) polyline, got {curb.shape}"
         )
     reach = cfg.band_m + cfg.road_fit_width_m
-    lo_xy, hi_xy = curb.min(axis=0) - reach - cfg.s_max_m, curb.max(axis=0) + reach + cfg.s_max_m
+    lo_xy, hi_xy = curb.min(axis=0) - reach, curb.max(axis=0) + reach
     near = np.flatnonzero(
         (p[:, 0] >= lo_xy[0]) & (p[:, 0] <= hi_xy[0]) & (p[:, 1] >= lo_xy[1]) & (p[:, 1] <= hi_xy[1])
     )

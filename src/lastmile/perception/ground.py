@@ -139,11 +139,14 @@ class AdaptiveGridGroundSegmenter:
         road = np.ones(n, dtype=bool) if road_mask is None else np.asarray(road_mask(p[:, :2]), dtype=bool)
         tol = cfg.threshold_m(r)
         ring = np.searchsorted(np.asarray(cfg.ring_edges_m), r, side="right") - 1
+        # Points grouped by ring once, instead of one full scan of the cloud per ring.
+        by_ring = np.argsort(ring, kind="stable")
+        ring_start = np.searchsorted(ring[by_ring], np.arange(len(cfg.sectors_per_ring) + 1))
         # Prior planes of the previous ring per sector (a, b, c); the first ring's prior is z = 0.
         prev_planes = np.zeros((1, 2, 3))
         prev_sectors = 1
         for k, n_sec in enumerate(cfg.sectors_per_ring):
-            idx = np.flatnonzero(ring == k)
+            idx = by_ring[ring_start[k] : ring_start[k + 1]]
             sec_centres = (np.arange(n_sec) + 0.5) * (2 * math.pi / n_sec) - math.pi
             inner = (
                 np.floor((sec_centres + math.pi) / (2 * math.pi / prev_sectors)).astype(int) % prev_sectors
