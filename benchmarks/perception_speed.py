@@ -12,8 +12,9 @@ One core (process pinned to one CPU, BLAS threads 1); every figure is a median o
     geometry) on synthetic rig frames: a VLP-32C-pattern front unit (32 x 1800 columns at 10 Hz) and
     two 16-channel blind-spot units (16 x 1800 each), a campus street with curbs, cars, pedestrians,
     geese, poles and a sign, 300 snowflakes per unit, the bus driving at 4 m/s with 100 Hz INS poses.
-(c) The same pipeline per KITTI frame (one HDL-64E sweep; per-point times from the azimuth; no
-    motion, so de-skew runs but moves nothing; no map curb, so the curb stage is skipped).
+(c) The same pipeline per KITTI frame (one HDL-64E sweep; per-point times from the azimuth, rings
+    from the elevation; no motion, so de-skew runs but moves nothing; no map curb, so the curb stage
+    is skipped).
 """
 
 from __future__ import annotations
@@ -94,7 +95,11 @@ def _kitti_sweep(frame: kitti.KittiFrame) -> LidarSweep:
     v = frame.velo
     az = np.arctan2(v[:, 1], v[:, 0])
     t = ((np.pi - az) / (2 * np.pi) * 100_000).astype(np.float32)  # one turn in 100 ms
-    pts = np.c_[v[:, :3], v[:, 3] * 255.0, np.zeros(len(v)), t].astype(np.float32)
+    # The .bin files carry no ring; the HDL-64E's beams sit ~0.4 deg apart in elevation, so the
+    # elevation bin is a ring stand-in (used only by DROR's exact scan-line shortcut).
+    elev = np.degrees(np.arctan2(v[:, 2], np.hypot(v[:, 0], v[:, 1])))
+    ring = np.clip(np.round((elev + 24.9) / 0.42), 0, 63)
+    pts = np.c_[v[:, :3], v[:, 3] * 255.0, ring, t].astype(np.float32)
     return LidarSweep(stamp=Stamp(0), sensor_id="velodyne", points=pts)
 
 
