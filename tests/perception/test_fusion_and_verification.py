@@ -119,3 +119,14 @@ def test_iou_and_bad_inputs():
         PinholeCamera(
             camera_id="c", K=np.eye(3), camera_from_base=np.diag([2.0, 1, 1, 1]), width_px=10, height_px=10
         )
+
+
+def test_radar_only_objects_are_dropped_unless_asked_for():
+    cs = _clusters([(15.0, 0.0, 4.4, 1.8, 1.5)])
+    ghost = RadarFrame(stamp=Stamp(0), sensor_id="front", objects=np.array([[30.0, 5.0, 2.0, 0.0, 5.0, 2.0]]))
+    mounts = {"front": SE2(4.5, 0.0, 0.0)}
+    assert len(fuse(Stamp(0), cs, [ghost], mounts)) == 1
+    out = fuse(Stamp(0), cs, [ghost], mounts, config=LateFusionConfig(keep_radar_only=True))
+    assert len(out) == 2
+    extra = out.table[np.argmax(out.table[:, 0])]
+    assert extra[0] == 34.5 and extra[2] == 2.0 and extra[7] == ObjectClass.UNKNOWN

@@ -12,7 +12,8 @@
    matched), velocity from radar (0 where none), in the base frame or, given ``map_from_base``, the
    map frame. With ``confirm_with_radar`` only radar-confirmed objects or camera-confirmed ones are
    kept (the paper's false-alarm removal in bad weather); by default LiDAR-only objects stay, since
-   geese and other small things barely show on radar.
+   geese and other small things barely show on radar. Scores: 0.5 LiDAR only, 0.6 radar-confirmed,
+   the camera detection's score when higher.
 """
 
 from __future__ import annotations

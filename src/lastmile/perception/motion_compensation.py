@@ -11,7 +11,7 @@ transform is applied per bin: with 500 us bins the timing error is at most 250 u
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import numpy.typing as npt
@@ -49,6 +49,9 @@ class PoseTrajectory:
     xyz_m: FloatArray
     quat_xyzw: FloatArray
     max_extrapolation_us: int = 60_000
+    # Built once: rebuilding scipy's Rotation and Slerp per query cost more than the de-skew itself.
+    _rots: Rotation = field(init=False, repr=False, compare=False)
+    _slerp: Slerp = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         t = np.asarray(self.stamps_us, dtype=np.int64)
@@ -77,6 +80,9 @@ class PoseTrajectory:
         for name, arr in (("stamps_us", t), ("xyz_m", xyz), ("quat_xyzw", q)):
             arr.setflags(write=False)
             object.__setattr__(self, name, arr)
+        rots = Rotation.from_quat(q)
+        object.__setattr__(self, "_rots", rots)
+        object.__setattr__(self, "_slerp", Slerp(t.astype(np.float64), rots))
 
     @staticmethod
     def from_ins(
@@ -115,9 +121,9 @@ class PoseTrajectory:
                 f"{t1 + self.max_extrapolation_us:.0f}] us, got [{t.min():.0f}, {t.max():.0f}]"
             )
         ts = self.stamps_us.astype(np.float64)
-        rots = Rotation.from_quat(self.quat_xyzw)
+        rots = self._rots
         inside = np.clip(t, t0, t1)
-        R = Slerp(ts, rots)(inside)
+        R = self._slerp(inside)
         xyz = np.stack([np.interp(inside, ts, self.xyz_m[:, k]) for k in range(3)], axis=1)
         # Constant-velocity extrapolation from the end segments (np.interp clamps).
         for mask, i, j in ((t < t0, 0, 1), (t > t1, -2, -1)):
