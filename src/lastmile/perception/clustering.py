@@ -95,8 +95,10 @@ def euclidean_cluster_labels(xyz_m: npt.ArrayLike, eps_m: float) -> IntArray:
     # Representative of each cell: its point nearest the cell centre (most likely to reach neighbours).
     centre = (cell[order] - 2 + 0.5) * side + lo
     d_centre = ((spts - centre) ** 2).sum(axis=1)
-    rep_order = np.lexsort((d_centre, cell_of_sorted))
-    rep = spts[rep_order[start]]
+    # Points are already grouped by cell: two segment reductions find each cell's nearest point.
+    nearest = np.minimum.reduceat(d_centre, start)
+    first_at_min = np.where(d_centre == nearest[cell_of_sorted], np.arange(n), n)
+    rep = spts[np.minimum.reduceat(first_at_min, start)]
 
     pa, pb = _neighbour_cell_pairs(ukeys, int(dims[2]), int(dims[1]))
 

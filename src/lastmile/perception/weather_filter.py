@@ -109,7 +109,8 @@ def _scan_line_sure(
     p: np.ndarray, key: np.ndarray, azimuth: np.ndarray, radius: np.ndarray, k: int
 ) -> np.ndarray:
     """Points with at least ``k`` of their ``k`` azimuth neighbours on each side within radius."""
-    order = np.lexsort((azimuth, key))
+    # One float sort key (scan line, then azimuth in [0, 2 pi) < 10): far cheaper than lexsort.
+    order = np.argsort(key.astype(np.float64) * 10.0 + (azimuth + np.pi))
     ps, ks, rs = p[order], key[order], radius[order]
     count = np.zeros(len(p), dtype=np.int64)
     for off in range(1, k + 1):
