@@ -80,7 +80,7 @@ def euclidean_cluster_labels(xyz_m: npt.ArrayLike, eps_m: float) -> IntArray:
     cell = np.floor((pts - lo) / side).astype(np.int64) + 2  # +2: neighbour offsets never go negative
     dims = cell.max(axis=0) + 3
     key = (cell[:, 0] * dims[1] + cell[:, 1]) * dims[2] + cell[:, 2]
-    order = np.argsort(key, kind="stable")
+    order = np.argsort(key)  # order inside a cell is irrelevant: labels are renumbered at the end
     skey = key[order]
     is_first = np.empty(n, dtype=bool)
     is_first[0] = True
@@ -100,12 +100,16 @@ def euclidean_cluster_labels(xyz_m: npt.ArrayLike, eps_m: float) -> IntArray:
     first_at_min = np.where(d_centre == nearest[cell_of_sorted], np.arange(n), n)
     rep = spts[np.minimum.reduceat(first_at_min, start)]
 
-    pa, pb = _neighbour_cell_pairs(ukeys, int(dims[2]), int(dims[1]))
+    pa, pb, adjacent = _neighbour_cell_pairs(ukeys, int(dims[2]), int(dims[1]))
 
-    # Pass 1: cells whose representatives are linked are certainly connected.
-    d = rep[pa] - rep[pb]
-    linked = (d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2]) <= eps2
-    comp = _components(n_cells, pa[linked], pb[linked])
+    # Pass 1: adjacent cells (offsets <= 1 on every axis) whose representatives are linked are
+    # certainly connected. Cells two apart have centres >= 1.15 eps apart: their representatives
+    # almost never link, so they go straight to pass 2 when still in different components.
+    ra, rb = pa[adjacent], pb[adjacent]
+    d = rep[ra] - rep[rb]
+    near = (d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2]) <= eps2
+    la, lb = ra[near], rb[near]
+    comp = _components(n_cells, la, lb)
 
     # Pass 2: every remaining pair of cells still in different components is tested point by point.
     open_ = comp[pa] != comp[pb]
@@ -113,12 +117,16 @@ def euclidean_cluster_labels(xyz_m: npt.ArrayLike, eps_m: float) -> IntArray:
     if len(qa):
         joined = _cells_linked(spts, start, count, qa, qb, eps2)
         if joined.any():
-            comp = _components(
-                n_cells, np.concatenate([pa[linked], qa[joined]]), np.concatenate([pb[linked], qb[joined]])
-            )
+            comp = _components(n_cells, np.concatenate([la, qa[joined]]), np.concatenate([lb, qb[joined]]))
     labels = np.empty(n, dtype=np.int64)
-    labels[order] = comp[cell_of_sorted]
-    return canonical_labels(labels)
+    # Canonical numbering (by each cluster's first point) from per-cell minima, without sorting N.
+    n_comp = int(comp.max()) + 1
+    first = np.full(n_comp, n, dtype=np.int64)
+    np.minimum.at(first, comp, np.minimum.reduceat(order, start))
+    rank = np.empty(n_comp, dtype=np.int64)
+    rank[np.argsort(first)] = np.arange(n_comp)
+    labels[order] = rank[comp][cell_of_sorted]
+    return labels
 
 
 def _components(n: int, a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -153,15 +161,16 @@ def _cells_linked(
     return out
 
 
-def _neighbour_cell_pairs(ukeys: IntArray, nz: int, ny: int) -> tuple[IntArray, IntArray]:
-    """All pairs (a, b) of occupied cells whose index offsets are at most 2 on every axis, each once.
+def _neighbour_cell_pairs(ukeys: IntArray, nz: int, ny: int) -> tuple[IntArray, IntArray, np.ndarray]:
+    """All pairs (a, b) of occupied cells whose index offsets are at most 2 on every axis, each once,
+    and a bool per pair: offsets at most 1 on every axis (adjacent cells).
 
     Keys are ``(cx * ny + cy) * nz + cz``, so the cells of one column within 2 in z are one
     contiguous run of the sorted keys: two binary searches per column offset find every neighbour.
     """
     n_cells = len(ukeys)
     cells = np.arange(n_cells)
-    pa_list, pb_list = [], []
+    pa_list, pb_list, adj_list = [], [], []
     for dx, dy in _COLUMN_OFFSETS:
         base = ukeys + (dx * ny + dy) * nz
         lo = np.searchsorted(ukeys, base + 1 if (dx, dy) == (0, 0) else base - 2, side="left")
@@ -174,8 +183,18 @@ def _neighbour_cell_pairs(ukeys: IntArray, nz: int, ny: int) -> tuple[IntArray, 
         n_hit = n_hit[has]
         pa_list.append(np.repeat(a, n_hit))
         first = np.repeat(lo[has] - (np.cumsum(n_hit) - n_hit), n_hit)
-        pb_list.append(first + np.arange(int(n_hit.sum())))
+        b = first + np.arange(int(n_hit.sum()))
+        pb_list.append(b)
+        if abs(dx) <= 1 and abs(dy) <= 1:
+            dz = ukeys[b] - np.repeat(base[has], n_hit)
+            adj_list.append(np.abs(dz) <= 1)
+        else:
+            adj_list.append(np.zeros(len(b), dtype=bool))
     if not pa_list:
         empty = np.zeros(0, dtype=np.int64)
-        return empty, empty
-    return np.concatenate(pa_list).astype(np.int64), np.concatenate(pb_list).astype(np.int64)
+        return empty, empty, np.zeros(0, dtype=bool)
+    return (
+        np.concatenate(pa_list).astype(np.int64),
+        np.concatenate(pb_list).astype(np.int64),
+        np.concatenate(adj_list),
+    )
