@@ -188,12 +188,10 @@ def describe_clusters(
         c_starts = np.searchsorted(c_row, np.arange(len(kept)))
         poly = xy[cand[_support(xy[cand], c_row, c_starts, n_dir)]]  # (K, n_dir, 2)
         edge = np.roll(poly, -1, axis=1) - poly
-        inside = np.ones(len(cand), dtype=bool)
-        for j in range(n_dir):
-            e, v = edge[c_row, j], poly[c_row, j]
-            rel = xy[cand] - v
-            inside &= e[:, 0] * rel[:, 1] - e[:, 1] * rel[:, 0] > 0
-        cand = cand[~inside]
+        q = xy[cand]
+        e, v = edge[c_row], poly[c_row]  # (n, n_dir, 2)
+        cross = e[..., 0] * (q[:, 1:2] - v[..., 1]) - e[..., 1] * (q[:, 0:1] - v[..., 0])
+        cand = cand[~(cross > 0).all(axis=1)]
     c_row = row[cand]
     c_starts = np.searchsorted(c_row, np.arange(len(kept)))  # every cluster keeps its support points
     hull_idx = cand[_support(xy[cand], c_row, c_starts, D)]
