@@ -177,7 +177,10 @@ class AdaptiveGridGroundSegmenter:
                     use = np.abs(res) <= window
                     # Tukey weights: points near the surface count most, snow and object feet least.
                     w = np.where(use, (1.0 - (res / window) ** 2) ** 2, 0.0)
-                planes = _fit_planes(px, py, pz, w, region, 2 * n_sec, prior.reshape(-1, 3), cfg)
+                u = np.flatnonzero(use)  # only weighted points enter the sums
+                planes = _fit_planes(
+                    px[u], py[u], pz[u], w[u], region[u], 2 * n_sec, prior.reshape(-1, 3), cfg
+                )
             ground[idx] = res <= tol[idx]
             prev_planes, prev_sectors = planes.reshape(n_sec, 2, 3), n_sec
         return ground
