@@ -9,7 +9,7 @@ from typing import Annotated
 import typer
 
 from lastmile import __version__
-from lastmile.core.errors import LastmileError
+from lastmile.core.errors import ConfigError, LastmileError
 
 app = typer.Typer(
     add_completion=False, no_args_is_help=True, help="Autonomous campus shuttle: stack, simulator, tools."
@@ -69,6 +69,174 @@ def run(
         f"{metrics['collisions_total']} collisions, {metrics['takeovers']} takeovers, "
         f"real-time factor {log.timing['realtime_factor']:.1f}x"
     )
+
+
+@app.command()
+def sweep(
+    suite: Annotated[str | None, typer.Option(help="A named suite: iso22737.")] = None,
+    generate: Annotated[
+        int | None, typer.Option(help="Generate this many scenarios from the scenario space.")
+    ] = None,
+    scenarios: Annotated[
+        Path | None, typer.Option(help="A folder of scenario TOML files to run as they are.")
+    ] = None,
+    seed: Annotated[int, typer.Option(help="Seed of the suite or of the generator.")] = 0,
+    engine: Annotated[str, typer.Option(help="local (process pool) or ray.")] = "local",
+    workers: Annotated[int | None, typer.Option(help="Local worker processes [default: all cores].")] = None,
+    ray_address: Annotated[
+        str | None, typer.Option(help="Ray cluster address (default: start Ray on this machine).")
+    ] = None,
+    out: Annotated[Path, typer.Option(help="Output folder.")] = Path("runs/sweep"),
+) -> None:
+    """Run many scenarios; writes summary.json, report.md and every scenario file under OUT."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    try:
+        from lastmile.evaluation.sweep_report import write_sweep_report
+        from lastmile.runner.sweep import generic_cases, run_sweep
+        from lastmile.sim.scenario import load_scenario
+        from lastmile.sim.scenario_generator import ScenarioSpace, sample_scenarios
+        from lastmile.sim.suites import SUITES
+
+        chosen = [x for x in (suite, generate, scenarios) if x is not None]
+        if len(chosen) != 1:
+            raise ConfigError(
+                f"sweep: expected exactly one of --suite, --generate, --scenarios, got {len(chosen)}"
+            )
+        if suite is not None:
+            if suite not in SUITES:
+                raise ConfigError(f"sweep --suite: expected one of {sorted(SUITES)}, got {suite!r}")
+            cases = SUITES[suite](seed)
+            title = f"Sweep: suite {suite} (seed {seed})"
+        elif generate is not None:
+            cases = generic_cases(sample_scenarios(ScenarioSpace(), generate, seed))
+            title = f"Sweep: {generate} generated scenarios (seed {seed})"
+        else:
+            assert scenarios is not None
+            files = sorted(scenarios.glob("*.toml"))
+            if not files:
+                raise ConfigError(f"sweep --scenarios: expected TOML files in {scenarios}, got none")
+            cases = generic_cases([load_scenario(f) for f in files], group=str(scenarios))
+            title = f"Sweep: {len(files)} scenarios from {scenarios}"
+        with Progress(
+            TextColumn("[bold]sweep[/bold]"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn()
+        ) as bar:
+            task = bar.add_task("scenarios", total=len(cases))
+            summary = run_sweep(
+                cases,
+                out,
+                engine=engine,
+                workers=workers,
+                ray_address=ray_address,
+                progress=lambda done, total: bar.update(task, completed=done),
+            )
+        report = write_sweep_report(summary, out, title)
+    except LastmileError as exc:
+        typer.echo(f"lastmile sweep: {exc}", err=True)
+        raise typer.Exit(2) from None
+    typer.echo(
+        f"wrote {report}: {summary['passed']}/{summary['scenarios']} passed, "
+        f"{summary['collisions_at_fault']} at-fault collisions"
+    )
+
+
+experiment_app = typer.Typer(no_args_is_help=True, help="Reproduce the papers' experiments.")
+app.add_typer(experiment_app, name="experiment")
+
+
+@experiment_app.command("v2i")
+def experiment_v2i(
+    laps: Annotated[int, typer.Option(help="Laps per vehicle.")] = 20,
+    seeds: Annotated[str, typer.Option(help="Comma-separated seeds to average over.")] = "0,1,2",
+    rate_hz: Annotated[float, typer.Option(help="Crossing camera broadcast rate (NUS: 5 or 1).")] = 5.0,
+    out: Annotated[Path, typer.Option(help="Output folder.")] = Path("runs/v2i"),
+) -> None:
+    """NUS's infrastructure-sensor experiment: time gained at a crossing against laps (Fig. 12)."""
+    import json
+
+    from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+
+    try:
+        from lastmile.evaluation.v2i_report import write_v2i_report
+        from lastmile.sim.infrastructure import CrossingCameraConfig
+        from lastmile.sim.v2i_experiment import V2iConfig, run_v2i_experiment
+
+        try:
+            seed_list = tuple(int(x) for x in seeds.split(","))
+        except ValueError:
+            raise ConfigError(
+                f"experiment v2i --seeds: expected integers like 0,1,2, got {seeds!r}"
+            ) from None
+        if laps < 1:
+            raise ConfigError(f"experiment v2i --laps: expected at least 1, got {laps}")
+        config = V2iConfig(camera=CrossingCameraConfig(rate_hz=rate_hz))
+        with Progress(SpinnerColumn(), TextColumn("[bold]v2i[/bold] simulating"), TimeElapsedColumn()) as bar:
+            bar.add_task("v2i")
+            result = run_v2i_experiment(config, laps=laps, seeds=seed_list)
+        data = {
+            "laps": result.laps,
+            "rate_hz": result.rate_hz,
+            "seeds": list(result.seeds),
+            "rows": [
+                {
+                    "speed_mps": speed,
+                    "vehicles": n,
+                    "cumulative_gain_s": gain,
+                    "mean_lap_base_s": result.mean_lap_base_s[(speed, n)],
+                    "mean_lap_infra_s": result.mean_lap_infra_s[(speed, n)],
+                }
+                for (speed, n), gain in result.cumulative_gain_s.items()
+            ],
+        }
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "v2i.json").write_text(json.dumps(data, indent=2))
+        report = write_v2i_report(data, out)
+    except LastmileError as exc:
+        typer.echo(f"lastmile experiment v2i: {exc}", err=True)
+        raise typer.Exit(2) from None
+    typer.echo(f"wrote {report} and {out / 'fig12.png'}")
+
+
+@app.command()
+def replay(
+    file: Annotated[Path, typer.Argument(help="Black-box MCAP file (or a spool directory of chunks).")],
+    render: Annotated[
+        Path | None, typer.Option(help="Render a top-down PNG sequence into this directory.")
+    ] = None,
+    fps: Annotated[float, typer.Option(help="Frames per second of recorded time when rendering.")] = 10.0,
+) -> None:
+    """Summarise a black-box recording (channels, counts, time span, events); optionally render PNGs."""
+    from rich.console import Console
+    from rich.table import Table
+
+    from lastmile.recorder.replay import read_recording, render_png_sequence
+
+    try:
+        if not fps > 0:
+            raise ConfigError(f"--fps: expected a positive rate, got {fps}")
+        rec = read_recording(file)
+    except LastmileError as exc:
+        typer.echo(f"lastmile replay: {exc}", err=True)
+        raise typer.Exit(2) from None
+    console = Console()
+    first, last = rec.span_us
+    table = Table(title=f"{file}: {len(rec.messages)} messages, {first / 1e6:.2f} s to {last / 1e6:.2f} s")
+    for col in ("topic", "schema", "messages", "first [s]", "last [s]"):
+        table.add_column(col, justify="right" if col in ("messages", "first [s]", "last [s]") else "left")
+    for ch in rec.channels:
+        table.add_row(
+            ch.topic, ch.schema, str(ch.count), f"{ch.first_us / 1e6:.2f}", f"{ch.last_us / 1e6:.2f}"
+        )
+    console.print(table)
+    for ev in rec.events:
+        console.print(
+            f"event: {ev.get('trigger')} at {int(ev.get('time_us', 0)) / 1e6:.2f} s: {ev.get('reason')}"
+        )
+    summary = rec.operator_summary
+    console.print(f"operator summary: {summary}" if summary is not None else "operator summary: (none yet)")
+    if render is not None:
+        paths = render_png_sequence(rec, render, fps=fps)
+        console.print(f"wrote {len(paths)} frames to {render}")
 
 
 def main() -> None:

@@ -26,6 +26,7 @@ def _run(seed: int) -> tuple[RunLog, dict[str, Any]]:
 @pytest.mark.parametrize("seed", SEEDS)
 def test_default_service_has_no_collision_and_no_takeover(seed: int) -> None:
     log, m = _run(seed)
+    assert not log.events_of("stack_crash"), log.events_of("stack_crash")
     assert m["collisions_total"] == 0, log.events_of("collision")
     assert m["takeovers"] == 0, log.events_of("takeover")
 

@@ -6,7 +6,13 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from lastmile.core.errors import MessageError
-from lastmile.core.geometry import SE2, convex_polygons_overlap, point_in_polygon, rectangle_corners_m
+from lastmile.core.geometry import (
+    SE2,
+    PreparedPolygon,
+    convex_polygons_overlap,
+    point_in_polygon,
+    rectangle_corners_m,
+)
 
 finite = st.floats(-1e3, 1e3)
 angle = st.floats(-math.pi, math.pi)
@@ -48,3 +54,32 @@ def test_point_in_polygon_even_odd():
     square = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 2.0], [0.0, 2.0]])
     assert point_in_polygon(1.0, 1.0, square)
     assert not point_in_polygon(3.0, 1.0, square)
+
+
+def _even_odd_vectorised(x_m, y_m, poly):
+    # The textbook vectorised form, kept here as the reference the scalar loops must agree with.
+    xi, yi = poly[:, 0], poly[:, 1]
+    xj, yj = np.roll(xi, 1), np.roll(yi, 1)
+    crosses = (yi > y_m) != (yj > y_m)
+    x_cross = (xj[crosses] - xi[crosses]) * (y_m - yi[crosses]) / (yj[crosses] - yi[crosses]) + xi[crosses]
+    return bool(np.count_nonzero(x_m < x_cross) % 2)
+
+
+@given(
+    st.lists(st.tuples(st.floats(-20, 20), st.floats(-20, 20)), min_size=3, max_size=12),
+    st.lists(st.tuples(st.floats(-25, 25), st.floats(-25, 25)), min_size=1, max_size=20),
+)
+def test_prepared_polygon_and_point_in_polygon_agree_with_the_vectorised_rule(vertices, points):
+    poly = np.array(vertices, dtype=float)
+    prepared = PreparedPolygon(poly)
+    for x, y in [*points, *vertices]:
+        expected = _even_odd_vectorised(x, y, poly)
+        assert point_in_polygon(x, y, poly) == expected
+        assert prepared.contains(x, y) == expected
+
+
+def test_prepared_polygon_rejects_a_degenerate_or_nan_polygon_naming_what_it_expected():
+    with pytest.raises(MessageError, match="expected an"):
+        PreparedPolygon(np.array([[0.0, 0.0], [1.0, 1.0]]))
+    with pytest.raises(MessageError, match="finite"):
+        PreparedPolygon(np.array([[0.0, 0.0], [1.0, float("nan")], [1.0, 0.0]]))

@@ -62,3 +62,22 @@ def test_curvature_of_a_circle_is_one_over_radius_left_positive():
 def test_malformed_vertices_raise_a_message_error(bad):
     with pytest.raises(MessageError, match="expected"):
         Polyline(bad)
+
+
+@given(
+    st.lists(st.tuples(st.floats(-50, 50), st.floats(-50, 50)), min_size=30, max_size=80, unique=True),
+    st.booleans(),
+    st.floats(-60, 60),
+    st.floats(-60, 60),
+)
+def test_vectorised_projection_is_bit_identical_to_the_scalar_loop(vertices, closed, x_m, y_m):
+    try:
+        line = Polyline(np.array(vertices, dtype=float), closed=closed)
+    except MessageError:
+        return  # degenerate (collapsed) vertex sets are rejected, which another test covers
+    n = len(line.s_m) - 1
+    if n <= 24:
+        return
+    vectorised = line._project_range(x_m, y_m, range(n))  # a long range takes the NumPy path
+    scalar = line._project_range(x_m, y_m, list(range(n)))  # a list always takes the loop
+    assert (vectorised.s_m, vectorised.d_m, vectorised.segment) == (scalar.s_m, scalar.d_m, scalar.segment)

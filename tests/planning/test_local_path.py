@@ -7,7 +7,7 @@ from lastmile.core.polyline import Polyline
 from lastmile.core.route_obstacles import RouteObstacle
 from lastmile.core.stamp import Stamp
 from lastmile.core.vehicle_messages import BehaviourDecision, BehaviourState
-from lastmile.planning.bezier import lateral_transition_m, smooth_through
+from lastmile.planning.bezier import cubic_bezier, lateral_transition_m, smooth_through
 from lastmile.planning.local_path import LocalPathPlanner
 from lastmile.planning.potential_field import PotentialFieldConfig, nudge_offsets_m
 
@@ -75,3 +75,16 @@ def test_pullover_path_ends_at_the_spot_offset_and_merge_returns_to_the_lane():
     )
     far = merge.points[merge.points[:, 0] > 80.0]
     assert np.allclose(far[:, 1], 0.0, atol=1e-6)
+
+
+def test_bezier_chain_equals_one_cubic_per_segment_exactly():
+    pts = np.random.default_rng(3).normal(size=(12, 2)) * 20.0
+    padded = np.vstack([2 * pts[0] - pts[1], pts, 2 * pts[-1] - pts[-2]])
+    pieces = []
+    for i in range(1, len(padded) - 2):
+        p0, p3 = padded[i], padded[i + 1]
+        p1 = p0 + (padded[i + 1] - padded[i - 1]) / 6.0
+        p2 = p3 - (padded[i + 2] - padded[i]) / 6.0
+        seg = cubic_bezier(p0, p1, p2, p3, 9)
+        pieces.append(seg if i == len(padded) - 3 else seg[:-1])
+    assert np.array_equal(smooth_through(pts), np.vstack(pieces))

@@ -100,13 +100,47 @@ def convex_polygons_overlap(a: FloatArray, b: FloatArray) -> bool:
 
 
 def point_in_polygon(x_m: float, y_m: float, polygon: FloatArray) -> bool:
-    """Even-odd rule test of one point against an (N, 2) polygon (closed implicitly), vectorised."""
+    """Even-odd rule test of one point against an (N, 2) polygon (closed implicitly)."""
     poly = np.asarray(polygon, dtype=float)
-    xi, yi = poly[:, 0], poly[:, 1]
-    xj, yj = np.roll(xi, 1), np.roll(yi, 1)
-    crosses = (yi > y_m) != (yj > y_m)
-    if not crosses.any():
-        return False
-    xi, yi, xj, yj = xi[crosses], yi[crosses], xj[crosses], yj[crosses]
-    x_cross = (xj - xi) * (y_m - yi) / (yj - yi) + xi  # yj != yi wherever the edge crosses y_m
-    return bool(np.count_nonzero(x_m < x_cross) % 2)
+    return _even_odd(x_m, y_m, poly[:, 0].tolist(), poly[:, 1].tolist())
+
+
+def _even_odd(x_m: float, y_m: float, xs: list[float], ys: list[float]) -> bool:
+    # A scalar loop over Python floats: for the few-vertex polygons of a map (crosswalks, boxes,
+    # lanelets) it is ~10x cheaper per call than NumPy's fixed overhead, with the same arithmetic.
+    inside = False
+    xj, yj = xs[-1], ys[-1]
+    for xi, yi in zip(xs, ys, strict=True):
+        if (yi > y_m) != (yj > y_m) and x_m < (xj - xi) * (y_m - yi) / (yj - yi) + xi:
+            inside = not inside
+        xj, yj = xi, yi
+    return inside
+
+
+class PreparedPolygon:
+    """A fixed polygon tested against many points: vertices as floats and its bounding box, once.
+
+    ``contains`` answers as :func:`point_in_polygon` does; points outside the bounding box (by more
+    than a rounding margin) are rejected without looking at the edges.
+    """
+
+    __slots__ = ("_xs", "_ys", "x_max_m", "x_min_m", "y_max_m", "y_min_m")
+    _MARGIN_M = 1e-9
+
+    def __init__(self, polygon: FloatArray) -> None:
+        poly = np.asarray(polygon, dtype=float)
+        if poly.ndim != 2 or poly.shape[1] != 2 or poly.shape[0] < 3 or not np.isfinite(poly).all():
+            raise MessageError(
+                f"PreparedPolygon: expected an (N >= 3, 2) array of finite vertices, got shape {poly.shape}"
+            )
+        self._xs: list[float] = poly[:, 0].tolist()
+        self._ys: list[float] = poly[:, 1].tolist()
+        self.x_min_m = min(self._xs) - self._MARGIN_M
+        self.x_max_m = max(self._xs) + self._MARGIN_M
+        self.y_min_m = min(self._ys) - self._MARGIN_M
+        self.y_max_m = max(self._ys) + self._MARGIN_M
+
+    def contains(self, x_m: float, y_m: float) -> bool:
+        if not (self.x_min_m <= x_m <= self.x_max_m and self.y_min_m <= y_m <= self.y_max_m):
+            return False
+        return _even_odd(x_m, y_m, self._xs, self._ys)

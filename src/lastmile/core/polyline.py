@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import bisect
 import math
 from dataclasses import dataclass, field
 
@@ -18,6 +19,10 @@ class FrenetPoint:
     s_m: float
     d_m: float
     segment: int
+
+
+_VECTOR_FROM_SEGMENTS = 24
+"""Projections over more segments than this run vectorised; fewer, as a scalar loop (cheaper there)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -38,6 +43,9 @@ class Polyline:
     _xs: list[float] = field(init=False, repr=False)
     _ys: list[float] = field(init=False, repr=False)
     _ss: list[float] = field(init=False, repr=False)
+    _dxs: list[float] = field(init=False, repr=False)
+    _dys: list[float] = field(init=False, repr=False)
+    _headings: list[float] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         xy = np.asarray(self.xy_m, dtype=np.float64)
@@ -68,6 +76,9 @@ class Polyline:
         object.__setattr__(self, "_xs", xy[:, 0].tolist())
         object.__setattr__(self, "_ys", xy[:, 1].tolist())
         object.__setattr__(self, "_ss", s.tolist())
+        object.__setattr__(self, "_dxs", (seg[:, 0] / seg_len).tolist())
+        object.__setattr__(self, "_dys", (seg[:, 1] / seg_len).tolist())
+        object.__setattr__(self, "_headings", self._heading.tolist())
 
     @property
     def length_m(self) -> float:
@@ -79,16 +90,17 @@ class Polyline:
         return min(max(s_m, 0.0), self.length_m)
 
     def _segment_at(self, s_m: float) -> int:
-        i = int(np.searchsorted(self.s_m, s_m, side="right")) - 1
-        return min(max(i, 0), len(self._seg_len) - 1)
+        # bisect on the Python list: same answer as searchsorted(side="right"), without NumPy's
+        # per-call overhead on this scalar hot path.
+        i = bisect.bisect_right(self._ss, s_m) - 1
+        return min(max(i, 0), len(self._ss) - 2)
 
     def point_at(self, s_m: float) -> tuple[float, float, float]:
         """(x_m, y_m, heading_rad) at arc length ``s_m`` (clamped, or wrapped when closed)."""
         s = self._wrap_s(s_m)
         i = self._segment_at(s)
         t = s - self._ss[i]
-        dx, dy = self._seg_dir[i]
-        return self._xs[i] + t * float(dx), self._ys[i] + t * float(dy), float(self._heading[i])
+        return self._xs[i] + t * self._dxs[i], self._ys[i] + t * self._dys[i], self._headings[i]
 
     def points_at(self, s_m: FloatArray) -> FloatArray:
         """(M, 2) points at the arc lengths ``s_m`` (M,)."""
@@ -100,7 +112,7 @@ class Polyline:
 
     def heading_at(self, s_m: float) -> float:
         """Heading of the segment under ``s_m``, in rad."""
-        return float(self._heading[self._segment_at(self._wrap_s(s_m))])
+        return self._headings[self._segment_at(self._wrap_s(s_m))]
 
     def curvature_at(self, s_m: float, window_m: float = 2.0) -> float:
         """Signed curvature (1/m, left positive): the circle through the points at s - w, s, s + w.
@@ -148,6 +160,8 @@ class Polyline:
         return self._project_range(x_m, y_m, idx)
 
     def _project_range(self, x_m: float, y_m: float, idx: range | list[int]) -> FrenetPoint:
+        if isinstance(idx, range) and len(idx) > _VECTOR_FROM_SEGMENTS:
+            return self._project_slice(x_m, y_m, idx.start, idx.stop)
         xs, ys, ss = self._xs, self._ys, self._ss
         seg_len = self._seg_len
         best_d2 = math.inf
@@ -173,6 +187,30 @@ class Polyline:
                 best_d2 = d2
                 best = (ss[i] + t * length, math.copysign(math.sqrt(d2), cross), i)
         return FrenetPoint(s_m=best[0], d_m=best[1], segment=best[2])
+
+    def _project_slice(self, x_m: float, y_m: float, lo: int, hi: int) -> FrenetPoint:
+        # The loop of _project_range over segments lo..hi-1 in NumPy, with the same float operations
+        # in the same order, so both give bit-identical answers (ties: the first segment wins).
+        xy, s = self.xy_m, self.s_m
+        ax, ay = xy[lo:hi, 0], xy[lo:hi, 1]
+        vx, vy = xy[lo + 1 : hi + 1, 0] - ax, xy[lo + 1 : hi + 1, 1] - ay
+        length = s[lo + 1 : hi + 1] - s[lo:hi]
+        t = ((x_m - ax) * vx + (y_m - ay) * vy) / (length * length)
+        last = len(self._ss) - 2
+        if self.closed:
+            t = np.clip(t, 0.0, 1.0)
+        elif last > 0:
+            i = np.arange(lo, hi)
+            t = np.where(i > 0, np.maximum(t, 0.0), t)
+            t = np.where(i < last, np.minimum(t, 1.0), t)
+        d2 = (x_m - (ax + t * vx)) ** 2 + (y_m - (ay + t * vy)) ** 2
+        k = int(np.argmin(d2))
+        cross = float(vx[k]) * (y_m - float(ay[k])) - float(vy[k]) * (x_m - float(ax[k]))
+        return FrenetPoint(
+            s_m=float(s[lo + k]) + float(t[k]) * float(length[k]),
+            d_m=math.copysign(math.sqrt(float(d2[k])), cross),
+            segment=lo + k,
+        )
 
     def offset(self, d_m: float) -> Polyline:
         """A parallel line ``d_m`` to the left (negative: right), using vertex normals."""

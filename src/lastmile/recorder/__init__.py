@@ -1,1 +1,1 @@
-"""lastmile.recorder: run logs (ego trace, events, agents) written by the runner, read by evaluation."""
+"""lastmile.recorder: run logs for evaluation, the rolling black box (MCAP) and its replay reader."""

@@ -109,6 +109,9 @@ EVENT_SCHEMAS: dict[str, dict[str, str]] = {
     "min_ttc": {"ttc_s": "float", "agent_id": "int"},
     "intersection_entry": {"order_ok": "bool"},
     "loop_completed": {"loop": "int"},
+    "fault_start": {"kind": "str", "target": "str"},
+    "fault_end": {"kind": "str", "target": "str"},
+    "stack_crash": {"error": "str"},
 }
 """Required ``data`` fields (name -> "int" | "float" | "bool" | "str") of the known event kinds."""
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Callable
 from dataclasses import asdict
@@ -12,7 +13,8 @@ from threadpoolctl import threadpool_limits
 
 from lastmile.core.stamp import Stamp
 from lastmile.core.vehicle import VehicleGeometry
-from lastmile.core.vehicle_messages import BehaviourState
+from lastmile.core.vehicle_messages import BehaviourState, StackOutput
+from lastmile.decision.behaviour_fsm import DecisionConfig
 from lastmile.evaluation.metrics import compute_metrics, write_metrics, write_timing
 from lastmile.evaluation.report import write_report
 from lastmile.hdmap.layers import SLayerDatabase
@@ -46,6 +48,9 @@ def build_closed_loop(scenario: Scenario) -> tuple[HDMap, Simulation, ShuttleSta
     sim = Simulation(scenario, hdmap, service_route, geometry, TICK_US)
     # The stack gets the map and its own configuration, never the simulator's objects.
     layers = SLayerDatabase.build(hdmap, loop_ids, step_m=1.0, closed=True)
+    decision = DecisionConfig()
+    if scenario.cruise_speed_mps is not None:
+        decision = dataclasses.replace(decision, cruise_speed_mps=scenario.cruise_speed_mps)
     stack = ShuttleStack(
         layers,
         geometry,
@@ -54,6 +59,7 @@ def build_closed_loop(scenario: Scenario) -> tuple[HDMap, Simulation, ShuttleSta
             lateral_controller=scenario.lateral_controller,
             radar_mounts=sim.radar_mounts,
             serve_all_stops=scenario.serve_all_stops,
+            decision=decision,
         ),
     )
     return hdmap, sim, stack
@@ -74,22 +80,40 @@ def _run(scenario: Scenario, progress: ProgressCallback | None) -> RunLog:
     )
     writer = RunLogWriter(meta)
     ticks = round(duration_s * 1e6 / TICK_US)
+    # Injected faults are ground truth for the evaluation (when each began and ended), never for the stack.
+    fault_marks = sorted(
+        [(f.start_s, "fault_start", f.kind, f.target) for f in scenario.faults]
+        + [(f.end_s, "fault_end", f.kind, f.target) for f in scenario.faults]
+    )
     last_state: BehaviourState | None = None
     emitted = 0
     wall_start = time.perf_counter()
+    cpu_start = time.process_time()
     stack_wall = 0.0
+    stack_alive = True
     for tick in range(ticks):
         now = Stamp(tick * TICK_US)
         t_s = tick * TICK_US / 1e6
+        while fault_marks and fault_marks[0][0] <= t_s:
+            _, mark, kind, target = fault_marks.pop(0)
+            writer.add_event(t_s, mark, kind=kind, target=target)
         sim.advance_world(tick)
         frames = sim.sensor_frames(tick)
-        t0 = time.perf_counter()
-        out = stack.tick(now, frames)
-        stack_wall += time.perf_counter() - t0
-        sim.apply_command(out.command)
-        sim.referee(out.takeover_request)
-        state = out.decision.state if out.decision is not None else None
-        if state is not None and state != last_state:
+        out: StackOutput | None = None
+        if stack_alive:
+            t0 = time.perf_counter()
+            try:
+                out = stack.tick(now, frames)
+            except Exception as exc:
+                # On a vehicle this is a crashed process: the stack is gone for the rest of the run
+                # and the vehicle's hardware watchdog brakes (the simulator's answer to no command).
+                stack_alive = False
+                writer.add_event(t_s, "stack_crash", error=f"{type(exc).__name__}: {exc}")
+            stack_wall += time.perf_counter() - t0
+        sim.apply_command(out.command if out is not None else None)
+        sim.referee(out.takeover_request if out is not None else False)
+        state = out.decision.state if out is not None and out.decision is not None else None
+        if out is not None and state is not None and state != last_state:
             writer.add_event(
                 t_s,
                 "state_change",
@@ -102,7 +126,7 @@ def _run(scenario: Scenario, progress: ProgressCallback | None) -> RunLog:
             if state == BehaviourState.EMERGENCY_STOP and out.decision is not None:
                 writer.add_event(t_s, "emergency_stop", reason=out.decision.reason)
             last_state = state
-        for msg in out.hmi:
+        for msg in out.hmi if out is not None else ():
             writer.add_event(t_s, "hmi", screen=msg.screen, text=msg.text, sound=msg.sound)
         if tick % LOG_EVERY_TICKS == 0:
             s = sim.world.ego.state
@@ -124,9 +148,13 @@ def _run(scenario: Scenario, progress: ProgressCallback | None) -> RunLog:
         if progress is not None and tick % 100 == 0:
             progress(t_s, duration_s)
     wall = time.perf_counter() - wall_start
+    cpu = time.process_time() - cpu_start
     timing: dict[str, Any] = {
         "wall_s": wall,
         "realtime_factor": duration_s / wall if wall > 0 else None,
+        # CPU seconds of this process: the one-core figure when other work shares the machine.
+        "cpu_s": cpu,
+        "realtime_factor_cpu": duration_s / cpu if cpu > 0 else None,
         "stack_wall_s": stack_wall,
         "stack_tick_mean_ms": 1e3 * stack_wall / max(ticks, 1),
         "modules": stack.profiler.summary(),

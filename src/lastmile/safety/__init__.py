@@ -1,1 +1,1 @@
-"""lastmile.safety."""
+"""lastmile.safety: process-health and reliability monitors, fail-safe arbitration, hardware watchdog."""

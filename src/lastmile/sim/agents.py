@@ -173,7 +173,10 @@ class WalkingAgent(Agent):
     pause_left_s: float = 0.0
     next_pause_m: float = 0.0
     respawn: bool = False
+    mean_gap_s: float = 30.0  # between respawned pedestrians (Poisson arrivals)
     idle_until_s: float = 0.0
+    approach_m: float = 0.0  # a respawned pedestrian walks this far up to the kerb, in view
+    approach_left_m: float = 0.0
 
     @property
     def steps_while_away(self) -> bool:
@@ -183,13 +186,20 @@ class WalkingAgent(Agent):
         total = math.dist(self.start_xy, self.end_xy)
         if self.done:
             if self.respawn and world.t_s >= self.idle_until_s:
-                # A new pedestrian turns up at a kerb; the last one walked off after crossing.
+                # A new pedestrian walks up to a kerb along the sidewalk (visible to sensors on the
+                # way, as real ones are, rather than appearing at the kerb); the last one walked off.
                 self.done = False
                 self.active = True
                 self.progress_m = 0.0
-                self.x_m, self.y_m = self.start_xy
+                self.approach_left_m = self.approach_m
+                self._place_before_kerb(total)
             else:
                 return
+        if self.approach_left_m > 0.0:
+            self.speed_mps = self.walk_speed_mps
+            self.approach_left_m = max(0.0, self.approach_left_m - self.walk_speed_mps * dt_s)
+            self._place_before_kerb(total)
+            return
         if not self.walking:
             self.speed_mps = 0.0
             if world.t_s < self.start_after_s:
@@ -222,7 +232,14 @@ class WalkingAgent(Agent):
             if self.respawn:
                 # Next pedestrian arrives at the other kerb after an exponential gap (Poisson arrivals).
                 self.start_xy, self.end_xy = self.end_xy, self.start_xy
-                self.idle_until_s = world.t_s + float(world.agent_rng.exponential(world.pedestrian_gap_s))
+                self.idle_until_s = world.t_s + float(world.agent_rng.exponential(self.mean_gap_s))
+
+    def _place_before_kerb(self, total_m: float) -> None:
+        ux = (self.end_xy[0] - self.start_xy[0]) / total_m
+        uy = (self.end_xy[1] - self.start_xy[1]) / total_m
+        self.x_m = self.start_xy[0] - self.approach_left_m * ux
+        self.y_m = self.start_xy[1] - self.approach_left_m * uy
+        self.yaw_rad = math.atan2(uy, ux)
 
 
 def agent_arrays(agents: list[Agent]) -> np.ndarray:

@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from lastmile.core.geometry import convex_polygons_overlap, point_in_polygon, rectangle_corners_m
+from lastmile.core.geometry import PreparedPolygon, convex_polygons_overlap, rectangle_corners_m
 from lastmile.core.object_class import ObjectClass
 from lastmile.core.polyline import Polyline
 from lastmile.sim.arbiter import EGO_ID
@@ -63,6 +63,7 @@ class Judge:
     _loops: int = 0
     _approached: dict[str, int] = field(default_factory=dict)
     _ttc_min_logged: float = math.inf
+    _crosswalk_polys: list[tuple[int, PreparedPolygon]] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         s = self.world.ego.state
@@ -74,6 +75,7 @@ class Judge:
             )
             for st in self.passengers.stops.values()
         }
+        self._crosswalk_polys = [(cw.id, PreparedPolygon(cw.polygon)) for cw in self.world.hdmap.crosswalks]
 
     @property
     def route_s_m(self) -> float:
@@ -159,29 +161,28 @@ class Judge:
 
     def _crosswalks(self) -> None:
         w = self.world
-        box = w.ego_corners()
-        for cw in w.hdmap.crosswalks:
-            poly = cw.polygon
-            touching = any(point_in_polygon(float(x), float(y), poly) for x, y in box)
+        box = w.ego_corners().tolist()
+        for cw_id, poly in self._crosswalk_polys:
+            touching = any(poly.contains(x, y) for x, y in box)
             if not touching:
-                self._crosswalk_flagged.discard(cw.id)
+                self._crosswalk_flagged.discard(cw_id)
                 continue
-            if cw.id in self._crosswalk_flagged or w.ego.state.speed_mps < 0.3:
+            if cw_id in self._crosswalk_flagged or w.ego.state.speed_mps < 0.3:
                 continue
             ex, ey = w.ego_centre()
             for a in w.agents:
                 if (
                     a.active
                     and a.cls == ObjectClass.PEDESTRIAN
-                    and point_in_polygon(a.x_m, a.y_m, poly)
+                    and poly.contains(a.x_m, a.y_m)
                     and math.hypot(a.x_m - ex, a.y_m - ey) < 6.0
                 ):
                     self.emit(
                         "rule_violation",
                         rule="crosswalk_yield",
-                        detail=f"crosswalk {cw.id}, pedestrian {a.id}",
+                        detail=f"crosswalk {cw_id}, pedestrian {a.id}",
                     )
-                    self._crosswalk_flagged.add(cw.id)
+                    self._crosswalk_flagged.add(cw_id)
                     break
 
     def _speed(self) -> None:

@@ -2,12 +2,16 @@
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
+
+import tomli_w
 
 from lastmile.core.config import check_range, from_mapping, load_toml
 from lastmile.core.errors import ConfigError
+from lastmile.sim.faults import FaultSpec
 from lastmile.sim.passengers import PassengerConfig
 from lastmile.sim.weather import parse_weather
 
@@ -23,12 +27,14 @@ class RingCar:
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class SideRoadCar:
-    """A car entering from the side road at ``spawn_t_s``, stopping at the all-way stop, then turning."""
+    """A car (or cyclist) entering from the side road at ``spawn_t_s``, stopping at the all-way stop,
+    then turning; turning right merges into the shuttle's lane."""
 
     spawn_t_s: float = 0.0
     turn: Literal["left", "right"] = "left"
     speed_mps: float = 6.0
     start_m: float = 100.0
+    kind: Literal["car", "cyclist"] = "car"
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -40,13 +46,44 @@ class ParkedCar:
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
+class StaticObstacle:
+    """Something standing on or beside the road at the shuttle's route s, ``d_m`` left of its lane centre.
+
+    ``kind`` "object" is a box, barrel or fallen load (class unknown to the stack); "car" is a vehicle
+    stopped or parked there (it may hide a pedestrian stepping out from behind it).
+    """
+
+    route_s_m: float
+    d_m: float = 0.0
+    kind: Literal["object", "car"] = "object"
+    length_m: float = 0.8
+    width_m: float = 0.8
+
+    def __post_init__(self) -> None:
+        check_range("static_obstacles.d_m", self.d_m, -8.0, 8.0)
+        check_range("static_obstacles.length_m", self.length_m, 0.1, 20.0)
+        check_range("static_obstacles.width_m", self.width_m, 0.1, 5.0)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
 class CrosswalkPedestrians:
-    """Pedestrians crossing at crosswalk number ``crosswalk`` (0-based), Poisson with ``mean_gap_s``."""
+    """Pedestrians crossing at crosswalk number ``crosswalk`` (0-based), Poisson with ``mean_gap_s``.
+
+    Each one after the first walks ``approach_m`` along the sidewalk up to the kerb before judging the
+    gap, so that it is in view before it can step out.
+    """
 
     crosswalk: int = 0
     mean_gap_s: float = 40.0
     first_after_s: float = 5.0
     speed_mps: float = 1.3
+    approach_m: float = 4.0
+
+    def __post_init__(self) -> None:
+        check_range("crosswalk_pedestrians.mean_gap_s", self.mean_gap_s, 0.1, 3600.0)
+        check_range("crosswalk_pedestrians.first_after_s", self.first_after_s, 0.0, 24 * 3600.0)
+        check_range("crosswalk_pedestrians.speed_mps", self.speed_mps, 0.1, 4.0)
+        check_range("crosswalk_pedestrians.approach_m", self.approach_m, 0.0, 50.0)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -83,9 +120,15 @@ class Scenario:
     parked_cars: tuple[ParkedCar, ...] = ()
     crosswalk_pedestrians: tuple[CrosswalkPedestrians, ...] = ()
     walkers: tuple[Walker, ...] = ()
+    static_obstacles: tuple[StaticObstacle, ...] = ()
+    faults: tuple[FaultSpec, ...] = ()
+    cruise_speed_mps: float | None = None
 
     def __post_init__(self) -> None:
         check_range("scenario.minutes", self.minutes, 0.01, 24 * 60.0)
+        if self.cruise_speed_mps is not None:
+            # The shuttle's operating speeds: up to its 20 km/h top speed.
+            check_range("scenario.cruise_speed_mps", self.cruise_speed_mps, 0.5, 20.0 / 3.6 + 1e-9)
         parse_weather(self.weather)
         if self.lateral_controller not in ("heading_pid", "pure_pursuit"):
             raise ConfigError(
@@ -97,6 +140,20 @@ class Scenario:
 def load_scenario(path: Path) -> Scenario:
     """Read and check a scenario TOML file."""
     return from_mapping(Scenario, load_toml(path), str(path))
+
+
+def scenario_to_toml(scenario: Scenario) -> str:
+    """The scenario as a TOML file that :func:`load_scenario` reads back to an equal scenario."""
+    return tomli_w.dumps(_without_none(dataclasses.asdict(scenario)))
+
+
+def _without_none(value: Any) -> Any:
+    # TOML has no null: an unset optional is simply absent, which loads back as its default None.
+    if isinstance(value, dict):
+        return {k: _without_none(v) for k, v in value.items() if v is not None}
+    if isinstance(value, list | tuple):
+        return [_without_none(v) for v in value]
+    return value
 
 
 def default_service(seed: int = 0, minutes: float = 10.0, weather: str = "clear") -> Scenario:

@@ -27,6 +27,7 @@ from lastmile.core.sensor_frames import (
 )
 from lastmile.core.stamp import Stamp
 from lastmile.sim.agents import agent_arrays
+from lastmile.sim.faults import FaultInjector
 from lastmile.sim.world import World
 
 
@@ -109,6 +110,7 @@ class SensorSuite:
         tick_us: int,
         radars: tuple[RadarSpec, ...] | None = None,
         rates: SensorRates | None = None,
+        faults: FaultInjector | None = None,
     ) -> None:
         self.world = world
         self.tick_us = tick_us
@@ -119,6 +121,7 @@ class SensorSuite:
             name: component_rng(seed, f"sensor.{name}")
             for name in ("gnss", "imu", "odom", "door", *(r.sensor_id for r in self.radars))
         }
+        self.faults = faults
         self._pending: list[_Pending] = []
         self._seq = 0
         self._odom_scale = 1.0 + float(self._rng["odom"].normal(0.0, 0.003))
@@ -126,8 +129,13 @@ class SensorSuite:
         self.person_in_doorway = False
 
     def _push(self, frame: SensorFrame, latency_us: int) -> None:
-        self._seq += 1
-        heapq.heappush(self._pending, _Pending(int(frame.stamp) + latency_us, self._seq, frame))
+        if self.faults is None:
+            delivered = [(frame, latency_us)]
+        else:
+            delivered = self.faults.capture(frame, latency_us, int(frame.stamp) / 1e6)
+        for out, latency in delivered:
+            self._seq += 1
+            heapq.heappush(self._pending, _Pending(int(out.stamp) + latency, self._seq, out))
 
     def push_stop_call(self, now_us: int, stop_id: str, source: str) -> None:
         """A stop button or seat button press, carried over V2I / the vehicle bus."""
@@ -276,6 +284,7 @@ def _range_rate(px: float, py: float, vx: float, vy: float, spec: RadarSpec, ego
 
 # Radar cross-sections (dBsm) by class, typical 77 GHz values.
 RCS_DBSM = {
+    ObjectClass.UNKNOWN: 0.0,  # a box, barrel or fallen load: between a pedestrian and a car
     ObjectClass.CAR: 10.0,
     ObjectClass.PEDESTRIAN: -5.0,
     ObjectClass.CYCLIST: -2.0,

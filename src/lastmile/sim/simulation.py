@@ -21,6 +21,7 @@ from lastmile.core.vehicle_messages import ActuatorCommand
 from lastmile.hdmap.model import HDMap
 from lastmile.hdmap.routing import route, route_polyline
 from lastmile.sim.agents import Agent, PathCar, StopLineOnPath, WalkingAgent
+from lastmile.sim.faults import FaultInjector
 from lastmile.sim.judge import Judge
 from lastmile.sim.operator import OperatorModel
 from lastmile.sim.passengers import PassengerModel
@@ -31,6 +32,7 @@ from lastmile.sim.weather import parse_weather
 from lastmile.sim.world import World
 
 CAR_LENGTH_M, CAR_WIDTH_M = 4.5, 1.8
+CYCLE_LENGTH_M, CYCLE_WIDTH_M = 1.8, 0.6
 LANE_WIDTH_M = 3.5
 
 
@@ -55,7 +57,8 @@ class Simulation:
         self.world = World(
             hdmap, ego, agents, parse_weather(scenario.weather), component_rng(scenario.seed, "agents")
         )
-        self.sensors = SensorSuite(self.world, scenario.seed, tick_us)
+        self.faults = FaultInjector(scenario.faults, scenario.seed)
+        self.sensors = SensorSuite(self.world, scenario.seed, tick_us, faults=self.faults)
         self.passengers = PassengerModel(
             hdmap.stops, scenario.passengers, component_rng(scenario.seed, "passengers"), geometry.seats
         )
@@ -74,6 +77,10 @@ class Simulation:
         """Where the radars sit, which the stack is configured with (as a real vehicle's calibration)."""
         return {r.sensor_id: r.base_from_sensor for r in self.sensors.radars}
 
+    def module_fault(self, module: str) -> str | None:
+        """ "hang" or "raise" while the scenario injects a fault into the stack module ``module``."""
+        return self.faults.module_fault(module, self.world.t_s)
+
     def advance_world(self, tick: int) -> None:
         w = self.world
         w.t_s = tick * self.dt_s
@@ -82,7 +89,12 @@ class Simulation:
             path, lines = self._side_paths[spec.turn]
             first_line = lines[0].s_m if lines else path.length_m / 2.0
             start_s = max(0.0, first_line - spec.start_m)
-            w.agents.append(_path_car(self._next_id, path, start_s, spec.speed_mps, lines))
+            car = _path_car(self._next_id, path, start_s, spec.speed_mps, lines)
+            if spec.kind == "cyclist":
+                car.cls, car.rcs_dbsm = ObjectClass.CYCLIST, RCS_DBSM[ObjectClass.CYCLIST]
+                car.length_m, car.width_m = CYCLE_LENGTH_M, CYCLE_WIDTH_M
+                car.max_accel_mps2, car.min_gap_m = 0.8, 1.5
+            w.agents.append(car)
             self._next_id += 1
         self.passengers.step_arrivals(w.t_s)
         for stop_id, source in self.passengers.new_calls:
@@ -239,6 +251,22 @@ def _build_agents(scenario: Scenario, hdmap: HDMap, service_route: Polyline) -> 
                 rcs_dbsm=RCS_DBSM[ObjectClass.CAR],
             )
         )
+    for obstacle in scenario.static_obstacles:
+        x, y, yaw = service_route.point_at(obstacle.route_s_m)
+        cls = ObjectClass.CAR if obstacle.kind == "car" else ObjectClass.UNKNOWN
+        agents.append(
+            Agent(
+                id=len(agents) + 1,
+                cls=cls,
+                x_m=x - obstacle.d_m * math.sin(yaw),
+                y_m=y + obstacle.d_m * math.cos(yaw),
+                yaw_rad=yaw,
+                speed_mps=0.0,
+                length_m=obstacle.length_m,
+                width_m=obstacle.width_m,
+                rcs_dbsm=RCS_DBSM[cls],
+            )
+        )
     for group in scenario.crosswalk_pedestrians:
         if not 0 <= group.crosswalk < len(hdmap.crosswalks):
             raise ConfigError(
@@ -258,6 +286,8 @@ def _build_agents(scenario: Scenario, hdmap: HDMap, service_route: Polyline) -> 
                 3.5,
                 respawn=True,
                 start_after_s=group.first_after_s,
+                mean_gap_s=group.mean_gap_s,
+                approach_m=group.approach_m,
             )
         )
     for walker in scenario.walkers:
@@ -292,6 +322,8 @@ def _walker(
     gap_s: float,
     respawn: bool = False,
     start_after_s: float = 0.0,
+    mean_gap_s: float = 30.0,
+    approach_m: float = 0.0,
 ) -> WalkingAgent:
     small = cls == ObjectClass.ANIMAL
     return WalkingAgent(
@@ -310,4 +342,6 @@ def _walker(
         gap_s=gap_s,
         respawn=respawn,
         start_after_s=start_after_s,
+        mean_gap_s=mean_gap_s,
+        approach_m=approach_m,
     )

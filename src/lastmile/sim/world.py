@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lastmile.core.geometry import point_in_polygon, rectangle_corners_m
+from lastmile.core.geometry import PreparedPolygon, rectangle_corners_m
 from lastmile.core.object_class import ObjectClass
 from lastmile.core.polyline import Polyline
 from lastmile.core.vehicle import VehicleGeometry
@@ -43,7 +43,6 @@ class World:
         agents: list[Agent],
         weather: Weather,
         agent_rng: np.random.Generator,
-        pedestrian_gap_s: float = 30.0,
     ) -> None:
         self.hdmap = hdmap
         self.ego = ego
@@ -52,11 +51,10 @@ class World:
         self.weather = weather
         self.effects: WeatherEffects = WEATHER_EFFECTS[weather]
         self.agent_rng = agent_rng
-        self.pedestrian_gap_s = pedestrian_gap_s
         self.t_s = 0.0
         self.arbiter = AllWayStopArbiter()
         self.stop_lines = [_stop_line_truth(hdmap, sl) for sl in hdmap.stop_lines]
-        self.boxes = {aws.id: np.asarray(aws.conflict_polygon, dtype=float) for aws in hdmap.all_way_stops}
+        self.boxes = {aws.id: PreparedPolygon(aws.conflict_polygon) for aws in hdmap.all_way_stops}
         self._leader_cache: dict[int, tuple[float, float, float]] = {}
         self._vehicles_cache_t = -1.0
         self._vehicles: list[tuple[int, float, float, float, float, float, float]] = []
@@ -160,7 +158,7 @@ class World:
         occupied: set[int] = set()
         for vid, x, y, *_ in self.vehicles():
             for box in self.boxes.values():
-                if point_in_polygon(x, y, box):
+                if box.contains(x, y):
                     occupied.add(vid)
         self.arbiter.box_occupied_by = occupied
 

@@ -1,0 +1,89 @@
+"""The sweep's report: a pass/fail table per test-plan group and per scenario, and every incident.
+
+Reads the sweep summary (the dict ``summary.json`` holds); it never runs anything.
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+
+
+def write_sweep_report(summary: dict[str, Any], out_dir: Path, title: str) -> Path:
+    """Write ``out_dir/report.md`` (and ``outcomes.png``); returns the report's path."""
+    rows = summary["rows"]
+    groups: dict[str, list[dict[str, Any]]] = defaultdict(list)
+    for row in rows:
+        groups[row["group"]].append(row)
+    lines = [
+        f"# {title}",
+        "",
+        f"{summary['scenarios']} scenarios: **{summary['passed']} passed, {summary['failed']} failed**; "
+        f"{summary['collisions_total']} collisions, of which {summary['collisions_at_fault']} at fault.",
+        "",
+        "![outcomes per group](outcomes.png)",
+        "",
+        "## By group",
+        "",
+        "| group | scenarios | passed | failed |",
+        "|---|---:|---:|---:|",
+    ]
+    for name, members in groups.items():
+        ok = sum(1 for r in members if r["passed"])
+        lines.append(f"| {name} | {len(members)} | {ok} | {len(members) - ok} |")
+    lines += [
+        "",
+        "## Scenarios",
+        "",
+        "| scenario | weather | faults | result | failed checks |",
+        "|---|---|---|---|---|",
+    ]
+    for r in rows:
+        failed = "; ".join(f"{k}: {v['detail']}" for k, v in r["checks"].items() if not v["ok"])
+        faults = ", ".join(r["faults"]) or "-"
+        verdict = "PASS" if r["passed"] else "**FAIL**"
+        lines.append(f"| `{r['name']}` | {r['weather']} | {faults} | {verdict} | {failed or '-'} |")
+    lines += ["", "## Collisions and rule violations", ""]
+    incidents = [(r, i) for r in rows for i in r["incidents"] if i["kind"] in ("collision", "rule_violation")]
+    if not incidents:
+        lines.append("None.")
+    else:
+        lines += [
+            "| scenario file | t (s) | what | at fault | black-box recording |",
+            "|---|---:|---|---|---|",
+        ]
+        for r, i in incidents:
+            what = i["kind"] if i["kind"] == "collision" else f"rule violation: {i.get('rule', '')}"
+            if i["kind"] == "collision":
+                what += f" with {i.get('agent_class', '?')} {i.get('agent_id', '')}"
+                fault = "yes" if i.get("at_fault") else "no"
+            else:
+                fault = "yes"  # breaking a rule is the shuttle's doing
+            lines.append(
+                f"| `{r['scenario_file']}` | {i['t_s']:.2f} | {what} | {fault} | {r['recording'] or 'none'} |"
+            )
+    path = out_dir / "report.md"
+    path.write_text("\n".join(lines) + "\n")
+    _plot(groups, out_dir / "outcomes.png")
+    return path
+
+
+def _plot(groups: dict[str, list[dict[str, Any]]], path: Path) -> None:
+    names = list(groups)
+    passed = [sum(1 for r in groups[n] if r["passed"]) for n in names]
+    failed = [len(groups[n]) - p for n, p in zip(names, passed, strict=True)]
+    fig, ax = plt.subplots(figsize=(8, 0.6 * len(names) + 1.5))
+    ax.barh(names, passed, color="tab:green", label="passed")
+    ax.barh(names, failed, left=passed, color="tab:red", label="failed")
+    ax.set_xlabel("scenarios")
+    ax.legend(loc="lower right")
+    ax.invert_yaxis()
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)

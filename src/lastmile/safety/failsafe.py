@@ -1,0 +1,294 @@
+"""Fail-safe arbitration: malfunction signals -> one latched SafetyDirective; the actuator-command gate."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from lastmile.core.errors import ConfigError
+from lastmile.core.safety_messages import (
+    FailSafeLevel,
+    MalfunctionKind,
+    MalfunctionSignal,
+    MrmKind,
+    SafetyDirective,
+)
+from lastmile.core.stamp import Stamp
+from lastmile.core.vehicle_messages import ActuatorCommand
+from lastmile.hdmap.layers import SLayerDatabase
+
+# Causes that take away what a pull-over needs (a trusted pose near the curb, a view of the curb side,
+# a working planner): with any of them active the manoeuvre stops in lane instead.
+PULLOVER_BLOCKERS = frozenset(
+    {
+        MalfunctionKind.LOCALIZATION_INVALID,
+        MalfunctionKind.LOCALIZATION_COVARIANCE,
+        MalfunctionKind.GNSS_LOST,
+        MalfunctionKind.OFF_MAP,
+        MalfunctionKind.OFF_ROUTE,
+        MalfunctionKind.MODULE_SILENT,
+        MalfunctionKind.MODULE_EXCEPTION,
+        MalfunctionKind.MODULE_UNHEALTHY,
+        MalfunctionKind.SENSOR_SILENT,
+        MalfunctionKind.SENSOR_FROZEN,
+        MalfunctionKind.SENSOR_GARBAGE,
+        MalfunctionKind.SENSOR_BLOCKAGE,
+    }
+)
+
+# Levels above NONE, most severe first (precomputed: iterating an Enum is slow in a per-tick loop).
+_LEVELS_DOWN = tuple(sorted((lv for lv in FailSafeLevel if lv != FailSafeLevel.NONE), reverse=True))
+
+# Road types of the s-layer database where a shuttle may stop at the curb: normal road, bus bay.
+_PULLOVER_ROAD_TYPES = (0, 3)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class FailSafeConfig:
+    """Arbitration and gate parameters.
+
+    Attributes:
+        clear_hold_us: per level, how long no signal of that level (or above) must have been seen before
+            the latched level may drop below it (hysteresis against chattering monitors).
+        estop_needs_reset: EMERGENCY_STOP stays latched until :meth:`FailSafeArbiter.operator_reset`
+            (ISO 22737: a human confirms before automated driving resumes after an e-stop).
+        default_speed_cap_mps: cap for SPEED_LIMIT signals that carry none (Snow Lion: 0.5 m/s).
+        mrm_decel_mps2: comfortable deceleration of the minimal risk manoeuvre.
+        max_decel_mps2: deceleration of the emergency stop (the vehicle's maximum).
+        standstill_mps: below this the vehicle counts as stopped.
+        speed_gain_1ps: the gate's proportional gain bringing speed down to the cap.
+        pullover_lookahead_m: a curb must be reachable within this route distance past the comfortable
+            stopping point for the MRM to pull over.
+        pullover_max_curb_d_m: the curb must be at most this far right of the lane centre.
+    """
+
+    clear_hold_us: dict[FailSafeLevel, int] = field(
+        default_factory=lambda: {
+            FailSafeLevel.SPEED_LIMIT: 2_000_000,
+            FailSafeLevel.TAKEOVER_REQUEST: 3_000_000,
+            FailSafeLevel.MINIMAL_RISK_MANOEUVRE: 5_000_000,
+            FailSafeLevel.EMERGENCY_STOP: 5_000_000,
+        }
+    )
+    estop_needs_reset: bool = True
+    default_speed_cap_mps: float = 0.5
+    mrm_decel_mps2: float = 1.0
+    max_decel_mps2: float = 5.0
+    standstill_mps: float = 0.05
+    speed_gain_1ps: float = 1.0
+    pullover_lookahead_m: float = 15.0
+    pullover_max_curb_d_m: float = 4.0
+
+    def __post_init__(self) -> None:
+        missing = [
+            lv.name for lv in FailSafeLevel if lv != FailSafeLevel.NONE and lv not in self.clear_hold_us
+        ]
+        if missing:
+            raise ConfigError(
+                f"FailSafeConfig.clear_hold_us: expected a hold for every level, missing {missing}"
+            )
+        for name in ("mrm_decel_mps2", "max_decel_mps2", "speed_gain_1ps"):
+            if not getattr(self, name) > 0:
+                raise ConfigError(f"FailSafeConfig.{name}: expected > 0, got {getattr(self, name)}")
+        if self.mrm_decel_mps2 > self.max_decel_mps2:
+            raise ConfigError(
+                f"FailSafeConfig: expected mrm_decel_mps2 <= max_decel_mps2, got "
+                f"{self.mrm_decel_mps2} > {self.max_decel_mps2}"
+            )
+
+
+class FailSafeArbiter:
+    """Picks the highest-priority response among the active signals and latches it.
+
+    Escalation is immediate. A level is held while any signal at or above it was seen within its
+    ``clear_hold_us``; then the level drops to the highest still held. EMERGENCY_STOP additionally
+    needs standstill and (by default) :meth:`operator_reset`. Speed caps combine by minimum over the
+    signals seen within the SPEED_LIMIT hold.
+    """
+
+    def __init__(self, config: FailSafeConfig | None = None, layers: SLayerDatabase | None = None) -> None:
+        self.config = config or FailSafeConfig()
+        self.layers = layers
+        self._last_seen: dict[FailSafeLevel, int] = {}
+        self._reasons: dict[FailSafeLevel, tuple[str, ...]] = {}
+        self._caps: dict[str, tuple[float, int]] = {}
+        self._level = FailSafeLevel.NONE
+        self._since_us = 0
+        self._estop_latched = False
+        self._reset_requested = False
+        self._mrm: MrmKind = MrmKind.NONE
+        self._mrm_stop_s: float | None = None
+        self.history: list[tuple[int, str, str]] = []
+        """(stamp_us, from level, to level) of every level change."""
+
+    @property
+    def level(self) -> FailSafeLevel:
+        return self._level
+
+    def operator_reset(self) -> None:
+        """The operator confirms the e-stop cause is gone (takes effect once the vehicle stands still)."""
+        self._reset_requested = True
+
+    def update(
+        self,
+        now_us: int,
+        signals: Iterable[MalfunctionSignal],
+        *,
+        speed_mps: float = 0.0,
+        route_s_m: float | None = None,
+    ) -> SafetyDirective:
+        """Arbitrate the signals active at ``now_us``.
+
+        Args:
+            signals: every signal the monitors report now (a signal absent now is "cleared now").
+            speed_mps: current speed estimate (standstill check, MRM stopping distance).
+            route_s_m: front-bumper route s, for the MRM's stopping point and the pull-over search.
+        """
+        c = self.config
+        active = list(signals)
+        blockers = False
+        for sig in active:
+            lv = sig.level
+            if lv == FailSafeLevel.NONE:
+                continue
+            if sig.kind in PULLOVER_BLOCKERS:
+                blockers = True
+            for covered in _LEVELS_DOWN:
+                if covered <= lv:
+                    self._last_seen[covered] = int(now_us)
+            cap = sig.speed_cap_mps
+            if cap is None and lv == FailSafeLevel.SPEED_LIMIT:
+                cap = c.default_speed_cap_mps
+            if cap is not None:
+                self._caps[sig.source + "/" + sig.kind.value] = (cap, int(now_us))
+        if active:
+            top = max(s.level for s in active)
+            if top > FailSafeLevel.NONE:
+                worst_first = sorted(active, key=lambda s: -int(s.level))
+                self._reasons[top] = tuple(s.reason for s in worst_first if s.level > FailSafeLevel.NONE)
+
+        held = FailSafeLevel.NONE
+        for lv in _LEVELS_DOWN:
+            seen = self._last_seen.get(lv)
+            if seen is not None and now_us - seen < c.clear_hold_us[lv]:
+                held = lv
+                break
+        stopped = abs(speed_mps) < c.standstill_mps
+        if held == FailSafeLevel.EMERGENCY_STOP:
+            self._estop_latched = True
+            self._reset_requested = False
+        elif self._estop_latched:
+            if stopped and (self._reset_requested or not c.estop_needs_reset):
+                self._estop_latched = False
+                self._reset_requested = False
+            else:
+                held = FailSafeLevel.EMERGENCY_STOP
+
+        if held != self._level:
+            self.history.append((int(now_us), self._level.name, held.name))
+            if (
+                held >= FailSafeLevel.MINIMAL_RISK_MANOEUVRE > self._level
+                or held < FailSafeLevel.MINIMAL_RISK_MANOEUVRE
+            ):
+                self._mrm, self._mrm_stop_s = MrmKind.NONE, None
+            self._level = held
+            self._since_us = int(now_us)
+        if held >= FailSafeLevel.MINIMAL_RISK_MANOEUVRE and self._mrm == MrmKind.NONE:
+            # Chosen once when the manoeuvre starts, so the stopping point does not run away.
+            self._mrm, self._mrm_stop_s = self._plan_mrm(speed_mps, route_s_m, blockers)
+
+        cap_window = c.clear_hold_us[FailSafeLevel.SPEED_LIMIT]
+        self._caps = {k: v for k, v in self._caps.items() if now_us - v[1] < cap_window}
+        speed_cap = (
+            min((v[0] for v in self._caps.values()), default=None) if held > FailSafeLevel.NONE else None
+        )
+        if held == FailSafeLevel.EMERGENCY_STOP:
+            speed_cap = 0.0
+        reasons: tuple[str, ...] = ()
+        for lv in _LEVELS_DOWN:
+            if lv <= held and lv in self._reasons:
+                reasons = self._reasons[lv]
+                break
+        estop = held == FailSafeLevel.EMERGENCY_STOP
+        return SafetyDirective(
+            stamp=Stamp(int(now_us)),
+            level=held,
+            speed_cap_mps=speed_cap,
+            mrm=self._mrm if held >= FailSafeLevel.MINIMAL_RISK_MANOEUVRE else MrmKind.NONE,
+            mrm_decel_mps2=c.max_decel_mps2 if estop else c.mrm_decel_mps2,
+            mrm_stop_s_m=self._mrm_stop_s if held >= FailSafeLevel.MINIMAL_RISK_MANOEUVRE else None,
+            emergency_stop=estop,
+            takeover_request=held >= FailSafeLevel.TAKEOVER_REQUEST,
+            since_us=self._since_us,
+            reasons=reasons,
+        )
+
+    def _plan_mrm(
+        self, speed_mps: float, route_s_m: float | None, blockers: bool
+    ) -> tuple[MrmKind, float | None]:
+        """Stop in lane at a comfortable deceleration, or pull over if a curb is within reach."""
+        c = self.config
+        if route_s_m is None:
+            return MrmKind.STOP_IN_LANE, None
+        stop_s = route_s_m + max(speed_mps, 0.0) ** 2 / (2.0 * c.mrm_decel_mps2)
+        if blockers or self.layers is None:
+            return MrmKind.STOP_IN_LANE, stop_s
+        spot = self.pullover_s_m(stop_s)
+        if spot is None:
+            return MrmKind.STOP_IN_LANE, stop_s
+        return MrmKind.PULL_OVER, spot
+
+    def pullover_s_m(self, from_s_m: float) -> float | None:
+        """First route s in [from_s_m, from_s_m + lookahead] with a curb close by on a plain road or bay."""
+        layers, c = self.layers, self.config
+        if layers is None:
+            return None
+        s = np.arange(from_s_m, from_s_m + c.pullover_lookahead_m, layers.step_m)
+        idx = layers.record_indices(s)
+        curb = layers.curb_right_d_m[idx]
+        ok = np.isin(layers.road_type[idx], _PULLOVER_ROAD_TYPES) & np.isfinite(curb)
+        ok &= np.abs(np.where(np.isfinite(curb), curb, np.inf)) <= c.pullover_max_curb_d_m
+        hit = np.flatnonzero(ok)
+        return float(s[hit[0]]) if hit.size else None
+
+
+def apply_safety_gate(
+    command: ActuatorCommand,
+    directive: SafetyDirective,
+    speed_mps: float,
+    config: FailSafeConfig | None = None,
+) -> ActuatorCommand:
+    """The actuator-command gate: enforce the directive on the stack's command, whatever the stack did.
+
+    - EMERGENCY_STOP: maximum deceleration, ``emergency_brake`` set, steering kept (stay in lane),
+      door closed.
+    - MINIMAL_RISK_MANOEUVRE: no acceleration; at least ``mrm_decel_mps2`` of braking while moving
+      (a stronger brake in the command is kept), hold the brake at standstill; steering kept so the
+      stack can still pull over.
+    - any level with a speed cap: acceleration at most ``speed_gain * (cap - speed)``, floored at the
+      comfortable MRM deceleration, so the vehicle settles on the cap without a hard brake.
+
+    Returns:
+        The command unchanged when nothing needs enforcing, else a new command with the same stamp.
+    """
+    c = config or FailSafeConfig()
+    accel = command.accel_mps2
+    door = command.door_open
+    moving = abs(speed_mps) >= c.standstill_mps
+    if directive.level == FailSafeLevel.EMERGENCY_STOP:
+        return dataclasses.replace(
+            command, accel_mps2=-c.max_decel_mps2, emergency_brake=True, door_open=door and not moving
+        )
+    if directive.level >= FailSafeLevel.MINIMAL_RISK_MANOEUVRE:
+        accel = min(accel, -directive.mrm_decel_mps2 if moving else -c.mrm_decel_mps2)
+        door = door and not moving
+    if directive.speed_cap_mps is not None:
+        limit = max(c.speed_gain_1ps * (directive.speed_cap_mps - speed_mps), -c.mrm_decel_mps2)
+        accel = min(accel, limit)
+    if math.isclose(accel, command.accel_mps2, abs_tol=0.0) and door == command.door_open:
+        return command
+    return dataclasses.replace(command, accel_mps2=accel, door_open=door)

@@ -1,0 +1,611 @@
+"""WATonoBus's reliability monitor: location (ODD), weather, sensor performance and localization integrity."""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields
+
+import numpy as np
+
+from lastmile.core.errors import ConfigError, MessageError
+from lastmile.core.polyline import Polyline
+from lastmile.core.safety_messages import (
+    FailSafeLevel,
+    MalfunctionKind,
+    MalfunctionSignal,
+    SensorDiagnostics,
+    WeatherReport,
+)
+from lastmile.core.sensor_frames import (
+    CameraDetections,
+    DoorSensorFrame,
+    GnssInsFrame,
+    ImuFrame,
+    LidarSweep,
+    RadarFrame,
+    SensorFrame,
+    StopCallFrame,
+    WheelOdometryFrame,
+)
+from lastmile.core.stamp import Stamp
+from lastmile.core.vehicle_messages import LocalizationEstimate
+from lastmile.hdmap.model import HDMap
+
+K = MalfunctionKind
+L = FailSafeLevel
+
+DEFAULT_LEVELS: dict[MalfunctionKind, FailSafeLevel] = {
+    K.SENSOR_SILENT: L.MINIMAL_RISK_MANOEUVRE,
+    K.SENSOR_RATE_LOW: L.SPEED_LIMIT,
+    K.SENSOR_FROZEN: L.MINIMAL_RISK_MANOEUVRE,
+    K.SENSOR_GARBAGE: L.MINIMAL_RISK_MANOEUVRE,
+    K.SENSOR_BLOCKAGE: L.MINIMAL_RISK_MANOEUVRE,
+    K.SENSOR_NOISE: L.SPEED_LIMIT,
+    K.SENSOR_LATENCY: L.SPEED_LIMIT,
+    K.SENSOR_OUT_OF_ORDER: L.SPEED_LIMIT,
+    K.OFF_MAP: L.EMERGENCY_STOP,
+    K.OFF_ROUTE: L.MINIMAL_RISK_MANOEUVRE,
+    K.WEATHER_VISIBILITY: L.MINIMAL_RISK_MANOEUVRE,
+    K.WEATHER_PRECIPITATION: L.TAKEOVER_REQUEST,
+    K.LOCALIZATION_INVALID: L.EMERGENCY_STOP,
+    K.LOCALIZATION_COVARIANCE: L.SPEED_LIMIT,
+    K.GNSS_LOST: L.TAKEOVER_REQUEST,
+    K.LOCALIZATION_GATE_REJECTIONS: L.SPEED_LIMIT,
+}
+"""Fail-safe level of each malfunction at its out-of-ODD threshold (degraded thresholds ask SPEED_LIMIT).
+
+Why: losing the pose (invalid, or off the drivable area) means the vehicle cannot stay in the drivable
+area, the one hazard ISO 22737 answers with an immediate stop; losing a sensor, a frozen or garbage
+stream or a blocked view leaves the pose and the other sensors, enough for a comfortable stop; a poor
+but usable input (rate, latency, noise, covariance: Snow Lion's 0.5 m/s) only slows the shuttle; a
+lost GNSS fix with the EKF still dead-reckoning, or heavy precipitation, is for the operator to judge.
+"""
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SensorSpec:
+    """One watched sensor stream.
+
+    Attributes:
+        key: stream key as :func:`sensor_key` names it ("gnss", "imu", "odom", "door", a radar, LiDAR or
+            camera id).
+        rate_hz: expected frame rate, > 0.
+        max_latency_us: arrival minus capture stamp above this is a latency spike.
+        frozen_after: this many identical payloads in a row mean a frozen driver (None: not checked, for
+            streams that legitimately repeat, such as door state or odometry at standstill). A freeze is
+            seen ``(frozen_after - 1)`` periods after it starts: keep that within one period + 100 ms.
+        min_points: a LiDAR sweep with fewer points is blocked (0: not checked).
+        silent_level, frozen_level: override the default levels for this stream (a rear radar matters
+            less than the front LiDAR); None keeps :data:`DEFAULT_LEVELS`.
+    """
+
+    key: str
+    rate_hz: float
+    max_latency_us: int = 300_000
+    frozen_after: int | None = 3
+    min_points: int = 0
+    silent_level: FailSafeLevel | None = None
+    frozen_level: FailSafeLevel | None = None
+
+    def __post_init__(self) -> None:
+        if not self.rate_hz > 0 or self.max_latency_us <= 0:
+            raise ConfigError(
+                f"SensorSpec {self.key!r}: expected rate_hz > 0 and max_latency_us > 0, got "
+                f"{self.rate_hz}, {self.max_latency_us}"
+            )
+        if self.frozen_after is not None and self.frozen_after < 2:
+            raise ConfigError(
+                f"SensorSpec {self.key!r}: expected frozen_after >= 2 or None, got {self.frozen_after}"
+            )
+
+    @property
+    def period_us(self) -> int:
+        return round(1e6 / self.rate_hz)
+
+
+def default_sensor_specs() -> tuple[SensorSpec, ...]:
+    """The simulator's default suite (sim/sensors.py): GNSS 10 Hz, IMU and odometry 50 Hz, radars 20 Hz."""
+    return (
+        SensorSpec(key="gnss", rate_hz=10.0),
+        SensorSpec(key="imu", rate_hz=50.0, frozen_after=5),
+        SensorSpec(key="odom", rate_hz=50.0, frozen_after=None),
+        SensorSpec(key="door", rate_hz=10.0, frozen_after=None, silent_level=FailSafeLevel.TAKEOVER_REQUEST),
+        SensorSpec(key="radar_front", rate_hz=20.0),
+        SensorSpec(key="radar_rear", rate_hz=20.0, silent_level=FailSafeLevel.SPEED_LIMIT),
+    )
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ReliabilityConfig:
+    """Thresholds of the reliability monitor (units in the names).
+
+    Attributes:
+        sensors: watched streams.
+        levels: fail-safe level per malfunction kind (missing kinds use :data:`DEFAULT_LEVELS`).
+        silent_factor, silent_margin_us: a stream is silent after ``factor * period + margin`` without a
+            frame (defaults detect a dead sensor within one period + 80 ms, + one check period).
+        rate_window_us, min_rate_fraction: measured rate over the window below ``fraction * rate_hz``.
+        event_hold_us: a one-off event (garbage frame, latency spike, out-of-order stamp) stays active
+            this long.
+        out_of_order_max: more stamps going backwards within ``rate_window_us`` than this is a fault.
+        blockage_max, noise_max: perception's blockage fraction / noise level above these.
+        visibility_degraded_m, visibility_min_m: below the first, speed limit; below the second, out of ODD.
+        precipitation_degraded_mmph, precipitation_max_mmph: the same for precipitation.
+        weather_speed_cap_mps: cap in degraded weather.
+        route_offset_max_m: the pose farther than this from the route centre line is off route.
+        pos_std_degraded_m, pos_std_max_m: localization std above the first: speed limit
+            (Snow Lion's forced 0.5 m/s); above the second: the MRM.
+        covariance_speed_cap_mps: that cap.
+        gnss_lost_us: no usable GNSS fix for this long.
+        gate_rejections_max, gate_window_us: more EKF gate rejections than this within the window.
+        startup_grace_us: checks of things never seen (a stream, a valid pose) start after this.
+    """
+
+    sensors: tuple[SensorSpec, ...] = field(default_factory=default_sensor_specs)
+    levels: Mapping[MalfunctionKind, FailSafeLevel] = field(default_factory=dict)
+    silent_factor: float = 1.0
+    silent_margin_us: int = 80_000
+    rate_window_us: int = 2_000_000
+    min_rate_fraction: float = 0.6
+    event_hold_us: int = 1_000_000
+    out_of_order_max: int = 1
+    blockage_max: float = 0.3
+    noise_max: float = 0.25
+    visibility_degraded_m: float = 150.0
+    visibility_min_m: float = 50.0
+    precipitation_degraded_mmph: float = 4.0
+    precipitation_max_mmph: float = 16.0
+    weather_speed_cap_mps: float = 2.5
+    route_offset_max_m: float = 5.0
+    pos_std_degraded_m: float = 0.3
+    pos_std_max_m: float = 1.0
+    covariance_speed_cap_mps: float = 0.5
+    gnss_lost_us: int = 2_000_000
+    gate_rejections_max: int = 3
+    gate_window_us: int = 2_000_000
+    startup_grace_us: int = 2_000_000
+
+    def __post_init__(self) -> None:
+        keys = [s.key for s in self.sensors]
+        if len(set(keys)) != len(keys):
+            raise ConfigError(f"ReliabilityConfig.sensors: expected unique keys, got {keys}")
+        if not (self.visibility_min_m < self.visibility_degraded_m):
+            raise ConfigError(
+                "ReliabilityConfig: expected visibility_min_m < visibility_degraded_m, got "
+                f"{self.visibility_min_m} >= {self.visibility_degraded_m}"
+            )
+        if not (self.precipitation_degraded_mmph < self.precipitation_max_mmph):
+            raise ConfigError(
+                "ReliabilityConfig: expected precipitation_degraded_mmph < precipitation_max_mmph, got "
+                f"{self.precipitation_degraded_mmph} >= {self.precipitation_max_mmph}"
+            )
+        if not (self.pos_std_degraded_m < self.pos_std_max_m):
+            raise ConfigError(
+                "ReliabilityConfig: expected pos_std_degraded_m < pos_std_max_m, got "
+                f"{self.pos_std_degraded_m} >= {self.pos_std_max_m}"
+            )
+        if not 0.0 < self.min_rate_fraction < 1.0:
+            raise ConfigError(
+                f"ReliabilityConfig.min_rate_fraction: expected in (0, 1), got {self.min_rate_fraction}"
+            )
+
+    def level(self, kind: MalfunctionKind) -> FailSafeLevel:
+        return self.levels.get(kind, DEFAULT_LEVELS[kind])
+
+
+def sensor_key(frame: SensorFrame) -> str | None:
+    """The stream a frame belongs to (None for event-driven frames such as stop calls)."""
+    if isinstance(frame, RadarFrame | LidarSweep):
+        return frame.sensor_id
+    if isinstance(frame, CameraDetections):
+        return frame.camera_id
+    if isinstance(frame, GnssInsFrame):
+        return "gnss"
+    if isinstance(frame, ImuFrame):
+        return "imu"
+    if isinstance(frame, WheelOdometryFrame):
+        return "odom"
+    if isinstance(frame, DoorSensorFrame):
+        return "door"
+    if isinstance(frame, StopCallFrame):
+        return None
+    raise MessageError(f"sensor_key: expected a SensorFrame, got {type(frame).__name__}")
+
+
+def _payload_digest(frame: SensorFrame) -> tuple[object, ...] | None:
+    """Everything but the stamp, hashable; None when there is no content to compare (empty lists)."""
+    parts: list[object] = []
+    for f in fields(frame):
+        if f.name == "stamp":
+            continue
+        value = getattr(frame, f.name)
+        if isinstance(value, np.ndarray):
+            if value.size == 0:
+                return None
+            parts.append(hash(value.tobytes()))
+        else:
+            parts.append(value)
+    return tuple(parts)
+
+
+def _garbage(frame: SensorFrame) -> str:
+    """Why a frame's content is unusable ('' if it is fine)."""
+    try:
+        frame.validate()
+    except MessageError as exc:
+        return str(exc)
+    for f in fields(frame):
+        value = getattr(frame, f.name)
+        if isinstance(value, float) and not math.isfinite(value):
+            return f"{type(frame).__name__}.{f.name} is {value}"
+    return ""
+
+
+class _Stream:
+    __slots__ = (
+        "arrivals",
+        "digest",
+        "events",
+        "first_us",
+        "last_arrival_us",
+        "last_stamp_us",
+        "out_of_order",
+        "points_low",
+        "repeats",
+        "spec",
+    )
+
+    def __init__(self, spec: SensorSpec) -> None:
+        self.spec = spec
+        self.arrivals: deque[int] = deque()
+        self.last_arrival_us = -1
+        self.last_stamp_us = -1
+        self.first_us = -1
+        self.digest: tuple[object, ...] | None = None
+        self.repeats = 0
+        self.points_low = False
+        self.out_of_order: deque[int] = deque()
+        # kind -> (last event time, reason) for one-off events held for event_hold_us.
+        self.events: dict[MalfunctionKind, tuple[int, str]] = {}
+
+
+class ReliabilityMonitor:
+    """Checks the inputs the stack depends on against the ODD and emits prioritised malfunction signals.
+
+    Feed it everything the stack receives (``observe_*``) and call :meth:`evaluate` once per check
+    (every base tick or every planning cycle); it returns the malfunctions active now. It keeps no
+    latch of its own: latching and hysteresis are the fail-safe arbiter's job.
+    """
+
+    def __init__(
+        self,
+        config: ReliabilityConfig | None = None,
+        hdmap: HDMap | None = None,
+        route: Polyline | None = None,
+    ) -> None:
+        self.config = config or ReliabilityConfig()
+        self.hdmap = hdmap
+        self.route = route
+        if hdmap is not None:
+            # The map builds its drivable raster on first use (about a second): do it now, not mid-drive.
+            hdmap.is_drivable(np.zeros((1, 2)))
+        self._streams = {s.key: _Stream(s) for s in self.config.sensors}
+        self._unknown_garbage: dict[str, tuple[int, str]] = {}
+        self._started_us: int | None = None
+        self._pose: LocalizationEstimate | None = None
+        self._pose_at_us = -1
+        self._ever_valid = False
+        self._route_s: float | None = None
+        self._location_for_us = -1
+        self._location_found: list[tuple[MalfunctionKind, str]] = []
+        self._last_fix_us: int | None = None
+        self._gnss_seen = False
+        self._gate: deque[tuple[int, int]] = deque()
+        self._gate_total: int | None = None
+        self._weather: WeatherReport | None = None
+        self._diagnostics: dict[str, SensorDiagnostics] = {}
+
+    # --- inputs ------------------------------------------------------------------------------------
+    def observe_frame(self, now_us: int, frame: SensorFrame) -> None:
+        """Every sensor frame the stack receives, at its arrival time ``now_us``."""
+        self._start(now_us)
+        key = sensor_key(frame)
+        if key is None:
+            return
+        bad = _garbage(frame)
+        st = self._streams.get(key)
+        if st is None:
+            if bad:
+                self._unknown_garbage[key] = (int(now_us), bad)
+            return
+        c = self.config
+        if st.first_us < 0:
+            st.first_us = int(now_us)
+        st.last_arrival_us = int(now_us)
+        st.arrivals.append(int(now_us))
+        while st.arrivals and st.arrivals[0] <= now_us - c.rate_window_us:
+            st.arrivals.popleft()
+        if bad:
+            st.events[K.SENSOR_GARBAGE] = (int(now_us), bad)
+            return  # garbage says nothing about freezing, latency or order
+        latency = now_us - frame.stamp
+        if latency > st.spec.max_latency_us:
+            st.events[K.SENSOR_LATENCY] = (
+                int(now_us),
+                f"latency {latency / 1e3:.0f} ms > {st.spec.max_latency_us / 1e3:.0f} ms",
+            )
+        if frame.stamp <= st.last_stamp_us:
+            st.out_of_order.append(int(now_us))
+            while st.out_of_order and st.out_of_order[0] <= now_us - c.rate_window_us:
+                st.out_of_order.popleft()
+            if len(st.out_of_order) > c.out_of_order_max:
+                st.events[K.SENSOR_OUT_OF_ORDER] = (
+                    int(now_us),
+                    f"{len(st.out_of_order)} stamps going back within {c.rate_window_us / 1e6:.0f} s, "
+                    f"last {frame.stamp} after {st.last_stamp_us}",
+                )
+        else:
+            st.last_stamp_us = int(frame.stamp)
+        if st.spec.frozen_after is not None:
+            digest = _payload_digest(frame)
+            if digest is not None and digest == st.digest:
+                st.repeats += 1
+            else:
+                st.repeats = 1 if digest is not None else 0
+            st.digest = digest
+        if isinstance(frame, LidarSweep) and st.spec.min_points > 0:
+            st.points_low = frame.points.shape[0] < st.spec.min_points
+        if isinstance(frame, GnssInsFrame):
+            self._gnss_seen = True
+            if frame.fix_ok:
+                self._last_fix_us = int(now_us)
+
+    def observe_localization(self, now_us: int, estimate: LocalizationEstimate) -> None:
+        """The EKF's estimate (once per check is enough)."""
+        self._start(now_us)
+        self._pose = estimate
+        self._pose_at_us = int(now_us)
+        self._ever_valid |= estimate.valid
+
+    def observe_gate_rejections(self, now_us: int, rejected_total: int) -> None:
+        """The EKF's cumulative count of fixes its chi-square gate rejected (``PoseEkf.rejected_fixes``)."""
+        self._start(now_us)
+        if self._gate_total is not None and rejected_total > self._gate_total:
+            self._gate.append((int(now_us), rejected_total - self._gate_total))
+        self._gate_total = rejected_total
+
+    def observe_weather(self, report: WeatherReport) -> None:
+        report.validate()
+        self._weather = report
+
+    def observe_diagnostics(self, diagnostics: SensorDiagnostics) -> None:
+        diagnostics.validate()
+        self._diagnostics[diagnostics.sensor_id] = diagnostics
+
+    def _start(self, now_us: int) -> None:
+        if self._started_us is None:
+            self._started_us = int(now_us)
+
+    # --- output ------------------------------------------------------------------------------------
+    def evaluate(self, now_us: int) -> tuple[MalfunctionSignal, ...]:
+        """The malfunctions active at ``now_us``, each with its fail-safe level."""
+        self._start(now_us)
+        out: list[MalfunctionSignal] = []
+        self._sensors(now_us, out)
+        self._location(now_us, out)
+        self._localization(now_us, out)
+        self._weather_checks(now_us, out)
+        return tuple(out)
+
+    def _emit(
+        self,
+        out: list[MalfunctionSignal],
+        now_us: int,
+        source: str,
+        kind: MalfunctionKind,
+        reason: str,
+        level: FailSafeLevel | None = None,
+        cap: float | None = None,
+    ) -> None:
+        out.append(
+            MalfunctionSignal(
+                stamp=Stamp(int(now_us)),
+                source=source,
+                kind=kind,
+                level=self.config.level(kind) if level is None else level,
+                reason=f"{source}: {reason}",
+                speed_cap_mps=cap,
+            )
+        )
+
+    def _sensors(self, now_us: int, out: list[MalfunctionSignal]) -> None:
+        c = self.config
+        assert self._started_us is not None
+        for key, st in self._streams.items():
+            src, spec = f"sensor:{key}", st.spec
+            timeout = c.silent_factor * spec.period_us + c.silent_margin_us
+            if st.last_arrival_us < 0:
+                if now_us - self._started_us > max(timeout, c.startup_grace_us):
+                    self._emit(out, now_us, src, K.SENSOR_SILENT, "no frame received yet", spec.silent_level)
+                continue
+            if now_us - st.last_arrival_us > timeout:
+                self._emit(
+                    out,
+                    now_us,
+                    src,
+                    K.SENSOR_SILENT,
+                    f"no frame for {(now_us - st.last_arrival_us) / 1e3:.0f} ms "
+                    f"(timeout {timeout / 1e3:.0f} ms)",
+                    spec.silent_level,
+                )
+                continue
+            while st.arrivals and st.arrivals[0] <= now_us - c.rate_window_us:
+                st.arrivals.popleft()
+            if now_us - st.first_us >= c.rate_window_us:
+                rate = len(st.arrivals) / (c.rate_window_us / 1e6)
+                if rate < c.min_rate_fraction * spec.rate_hz:
+                    self._emit(
+                        out,
+                        now_us,
+                        src,
+                        K.SENSOR_RATE_LOW,
+                        f"{rate:.1f} Hz < {c.min_rate_fraction:.0%} of {spec.rate_hz:.1f} Hz",
+                    )
+            if spec.frozen_after is not None and st.repeats >= spec.frozen_after:
+                self._emit(
+                    out,
+                    now_us,
+                    src,
+                    K.SENSOR_FROZEN,
+                    f"{st.repeats} identical frames in a row",
+                    spec.frozen_level,
+                )
+            if st.points_low:
+                self._emit(
+                    out, now_us, src, K.SENSOR_BLOCKAGE, f"fewer than {spec.min_points} points per sweep"
+                )
+            for kind, (at_us, reason) in list(st.events.items()):
+                if now_us - at_us >= c.event_hold_us:
+                    del st.events[kind]
+                    continue
+                self._emit(out, now_us, src, kind, reason)
+        for key, (at_us, reason) in list(self._unknown_garbage.items()):
+            if now_us - at_us < c.event_hold_us:
+                self._emit(out, now_us, f"sensor:{key}", K.SENSOR_GARBAGE, reason)
+            else:
+                del self._unknown_garbage[key]
+        for key, d in self._diagnostics.items():
+            if d.blockage_fraction > c.blockage_max:
+                self._emit(
+                    out,
+                    now_us,
+                    f"sensor:{key}",
+                    K.SENSOR_BLOCKAGE,
+                    f"blockage {d.blockage_fraction:.0%} > {c.blockage_max:.0%}",
+                )
+            if d.noise_level > c.noise_max:
+                self._emit(
+                    out,
+                    now_us,
+                    f"sensor:{key}",
+                    K.SENSOR_NOISE,
+                    f"noise {d.noise_level:.0%} > {c.noise_max:.0%}",
+                )
+
+    def _location(self, now_us: int, out: list[MalfunctionSignal]) -> None:
+        est = self._pose
+        if est is None or not est.valid:
+            return
+        if self._location_for_us != self._pose_at_us:
+            # The map and route look-ups cost tens of microseconds: once per new pose, not per check.
+            self._location_for_us = self._pose_at_us
+            self._location_found = self._location_faults(est)
+        for kind, reason in self._location_found:
+            self._emit(out, now_us, "odd", kind, reason)
+
+    def _location_faults(self, est: LocalizationEstimate) -> list[tuple[MalfunctionKind, str]]:
+        found: list[tuple[MalfunctionKind, str]] = []
+        pose = est.map_from_base
+        if self.hdmap is not None and not bool(self.hdmap.is_drivable(np.array([[pose.x_m, pose.y_m]]))[0]):
+            found.append((K.OFF_MAP, f"pose ({pose.x_m:.1f}, {pose.y_m:.1f}) not on a drivable lanelet"))
+        if self.route is not None:
+            limit = self.config.route_offset_max_m
+            f = self.route.project(pose.x_m, pose.y_m, hint_s_m=self._route_s, window_m=30.0)
+            if abs(f.d_m) > limit:
+                # The windowed projection may have lost the route; confirm with a global one.
+                f = self.route.project(pose.x_m, pose.y_m)
+            self._route_s = f.s_m
+            if abs(f.d_m) > limit:
+                found.append((K.OFF_ROUTE, f"{abs(f.d_m):.1f} m from the route > {limit:.1f} m"))
+        return found
+
+    def _localization(self, now_us: int, out: list[MalfunctionSignal]) -> None:
+        c = self.config
+        assert self._started_us is not None
+        after_grace = now_us - self._started_us > c.startup_grace_us
+        est = self._pose
+        if est is not None:
+            if not est.valid:
+                if self._ever_valid or after_grace:
+                    self._emit(out, now_us, "localization", K.LOCALIZATION_INVALID, "no valid pose estimate")
+            elif est.pos_std_m > c.pos_std_max_m:
+                self._emit(
+                    out,
+                    now_us,
+                    "localization",
+                    K.LOCALIZATION_COVARIANCE,
+                    f"position std {est.pos_std_m:.2f} m > {c.pos_std_max_m:.2f} m",
+                    FailSafeLevel.MINIMAL_RISK_MANOEUVRE,
+                )
+            elif est.pos_std_m > c.pos_std_degraded_m:
+                self._emit(
+                    out,
+                    now_us,
+                    "localization",
+                    K.LOCALIZATION_COVARIANCE,
+                    f"position std {est.pos_std_m:.2f} m > {c.pos_std_degraded_m:.2f} m",
+                    cap=c.covariance_speed_cap_mps,
+                )
+        elif after_grace:
+            self._emit(out, now_us, "localization", K.LOCALIZATION_INVALID, "no pose estimate received")
+        if self._gnss_seen or after_grace:
+            since = self._last_fix_us if self._last_fix_us is not None else self._started_us
+            if now_us - since > c.gnss_lost_us:
+                self._emit(
+                    out, now_us, "sensor:gnss", K.GNSS_LOST, f"no GNSS fix for {(now_us - since) / 1e6:.1f} s"
+                )
+        while self._gate and self._gate[0][0] <= now_us - c.gate_window_us:
+            self._gate.popleft()
+        rejected = sum(n for _, n in self._gate)
+        if rejected > c.gate_rejections_max:
+            self._emit(
+                out,
+                now_us,
+                "localization",
+                K.LOCALIZATION_GATE_REJECTIONS,
+                f"{rejected} GNSS fixes rejected by the EKF gate in {c.gate_window_us / 1e6:.0f} s",
+            )
+
+    def _weather_checks(self, now_us: int, out: list[MalfunctionSignal]) -> None:
+        w, c = self._weather, self.config
+        if w is None:
+            return
+        if w.visibility_m < c.visibility_min_m:
+            self._emit(
+                out,
+                now_us,
+                "odd",
+                K.WEATHER_VISIBILITY,
+                f"visibility {w.visibility_m:.0f} m < {c.visibility_min_m:.0f} m",
+            )
+        elif w.visibility_m < c.visibility_degraded_m:
+            self._emit(
+                out,
+                now_us,
+                "odd",
+                K.WEATHER_VISIBILITY,
+                f"visibility {w.visibility_m:.0f} m < {c.visibility_degraded_m:.0f} m",
+                FailSafeLevel.SPEED_LIMIT,
+                c.weather_speed_cap_mps,
+            )
+        if w.precipitation_mmph > c.precipitation_max_mmph:
+            self._emit(
+                out,
+                now_us,
+                "odd",
+                K.WEATHER_PRECIPITATION,
+                f"precipitation {w.precipitation_mmph:.1f} mm/h > {c.precipitation_max_mmph:.1f} mm/h",
+                cap=c.weather_speed_cap_mps,
+            )
+        elif w.precipitation_mmph > c.precipitation_degraded_mmph:
+            self._emit(
+                out,
+                now_us,
+                "odd",
+                K.WEATHER_PRECIPITATION,
+                f"precipitation {w.precipitation_mmph:.1f} mm/h > {c.precipitation_degraded_mmph:.1f} mm/h",
+                FailSafeLevel.SPEED_LIMIT,
+                c.weather_speed_cap_mps,
+            )

@@ -1,0 +1,294 @@
+"""Fault injection: what goes wrong with sensors, GNSS, the map and the stack's modules, and when.
+
+Each fault is declared in the scenario file with its start and duration. Sensor faults act on the
+frames the sensor models capture, before their latency (as a failing sensor or a bad cable would);
+module faults are read by the runner, which makes the named stack module hang or raise.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from lastmile.core.config import check_range
+from lastmile.core.errors import ConfigError
+from lastmile.core.rng import component_rng
+from lastmile.core.sensor_frames import (
+    CameraDetections,
+    DoorSensorFrame,
+    GnssInsFrame,
+    ImuFrame,
+    LidarSweep,
+    RadarFrame,
+    SensorFrame,
+    StopCallFrame,
+    WheelOdometryFrame,
+)
+
+FaultKind = Literal[
+    "dropout",
+    "frozen",
+    "latency_spike",
+    "out_of_order",
+    "nan",
+    "garbage",
+    "blind",
+    "gnss_outage",
+    "gnss_multipath",
+    "map_misalignment",
+    "module_hang",
+    "module_raise",
+]
+SENSOR_FAULTS = ("dropout", "frozen", "latency_spike", "out_of_order", "nan", "garbage", "blind")
+GNSS_FAULTS = ("gnss_outage", "gnss_multipath")
+MODULE_FAULTS = ("module_hang", "module_raise")
+SCALAR_SENSORS = ("gnss", "imu", "odom")
+SENSORS = ("gnss", "imu", "odom", "door", "radar_front", "radar_rear")
+"""Sensor targets the simulator has today (LiDAR and camera targets join when those sensors do)."""
+STACK_MODULES = ("estimation", "tracking", "decision", "planning", "control")
+FAULT_MENU: tuple[tuple[FaultKind, str], ...] = (
+    ("dropout", "radar_front"),
+    ("dropout", "radar_rear"),
+    ("frozen", "radar_front"),
+    ("latency_spike", "radar_front"),
+    ("out_of_order", "radar_front"),
+    ("garbage", "radar_front"),
+    ("blind", "radar_front"),
+    ("dropout", "gnss"),
+    ("nan", "gnss"),
+    ("nan", "imu"),
+    ("nan", "odom"),
+    ("garbage", "odom"),
+    ("frozen", "odom"),
+    ("gnss_outage", "gnss"),
+    ("gnss_multipath", "gnss"),
+    ("map_misalignment", "map"),
+    ("module_hang", "planning"),
+    ("module_raise", "tracking"),
+)
+"""Every fault kind on a representative target: what the suite and the generator inject."""
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class FaultSpec:
+    """One injected fault.
+
+    Attributes:
+        kind: what goes wrong (see the module docstring and README for each kind's effect).
+        target: a sensor ("gnss", "imu", "odom", "door", "radar_front", "radar_rear") for sensor
+            faults, "gnss" for GNSS faults, "map" for a map misalignment, a stack module
+            ("estimation", "tracking", "decision", "planning", "control") for module faults.
+        start_s, duration_s: when, in simulated seconds.
+        latency_ms: extra latency of a latency spike.
+        jitter_ms: the spread of random extra latency that delivers frames out of order.
+        offset_m: GNSS multipath error, or the map's misalignment, in metres.
+    """
+
+    kind: FaultKind
+    target: str
+    start_s: float
+    duration_s: float
+    latency_ms: float = 400.0
+    jitter_ms: float = 250.0
+    offset_m: float = 4.0
+
+    def __post_init__(self) -> None:
+        check_range("fault.start_s", self.start_s, 0.0, 24 * 3600.0)
+        check_range("fault.duration_s", self.duration_s, 0.0, 24 * 3600.0)
+        check_range("fault.latency_ms", self.latency_ms, 0.0, 60_000.0)
+        check_range("fault.jitter_ms", self.jitter_ms, 0.0, 60_000.0)
+        check_range("fault.offset_m", self.offset_m, 0.0, 1000.0)
+        if self.kind in SENSOR_FAULTS:
+            allowed: tuple[str, ...] = SCALAR_SENSORS if self.kind == "nan" else SENSORS
+        elif self.kind in GNSS_FAULTS:
+            allowed = ("gnss",)
+        elif self.kind == "map_misalignment":
+            allowed = ("map",)
+        elif self.kind in MODULE_FAULTS:
+            allowed = STACK_MODULES
+        else:
+            raise ConfigError(f"fault.kind: expected one of {FaultKind.__args__}, got {self.kind!r}")  # type: ignore[attr-defined]
+        if self.target not in allowed:
+            # NaN cannot travel in an array message (its constructor refuses it): use "garbage" there.
+            raise ConfigError(f"fault.target for {self.kind}: expected one of {allowed}, got {self.target!r}")
+
+    @property
+    def end_s(self) -> float:
+        return self.start_s + self.duration_s
+
+    def active(self, t_s: float) -> bool:
+        return self.start_s <= t_s < self.end_s
+
+
+def sensor_of(frame: SensorFrame) -> str | None:
+    """The fault target name of the sensor that captured ``frame`` (None: not a faultable sensor)."""
+    if isinstance(frame, GnssInsFrame):
+        return "gnss"
+    if isinstance(frame, ImuFrame):
+        return "imu"
+    if isinstance(frame, WheelOdometryFrame):
+        return "odom"
+    if isinstance(frame, DoorSensorFrame):
+        return "door"
+    if isinstance(frame, RadarFrame):
+        return f"radar_{frame.sensor_id}"
+    if isinstance(frame, LidarSweep):
+        return f"lidar_{frame.sensor_id}"
+    if isinstance(frame, CameraDetections):
+        return f"camera_{frame.camera_id}"
+    if isinstance(frame, StopCallFrame):
+        return None
+    return None
+
+
+class FaultInjector:
+    """Applies the scenario's faults to captured frames; deterministic from the run's seed."""
+
+    def __init__(self, faults: tuple[FaultSpec, ...], seed: int) -> None:
+        self.faults = faults
+        self._rng = component_rng(seed, "faults")
+        self._frozen: dict[int, SensorFrame] = {}
+        self._multipath_dir: dict[int, tuple[float, float]] = {}
+
+    def capture(self, frame: SensorFrame, latency_us: int, t_s: float) -> list[tuple[SensorFrame, int]]:
+        """What the sensor actually hands over for ``frame``: nothing, the frame changed, or it as is."""
+        target = sensor_of(frame)
+        if target is None:
+            return [(frame, latency_us)]
+        for index, f in enumerate(self.faults):
+            if not f.active(t_s):
+                self._frozen.pop(index, None)
+                continue
+            applies = (f.kind in SENSOR_FAULTS and f.target == target) or (
+                target == "gnss" and (f.kind in GNSS_FAULTS or f.kind == "map_misalignment")
+            )
+            if applies:
+                result = self._apply(index, f, frame, latency_us, t_s)
+                if result is None:
+                    return []
+                frame, latency_us = result
+        return [(frame, latency_us)]
+
+    def module_fault(self, module: str, t_s: float) -> str | None:
+        """ "hang" or "raise" when a module fault on ``module`` is active at ``t_s``, else None."""
+        for f in self.faults:
+            if f.kind in MODULE_FAULTS and f.target == module and f.active(t_s):
+                return "hang" if f.kind == "module_hang" else "raise"
+        return None
+
+    # ------------------------------------------------------------------------------------------------
+    def _apply(
+        self, index: int, f: FaultSpec, frame: SensorFrame, latency_us: int, t_s: float
+    ) -> tuple[SensorFrame, int] | None:
+        rng = self._rng
+        if f.kind == "dropout":
+            return None
+        if f.kind == "frozen":
+            # The driver keeps publishing its last good payload under fresh stamps.
+            held = self._frozen.setdefault(index, frame)
+            return dataclasses.replace(held, stamp=frame.stamp), latency_us
+        if f.kind == "latency_spike":
+            return frame, latency_us + round(f.latency_ms * 1000.0)
+        if f.kind == "out_of_order":
+            return frame, latency_us + round(float(rng.uniform(0.0, f.jitter_ms)) * 1000.0)
+        if f.kind == "blind":
+            return _blind(frame), latency_us
+        if f.kind == "nan":
+            return _nan(frame), latency_us
+        if f.kind == "garbage":
+            return _garbage(frame, rng), latency_us
+        if not isinstance(frame, GnssInsFrame):
+            return frame, latency_us
+        if f.kind == "gnss_outage":
+            # No fix: the receiver's dead-reckoned guess drifts and says so.
+            drift_m = 0.5 * (t_s - f.start_s)
+            return (
+                dataclasses.replace(
+                    frame,
+                    x_m=frame.x_m + drift_m,
+                    fix_ok=False,
+                    pos_std_m=max(frame.pos_std_m, 1.0 + drift_m),
+                ),
+                latency_us,
+            )
+        if f.kind == "gnss_multipath":
+            # Reflections: a jump of offset_m in a direction that changes every second, with a
+            # receiver that still reports its usual small standard deviation (the dangerous case).
+            second = int(t_s)
+            key = index * 1_000_003 + second
+            if key not in self._multipath_dir:
+                angle = float(rng.uniform(-math.pi, math.pi))
+                self._multipath_dir[key] = (math.cos(angle), math.sin(angle))
+            ux, uy = self._multipath_dir[key]
+            return (
+                dataclasses.replace(frame, x_m=frame.x_m + f.offset_m * ux, y_m=frame.y_m + f.offset_m * uy),
+                latency_us,
+            )
+        # map_misalignment: the map and the INS frame disagree by a constant offset (x east).
+        return dataclasses.replace(frame, x_m=frame.x_m + f.offset_m), latency_us
+
+
+def _blind(frame: SensorFrame) -> SensorFrame:
+    if isinstance(frame, RadarFrame):
+        return dataclasses.replace(frame, objects=np.zeros((0, frame.objects.shape[1])))
+    if isinstance(frame, LidarSweep):
+        return dataclasses.replace(frame, points=np.zeros((0, frame.points.shape[1]), np.float32))
+    if isinstance(frame, CameraDetections):
+        return dataclasses.replace(frame, boxes=np.zeros((0, frame.boxes.shape[1]), np.float32))
+    if isinstance(frame, GnssInsFrame):
+        return dataclasses.replace(frame, fix_ok=False)
+    if isinstance(frame, WheelOdometryFrame):
+        return dataclasses.replace(frame, speed_mps=0.0)
+    if isinstance(frame, ImuFrame):
+        return dataclasses.replace(frame, yaw_rate_radps=0.0, accel_x_mps2=0.0, accel_y_mps2=0.0)
+    if isinstance(frame, DoorSensorFrame):
+        return dataclasses.replace(frame, person_in_doorway=False)
+    return frame
+
+
+def _nan(frame: SensorFrame) -> SensorFrame:
+    nan = float("nan")
+    if isinstance(frame, GnssInsFrame):
+        return dataclasses.replace(frame, x_m=nan, y_m=nan)
+    if isinstance(frame, ImuFrame):
+        return dataclasses.replace(frame, yaw_rate_radps=nan)
+    if isinstance(frame, WheelOdometryFrame):
+        return dataclasses.replace(frame, speed_mps=nan)
+    return frame
+
+
+def _garbage(frame: SensorFrame, rng: np.random.Generator) -> SensorFrame:
+    """Finite but physically implausible values, as a corrupted bus or a failing unit sends."""
+    if isinstance(frame, GnssInsFrame):
+        return dataclasses.replace(
+            frame,
+            x_m=frame.x_m + float(rng.uniform(-2000.0, 2000.0)),
+            y_m=frame.y_m + float(rng.uniform(-2000.0, 2000.0)),
+            yaw_rad=float(rng.uniform(-math.pi, math.pi)),
+        )
+    if isinstance(frame, ImuFrame):
+        return dataclasses.replace(frame, yaw_rate_radps=float(rng.uniform(-20.0, 20.0)))
+    if isinstance(frame, WheelOdometryFrame):
+        return dataclasses.replace(frame, speed_mps=float(rng.uniform(0.0, 80.0)))
+    if isinstance(frame, DoorSensorFrame):
+        return dataclasses.replace(
+            frame, door_open=bool(rng.integers(2)), person_in_doorway=bool(rng.integers(2))
+        )
+    if isinstance(frame, RadarFrame):
+        n = int(rng.integers(20, 60))
+        objects = np.column_stack(
+            [
+                rng.uniform(-300.0, 300.0, n),
+                rng.uniform(-300.0, 300.0, n),
+                rng.uniform(-150.0, 150.0, n),
+                rng.uniform(-150.0, 150.0, n),
+                rng.uniform(-60.0, 60.0, n),
+                rng.uniform(-150.0, 150.0, n),
+            ]
+        )
+        return dataclasses.replace(frame, objects=objects)
+    return frame

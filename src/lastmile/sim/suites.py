@@ -1,0 +1,190 @@
+"""Named scenario suites: the ISO 22737-style test plan for a low-speed shuttle on its predefined route.
+
+ISO 22737 (low-speed automated driving systems on predefined routes) frames the plan: hazard
+determination with a non-occluded and an occluded view, staying in the drivable area, a minimal risk
+manoeuvre on every fault, and an emergency stop from every state. Each case is a scenario (a TOML file
+and a seed) plus the checks its outcome must pass; the sweep runner evaluates them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+from lastmile.core.errors import ConfigError
+from lastmile.sim.faults import FAULT_MENU, FaultSpec
+from lastmile.sim.passengers import PassengerConfig
+from lastmile.sim.scenario import (
+    Scenario,
+    SideRoadCar,
+    StaticObstacle,
+    Walker,
+    default_service,
+)
+
+WEATHERS = ("clear", "rain", "snow", "fog")
+SHUTTLE_SPEEDS_MPS = (20.0 / 3.6, 12.0 / 3.6)
+"""The speeds the shuttle uses: its 20 km/h top speed and the 12 km/h of shared paths."""
+
+# Where on the loop the encounters happen: the straight between crosswalk C1 (route s 130) and the
+# all-way stop (s 330), far from stops and junctions.
+ENCOUNTER_S_M = 260.0
+
+GENERIC_CHECKS = ("no_stack_crash", "no_collision_at_fault", "no_takeover", "in_drivable_area")
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SuiteCase:
+    """One scenario of a suite and what its outcome must show.
+
+    Attributes:
+        name: unique, readable (it names the scenario file).
+        scenario: the scenario (with its seed).
+        checks: names of outcome checks (see ``runner.sweep.CHECKS``).
+        group: the test-plan heading it belongs to.
+    """
+
+    name: str
+    scenario: Scenario
+    checks: tuple[str, ...]
+    group: str
+
+
+def _encounter_base(name: str, weather: str, speed_mps: float, seed: int, minutes: float = 1.4) -> Scenario:
+    # No riders and no stops to serve: the shuttle drives the loop from s = 0 through the encounter.
+    return Scenario(
+        name=name,
+        minutes=minutes,
+        seed=seed,
+        weather=weather,
+        cruise_speed_mps=speed_mps,
+        passengers=PassengerConfig(arrivals_per_stop_per_min=0.0),
+    )
+
+
+def _speed_tag(speed_mps: float) -> str:
+    return f"{round(speed_mps * 3.6):d}kph"
+
+
+def iso22737_suite(seed: int = 0) -> list[SuiteCase]:
+    """The whole plan: hazards in four weathers at both speeds, faults, e-stops, drivable area."""
+    cases: list[SuiteCase] = []
+    for weather in WEATHERS:
+        for speed in SHUTTLE_SPEEDS_MPS:
+            tag = f"{weather}_{_speed_tag(speed)}"
+            base = _encounter_base("", weather, speed, seed)
+            cases.append(
+                SuiteCase(
+                    name=f"stationary_obstacle_in_lane_{tag}",
+                    scenario=dataclasses.replace(
+                        base,
+                        name=f"stationary_obstacle_in_lane_{tag}",
+                        static_obstacles=(StaticObstacle(route_s_m=ENCOUNTER_S_M, d_m=0.0),),
+                    ),
+                    checks=(*GENERIC_CHECKS, "no_collision"),
+                    group="hazard, clear view",
+                )
+            )
+            cases.append(
+                SuiteCase(
+                    name=f"pedestrian_crossing_clear_view_{tag}",
+                    scenario=dataclasses.replace(
+                        base,
+                        name=f"pedestrian_crossing_clear_view_{tag}",
+                        walkers=(
+                            Walker(
+                                kind="pedestrian",
+                                route_s_m=ENCOUNTER_S_M,
+                                from_left=True,
+                                trigger_m=40.0,
+                                min_trigger_m=25.0,
+                                gap_s=0.0,
+                            ),
+                        ),
+                    ),
+                    checks=(*GENERIC_CHECKS, "no_collision"),
+                    group="hazard, clear view",
+                )
+            )
+            cases.append(
+                SuiteCase(
+                    name=f"pedestrian_behind_parked_vehicle_{tag}",
+                    scenario=dataclasses.replace(
+                        base,
+                        name=f"pedestrian_behind_parked_vehicle_{tag}",
+                        # A van parked on the right verge; the pedestrian steps out just past its front.
+                        static_obstacles=(
+                            StaticObstacle(
+                                route_s_m=ENCOUNTER_S_M - 3.5, d_m=-3.4, kind="car", length_m=5.0, width_m=2.0
+                            ),
+                        ),
+                        walkers=(
+                            Walker(
+                                kind="pedestrian",
+                                route_s_m=ENCOUNTER_S_M,
+                                from_left=False,
+                                speed_mps=1.4,
+                                trigger_m=24.0,
+                                min_trigger_m=16.0,
+                                gap_s=0.0,
+                            ),
+                        ),
+                    ),
+                    checks=(*GENERIC_CHECKS, "no_collision"),
+                    group="hazard, occluded view",
+                )
+            )
+            cases.append(
+                SuiteCase(
+                    name=f"cyclist_merging_{tag}",
+                    scenario=dataclasses.replace(
+                        base,
+                        name=f"cyclist_merging_{tag}",
+                        minutes=2.0,
+                        side_road_cars=(
+                            SideRoadCar(
+                                spawn_t_s=40.0, turn="right", kind="cyclist", speed_mps=4.5, start_m=60.0
+                            ),
+                        ),
+                    ),
+                    checks=(*GENERIC_CHECKS, "no_collision", "no_rule_violation"),
+                    group="hazard, clear view",
+                )
+            )
+    for fault in _suite_faults():
+        name = f"fault_{fault.kind}_{fault.target}"
+        cases.append(
+            SuiteCase(
+                name=name,
+                scenario=dataclasses.replace(
+                    _encounter_base(name, "clear", SHUTTLE_SPEEDS_MPS[0], seed, minutes=1.5), faults=(fault,)
+                ),
+                checks=("no_stack_crash", "no_collision_at_fault", "in_drivable_area", "fault_answered"),
+                group="minimal risk manoeuvre on faults",
+            )
+        )
+    for weather in WEATHERS:
+        name = f"drivable_area_service_{weather}"
+        cases.append(
+            SuiteCase(
+                name=name,
+                scenario=dataclasses.replace(
+                    default_service(seed=seed, minutes=4.0, weather=weather), name=name
+                ),
+                checks=(*GENERIC_CHECKS, "no_rule_violation"),
+                group="staying in the drivable area",
+            )
+        )
+    names = [c.name for c in cases]
+    if len(set(names)) != len(names):
+        raise ConfigError("iso22737_suite: expected unique case names, got duplicates")
+    return cases
+
+
+def _suite_faults() -> list[FaultSpec]:
+    """One fault of every kind on a representative target, starting 20 s into the drive."""
+    return [FaultSpec(kind=kind, target=target, start_s=20.0, duration_s=30.0) for kind, target in FAULT_MENU]
+
+
+SUITES = {"iso22737": iso22737_suite}
+"""Suites by name, for ``lastmile sweep --suite``."""

@@ -1,0 +1,195 @@
+"""Black box: exact 30 s window, background dumps with Foxglove schemas, summary, replay round trip."""
+
+from __future__ import annotations
+
+import itertools
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+
+from lastmile.core.errors import ConfigError
+from lastmile.core.geometry import SE2
+from lastmile.core.sensor_frames import LidarSweep
+from lastmile.core.stamp import Stamp
+from lastmile.core.vehicle_messages import ActuatorCommand
+from lastmile.recorder.black_box import BlackBox, BlackBoxConfig
+from lastmile.recorder.mcap_codec import RecordingError, encode_message
+from lastmile.recorder.replay import read_recording, render_png_sequence
+from tests.recorder.stream import TICK_US, record_ticks
+
+WINDOW_US = 30_000_000
+
+
+def _cmd(now: int) -> ActuatorCommand:
+    return ActuatorCommand(stamp=Stamp(now), accel_mps2=0.0, steer_front_rad=0.0, steer_rear_rad=0.0)
+
+
+def test_window_keeps_exactly_the_last_30_s(tmp_path: Path) -> None:
+    bb = BlackBox(BlackBoxConfig(out_dir=tmp_path))
+    for tick in range(6000):  # 60 s at 100 Hz
+        bb.record(tick * TICK_US, "/stack/command", _cmd(tick * TICK_US))
+    window = bb.window()
+    newest = 5999 * TICK_US
+    assert window[-1][0] == newest
+    assert window[0][0] == newest - WINDOW_US + TICK_US  # (newest - 30 s, newest]
+    assert len(window) == 3000
+    bb.close()
+
+
+@pytest.fixture(scope="module")
+def dumped(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, BlackBox, list]:
+    out = tmp_path_factory.mktemp("bb")
+    bb = BlackBox(BlackBoxConfig(out_dir=out, sensor_mounts={"lidar_top": SE2(1.2, 0.0, 0.0)}))
+    last = max(record_ticks(bb, 0, 3500))  # 35 s of ticks
+    snapshot = list(bb.window())
+    future = bb.trigger("takeover", last, "operator braked for a pedestrian")
+    # More ticks while the file is written must not leak into it.
+    for _ in record_ticks(bb, 3500, 50):
+        pass
+    path = future.result(timeout=60)
+    bb.close()
+    return path, bb, snapshot
+
+
+def test_trigger_writes_the_window_with_foxglove_schemas(dumped: tuple[Path, BlackBox, list]) -> None:
+    path, _, snapshot = dumped
+    with open(path, "rb") as fh:
+        reader = make_reader(fh)
+        summary = reader.get_summary()
+        assert summary is not None and summary.statistics is not None
+        schemas = {s.name: s.encoding for s in summary.schemas.values()}
+        channel_topics = {c.topic: summary.schemas[c.schema_id].name for c in summary.channels.values()}
+        stats = summary.statistics
+        meta = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
+    for name in (
+        "foxglove.PointCloud",
+        "foxglove.PoseInFrame",
+        "foxglove.FrameTransform",
+        "foxglove.SceneUpdate",
+    ):
+        assert schemas[name] == "jsonschema"
+    assert channel_topics["/sensors/lidar/lidar_top"] == "foxglove.PointCloud"
+    assert channel_topics["/tf"] == "foxglove.FrameTransform"
+    assert channel_topics["/viz/tracking/tracks"] == "foxglove.SceneUpdate"
+    assert channel_topics["/tf_static"] == "foxglove.FrameTransform"  # base_link -> lidar_top
+    assert stats.message_start_time == (34_990_000 - WINDOW_US + TICK_US) * 1000  # (newest - 30 s, newest]
+    assert stats.message_end_time == 34_990_000 * 1000
+    ev = meta["black_box_event"]
+    assert ev["trigger"] == "takeover" and ev["reason"] == "operator braked for a pedestrian"
+    assert ev["time_us"] == "34990000"
+    rec = read_recording(path)
+    assert len(rec.messages) == len(snapshot)
+
+
+def test_replay_round_trips_every_message(dumped: tuple[Path, BlackBox, list]) -> None:
+    path, _, snapshot = dumped
+    rec = read_recording(path)
+    assert [(m.log_time_us, m.topic) for m in rec.messages] == [(t, topic) for t, topic, _ in snapshot]
+    for m, (_, _, original) in zip(rec.messages, snapshot, strict=True):
+        assert type(m.message) is type(original)
+        if isinstance(original, LidarSweep):
+            assert m.message.stamp == original.stamp and m.message.sensor_id == original.sensor_id
+            assert np.array_equal(m.message.points, original.points)
+        else:
+            assert encode_message(m.message) == encode_message(original)
+    assert rec.events[0]["trigger"] == "takeover"
+    ticks = list(rec.ticks())
+    assert all(t1 > t0 for (t0, _), (t1, _) in itertools.pairwise(ticks))
+    assert sum(len(f) for _, f in ticks) == sum(
+        1 for _, topic, _ in snapshot if topic.startswith("/sensors/")
+    )
+    stamps = [int(f.stamp) for f in rec.frames_in_capture_order()]
+    assert stamps == sorted(stamps)
+
+
+def test_operator_summary_is_added_to_a_finished_dump(
+    dumped: tuple[Path, BlackBox, list], tmp_path: Path
+) -> None:
+    src, _, _ = dumped
+    copy = tmp_path / "copy.mcap"
+    copy.write_bytes(src.read_bytes())
+    before = read_recording(copy)
+    assert before.operator_summary is None
+    BlackBox.add_operator_summary(
+        copy, "Pedestrian stepped out behind the van.", audio=b"RIFF....WAVE", at_us=35_000_000
+    )
+    after = read_recording(copy)
+    assert after.operator_summary == "Pedestrian stepped out behind the van."
+    assert after.attachments == (("operator_summary", "audio/wav", b"RIFF....WAVE"),)
+    assert len(after.messages) == len(before.messages) and after.events == before.events
+
+
+def test_triggers_in_the_cooldown_merge_and_unknown_triggers_are_rejected(tmp_path: Path) -> None:
+    bb = BlackBox(BlackBoxConfig(out_dir=tmp_path, window_us=1_000_000))
+    bb.record(0, "/stack/command", _cmd(0))
+    first = bb.trigger("collision", 0, "contact")
+    assert bb.trigger("collision", 1_000_000, "contact again") is first
+    with pytest.raises(ConfigError, match="'explosion'"):
+        bb.trigger("explosion", 0, "")
+    bb.close()
+    assert len(list(tmp_path.glob("*.mcap"))) == 1
+
+
+def test_replay_renders_a_png_sequence(dumped: tuple[Path, BlackBox, list], tmp_path: Path) -> None:
+    rec = read_recording(dumped[0])
+    paths = render_png_sequence(rec, tmp_path / "png", fps=2.0, max_frames=3)
+    assert [p.name for p in paths] == ["frame_00000.png", "frame_00001.png", "frame_00002.png"]
+    for p in paths:
+        assert p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_a_file_that_is_not_mcap_is_one_clear_error(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(b"not an mcap file at all")
+    with pytest.raises(RecordingError, match=r"bad\.mcap"):
+        read_recording(bad)
+    with pytest.raises(RecordingError, match="no such file"):
+        read_recording(tmp_path / "missing.mcap")
+
+
+def _conforms(schema: dict, value: object, where: str) -> None:
+    """The parts of JSON Schema our Foxglove schemas use: object, array, required, number/integer/string."""
+    kind = schema.get("type")
+    if kind == "object":
+        assert isinstance(value, dict), where
+        for name in schema.get("required", []):
+            assert name in value, f"{where}: missing {name}"
+        for name, sub in schema.get("properties", {}).items():
+            if name in value:
+                _conforms(sub, value[name], f"{where}.{name}")
+    elif kind == "array":
+        assert isinstance(value, list), where
+        for i, item in enumerate(value):
+            _conforms(schema["items"], item, f"{where}[{i}]")
+    elif kind == "integer":
+        assert isinstance(value, int) and not isinstance(value, bool), where
+    elif kind == "number":
+        assert isinstance(value, int | float) and not isinstance(value, bool), where
+    elif kind == "string":
+        assert isinstance(value, str), where
+    elif "oneOf" in schema:
+        assert value in [c["const"] for c in schema["oneOf"]], where
+
+
+def test_every_foxglove_message_has_the_fields_its_schema_requires(
+    dumped: tuple[Path, BlackBox, list],
+) -> None:
+    seen = set()
+    with open(dumped[0], "rb") as fh:
+        for schema, channel, message in make_reader(fh).iter_messages():
+            assert (
+                schema is not None and schema.encoding == "jsonschema" and channel.message_encoding == "json"
+            )
+            if schema.name.startswith("foxglove.") and schema.name not in seen:
+                seen.add(schema.name)
+                _conforms(json.loads(schema.data), json.loads(message.data), schema.name)
+    assert seen == {
+        "foxglove.PointCloud",
+        "foxglove.PoseInFrame",
+        "foxglove.FrameTransform",
+        "foxglove.SceneUpdate",
+        "foxglove.Log",
+    }

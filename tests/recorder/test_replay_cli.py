@@ -1,0 +1,38 @@
+"""``lastmile replay``: a summary table of a recording, PNG rendering, one clear line for a bad file."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from typer.testing import CliRunner
+
+from lastmile.cli import app
+from lastmile.recorder.black_box import BlackBox, BlackBoxConfig
+from tests.recorder.stream import record_ticks
+
+
+def _recording(tmp_path: Path) -> Path:
+    bb = BlackBox(BlackBoxConfig(out_dir=tmp_path, window_us=2_000_000))
+    last = max(record_ticks(bb, 0, 300, lidar_points=50))
+    path = bb.trigger("emergency_stop", last, "goose on the road").result(timeout=60)
+    bb.close()
+    return path
+
+
+def test_replay_prints_channels_counts_span_and_events(tmp_path: Path) -> None:
+    path = _recording(tmp_path)
+    result = CliRunner().invoke(app, ["replay", str(path), "--render", str(tmp_path / "png"), "--fps", "2"])
+    assert result.exit_code == 0, result.output
+    assert "/stack/command" in result.output and "foxglove.PointCloud" in result.output
+    assert "emergency_stop at 2.99 s: goose on the road" in result.output
+    assert "200 messages" not in result.output  # the count is the whole window, not one channel
+    assert len(list((tmp_path / "png").glob("frame_*.png"))) == 4  # 1.0 .. 2.99 s at 2 fps
+
+
+def test_replay_of_a_bad_file_is_one_line_and_a_nonzero_exit(tmp_path: Path) -> None:
+    bad = tmp_path / "notes.txt"
+    bad.write_text("hello")
+    result = CliRunner().invoke(app, ["replay", str(bad)])
+    assert result.exit_code == 2
+    lines = [ln for ln in result.output.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("lastmile replay: expected a readable MCAP file")

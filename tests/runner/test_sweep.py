@@ -1,0 +1,101 @@
+import dataclasses
+import json
+
+import pytest
+from typer.testing import CliRunner
+
+from lastmile.cli import app
+from lastmile.runner.closed_loop import run_scenario
+from lastmile.runner.sweep import generic_cases, run_sweep
+from lastmile.sim.faults import FAULT_MENU
+from lastmile.sim.scenario import load_scenario
+from lastmile.sim.scenario_generator import ScenarioSpace, sample_scenarios
+from lastmile.sim.suites import SHUTTLE_SPEEDS_MPS, WEATHERS, iso22737_suite
+from lastmile.stack.shuttle_stack import ShuttleStack
+
+SHORT = ScenarioSpace(minutes=0.3, fault_start_s=(2.0, 5.0), fault_duration_s=(2.0, 5.0))
+
+
+def test_generated_scenarios_repeat_from_their_seed_and_round_trip_through_toml(tmp_path):
+    first = sample_scenarios(SHORT, 12, seed=4)
+    assert first == sample_scenarios(SHORT, 12, seed=4)
+    assert first != sample_scenarios(SHORT, 12, seed=5)
+    assert len({s.seed for s in first}) == 12
+    cases = generic_cases(first)
+    from lastmile.runner.sweep import write_cases
+
+    for case, path in write_cases(cases, tmp_path):
+        assert load_scenario(path) == case.scenario
+
+
+def test_local_sweep_writes_a_summary_row_per_scenario(tmp_path):
+    cases = generic_cases(sample_scenarios(SHORT, 3, seed=1))
+    summary = run_sweep(cases, tmp_path, engine="local", workers=2)
+    on_disk = json.loads((tmp_path / "summary.json").read_text())
+    assert on_disk == summary
+    assert {"scenarios", "passed", "failed", "collisions_at_fault", "rows"} <= set(summary)
+    assert summary["scenarios"] == 3 and summary["passed"] + summary["failed"] == 3
+    assert [r["name"] for r in summary["rows"]] == [c.name for c in cases]
+    for row in summary["rows"]:
+        assert (tmp_path / "scenarios" / f"{row['name']}.toml").exists()
+        assert set(row["checks"]) >= {"no_stack_crash", "no_collision_at_fault", "no_takeover"}
+
+
+def test_ray_and_local_engines_give_identical_outcomes(tmp_path):
+    pytest.importorskip("ray", reason="the ray extra is not installed")
+    cases = generic_cases(sample_scenarios(SHORT, 3, seed=7))
+    local = run_sweep(cases, tmp_path / "local", engine="local", workers=2)
+    remote = run_sweep(cases, tmp_path / "ray", engine="ray")
+    strip = lambda rows: [{k: v for k, v in r.items() if k != "scenario_file"} for r in rows]  # noqa: E731
+    assert strip(local["rows"]) == strip(remote["rows"])
+
+
+def test_a_crashing_stack_is_recorded_and_the_vehicle_brakes_to_a_stop(monkeypatch):
+    real_tick = ShuttleStack.tick
+
+    def tick(self, now, frames):
+        if int(now) >= 20_000_000:
+            raise RuntimeError("segfault in planning")
+        return real_tick(self, now, frames)
+
+    monkeypatch.setattr(ShuttleStack, "tick", tick)
+    scenario = dataclasses.replace(sample_scenarios(SHORT, 1, seed=2)[0], minutes=0.6, faults=())
+    log = run_scenario(scenario)
+    crashes = log.events_of("stack_crash")
+    assert len(crashes) == 1 and crashes[0].t_s == 20.0 and "segfault" in crashes[0].data["error"]
+    t, v = log.column("t_s"), log.column("speed_mps")
+    assert v[t < 20.0].max() > 2.0  # it was driving
+    assert v[-1] < 0.05  # and the watchdog's brake stopped it
+
+
+def test_the_iso22737_suite_covers_the_plan():
+    cases = iso22737_suite()
+    names = [c.name for c in cases]
+    assert len(names) == len(set(names))
+    for hazard in (
+        "stationary_obstacle_in_lane",
+        "pedestrian_crossing_clear_view",
+        "pedestrian_behind_parked_vehicle",
+        "cyclist_merging",
+    ):
+        for weather in WEATHERS:
+            for speed in SHUTTLE_SPEEDS_MPS:
+                assert f"{hazard}_{weather}_{round(speed * 3.6)}kph" in names
+    faults = {(f.kind, f.target) for c in cases for f in c.scenario.faults}
+    assert faults == set(FAULT_MENU)
+    assert {c.group for c in cases} >= {
+        "hazard, clear view",
+        "hazard, occluded view",
+        "minimal risk manoeuvre on faults",
+        "staying in the drivable area",
+    }
+
+
+def test_sweep_cli_rejects_two_sources_in_one_line(tmp_path):
+    result = CliRunner().invoke(
+        app, ["sweep", "--suite", "iso22737", "--generate", "3", "--out", str(tmp_path)]
+    )
+    assert result.exit_code == 2
+    assert "expected exactly one of --suite, --generate, --scenarios" in result.output
+    result = CliRunner().invoke(app, ["sweep", "--suite", "nope", "--out", str(tmp_path)])
+    assert result.exit_code == 2 and "expected one of ['iso22737']" in result.output
