@@ -1,0 +1,297 @@
+"""Curb and drivable-boundary detection with a lateral residual model (WATonoBus, section III-A).
+
+Inputs are the base-frame cloud and the HD map's curb (right road edge) as a polyline in the base
+frame, ordered in the driving direction with the road on its left. Steps:
+
+1. HD-map partition: points within ``band_m`` of the map curb are expressed in the curb's Frenet
+   frame (s along, d left of it) and cut into slices of ``slice_m`` in s.
+2. Weighted road-surface fit: z = a + b s + c d over road points (``band_m`` to ``band_m +
+   road_fit_width_m`` left of the map curb, plus the band), by iteratively reweighted least squares.
+   Points above the surface get Tukey weights that vanish at ``snow_reject_m`` and points near the
+   map curb count less, so snow invading the road edge cannot lift the surface.
+3. Boundary per slice: lateral bins of ``bin_m``; a bin is raised when its lowest point stands at
+   least ``step_min_m`` above the road surface (snow banks and curb tops alike). Starting from the
+   outermost occupied bin, raised bins are chained toward the road while the gaps stay below
+   ``max_gap_m``; the road-side end of the chain is the drivable boundary of that slice. An object
+   standing apart on the road (a goose) is not chained to the curb, so it cannot pull the boundary in.
+4. Lateral residual model: the boundary's offset from the map curb, r(s), is fitted as a polynomial
+   (degree ``residual_degree``) with Huber reweighting; the map carries the curb's shape, the model
+   only the misalignment (positioning error, snow). Offsets are limited to ``band_m``.
+5. Points in the band left of the fitted boundary by more than ``obstacle_margin_m`` and higher
+   than ``obstacle_height_m`` above the road are reassigned as obstacles.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from lastmile.core.errors import ConfigError, MessageError
+
+FloatArray = npt.NDArray[np.float64]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class CurbConfig:
+    """Parameters in metres.
+
+    Attributes:
+        band_m: half-width of the search band around the map curb: map error up to 0.5 m, a snow
+            bank spilling up to 0.5 m onto the road, plus margin.
+        slice_m: length of the map partition slices along the curb.
+        s_min_m, s_max_m: stations along the map curb considered (relative to its first vertex).
+        bin_m: lateral bin width inside a slice.
+        step_min_m: height above the road surface that makes a bin raised (a curb is 0.1-0.2 m).
+        max_gap_m: largest empty lateral gap inside the chain of raised bins (sparse rings leave
+            wide empty stretches on a sidewalk; the Huber fit over slices absorbs the odd slice
+            where an object's shadow bridges a gap).
+        road_fit_width_m: width of the road strip, beyond the band, used for the surface fit.
+        snow_reject_m: points this far above the surface get zero weight in the fit.
+        residual_degree: degree of the lateral residual polynomial r(s) (0 to 2).
+        min_slices: fewer detected slices leave the estimate invalid.
+        obstacle_margin_m: clearance left of the boundary before a raised point counts as an obstacle.
+        obstacle_height_m: height above the road for such a point.
+        below_road_m: points deeper than this under the fitted road are ignored as noise.
+    """
+
+    band_m: float = 1.5
+    slice_m: float = 1.0
+    s_min_m: float = 0.0
+    s_max_m: float = 30.0
+    bin_m: float = 0.1
+    step_min_m: float = 0.06
+    max_gap_m: float = 2.0
+    road_fit_width_m: float = 2.5
+    snow_reject_m: float = 0.08
+    residual_degree: int = 1
+    min_slices: int = 3
+    obstacle_margin_m: float = 0.15
+    obstacle_height_m: float = 0.1
+    below_road_m: float = 0.2
+
+    def __post_init__(self) -> None:
+        for name in (
+            "band_m",
+            "slice_m",
+            "bin_m",
+            "step_min_m",
+            "max_gap_m",
+            "road_fit_width_m",
+            "snow_reject_m",
+        ):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise ConfigError(f"CurbConfig.{name}: expected a positive number, got {v}")
+        if not self.s_max_m > self.s_min_m:
+            raise ConfigError(f"CurbConfig: expected s_max_m > s_min_m, got {self.s_min_m}..{self.s_max_m}")
+        if self.residual_degree not in (0, 1, 2):
+            raise ConfigError(f"CurbConfig.residual_degree: expected 0, 1 or 2, got {self.residual_degree}")
+        if self.min_slices < self.residual_degree + 1:
+            raise ConfigError(
+                f"CurbConfig.min_slices: expected >= residual_degree + 1 = {self.residual_degree + 1}, "
+                f"got {self.min_slices}"
+            )
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class CurbEstimate:
+    """The drivable boundary along the map curb.
+
+    Attributes:
+        valid: False when too few slices showed a boundary (the caller decides what to trust then).
+        s_m: (K,) stations of the slice centres along the map curb.
+        offset_m: (K,) fitted boundary offset from the map curb, left (road side) positive.
+        boundary_xy_m: (K, 2) the boundary in the base frame.
+        detected_offset_m: (K,) per-slice measured offset (NaN where the slice showed no boundary).
+        residual_coeffs: polynomial coefficients of r(s), highest power first (np.polyval order).
+        road_plane: (a, b, c) of the road surface z = a + b s + c d.
+        obstacle_idx: (M,) int64 indices (into the input cloud) reassigned as obstacles.
+    """
+
+    valid: bool
+    s_m: FloatArray
+    offset_m: FloatArray
+    boundary_xy_m: FloatArray
+    detected_offset_m: FloatArray
+    residual_coeffs: FloatArray
+    road_plane: FloatArray
+    obstacle_idx: npt.NDArray[np.int64]
+
+
+def frenet_of_points(polyline_xy: FloatArray, xy: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Station s (along) and offset d (left positive) of (N, 2) points on an (M, 2) polyline.
+
+    Each point takes its nearest segment; points beyond the ends extend the end segments.
+    """
+    P = np.asarray(polyline_xy, dtype=np.float64)
+    a, b = P[:-1], P[1:]
+    seg = b - a
+    seg_len = np.hypot(seg[:, 0], seg[:, 1])
+    if np.any(seg_len <= 0):
+        raise MessageError("frenet_of_points: expected a polyline without repeated vertices")
+    s0 = np.concatenate([[0.0], np.cumsum(seg_len)[:-1]])
+    t_dir = seg / seg_len[:, None]
+    rel_x = xy[:, 0:1] - a[:, 0]
+    rel_y = xy[:, 1:2] - a[:, 1]
+    along = rel_x * t_dir[:, 0] + rel_y * t_dir[:, 1]  # (N, M-1)
+    lo = np.where(np.arange(len(seg)) == 0, -np.inf, 0.0)
+    hi = np.where(np.arange(len(seg)) == len(seg) - 1, np.inf, seg_len)
+    t = np.clip(along, lo, hi)
+    px = a[:, 0] + t * t_dir[:, 0]
+    py = a[:, 1] + t * t_dir[:, 1]
+    dist2 = (xy[:, 0:1] - px) ** 2 + (xy[:, 1:2] - py) ** 2
+    k = np.argmin(dist2, axis=1)
+    r = np.arange(len(xy))
+    s = s0[k] + t[r, k]
+    d = t_dir[k, 0] * rel_y[r, k] - t_dir[k, 1] * rel_x[r, k]
+    return s, d
+
+
+def points_at(polyline_xy: FloatArray, s: FloatArray, d: FloatArray) -> FloatArray:
+    """(K, 2) base-frame points at stations s and left offsets d of the polyline."""
+    P = np.asarray(polyline_xy, dtype=np.float64)
+    seg = np.diff(P, axis=0)
+    seg_len = np.hypot(seg[:, 0], seg[:, 1])
+    cum = np.concatenate([[0.0], np.cumsum(seg_len)])
+    k = np.clip(np.searchsorted(cum, s, side="right") - 1, 0, len(seg) - 1)
+    t_dir = seg[k] / seg_len[k, None]
+    base = P[k] + (s - cum[k])[:, None] * t_dir
+    return base + d[:, None] * np.stack([-t_dir[:, 1], t_dir[:, 0]], axis=1)
+
+
+def _irls_plane(
+    s: FloatArray, d: FloatArray, z: FloatArray, prior_w: FloatArray, reject_m: float
+) -> FloatArray:
+    A = np.stack([np.ones_like(s), s, d], axis=1)
+    w = prior_w.copy()
+    coef = np.array([np.median(z), 0.0, 0.0])
+    for _ in range(4):
+        sw = np.sqrt(w)
+        coef = np.linalg.lstsq(A * sw[:, None], z * sw, rcond=None)[0]
+        res = z - A @ coef
+        # Asymmetric: only points above the surface (snow, objects) lose weight; low outliers
+        # (mirror returns) are bounded by a symmetric cap at three times the reject height.
+        up = np.clip(res / reject_m, 0.0, 1.0)
+        down = np.clip(-res / (3 * reject_m), 0.0, 1.0)
+        w = prior_w * (1 - up**2) ** 2 * (1 - down**2) ** 2
+        if w.sum() < 3:
+            raise MessageError("detect_curb: expected road points for the surface fit, got too few inliers")
+    return coef
+
+
+def detect_curb(
+    xyz_m: npt.ArrayLike, map_curb_xy_m: npt.ArrayLike, config: CurbConfig | None = None
+) -> CurbEstimate:
+    """Drivable boundary along the map's right curb, with obstacles reassigned near it.
+
+    Args:
+        xyz_m: (N, 3) base-frame points (ground and non-ground alike: a curb top may be either).
+        map_curb_xy_m: (M, 2) the HD map's curb in the base frame, M >= 2, road on its left.
+        config: parameters.
+
+    Raises:
+        MessageError: a malformed curb polyline, or no road points to fit the surface to.
+    """
+    cfg = config or CurbConfig()
+    p = np.asarray(xyz_m, dtype=np.float64).reshape(-1, 3)
+    curb = np.asarray(map_curb_xy_m, dtype=np.float64)
+    if curb.ndim != 2 or curb.shape[1] != 2 or len(curb) < 2 or not np.isfinite(curb).all():
+        raise MessageError(
+            f"detect_curb.map_curb_xy_m: expected a finite (M >= 2, 2) polyline, got {curb.shape}"
+        )
+    reach = cfg.band_m + cfg.road_fit_width_m
+    lo_xy, hi_xy = curb.min(axis=0) - reach, curb.max(axis=0) + reach
+    near = np.flatnonzero(
+        (p[:, 0] >= lo_xy[0]) & (p[:, 0] <= hi_xy[0]) & (p[:, 1] >= lo_xy[1]) & (p[:, 1] <= hi_xy[1])
+    )
+    s, d = frenet_of_points(curb, p[near, :2])
+    z = p[near, 2]
+    in_s = (s >= cfg.s_min_m) & (s < cfg.s_max_m)
+    band = in_s & (np.abs(d) <= cfg.band_m)
+    road = in_s & (d > -0.0) & (d <= reach)
+    if road.sum() < 3:
+        raise MessageError(f"detect_curb: expected road points left of the map curb, got {int(road.sum())}")
+    # Trust grows with distance from the map curb: the edge is where snow piles up.
+    lat_w = np.clip(d[road] / cfg.band_m, 0.1, 1.0)
+    plane = _irls_plane(s[road], d[road], z[road], lat_w, cfg.snow_reject_m)
+    h = z - (plane[0] + plane[1] * s + plane[2] * d)
+    band &= h >= -cfg.below_road_m  # returns under the road (multipath, noise) cannot be a curb
+
+    n_slices = math.ceil((cfg.s_max_m - cfg.s_min_m) / cfg.slice_m)
+    centres: FloatArray = cfg.s_min_m + (np.arange(n_slices, dtype=np.float64) + 0.5) * cfg.slice_m
+    detected = np.full(n_slices, np.nan)
+    n_bins = round(2 * cfg.band_m / cfg.bin_m)
+    bi = np.clip(((d[band] + cfg.band_m) / cfg.bin_m).astype(np.int64), 0, n_bins - 1)
+    si = np.clip(((s[band] - cfg.s_min_m) / cfg.slice_m).astype(np.int64), 0, n_slices - 1)
+    # Lowest point per (slice, bin): the surface there, not whatever stands on it.
+    flat = si * n_bins + bi
+    low_flat = np.full(n_slices * n_bins, np.inf)
+    np.minimum.at(low_flat, flat, h[band])
+    low = low_flat.reshape(n_slices, n_bins)
+    far_flat = np.full(n_slices * n_bins, -np.inf)
+    np.maximum.at(far_flat, flat, d[band])
+    far_d = far_flat.reshape(n_slices, n_bins)
+    # Farthest raised point per bin: the bin where the step is crossed holds both levels.
+    up = h[band] >= cfg.step_min_m
+    up_flat = np.full(n_slices * n_bins, -np.inf)
+    np.maximum.at(up_flat, flat[up], d[band][up])
+    far_up = up_flat.reshape(n_slices, n_bins)
+    max_gap_bins = max(1, round(cfg.max_gap_m / cfg.bin_m))
+    for k in range(n_slices):
+        occ = np.flatnonzero(np.isfinite(low[k]))
+        if len(occ) == 0:
+            continue
+        raised = low[k, occ] >= cfg.step_min_m
+        if not raised[0]:
+            continue  # the outermost occupied bin is road level: no curb in this slice's view
+        # Chain raised bins from the outer side toward the road; a road-level bin or an empty gap
+        # wider than max_gap_m ends the chain.
+        end = 0
+        for j in range(1, len(occ)):
+            if not raised[j] or occ[j] - occ[end] > max_gap_bins:
+                break
+            end = j
+        detected[k] = far_d[k, occ[end]]
+        nxt = occ[end] + 1
+        if nxt < n_bins and np.isfinite(far_up[k, nxt]):
+            detected[k] = far_up[k, nxt]
+    ok = np.isfinite(detected)
+    valid = int(ok.sum()) >= cfg.min_slices
+    coeffs = np.zeros(cfg.residual_degree + 1)
+    if valid:
+        coeffs = _huber_polyfit(centres[ok], detected[ok], cfg.residual_degree)
+    offset = np.clip(np.polyval(coeffs, centres), -cfg.band_m, cfg.band_m)
+    boundary = points_at(curb, centres, offset)
+    # Reassignment: raised points on the road side of the fitted boundary are obstacles.
+    off_at = np.clip(np.polyval(coeffs, s), -cfg.band_m, cfg.band_m)
+    obst = in_s & (d > off_at + cfg.obstacle_margin_m) & (d <= reach) & (h >= cfg.obstacle_height_m)
+    obstacle_idx = near[obst] if valid else np.zeros(0, dtype=np.int64)
+    return CurbEstimate(
+        valid=valid,
+        s_m=centres,
+        offset_m=offset,
+        boundary_xy_m=boundary,
+        detected_offset_m=detected,
+        residual_coeffs=coeffs,
+        road_plane=plane,
+        obstacle_idx=obstacle_idx.astype(np.int64),
+    )
+
+
+def _huber_polyfit(x: FloatArray, y: FloatArray, degree: int, delta_m: float = 0.1) -> FloatArray:
+    """Polynomial fit with Huber reweighting (a slice fooled by a parked object loses its pull)."""
+    deg = min(degree, len(x) - 1)
+    # Start from the median offset, not a least-squares fit a few wild slices could tilt.
+    r0 = np.abs(y - np.median(y))
+    w = np.where(r0 <= delta_m, 1.0, delta_m / np.maximum(r0, 1e-12))
+    coef = np.polyfit(x, y, deg, w=np.sqrt(w))
+    for _ in range(8):
+        coef = np.polyfit(x, y, deg, w=np.sqrt(w))
+        r = np.abs(y - np.polyval(coef, x))
+        w = np.where(r <= delta_m, 1.0, delta_m / np.maximum(r, 1e-12))
+    if deg < degree:
+        coef = np.concatenate([np.zeros(degree - deg), coef])
+    return coef

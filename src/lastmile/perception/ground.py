@@ -1,0 +1,269 @@
+"""Ground segmentation, chosen by name: WATonoBus's HD-map adaptive grid and aUToronto's Himmelsbach.
+
+Both take (N, 3) base-frame points (z up, z = 0 on flat ground under the rear axle) and return an
+(N,) bool mask of ground points. Points below the fitted surface (multipath and mirror reflections
+under the road) count as ground: they can never be obstacles.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+import numpy.typing as npt
+
+from lastmile.core.errors import ConfigError
+from lastmile.perception.himmelsbach import HimmelsbachConfig, HimmelsbachGroundSegmenter
+from lastmile.perception.road_region import RoadMask
+
+BoolArray = npt.NDArray[np.bool_]
+
+
+class GroundSegmenter(Protocol):
+    """Splits a base-frame cloud into ground and the rest."""
+
+    def segment(self, xyz_m: npt.ArrayLike, road_mask: RoadMask | None = None) -> BoolArray:
+        """(N,) bool, True for ground points of the (N, 3) cloud."""
+        ...
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class AdaptiveGridConfig:
+    """WATonoBus's adaptive grid ground segmentation.
+
+    Attributes:
+        ring_edges_m: radial edges of the grid rings; cells get longer with range, where points
+            thin out (strictly increasing, first 0).
+        sectors_per_ring: azimuth sectors in each ring (one per ring).
+        threshold_near_m: ground tolerance above the fitted surface at range 0 (strict near the bus).
+        threshold_per_m: growth of the tolerance per metre of range (lenient far away, where
+            beam divergence, pitch noise and range noise grow).
+        threshold_max_m: cap of the tolerance.
+        seed_window_m: first pass: only points at most this far above the prior surface (the inner
+            ring's plane, extrapolated) can be seeds.
+        max_below_m: ... and at most this far below it (deeper returns are noise).
+        seed_quantile: the seeds' reference height is this quantile of a region's heights.
+        seed_band_m: seeds lie within this of that reference.
+        max_slope: steepest road-surface slope accepted for a cell's plane (rise over run).
+        min_fit_points: fewer points than this keep the prior (inner ring's) plane.
+        prior_weight: regularisation pulling a cell's plane toward its prior (in squared-metre units
+            of one point), so sparse cells cannot tilt wildly.
+        iterations: refits with the shrinking window.
+    """
+
+    ring_edges_m: tuple[float, ...] = (0.0, 6.0, 12.0, 20.0, 30.0, 45.0, 65.0, 120.0)
+    sectors_per_ring: tuple[int, ...] = (8, 16, 24, 32, 32, 32, 32)
+    threshold_near_m: float = 0.12
+    threshold_per_m: float = 0.004
+    threshold_max_m: float = 0.35
+    seed_window_m: float = 1.0
+    max_below_m: float = 1.0
+    seed_band_m: float = 0.15
+    seed_quantile: float = 0.2
+    max_slope: float = 0.2
+    min_fit_points: int = 8
+    prior_weight: float = 4.0
+    iterations: int = 2
+
+    def __post_init__(self) -> None:
+        e = self.ring_edges_m
+        if len(e) < 2 or e[0] != 0.0 or any(b <= a for a, b in itertools.pairwise(e)):
+            raise ConfigError(
+                f"AdaptiveGridConfig.ring_edges_m: expected strictly increasing from 0, got {e}"
+            )
+        if len(self.sectors_per_ring) != len(e) - 1 or min(self.sectors_per_ring) < 1:
+            raise ConfigError(
+                f"AdaptiveGridConfig.sectors_per_ring: expected {len(e) - 1} positive counts, "
+                f"got {self.sectors_per_ring}"
+            )
+        positive = (
+            "threshold_near_m",
+            "threshold_max_m",
+            "seed_window_m",
+            "max_slope",
+            "max_below_m",
+            "seed_band_m",
+        )
+        for name in positive:
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise ConfigError(f"AdaptiveGridConfig.{name}: expected a positive number, got {v}")
+        if self.threshold_max_m < self.threshold_near_m or self.threshold_per_m < 0:
+            raise ConfigError(
+                "AdaptiveGridConfig: expected threshold_per_m >= 0 and threshold_max_m >= threshold_near_m, "
+                f"got {self.threshold_per_m}, {self.threshold_max_m} < {self.threshold_near_m}"
+            )
+        if not 0.0 < self.seed_quantile < 1.0:
+            raise ConfigError(
+                f"AdaptiveGridConfig.seed_quantile: expected in (0, 1), got {self.seed_quantile}"
+            )
+        if self.min_fit_points < 3 or self.iterations < 1 or self.prior_weight < 0:
+            raise ConfigError(
+                "AdaptiveGridConfig: expected min_fit_points >= 3, iterations >= 1, prior_weight >= 0, got "
+                f"{self.min_fit_points}, {self.iterations}, {self.prior_weight}"
+            )
+
+    def threshold_m(self, range_m: npt.ArrayLike) -> npt.NDArray[np.float64]:
+        """Ground tolerance (m) at the given ranges: strict near, lenient far."""
+        r = np.asarray(range_m, dtype=np.float64)
+        return np.minimum(self.threshold_near_m + self.threshold_per_m * r, self.threshold_max_m)
+
+
+class AdaptiveGridGroundSegmenter:
+    """WATonoBus's adaptive grid: polar cells growing with range, split by HD-map road regions.
+
+    Each ring of cells is fitted after the ring inside it, starting from the inner ring's plane as a
+    prior (the flat plane z = 0 for the first ring), so the surface follows slopes outward. In every
+    cell the road part and the off-road part (from the HD map's road region) get separate planes
+    z = a + b x + c y, fitted by weighted least squares to points near the prior and then near the
+    previous fit, with a range-dependent tolerance. A plane steeper than ``max_slope`` or with too
+    few points is replaced by its prior. Without a road mask every point is treated as road.
+    """
+
+    def __init__(self, config: AdaptiveGridConfig | None = None) -> None:
+        self.config = config or AdaptiveGridConfig()
+
+    def segment(self, xyz_m: npt.ArrayLike, road_mask: RoadMask | None = None) -> BoolArray:
+        cfg = self.config
+        p = np.asarray(xyz_m, dtype=np.float64).reshape(-1, 3)
+        n = len(p)
+        ground = np.zeros(n, dtype=bool)
+        if n == 0:
+            return ground
+        x, y, z = p[:, 0], p[:, 1], p[:, 2]
+        r = np.hypot(x, y)
+        az = np.arctan2(y, x)
+        road = np.ones(n, dtype=bool) if road_mask is None else np.asarray(road_mask(p[:, :2]), dtype=bool)
+        tol = cfg.threshold_m(r)
+        ring = np.searchsorted(np.asarray(cfg.ring_edges_m), r, side="right") - 1
+        # Points grouped by ring once, instead of one full scan of the cloud per ring.
+        by_ring = np.argsort(ring, kind="stable")
+        ring_start = np.searchsorted(ring[by_ring], np.arange(len(cfg.sectors_per_ring) + 1))
+        # Prior planes of the previous ring per sector (a, b, c); the first ring's prior is z = 0.
+        prev_planes = np.zeros((1, 2, 3))
+        prev_sectors = 1
+        for k, n_sec in enumerate(cfg.sectors_per_ring):
+            idx = by_ring[ring_start[k] : ring_start[k + 1]]
+            sec_centres = (np.arange(n_sec) + 0.5) * (2 * math.pi / n_sec) - math.pi
+            inner = (
+                np.floor((sec_centres + math.pi) / (2 * math.pi / prev_sectors)).astype(int) % prev_sectors
+            )
+            prior = prev_planes[inner]  # (n_sec, 2, 3)
+            if len(idx) == 0:
+                prev_planes, prev_sectors = prior, n_sec
+                continue
+            sec = np.floor((az[idx] + math.pi) / (2 * math.pi / n_sec)).astype(int) % n_sec
+            region = sec * 2 + road[idx]
+            planes = prior.reshape(-1, 3).copy()
+            px, py, pz = x[idx], y[idx], z[idx]
+            window = tol[idx]
+            for it in range(cfg.iterations + 1):
+                pl = planes[region]
+                res = pz - (pl[:, 0] + pl[:, 1] * px + pl[:, 2] * py)
+                if it == cfg.iterations:
+                    break
+                if it == 0:
+                    # Seeds: points within seed_band_m of the region's low quantile (not its
+                    # minimum: the foot of a curb face or one deep noise return would win that).
+                    sane = (res >= -cfg.max_below_m) & (res <= cfg.seed_window_m)
+                    low = _low_quantile(res[sane], region[sane], 2 * n_sec, cfg)
+                    rel = res - low[region]
+                    use = sane & (rel >= -cfg.seed_band_m) & (rel <= cfg.seed_band_m)
+                    w = np.where(use, 1.0, 0.0)
+                else:
+                    use = np.abs(res) <= window
+                    # Tukey weights: points near the surface count most, snow and object feet least.
+                    w = np.where(use, (1.0 - (res / window) ** 2) ** 2, 0.0)
+                u = np.flatnonzero(use)  # only weighted points enter the sums
+                planes = _fit_planes(
+                    px[u], py[u], pz[u], w[u], region[u], 2 * n_sec, prior.reshape(-1, 3), cfg
+                )
+            ground[idx] = res <= tol[idx]
+            prev_planes, prev_sectors = planes.reshape(n_sec, 2, 3), n_sec
+        return ground
+
+
+_HIST_BIN_M = 0.05
+
+
+def _low_quantile(res: np.ndarray, region: np.ndarray, n_regions: int, cfg: AdaptiveGridConfig) -> np.ndarray:
+    """Per-region ``seed_quantile`` of residuals, from a 5 cm histogram (no per-region sort)."""
+    n_bins = math.ceil((cfg.max_below_m + cfg.seed_window_m) / _HIST_BIN_M) + 1
+    b = np.clip(((res + cfg.max_below_m) / _HIST_BIN_M).astype(np.int64), 0, n_bins - 1)
+    hist = np.bincount(region * n_bins + b, minlength=n_regions * n_bins).reshape(n_regions, n_bins)
+    cum = np.cumsum(hist, axis=1)
+    target = np.maximum(cum[:, -1] * cfg.seed_quantile, 1)
+    k = np.argmax(cum >= target[:, None], axis=1)
+    return (k + 0.5) * _HIST_BIN_M - cfg.max_below_m
+
+
+def _fit_planes(
+    x: np.ndarray,
+    y: np.ndarray,
+    z: np.ndarray,
+    w: np.ndarray,
+    region: np.ndarray,
+    n_regions: int,
+    prior: np.ndarray,
+    cfg: AdaptiveGridConfig,
+) -> np.ndarray:
+    """Weighted least-squares planes per region, regularised toward the prior; rejects bad fits."""
+
+    def s(v: np.ndarray) -> np.ndarray:
+        return np.bincount(region, weights=v, minlength=n_regions)
+
+    wx, wy = w * x, w * y
+    sw, sx, sy, sz = s(w), s(wx), s(wy), s(w * z)
+    sxx, sxy, syy, sxz, syz = s(wx * x), s(wx * y), s(wy * y), s(wx * z), s(wy * z)
+    A = np.stack(
+        [np.stack([sw, sx, sy], -1), np.stack([sx, sxx, sxy], -1), np.stack([sy, sxy, syy], -1)], axis=1
+    )
+    b = np.stack([sz, sxz, syz], -1)
+    lam = cfg.prior_weight
+    A = A + lam * np.eye(3)[None]
+    b = b + lam * prior
+    sol = np.linalg.solve(A, b[..., None])[..., 0]
+    count = np.bincount(region, weights=(w > 0).astype(np.float64), minlength=n_regions)
+    ok = (count >= cfg.min_fit_points) & (np.hypot(sol[:, 1], sol[:, 2]) <= cfg.max_slope)
+    ok &= np.isfinite(sol).all(axis=1)
+    out = np.where(ok[:, None], sol, prior)
+    # An off-road part without its own fit borrows the road plane of its cell (and vice versa)
+    # rather than the inner ring's, since the cell's other half is the nearer evidence.
+    pair = out.reshape(-1, 2, 3)
+    okp = ok.reshape(-1, 2)
+    pair[:, 0] = np.where((~okp[:, 0] & okp[:, 1])[:, None], pair[:, 1], pair[:, 0])
+    pair[:, 1] = np.where((~okp[:, 1] & okp[:, 0])[:, None], pair[:, 0], pair[:, 1])
+    return pair.reshape(-1, 3)
+
+
+GROUND_SEGMENTERS: dict[str, type] = {
+    "adaptive_grid": AdaptiveGridGroundSegmenter,
+    "himmelsbach": HimmelsbachGroundSegmenter,
+}
+"""Registry: the name used in configs -> the segmenter class."""
+
+
+def make_ground_segmenter(
+    name: str, config: AdaptiveGridConfig | HimmelsbachConfig | None = None
+) -> AdaptiveGridGroundSegmenter | HimmelsbachGroundSegmenter:
+    """Build a segmenter by registry name.
+
+    Raises:
+        ConfigError: an unknown name, or a config of the other segmenter's type.
+    """
+    if name not in GROUND_SEGMENTERS:
+        raise ConfigError(f"ground segmenter: expected one of {sorted(GROUND_SEGMENTERS)}, got {name!r}")
+    if name == "adaptive_grid":
+        if config is not None and not isinstance(config, AdaptiveGridConfig):
+            raise ConfigError(
+                f"ground segmenter 'adaptive_grid': expected AdaptiveGridConfig, got {type(config).__name__}"
+            )
+        return AdaptiveGridGroundSegmenter(config)
+    if config is not None and not isinstance(config, HimmelsbachConfig):
+        raise ConfigError(
+            f"ground segmenter 'himmelsbach': expected HimmelsbachConfig, got {type(config).__name__}"
+        )
+    return HimmelsbachGroundSegmenter(config)

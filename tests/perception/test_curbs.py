@@ -1,0 +1,89 @@
+"""Curb / drivable-boundary detection within 0.15 m, clear and snow-covered, map off by 0.5 m."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from lastmile.core.errors import ConfigError, MessageError
+from lastmile.perception.curbs import CurbConfig, detect_curb, frenet_of_points, points_at
+from tests.perception.synthetic import Box, Scene, base_cloud, default_rig
+
+CURB_Y = -3.5
+
+
+def _scene(snow: bool, goose: bool = False) -> tuple[Scene, float]:
+    """Road z = 0 for y > -3.5, 0.15 m curb and sidewalk; with snow a bank hides the step.
+
+    Returns the scene and the true drivable boundary's y.
+    """
+    if snow:
+        # 0.25 m of snow on the sidewalk, the bank spilling 0.4 m onto the road with a 0.1 m wide
+        # face at its toe, plus thin (2 cm) snow on the lane edge that is still drivable.
+        ys = (-12.0, CURB_Y, CURB_Y + 0.3, CURB_Y + 0.4, CURB_Y + 1.2, CURB_Y + 1.3, 30.0)
+        zs = (0.40, 0.35, 0.25, 0.0, 0.02, 0.0, 0.0)
+        truth = CURB_Y + 0.4 - 0.1 * (0.06 / 0.25)  # where the bank face rises 6 cm
+    else:
+        ys = (-12.0, CURB_Y - 0.01, CURB_Y, 30.0)
+        zs = (0.15, 0.15, 0.0, 0.0)
+        truth = CURB_Y
+    boxes = (Box((12.0, truth + 0.3, 0.0), (12.5, truth + 0.6, 0.4)),) if goose else ()
+    return Scene(profile_y=ys, profile_z=zs, boxes=boxes), truth
+
+
+def _clouds(snow: bool, goose: bool = False) -> tuple[np.ndarray, np.ndarray, float]:
+    scene, truth = _scene(snow, goose)
+    rng = np.random.default_rng(5)
+    parts = [base_cloud(scene, lidar, rng) for lidar in default_rig()[:3:2]]  # front and right units
+    xyz = np.vstack([p[0] for p in parts])
+    box = np.concatenate([p[2] for p in parts])
+    return xyz, box, truth
+
+
+@pytest.mark.parametrize("snow", [False, True])
+@pytest.mark.parametrize("map_offset_m", [-0.5, 0.0, 0.5])
+def test_boundary_within_015_m_with_map_misaligned_by_up_to_half_a_metre(snow, map_offset_m):
+    xyz, _, truth = _clouds(snow)
+    # The map believes the curb is map_offset_m away from where it is (left positive).
+    map_curb = np.array([[0.0, CURB_Y + map_offset_m], [40.0, CURB_Y + map_offset_m]])
+    est = detect_curb(xyz, map_curb, CurbConfig(s_min_m=4.0, s_max_m=25.0))
+    assert est.valid
+    boundary_y = est.boundary_xy_m[:, 1]
+    err = np.abs(boundary_y - truth)
+    assert np.median(err) <= 0.15
+    assert np.percentile(err, 90) <= 0.2
+    # The fitted road surface ignores the snow: it stays at the true road height.
+    assert abs(est.road_plane[0] + est.road_plane[1] * 10.0) <= 0.03
+
+
+def test_goose_next_to_the_curb_is_reassigned_as_obstacle_and_does_not_move_the_boundary():
+    xyz, box, truth = _clouds(snow=False, goose=True)
+    map_curb = np.array([[0.0, CURB_Y], [40.0, CURB_Y]])
+    est = detect_curb(xyz, map_curb, CurbConfig(s_min_m=4.0, s_max_m=25.0))
+    goose = np.flatnonzero((box == 0) & (xyz[:, 2] >= 0.12))
+    assert len(goose) >= 3
+    assert np.isin(goose, est.obstacle_idx).all()
+    assert np.median(np.abs(est.boundary_xy_m[:, 1] - truth)) <= 0.15
+
+
+def test_without_any_curb_in_view_the_estimate_is_invalid():
+    scene = Scene(profile_y=(-30.0, 30.0), profile_z=(0.0, 0.0))
+    xyz, _, _ = base_cloud(scene, default_rig()[0], np.random.default_rng(0))
+    est = detect_curb(xyz, np.array([[0.0, CURB_Y], [40.0, CURB_Y]]))
+    assert not est.valid and len(est.obstacle_idx) == 0
+
+
+def test_frenet_round_trip_on_a_bent_polyline():
+    line = np.array([[0.0, 0.0], [10.0, 0.0], [20.0, 5.0]])
+    s = np.array([2.0, 8.0, 15.0])
+    d = np.array([0.5, -1.0, 0.3])
+    xy = points_at(line, s, d)
+    s2, d2 = frenet_of_points(line, xy)
+    assert np.allclose(s2, s, atol=1e-9) and np.allclose(d2, d, atol=1e-9)
+
+
+def test_bad_inputs_raise():
+    with pytest.raises(MessageError, match="polyline"):
+        detect_curb(np.zeros((10, 3)), np.zeros((1, 2)))
+    with pytest.raises(ConfigError, match="residual_degree"):
+        CurbConfig(residual_degree=3)

@@ -1,0 +1,77 @@
+"""DROR removes snowflakes and keeps the points of real objects."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from lastmile.core.errors import ConfigError
+from lastmile.perception.ground import make_ground_segmenter
+from lastmile.perception.weather_filter import DrorConfig, dror_keep_mask
+from tests.perception.synthetic import base_cloud, campus_scene, default_rig, sweep
+
+
+def test_snowflakes_are_removed_and_object_points_kept():
+    rng = np.random.default_rng(3)
+    lidar = default_rig()[0]
+    xyz, _, box = base_cloud(campus_scene(rng), lidar, rng, snowflakes=600)
+    ng = ~make_ground_segmenter("adaptive_grid").segment(xyz)
+    sensor = np.tile([lidar.x_m, lidar.y_m], (int(ng.sum()), 1))
+    keep = dror_keep_mask(xyz[ng], DrorConfig(), sensor)
+    flakes = box[ng] == -2
+    objects = box[ng] >= 2  # cars, pedestrians, geese, poles, the sign (0, 1 are the buildings)
+    assert flakes.sum() > 300
+    assert (~keep[flakes]).mean() >= 0.9
+    # DROR trims the sparse ends of ring segments, but no object is lost.
+    assert keep[objects].mean() >= 0.9
+    for b in np.unique(box[ng][objects]):
+        mine = box[ng] == b
+        if mine.sum() >= 20:
+            assert keep[mine].mean() >= 0.5
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    n=st.integers(4, 40),
+    r=st.floats(1.0, 60.0).filter(lambda r: abs(r - 20.0) > 1e-6),  # not on the range limit
+)
+def test_a_tight_group_always_survives_and_a_lone_point_never_does(seed, n, r):
+    rng = np.random.default_rng(seed)
+    cfg = DrorConfig()
+    ang = rng.uniform(-np.pi, np.pi)
+    centre = np.array([r * np.cos(ang), r * np.sin(ang), 1.0])
+    group = centre + rng.uniform(-0.02, 0.02, (n, 3))  # all within min_radius of each other
+    lone = centre + np.array([0.0, 0.0, 5.0])  # nothing within any radius the filter can use
+    keep = dror_keep_mask(np.vstack([group, lone]), cfg)
+    assert keep[:n].all()
+    assert keep[n] == (r > cfg.max_range_m)  # beyond max_range_m points are not tested
+
+
+def test_radius_grows_with_range_so_sparse_far_objects_survive():
+    # Five points 0.12 m apart: too sparse for the 0.1 m radius at 5 m, fine at 30 m where the
+    # radius is 5 * 30 m * 0.2 deg = 0.52 m.
+    offsets = np.c_[np.zeros(5), np.arange(5) * 0.12, np.zeros(5)]
+    near = offsets + np.array([5.0, 0, 1])
+    far = offsets + np.array([30.0, 0, 1])
+    cfg = DrorConfig(max_range_m=100.0)
+    assert not dror_keep_mask(near, cfg).any()
+    assert dror_keep_mask(far, cfg).all()
+
+
+def test_config_is_validated():
+    with pytest.raises(ConfigError, match="min_neighbours"):
+        DrorConfig(min_neighbours=0)
+
+
+def test_scan_line_shortcut_gives_the_same_mask():
+    rng = np.random.default_rng(8)
+    lidar = default_rig()[0]
+    sw, _ = sweep(campus_scene(rng), lidar, 0, rng, snowflakes=400)
+    p = sw.points.astype(np.float64)
+    key = p[:, 4].astype(np.int64)  # one sensor: the ring is the scan line
+    full = dror_keep_mask(p[:, :3], DrorConfig())
+    fast = dror_keep_mask(p[:, :3], DrorConfig(), scan_key=key)
+    assert np.array_equal(full, fast) and (~full).sum() > 100
