@@ -92,12 +92,38 @@ class ClassParams:
 
 def default_class_params() -> dict[int, ClassParams]:
     """Defaults per :class:`ObjectClass` (vehicles fast and large, pedestrians slow and small)."""
+    # Times suit 10 Hz LiDAR: a car is full at its second detection, a pedestrian at its first (their
+    # detections are sparse), and vulnerable road users coast through up to three missed frames.
     return {
         ObjectClass.UNKNOWN: ClassParams(),
-        ObjectClass.CAR: ClassParams(gate_m=4.0, accel_std_mps2=4.0, yaw_accel_std_radps2=1.0),
-        ObjectClass.PEDESTRIAN: ClassParams(gate_m=2.0, accel_std_mps2=2.0, pos_std_m=0.2, yaw_std_rad=0.6),
-        ObjectClass.CYCLIST: ClassParams(gate_m=3.0, accel_std_mps2=3.0, yaw_accel_std_radps2=1.5),
-        ObjectClass.ANIMAL: ClassParams(gate_m=2.0, accel_std_mps2=3.0, pos_std_m=0.2, yaw_std_rad=0.8),
+        ObjectClass.CAR: ClassParams(
+            gate_m=4.0,
+            accel_std_mps2=4.0,
+            yaw_accel_std_radps2=1.0,
+            t_birth_s=0.1,
+            t_expire_s=0.1,
+            t_prune_s=0.3,
+        ),
+        ObjectClass.PEDESTRIAN: ClassParams(
+            gate_m=2.0,
+            accel_std_mps2=2.0,
+            pos_std_m=0.2,
+            yaw_std_rad=0.6,
+            t_birth_s=0.0,
+            t_expire_s=0.3,
+            t_prune_s=0.4,
+        ),
+        ObjectClass.CYCLIST: ClassParams(
+            gate_m=3.0,
+            accel_std_mps2=3.0,
+            yaw_accel_std_radps2=1.5,
+            t_birth_s=0.2,
+            t_expire_s=0.3,
+            t_prune_s=0.4,
+        ),
+        ObjectClass.ANIMAL: ClassParams(
+            gate_m=2.0, accel_std_mps2=3.0, pos_std_m=0.2, yaw_std_rad=0.8, t_expire_s=0.3, t_prune_s=0.4
+        ),
     }
 
 
