@@ -20,6 +20,7 @@ import sys
 import tempfile
 import time
 import types
+from pathlib import Path
 
 
 def _stub_helpers():
@@ -28,7 +29,7 @@ def _stub_helpers():
     io.mkdir_if_missing = lambda p: None
     io.is_path_exists = os.path.exists
     io.fileparts = lambda p: (os.path.dirname(p), *os.path.splitext(os.path.basename(p)))
-    io.load_txt_file = lambda p: (open(p).read().splitlines(), 0)
+    io.load_txt_file = lambda p: (Path(p).read_text().splitlines(), 0)
     io.save_txt_file = lambda *a, **k: None
     io.load_list_from_folder = lambda *a, **k: ([], 0)
     misc = types.ModuleType("xinshuo_miscellaneous")
@@ -50,9 +51,9 @@ def track(ab, det_dir, out_dir, seqs):
     sys.path.insert(0, ab)
     _stub_helpers()
     import numpy as np
-    from easydict import EasyDict
     from AB3DMOT_libs.io import get_frame_det
     from AB3DMOT_libs.model import AB3DMOT
+    from easydict import EasyDict
 
     cfg = EasyDict(dataset="KITTI", det_name="pointrcnn", vis=False, ego_com=False, affi_pro=True, num_hypo=1)
     id2str = {1: "Pedestrian", 2: "Car", 3: "Cyclist"}
@@ -74,9 +75,8 @@ def track(ab, det_dir, out_dir, seqs):
                 for r in res[0]:
                     r = r.reshape(-1)
                     b, tid, ori, typ, b2, conf = r[0:7], int(r[7]), r[8], id2str[int(r[9])], r[10:14], r[14]
-                    lines[seq].append(
-                        "%d %d %s 0 0 %f %f %f %f %f %f %f %f %f %f %f %f %f" % (frame, tid, typ, ori, *b2, *b, conf)
-                    )
+                    vals = " ".join(f"{v:f}" for v in (ori, *b2, *b, conf))
+                    lines[seq].append(f"{frame} {tid} {typ} 0 0 {vals}")
             id_start = max(id_start, trk.ID_count[0])
     for seq, _ in seqs:
         with open(os.path.join(out_dir, seq + ".txt"), "w") as fh:
@@ -92,15 +92,16 @@ def evaluate(ab, res, labels, seqs):
     for f in ("evaluate.py", "munkres.py", "mailpy.py"):
         shutil.copy(os.path.join(ab, "scripts", "KITTI", f), kitti)
     with open(os.path.join(kitti, "evaluate_tracking.seqmap.val"), "w") as fh:
-        fh.write("".join("%s empty 000000 %06d\n" % (s, int(n) - 1) for s, n in seqs))
+        fh.write("".join(f"{s} empty 000000 {int(n) - 1:06d}\n" for s, n in seqs))
     os.symlink(os.path.abspath(labels), os.path.join(kitti, "label"))
     data = os.path.join(root, "results", "KITTI", "sha", "data_0")
     shutil.copytree(res, data)  # a copy, not a link: the script writes its summaries next to it
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([root, kitti, ab]), MPLBACKEND="Agg")
+    here = os.path.dirname(os.path.abspath(__file__))
     code = (
-        "import sys; sys.path.insert(0, %r); import ab3dmot_driver as d; d._stub_helpers(); import runpy; "
+        f"import sys; sys.path.insert(0, {here!r}); import ab3dmot_driver as d; d._stub_helpers(); import runpy; "
         "sys.argv = ['evaluate.py', 'sha', '1', '3D', '0.25']; runpy.run_path('scripts/KITTI/evaluate.py', "
-        "run_name='__main__')" % os.path.dirname(os.path.abspath(__file__))
+        "run_name='__main__')"
     )
     out = subprocess.run([sys.executable, "-c", code], cwd=root, env=env, capture_output=True, text=True)
     if out.returncode:

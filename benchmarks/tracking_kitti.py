@@ -18,6 +18,7 @@ Run: python benchmarks/tracking_kitti.py [--data ../shared/data/kitti_tracking] 
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import os
 import statistics
@@ -57,12 +58,15 @@ KITTI_CLASS = {"Car": ObjectClass.CAR, "Pedestrian": ObjectClass.PEDESTRIAN, "Cy
 
 
 def candidates() -> dict[str, AutoTrackConfig]:
-    """The grid the cross-validation chooses from (association method x lifecycle times x coasting)."""
+    """The grid the cross-validation chooses from: association method x birth time x coasting time x
+    smallest detection score that may start a track (16 candidates)."""
     out = {}
     base = default_class_params()
-    for method in ("hungarian", "greedy"):
-        for birth in ("fast", "slow"):
-            for coast in ("short", "long"):
+    for method, birth, coast, min_score in itertools.product(
+        ("hungarian", "greedy"), ("fast", "slow"), ("short", "long"), (-np.inf, 0.0)
+    ):
+        if True:
+            if True:
                 cp = dict(base)
                 car, ped, cyc = (int(KITTI_CLASS[c]) for c in CLASSES)
                 fast = birth == "fast"
@@ -71,8 +75,13 @@ def candidates() -> dict[str, AutoTrackConfig]:
                 cp[cyc] = replace(cp[cyc], t_birth_s=0.1 if fast else 0.2)
                 expire = {"short": (0.1, 0.3, 0.3), "long": (0.2, 0.4, 0.4)}[coast]
                 for k, e in zip((car, ped, cyc), expire, strict=True):
-                    cp[k] = replace(cp[k], t_expire_s=e, t_prune_s=max(cp[k].t_prune_s, e + 0.1))
-                out[f"{method}/{birth}-birth/{coast}-coast"] = AutoTrackConfig(
+                    cp[k] = replace(
+                        cp[k],
+                        t_expire_s=e,
+                        t_prune_s=max(cp[k].t_prune_s, e + 0.1),
+                        birth_min_score=min_score,
+                    )
+                out[f"{method}/{birth}-birth/{coast}-coast/birth-score>={min_score}"] = AutoTrackConfig(
                     classes=cp, association=AssociationConfig(method=method)
                 )
     return out
@@ -123,7 +132,10 @@ def evaluate_all(labels: dict, results: dict, n_frames: dict) -> dict:
     """Per class over the ten sequences, and per sequence and class."""
     out: dict = {"all": {c: evaluate_class(labels, results, c, n_frames=n_frames).as_dict() for c in CLASSES}}
     out["per_sequence"] = {
-        s: {c: evaluate_class({s: labels[s]}, {s: results[s]}, c, n_frames=n_frames).as_dict() for c in CLASSES}
+        s: {
+            c: evaluate_class({s: labels[s]}, {s: results[s]}, c, n_frames=n_frames).as_dict()
+            for c in CLASSES
+        }
         for s in SEQUENCES
     }
     return out
@@ -176,7 +188,11 @@ def synthetic_latency(n_objects: int = 50, frames: int = 300, seed: int = 0) -> 
         tracker.tracks(msg.stamp)
         lat.append(time.perf_counter() - t0)
     ms = np.array(lat[20:]) * 1e3  # after the tracks are born
-    return {"objects": n_objects, "p50_ms": float(np.percentile(ms, 50)), "p95_ms": float(np.percentile(ms, 95))}
+    return {
+        "objects": n_objects,
+        "p50_ms": float(np.percentile(ms, 50)),
+        "p95_ms": float(np.percentile(ms, 95)),
+    }
 
 
 def run_ab3dmot(args: argparse.Namespace, n_frames: dict, out_dir: Path) -> dict:
@@ -198,7 +214,14 @@ def reference_eval(args: argparse.Namespace, results_dir: Path, n_frames: dict) 
     driver = str(REPO / "benchmarks" / "ab3dmot_driver.py")
     seq_args = [f"{s}:{n_frames[s]}" for s in SEQUENCES]
     proc = subprocess.run(
-        [args.ab3dmot_python, driver, "evaluate", str(args.ab3dmot), str(results_dir), str(args.data / "labels")]
+        [
+            args.ab3dmot_python,
+            driver,
+            "evaluate",
+            str(args.ab3dmot),
+            str(results_dir),
+            str(args.data / "labels"),
+        ]
         + seq_args,
         capture_output=True,
         text=True,
@@ -208,11 +231,15 @@ def reference_eval(args: argparse.Namespace, results_dir: Path, n_frames: dict) 
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--data", type=Path, default=REPO / ".." / "shared" / "data" / "kitti_tracking")
     parser.add_argument("--json", type=Path, default=REPO / "benchmarks" / "results" / "tracking_kitti.json")
     parser.add_argument("--ab3dmot", type=Path, default=None, help="AB3DMOT checkout to run beside ours")
-    parser.add_argument("--ab3dmot-python", default=sys.executable, help="interpreter with AB3DMOT's requirements")
+    parser.add_argument(
+        "--ab3dmot-python", default=sys.executable, help="interpreter with AB3DMOT's requirements"
+    )
     parser.add_argument("--reference-eval", action="store_true", help="also score with AB3DMOT's evaluate.py")
     args = parser.parse_args()
     if hasattr(os, "sched_setaffinity"):
@@ -249,7 +276,16 @@ def main() -> None:
         base_label = "AB3DMOT (issue's reference numbers, not run)"
 
     table = Table(title=f"KITTI 3D MOT, ten sequences, held-out (2-fold CV) vs {base_label}")
-    for col in ("class", "sAMOTA ours", "sAMOTA base", "MOTA ours", "MOTA base", "IDS ours", "IDS base", "FP/FN ours"):
+    for col in (
+        "class",
+        "sAMOTA ours",
+        "sAMOTA base",
+        "MOTA ours",
+        "MOTA base",
+        "IDS ours",
+        "IDS base",
+        "FP/FN ours",
+    ):
         table.add_column(col, justify="right")
     for c in CLASSES:
         o, b = ours["all"][c], base["all"][c]

@@ -103,3 +103,9 @@ def test_bev_intersection_is_symmetric_bounded_and_matches_sampling(
     inside = (np.abs(lx) <= other[0, 3] / 2) & (np.abs(ly) <= other[0, 4] / 2)
     sampled = inside.mean() * small[0, 3] * small[0, 4]
     assert ab == pytest.approx(sampled, abs=0.05 * small[0, 3] * small[0, 4] + 1e-6)
+
+
+def test_nested_box_overlap_is_the_small_box() -> None:
+    big, small = _box(length=6.0, width=4.0, yaw=0.3), _box(x=0.5, length=1.0, width=0.5, yaw=1.1)
+    assert bev_intersection_pairs(big, small)[0] == pytest.approx(0.5)
+    assert bev_intersection_pairs(small, big)[0] == pytest.approx(0.5)
