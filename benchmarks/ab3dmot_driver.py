@@ -99,7 +99,8 @@ def evaluate(ab, res, labels, seqs):
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([root, kitti, ab]), MPLBACKEND="Agg")
     here = os.path.dirname(os.path.abspath(__file__))
     code = (
-        f"import sys; sys.path.insert(0, {here!r}); import ab3dmot_driver as d; d._stub_helpers(); import runpy; "
+        f"import sys; sys.path.insert(0, {here!r}); import ab3dmot_driver as d; d._stub_helpers(); "
+        "import runpy; "
         "sys.argv = ['evaluate.py', 'sha', '1', '3D', '0.25']; runpy.run_path('scripts/KITTI/evaluate.py', "
         "run_name='__main__')"
     )
@@ -109,10 +110,10 @@ def evaluate(ab, res, labels, seqs):
         sys.exit(1)
     scores = {}
     for cls in ("car", "pedestrian", "cyclist"):
-        p = os.path.join(root, "results", "KITTI", "sha", "summary_%s_average_eval3D.txt" % cls)
+        p = os.path.join(root, "results", "KITTI", "sha", f"summary_{cls}_average_eval3D.txt")
         if not os.path.exists(p):
             continue
-        text = open(p).read()
+        text = Path(p).read_text()
         m = re.search(r"sAMOTA\s+AMOTA\s+AMOTP\s*\n\s*(\S+)\s+(\S+)\s+(\S+)", text)
         best = text.split("best results with single threshold")[-1]
 

@@ -221,8 +221,8 @@ def reference_eval(args: argparse.Namespace, results_dir: Path, n_frames: dict) 
             str(args.ab3dmot),
             str(results_dir),
             str(args.data / "labels"),
-        ]
-        + seq_args,
+            *seq_args,
+        ],
         capture_output=True,
         text=True,
         check=True,

@@ -80,7 +80,7 @@ class PredictionConfig:
             raise ConfigError(f"PredictionConfig.stop_decel_mps2: expected > 0, got {self.stop_decel_mps2}")
 
     def times(self) -> np.ndarray:
-        n = int(math.floor(self.horizon_s / self.step_s + 1e-9))
+        n = math.floor(self.horizon_s / self.step_s + 1e-9)
         return self.step_s * np.arange(1, n + 1)
 
 
@@ -110,7 +110,7 @@ def _angle_diff(a: float, b: float) -> float:
 
 
 class MapAwarePredictor:
-    """Lane following with stop lines for vehicles, crosswalk seeking for pedestrians; else constant velocity."""
+    """Vehicles follow lanes and stop at stop lines, pedestrians seek crosswalks; else constant velocity."""
 
     def __init__(self, hdmap: HDMap, config: PredictionConfig | None = None) -> None:
         self.hdmap = hdmap
