@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from lastmile.core.box3d import iou3d_matrix
+from lastmile.core.box3d import iou3d_pairs
 from lastmile.core.errors import ConfigError
 
 _FORBIDDEN = 1e6
@@ -89,9 +89,7 @@ def association_cost(
         ii, jj = np.nonzero(allowed)
         if ii.size:
             # IoU only for gated pairs: most pairs are far apart.
-            sub = iou3d_matrix(track_boxes[np.unique(ii)], det_boxes[np.unique(jj)])
-            iu, ju = np.unique(ii), np.unique(jj)
-            iou[np.ix_(iu, ju)] = sub
+            iou[ii, jj] = iou3d_pairs(track_boxes[ii], det_boxes[jj])
         cost = cost + cfg.w_iou * (1.0 - iou)
     if cfg.w_class:
         cost = cost + cfg.w_class * (1.0 - track_class_prob[:, det_class])

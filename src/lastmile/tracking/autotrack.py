@@ -455,10 +455,14 @@ class AutoTrack:
         t = self._t
         sel = np.nonzero(t.full)[0]
         cls = np.argmax(t.class_prob[sel], axis=1)
-        x, p = box_kalman.predict(
-            t.x[sel], t.p[sel], (int(stamp) - t.stamp_us[sel]) * _US,
-            self._params("accel_std_mps2", cls), self._params("yaw_accel_std_radps2", cls),
-        )  # fmt: skip
+        dt = (int(stamp) - t.stamp_us[sel]) * _US
+        if np.any(dt != 0.0):
+            x, p = box_kalman.predict(
+                t.x[sel], t.p[sel], dt,
+                self._params("accel_std_mps2", cls), self._params("yaw_accel_std_radps2", cls),
+            )  # fmt: skip
+        else:  # asked at the last update's stamp: nothing to predict
+            x, p = t.x[sel], t.p[sel]
         since = (int(stamp) - t.last_det_us[sel]) * _US
         table = np.column_stack(
             [

@@ -18,6 +18,8 @@ import numpy as np
 from lastmile.core.box3d import wrap_angle
 
 STATE_DIM = 7
+_POS = np.array([0, 1, 3])  # x, y, yaw ...
+_RATE = np.array([4, 5, 6])  # ... and their rates
 _POS_YAW = np.array([0, 1, 2, 3])
 _POS_YAW_VEL = np.array([0, 1, 2, 3, 4, 5])
 
@@ -33,13 +35,14 @@ def predict(
     n = x.shape[0]
     if n == 0:
         return x.copy(), p.copy()
-    f = np.broadcast_to(np.eye(STATE_DIM), (n, STATE_DIM, STATE_DIM)).copy()
-    f[:, 0, 4] = dt_s
-    f[:, 1, 5] = dt_s
-    f[:, 3, 6] = dt_s
-    xn = np.einsum("nij,nj->ni", f, x)
+    # F = I + dt (e_0 e_4' + e_1 e_5' + e_3 e_6'): apply it by rows (F P), then by columns (F P F').
+    xn = x.copy()
+    xn[:, _POS] += dt_s[:, None] * x[:, _RATE]
     xn[:, 3] = wrap_angle(xn[:, 3])
-    pn = f @ p @ np.transpose(f, (0, 2, 1))
+    fp = p.copy()
+    fp[:, _POS, :] += dt_s[:, None, None] * p[:, _RATE, :]
+    pn = fp.copy()
+    pn[:, :, _POS] += dt_s[:, None, None] * fp[:, :, _RATE]
     adt = np.abs(dt_s)
     qa = accel_std**2
     qw = yaw_accel_std**2
