@@ -10,7 +10,7 @@ import pytest
 
 from lastmile.core.errors import ConfigError, MessageError
 from lastmile.evaluation.kitti_io import KittiRows, read_detections, read_labels, write_results
-from lastmile.evaluation.kitti_mot import _switches, _thresholds, evaluate_class
+from lastmile.evaluation.kitti_mot import ProtocolConfig, _switches, _thresholds, evaluate_class
 
 
 def _rows(entries: list[tuple], with_score: bool = True) -> KittiRows:
@@ -169,3 +169,22 @@ def test_files_round_trip_and_bad_lines_raise(tmp_path: Path) -> None:
         read_detections(tmp_path / "det.txt")
     with pytest.raises(ConfigError, match="missing"):
         read_detections(tmp_path / "nope.txt")
+
+
+def test_results_files_round_trip_bit_for_bit(tmp_path: Path) -> None:
+    rows = _rows([(0, 3, "Car", 1.0 / 3.0, 10.1, 2.0 / 7.0)])
+    write_results(tmp_path / "r.txt", rows)
+    back = read_labels(tmp_path / "r.txt", with_score=True)
+    assert back.score[0] == rows.score[0] and np.array_equal(back.camera_box, rows.camera_box)
+
+
+def test_reference_score_rounding_can_drop_the_only_track_and_exact_means_do_not() -> None:
+    # Scores whose mean, re-averaged from n copies, falls one rounding step lower (found by search).
+    scores = [3.66, 1.06, 0.41, 0.25, 4.82, 0.75]
+    mean = sum(scores) / 6.0
+    assert sum([mean] * 6) / 6.0 < mean
+    gt = _rows([(f, 0, "Car", 0.0, 10.0, 0.0) for f in range(6)])
+    res = _rows([(f, 1, "Car", 0.0, 10.0, scores[f]) for f in range(6)])
+    quirky = evaluate_class({"s": gt}, {"s": res}, "Car")
+    exact = evaluate_class({"s": gt}, {"s": res}, "Car", config=ProtocolConfig(reference_score_rounding=False))
+    assert quirky.samota == pytest.approx(0.0, abs=1e-9) and exact.samota == pytest.approx(5 / 40)

@@ -157,14 +157,13 @@ def read_labels(path: Path, *, with_score: bool = False) -> KittiRows:
 
 def write_results(path: Path, rows: KittiRows) -> None:
     """Write ``rows`` in the KITTI tracking results format (label format plus a score column)."""
+    # Floats are written with repr (shortest round-trip form): an evaluator reading the file sees the
+    # very numbers scored in memory (the KITTI sweep is sensitive to the last bit of mean scores).
     lines = []
     for i in range(len(rows)):
-        h, w, length, x, y, z, ry = rows.camera_box[i]
-        x1, y1, x2, y2 = rows.image_box[i]
+        vals = (rows.alpha_rad[i], *rows.image_box[i], *rows.camera_box[i], rows.score[i])
         lines.append(
-            f"{rows.frame[i]} {rows.track_id[i]} {rows.obj_type[i]} 0 0 {rows.alpha_rad[i]:.6f} "
-            f"{x1:.4f} {y1:.4f} {x2:.4f} {y2:.4f} {h:.4f} {w:.4f} {length:.4f} "
-            f"{x:.4f} {y:.4f} {z:.4f} {ry:.6f} {rows.score[i]:.6f}"
+            f"{rows.frame[i]} {rows.track_id[i]} {rows.obj_type[i]} 0 0 " + " ".join(repr(float(v)) for v in vals)
         )
     path.write_text("\n".join(lines) + ("\n" if lines else ""))
 
