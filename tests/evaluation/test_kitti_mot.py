@@ -186,5 +186,6 @@ def test_reference_score_rounding_can_drop_the_only_track_and_exact_means_do_not
     gt = _rows([(f, 0, "Car", 0.0, 10.0, 0.0) for f in range(6)])
     res = _rows([(f, 1, "Car", 0.0, 10.0, scores[f]) for f in range(6)])
     quirky = evaluate_class({"s": gt}, {"s": res}, "Car")
-    exact = evaluate_class({"s": gt}, {"s": res}, "Car", config=ProtocolConfig(reference_score_rounding=False))
+    no_quirk = ProtocolConfig(reference_score_rounding=False)
+    exact = evaluate_class({"s": gt}, {"s": res}, "Car", config=no_quirk)
     assert quirky.samota == pytest.approx(0.0, abs=1e-9) and exact.samota == pytest.approx(5 / 40)

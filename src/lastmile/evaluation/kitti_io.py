@@ -162,9 +162,8 @@ def write_results(path: Path, rows: KittiRows) -> None:
     lines = []
     for i in range(len(rows)):
         vals = (rows.alpha_rad[i], *rows.image_box[i], *rows.camera_box[i], rows.score[i])
-        lines.append(
-            f"{rows.frame[i]} {rows.track_id[i]} {rows.obj_type[i]} 0 0 " + " ".join(repr(float(v)) for v in vals)
-        )
+        numbers = " ".join(repr(float(v)) for v in vals)
+        lines.append(f"{rows.frame[i]} {rows.track_id[i]} {rows.obj_type[i]} 0 0 {numbers}")
     path.write_text("\n".join(lines) + ("\n" if lines else ""))
 
 
