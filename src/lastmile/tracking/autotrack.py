@@ -1,0 +1,487 @@
+"""aUToTrack (aUToronto 6.3): 3D box multi-object tracker with trial/full lifecycle, class HMM and rollback.
+
+One update per detection message (:class:`DetectedBoxes`, from any LiDAR, radar-fused or other source):
+
+1. every track is predicted to the message's capture stamp (:mod:`lastmile.tracking.box_kalman`);
+2. detections are associated to tracks on the weighted, gated cost of
+   :mod:`lastmile.tracking.association` (Hungarian by default);
+3. matched tracks get a Kalman update (with the radar Doppler velocity where the box carries one),
+   a size update, a class-HMM update, and take the detection's score and attributes;
+4. unmatched detections scoring at least their class's ``birth_min_score`` start *trial* tracks;
+5. lifecycle: a trial track becomes *full* once it has been detected over ``t_birth_s``; a full track
+   not detected for more than ``t_expire_s`` is demoted to trial (and promoted again on its next
+   detection); a track not detected for more than ``t_prune_s`` (``t_expire_s`` for one that was never
+   full) is deleted. Only full tracks are published.
+
+Rollback: messages are kept in capture order (stamp, then source name) with the tracker state after
+each. A message older than the newest processed one rolls the tracker back to the state just before
+its stamp and replays it and every later message, so arrival order does not change the result.
+Nothing is dropped: a message older than the retained window (``rollback_window_s``) is replayed from
+the oldest retained state, its tracks retrodicted to its stamp (counted in ``late_beyond_window``).
+"""
+
+from __future__ import annotations
+
+import bisect
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields
+
+import numpy as np
+
+from lastmile.core.box3d import BOX3D_COLUMNS
+from lastmile.core.boxes3d import TRACK_BOX_COLUMNS, DetectedBoxes, TrackedBoxes
+from lastmile.core.errors import ConfigError, MessageError
+from lastmile.core.object_class import ObjectClass
+from lastmile.core.stamp import Stamp
+from lastmile.tracking import box_kalman
+from lastmile.tracking.association import AssociationConfig, assign, association_cost
+from lastmile.tracking.class_hmm import (
+    N_CLASSES,
+    ClassHmmConfig,
+    hmm_update,
+    initial_prob,
+    match_camera_detections,
+)
+
+_US = 1e-6
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ClassParams:
+    """Per-class tracker parameters.
+
+    Attributes:
+        gate_m: centre-distance gate for association.
+        birth_min_score: detections scoring lower update tracks but never start one.
+        t_birth_s: detected over this long (first to latest detection) before a trial track is full.
+        t_expire_s: a full track undetected for longer is demoted (no longer published).
+        t_prune_s: a track undetected for longer is deleted.
+        accel_std_mps2: white-acceleration process noise.
+        yaw_accel_std_radps2: white angular-acceleration process noise.
+        pos_std_m: detection position noise (one sigma, per axis).
+        yaw_std_rad: detection heading noise.
+        init_speed_std_mps: velocity uncertainty of a new track.
+    """
+
+    gate_m: float = 3.0
+    birth_min_score: float = -np.inf
+    t_birth_s: float = 0.2
+    t_expire_s: float = 0.0
+    t_prune_s: float = 0.3
+    accel_std_mps2: float = 3.0
+    yaw_accel_std_radps2: float = 2.0
+    pos_std_m: float = 0.3
+    yaw_std_rad: float = 0.3
+    init_speed_std_mps: float = 5.0
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if f.name == "birth_min_score":
+                if np.isnan(v):
+                    raise ConfigError("ClassParams.birth_min_score: expected a number, got NaN")
+            elif not (np.isfinite(v) and v >= 0.0):
+                raise ConfigError(f"ClassParams.{f.name}: expected a finite value >= 0, got {v!r}")
+        if self.gate_m <= 0.0 or self.pos_std_m <= 0.0 or self.yaw_std_rad <= 0.0:
+            raise ConfigError("ClassParams: expected gate_m, pos_std_m and yaw_std_rad > 0")
+        if self.t_prune_s < self.t_expire_s:
+            raise ConfigError(
+                f"ClassParams.t_prune_s: expected >= t_expire_s ({self.t_expire_s}), got {self.t_prune_s}"
+            )
+
+
+def default_class_params() -> dict[int, ClassParams]:
+    """Defaults per :class:`ObjectClass` (vehicles fast and large, pedestrians slow and small)."""
+    # Times suit 10 Hz LiDAR: a car is full at its second detection, a pedestrian at its first (their
+    # detections are sparse), and vulnerable road users coast through up to three missed frames.
+    return {
+        ObjectClass.UNKNOWN: ClassParams(),
+        ObjectClass.CAR: ClassParams(
+            gate_m=4.0,
+            accel_std_mps2=4.0,
+            yaw_accel_std_radps2=1.0,
+            t_birth_s=0.1,
+            t_expire_s=0.1,
+            t_prune_s=0.3,
+        ),
+        ObjectClass.PEDESTRIAN: ClassParams(
+            gate_m=2.0,
+            accel_std_mps2=2.0,
+            pos_std_m=0.2,
+            yaw_std_rad=0.6,
+            t_birth_s=0.0,
+            t_expire_s=0.3,
+            t_prune_s=0.4,
+        ),
+        ObjectClass.CYCLIST: ClassParams(
+            gate_m=3.0,
+            accel_std_mps2=3.0,
+            yaw_accel_std_radps2=1.5,
+            t_birth_s=0.2,
+            t_expire_s=0.3,
+            t_prune_s=0.4,
+        ),
+        ObjectClass.ANIMAL: ClassParams(
+            gate_m=2.0, accel_std_mps2=3.0, pos_std_m=0.2, yaw_std_rad=0.8, t_expire_s=0.3, t_prune_s=0.4
+        ),
+    }
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class AutoTrackConfig:
+    """Tracker parameters (per-class ones in ``classes``, keyed by :class:`ObjectClass` value).
+
+    Attributes:
+        classes: per-class parameters; every ObjectClass must have an entry.
+        association: cost weights and assignment method.
+        hmm: class HMM.
+        size_gain: weight of a new detection in the box size (exponential average), 0..1.
+        radar_velocity_std_mps: noise of a radar Doppler velocity (over ground, per axis).
+        coast_score_penalty_per_s: a coasting full track's score drops by this per second undetected.
+        rollback_window_s: how far back states are kept for replaying late messages.
+        max_tracks: bound on live tracks (births beyond it are refused, counted in ``refused_births``).
+    """
+
+    classes: Mapping[int, ClassParams] = field(default_factory=default_class_params)
+    association: AssociationConfig = field(default_factory=AssociationConfig)
+    hmm: ClassHmmConfig = field(default_factory=ClassHmmConfig)
+    size_gain: float = 0.3
+    radar_velocity_std_mps: float = 0.3
+    coast_score_penalty_per_s: float = 5.0
+    rollback_window_s: float = 2.0
+    max_tracks: int = 500
+
+    def __post_init__(self) -> None:
+        missing = [c.name for c in ObjectClass if int(c) not in self.classes]
+        if missing:
+            raise ConfigError(
+                f"AutoTrackConfig.classes: expected an entry for every ObjectClass, missing {missing}"
+            )
+        if not 0.0 < self.size_gain <= 1.0:
+            raise ConfigError(f"AutoTrackConfig.size_gain: expected in (0, 1], got {self.size_gain}")
+        if self.rollback_window_s < 0.0 or self.max_tracks < 1 or self.radar_velocity_std_mps <= 0.0:
+            raise ConfigError(
+                "AutoTrackConfig: expected rollback_window_s >= 0, max_tracks >= 1, velocity std > 0"
+            )
+
+
+def _class_table(cfg: AutoTrackConfig) -> dict[str, np.ndarray]:
+    names = [f.name for f in fields(ClassParams)]
+    return {
+        n: np.array([getattr(cfg.classes[int(c)], n) for c in ObjectClass], dtype=np.float64) for n in names
+    }
+
+
+@dataclass(slots=True)
+class _Tracks:
+    """All live tracks, struct-of-arrays (copied whole for rollback snapshots)."""
+
+    ids: np.ndarray
+    x: np.ndarray
+    p: np.ndarray
+    size: np.ndarray
+    stamp_us: np.ndarray
+    first_det_us: np.ndarray
+    last_det_us: np.ndarray
+    full: np.ndarray
+    ever_full: np.ndarray
+    class_prob: np.ndarray
+    score: np.ndarray
+    attributes: np.ndarray
+    next_id: int
+
+    @staticmethod
+    def empty(n_attributes: int) -> _Tracks:
+        return _Tracks(
+            ids=np.zeros(0, np.int64),
+            x=np.zeros((0, box_kalman.STATE_DIM)),
+            p=np.zeros((0, box_kalman.STATE_DIM, box_kalman.STATE_DIM)),
+            size=np.zeros((0, 3)),
+            stamp_us=np.zeros(0, np.int64),
+            first_det_us=np.zeros(0, np.int64),
+            last_det_us=np.zeros(0, np.int64),
+            full=np.zeros(0, bool),
+            ever_full=np.zeros(0, bool),
+            class_prob=np.zeros((0, N_CLASSES)),
+            score=np.zeros(0),
+            attributes=np.zeros((0, n_attributes)),
+            next_id=0,
+        )
+
+    def copy(self) -> _Tracks:
+        arrays = {f: getattr(self, f).copy() for f in _ARRAY_FIELDS}
+        return _Tracks(**arrays, next_id=self.next_id)
+
+    def keep(self, mask: np.ndarray) -> None:
+        for f in _ARRAY_FIELDS:
+            setattr(self, f, getattr(self, f)[mask])
+
+    def append(self, other: _Tracks) -> None:
+        for f in _ARRAY_FIELDS:
+            setattr(self, f, np.concatenate([getattr(self, f), getattr(other, f)]))
+
+    def boxes(self) -> np.ndarray:
+        """(N, 7) boxes of the current states."""
+        return np.column_stack([self.x[:, 0:3], self.size, self.x[:, 3]])
+
+
+_ARRAY_FIELDS = tuple(f.name for f in fields(_Tracks) if f.name != "next_id")
+
+
+class AutoTrack:
+    """The tracker. Feed :meth:`update` with detection messages in any order; read :meth:`tracks`."""
+
+    def __init__(self, config: AutoTrackConfig | None = None, *, n_attributes: int = 0) -> None:
+        self.config = config or AutoTrackConfig()
+        self._ct = _class_table(self.config)
+        self._n_attr = n_attributes
+        self._t = _Tracks.empty(n_attributes)
+        self._queue: list[tuple[tuple[int, str], DetectedBoxes]] = []
+        self._states: list[_Tracks] = []  # state after each queued message
+        self._base = self._t.copy()  # state before the first queued message
+        self.late_beyond_window = 0
+        self.rollbacks = 0
+        self.refused_births = 0
+
+    def __len__(self) -> int:
+        return int(self._t.ids.shape[0])
+
+    # ----------------------------------------------------------------- rollback bookkeeping
+    def update(self, msg: DetectedBoxes) -> None:
+        """Process one detection message (late ones roll the tracker back and replay).
+
+        Raises:
+            MessageError: the message's attribute width differs from the tracker's ``n_attributes``.
+        """
+        if msg.attributes.shape[1] != self._n_attr:
+            raise MessageError(
+                f"DetectedBoxes.attributes: expected {self._n_attr} columns, got {msg.attributes.shape[1]}"
+            )
+        key = (int(msg.stamp), msg.source)
+        if not self._queue or key >= self._queue[-1][0]:
+            self._step(msg)
+            self._queue.append((key, msg))
+            self._states.append(self._t.copy())
+        else:
+            self.rollbacks += 1
+            pos = bisect.bisect_right([k for k, _ in self._queue], key)
+            if pos == 0:
+                self.late_beyond_window += int(
+                    self._queue[0][0][0] - key[0] > self.config.rollback_window_s / _US
+                )
+            self._t = (self._states[pos - 1] if pos > 0 else self._base).copy()
+            self._queue.insert(pos, (key, msg))
+            del self._states[pos:]
+            for _, m in self._queue[pos:]:
+                self._step(m)
+                self._states.append(self._t.copy())
+        self._trim()
+
+    def _trim(self) -> None:
+        newest = self._queue[-1][0][0]
+        horizon = newest - self.config.rollback_window_s / _US
+        cut = 0
+        while cut < len(self._queue) - 1 and self._queue[cut][0][0] < horizon:
+            cut += 1
+        if cut:
+            self._base = self._states[cut - 1]
+            del self._queue[:cut]
+            del self._states[:cut]
+
+    # ----------------------------------------------------------------- one message
+    def _params(self, name: str, cls: np.ndarray) -> np.ndarray:
+        return self._ct[name][cls]
+
+    def _step(self, msg: DetectedBoxes) -> None:
+        cfg = self.config
+        t = self._t
+        now = int(msg.stamp)
+        if t.ids.size:
+            cls = np.argmax(t.class_prob, axis=1)
+            dt = (now - t.stamp_us) * _US
+            t.x, t.p = box_kalman.predict(
+                t.x, t.p, dt, self._params("accel_std_mps2", cls), self._params("yaw_accel_std_radps2", cls)
+            )
+            t.stamp_us = np.full_like(t.stamp_us, now)
+        det_boxes = msg.boxes
+        det_cls = msg.class_id
+        cost = association_cost(
+            t.boxes(), t.class_prob, det_boxes, det_cls, self._params("gate_m", det_cls), cfg.association
+        )
+        ti, di = assign(cost, cfg.association.method)
+        if ti.size:
+            self._update_matched(ti, di, msg)
+        unmatched = np.ones(len(msg), bool)
+        unmatched[di] = False
+        born = unmatched & (msg.score >= self._params("birth_min_score", det_cls))
+        self._birth(np.nonzero(born)[0], msg)
+        self._lifecycle(now)
+
+    def _update_matched(self, ti: np.ndarray, di: np.ndarray, msg: DetectedBoxes) -> None:
+        cfg = self.config
+        t = self._t
+        b = msg.boxes[di]
+        cls = msg.class_id[di]
+        pos_var = self._params("pos_std_m", cls) ** 2
+        yaw_var = self._params("yaw_std_rad", cls) ** 2
+        has_v = msg.has_velocity[di]
+        for with_v in (False, True):
+            sel = has_v == with_v
+            if not np.any(sel):
+                continue
+            z = b[sel][:, [0, 1, 2, 6]]
+            r = np.column_stack([pos_var[sel], pos_var[sel], pos_var[sel], yaw_var[sel]])
+            if with_v:
+                z = np.column_stack([z, msg.velocity_mps[di[sel]]])
+                vv = np.full(int(sel.sum()), cfg.radar_velocity_std_mps**2)
+                r = np.column_stack([r, vv, vv])
+            rows = ti[sel]
+            t.x[rows], t.p[rows] = box_kalman.update(t.x[rows], t.p[rows], z, r, with_v)
+        t.size[ti] += cfg.size_gain * (b[:, 3:6] - t.size[ti])
+        t.class_prob[ti] = hmm_update(t.class_prob[ti], cls, cfg.hmm.lidar_accuracy, cfg.hmm.switch_prob)
+        t.score[ti] = msg.score[di]
+        t.attributes[ti] = msg.attributes[di]
+        t.last_det_us[ti] = int(msg.stamp)
+
+    def _birth(self, di: np.ndarray, msg: DetectedBoxes) -> None:
+        cfg = self.config
+        t = self._t
+        room = cfg.max_tracks - t.ids.size
+        if di.size > room:
+            self.refused_births += int(di.size - max(room, 0))
+            di = di[: max(room, 0)]
+        n = di.size
+        if n == 0:
+            return
+        b = msg.boxes[di]
+        cls = msg.class_id[di]
+        x = np.zeros((n, box_kalman.STATE_DIM))
+        x[:, 0:3] = b[:, 0:3]
+        x[:, 3] = b[:, 6]
+        p = np.zeros((n, box_kalman.STATE_DIM, box_kalman.STATE_DIM))
+        pos_var = self._params("pos_std_m", cls) ** 2
+        for k in range(3):
+            p[:, k, k] = pos_var
+        p[:, 3, 3] = self._params("yaw_std_rad", cls) ** 2
+        v_var = self._params("init_speed_std_mps", cls) ** 2
+        p[:, 4, 4] = v_var
+        p[:, 5, 5] = v_var
+        p[:, 6, 6] = 0.5**2
+        has_v = msg.has_velocity[di]
+        x[has_v, 4:6] = msg.velocity_mps[di[has_v]]
+        p[has_v, 4, 4] = cfg.radar_velocity_std_mps**2
+        p[has_v, 5, 5] = cfg.radar_velocity_std_mps**2
+        now = int(msg.stamp)
+        new = _Tracks(
+            ids=np.arange(t.next_id, t.next_id + n, dtype=np.int64),
+            x=x,
+            p=p,
+            size=b[:, 3:6].copy(),
+            stamp_us=np.full(n, now, np.int64),
+            first_det_us=np.full(n, now, np.int64),
+            last_det_us=np.full(n, now, np.int64),
+            full=np.zeros(n, bool),
+            ever_full=np.zeros(n, bool),
+            class_prob=initial_prob(cls, cfg.hmm.lidar_accuracy),
+            score=msg.score[di].astype(np.float64),
+            attributes=msg.attributes[di].copy(),
+            next_id=0,
+        )
+        t.append(new)
+        t.next_id += n
+
+    def _lifecycle(self, now: int) -> None:
+        t = self._t
+        if t.ids.size == 0:
+            return
+        cls = np.argmax(t.class_prob, axis=1)
+        since = (now - t.last_det_us) * _US
+        detected_now = t.last_det_us == now
+        span = (t.last_det_us - t.first_det_us) * _US
+        promote = detected_now & (t.ever_full | (span >= self._params("t_birth_s", cls) - 1e-9))
+        t.full |= promote
+        t.ever_full |= promote
+        t.full &= since <= self._params("t_expire_s", cls) + 1e-9
+        limit = np.where(t.ever_full, self._params("t_prune_s", cls), self._params("t_expire_s", cls))
+        t.keep(since <= limit + 1e-9)
+
+    # ----------------------------------------------------------------- camera evidence and output
+    def update_classes_from_camera(
+        self,
+        stamp: Stamp,
+        camera_boxes: np.ndarray,
+        camera_class: np.ndarray,
+        camera_from_frame: np.ndarray,
+        intrinsics: np.ndarray,
+    ) -> int:
+        """Update track classes (only) from 2D camera detections matched by projection; returns matches.
+
+        Tracks are predicted to ``stamp`` for the projection only; their states are left unchanged.
+        """
+        camera_class = np.asarray(camera_class, dtype=np.int64)
+        if camera_class.shape[0] != np.asarray(camera_boxes).shape[0]:
+            raise MessageError(
+                f"camera_class: expected one class per camera box ({np.asarray(camera_boxes).shape[0]}), "
+                f"got {camera_class.shape[0]}"
+            )
+        boxes = self._predicted_boxes(int(stamp))
+        ti, ci = match_camera_detections(
+            boxes,
+            np.asarray(camera_boxes, np.float64),
+            camera_from_frame,
+            intrinsics,
+            self.config.hmm.min_camera_iou,
+        )
+        if ti.size:
+            self._t.class_prob[ti] = hmm_update(
+                self._t.class_prob[ti],
+                camera_class[ci],
+                self.config.hmm.camera_accuracy,
+                self.config.hmm.switch_prob,
+            )
+        return int(ti.size)
+
+    def _predicted_boxes(self, stamp: int) -> np.ndarray:
+        t = self._t
+        cls = np.argmax(t.class_prob, axis=1)
+        x, _ = box_kalman.predict(
+            t.x, t.p, (stamp - t.stamp_us) * _US,
+            self._params("accel_std_mps2", cls), self._params("yaw_accel_std_radps2", cls),
+        )  # fmt: skip
+        return np.column_stack([x[:, 0:3], t.size, x[:, 3]])
+
+    def tracks(self, stamp: Stamp) -> TrackedBoxes:
+        """Full tracks predicted to ``stamp`` (the tracker's state is not changed)."""
+        t = self._t
+        sel = np.nonzero(t.full)[0]
+        cls = np.argmax(t.class_prob[sel], axis=1)
+        dt = (int(stamp) - t.stamp_us[sel]) * _US
+        if np.any(dt != 0.0):
+            x, p = box_kalman.predict(
+                t.x[sel], t.p[sel], dt,
+                self._params("accel_std_mps2", cls), self._params("yaw_accel_std_radps2", cls),
+            )  # fmt: skip
+        else:  # asked at the last update's stamp: nothing to predict
+            x, p = t.x[sel], t.p[sel]
+        since = (int(stamp) - t.last_det_us[sel]) * _US
+        table = np.column_stack(
+            [
+                x[:, 0:3],
+                t.size[sel],
+                x[:, 3],
+                x[:, 4:7],
+                np.sqrt(0.5 * (p[:, 0, 0] + p[:, 1, 1])),
+                (int(stamp) - t.first_det_us[sel]) * _US,
+            ]
+        )
+        assert table.shape[1] == len(TRACK_BOX_COLUMNS) and len(BOX3D_COLUMNS) == 7
+        return TrackedBoxes(
+            stamp=stamp,
+            ids=t.ids[sel],
+            table=table.reshape(-1, len(TRACK_BOX_COLUMNS)),
+            class_id=cls,
+            class_prob=t.class_prob[sel],
+            score=t.score[sel] - self.config.coast_score_penalty_per_s * np.maximum(since, 0.0),
+            updated=since == 0.0,
+            attributes=t.attributes[sel],
+        )
