@@ -335,8 +335,7 @@ class Dispatcher:
                 f"destination: expected a stop other than the origin, got {destination!r} for both",
             )
         if client_ref is not None and client_ref in self.by_ref:
-            ride = self.ride_or_404(self.by_ref[client_ref], principal)
-            return self.ride_view(ride), False
+            return self.ride_view(self.ride_or_404(self.by_ref[client_ref], principal)), False
         ride: dict[str, Any] = {
             "id": uuid.uuid4().hex,
             "client_ref": client_ref,
@@ -357,6 +356,8 @@ class Dispatcher:
         if client_ref is not None:
             self.by_ref[client_ref] = ride["id"]
         new_trips, vehicle = self._assign(ride)
+        if vehicle is None and not any(v.service == "in_service" for v in self.vehicles.values()):
+            ride["reason"] = "queued: no shuttle is in service"
         row = {k: ride[k] for k in ride}
         rows = self._visit_rows(vehicle) if vehicle else []
         trip_rows = [self._trip_row(t) for t in new_trips]
@@ -446,8 +447,6 @@ class Dispatcher:
             if ins is not None and (best is None or ins.cost_s < best.cost_s):
                 best = ins
         if best is None:
-            if not any(v.service == "in_service" for v in self.vehicles.values()):
-                ride["reason"] = "queued: no shuttle is in service"
             return [], None
         v = self.vehicles[best.vehicle_id]
         s = self._vehicle_s(v)
@@ -616,7 +615,8 @@ class Dispatcher:
         if v.service not in allowed:
             raise HTTPException(
                 status.HTTP_409_CONFLICT,
-                f"vehicle {vehicle_id!r}: {command} needs service state in {sorted(allowed)}, it is {v.service!r}",
+                f"vehicle {vehicle_id!r}: {command} needs service state in {sorted(allowed)}, "
+                f"it is {v.service!r}",
             )
         previous = v.service
         v.service = target

@@ -97,8 +97,8 @@ class Hub:
                 await self._task
         for q in self.viewers:
             q.put_nowait(None)
-        for ws, q in list(self.vehicles.values()):
-            q.put_nowait(None)
+        for ws, vq in list(self.vehicles.values()):
+            vq.put_nowait(None)
             with contextlib.suppress(Exception):
                 await ws.close(code=1001)
 

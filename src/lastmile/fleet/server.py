@@ -13,7 +13,7 @@ import logging
 import zipfile
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -21,12 +21,14 @@ from fastapi import (
     Depends,
     FastAPI,
     HTTPException,
-    Path as PathParam,
     Query,
     Request,
     Response,
     WebSocket,
     status,
+)
+from fastapi import (
+    Path as PathParam,
 )
 from fastapi.responses import FileResponse
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
@@ -60,7 +62,7 @@ class ServerConfig:
     db_url: str
     out_dir: Path
     runs_dir: Path
-    scheduling: SchedulingConfig = SchedulingConfig()
+    scheduling: SchedulingConfig = field(default_factory=SchedulingConfig)
 
 
 def _principal(request: Request, creds: HTTPAuthorizationCredentials | None) -> Principal:
@@ -126,7 +128,7 @@ def create_app(config: ServerConfig) -> FastAPI:
     )
 
     def disp(request: Request) -> Dispatcher:
-        return request.app.state.dispatcher  # type: ignore[no-any-return]
+        return request.app.state.dispatcher
 
     # ----------------------------------------------------------------------------- pages (public)
     @app.get("/", include_in_schema=False)
@@ -147,7 +149,7 @@ def create_app(config: ServerConfig) -> FastAPI:
     @app.get("/api/map", tags=["map"])
     def campus_map(request: Request, _who: Anyone) -> dict[str, Any]:
         """Lanelet outlines, the service loop, stops and buildings (metres, map frame)."""
-        return request.app.state.map  # type: ignore[no-any-return]
+        return request.app.state.map
 
     @app.get("/api/stops", tags=["map"], response_model=list[api.StopOut])
     def list_stops(request: Request, _who: Anyone) -> list[dict[str, Any]]:
@@ -169,7 +171,7 @@ def create_app(config: ServerConfig) -> FastAPI:
     def list_timetable(request: Request, _who: Anyone) -> list[dict[str, Any]]:
         out = []
         for e in disp(request).timetable:
-            t = int(round(e["time_s"]))
+            t = round(e["time_s"])
             clock = f"{t // 3600:02d}:{t % 3600 // 60:02d}:{t % 60:02d}"
             out.append({k: e[k] for k in ("run_id", "shift", "seq", "stop_id", "time_s")} | {"clock": clock})
         return out
