@@ -70,6 +70,15 @@ class ServerProcess:
     def log_text(self) -> str:
         return (self.out_dir / "server.log").read_text(errors="replace")[-2000:]
 
+    def fuzz(
+        self, role: str, examples: int, seed: int, phases: str = "coverage,fuzzing"
+    ) -> subprocess.CompletedProcess[str]:
+        """Schemathesis against this server's OpenAPI schema with one role's token; fails on any 5xx."""
+        cmd = [sys.executable, "-m", "schemathesis.cli", "run", self.url + "/openapi.json"]
+        cmd += ["-H", f"Authorization: Bearer {self.tokens[role]}", "--checks", "not_a_server_error"]
+        cmd += ["-n", str(examples), "--seed", str(seed), "--workers", "1", "--phases", phases]
+        return subprocess.run(cmd, capture_output=True, text=True, timeout=600, check=False)
+
     def kill(self) -> None:
         """SIGKILL: no shutdown handler runs, as in a crash or power cut of the process."""
         if self.proc is not None and self.proc.poll() is None:
@@ -90,7 +99,7 @@ class ServerProcess:
         )
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ServerProcess]:
     out = tmp_path_factory.mktemp("serve")
     runs = tmp_path_factory.mktemp("runs")

@@ -43,7 +43,10 @@ def test_rider_page_shows_the_ride_picked_up_by_the_shuttle(fresh_server: Server
         vehicle = VehicleClient(server.url, "shuttle-web", server.tokens["vehicle"])
         await vehicle.register()
         with server.client("operator") as op:
-            assert op.post("/api/vehicles/shuttle-web/command", json={"command": "start_service"}).status_code == 200
+            assert (
+                op.post("/api/vehicles/shuttle-web/command", json={"command": "start_service"}).status_code
+                == 200
+            )
         await vehicle.start()
         await vehicle.send_status(x_m=560.0, y_m=-6.5, yaw_rad=0.0, speed_mps=0.0, behaviour="dwell")
         async with async_playwright() as pw:
@@ -66,7 +69,9 @@ def test_rider_page_shows_the_ride_picked_up_by_the_shuttle(fresh_server: Server
             pickup = next(a for a in vehicle.assignments.values() if a.kind == "pickup")
             assert pickup.stop_id == "S2"
             # The shuttle reaches S2's bay, opens its door and reports the pick-up.
-            await vehicle.send_status(x_m=766.5, y_m=200.0, yaw_rad=1.57, speed_mps=0.0, behaviour="dwell", door="open")
+            await vehicle.send_status(
+                x_m=766.5, y_m=200.0, yaw_rad=1.57, speed_mps=0.0, behaviour="dwell", door="open"
+            )
             assert await vehicle.complete(pickup.id) is True
             await expect(state).to_have_attribute("data-state", "picked_up")
             await expect(state).to_have_text("picked_up")
