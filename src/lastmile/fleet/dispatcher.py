@@ -9,6 +9,7 @@ its state from the database, which is what makes a restart lose nothing.
 from __future__ import annotations
 
 import asyncio
+import itertools
 import logging
 import time
 import uuid
@@ -33,6 +34,8 @@ from lastmile.fleet.scheduling import (
 
 log = logging.getLogger(__name__)
 ACTIVE_RIDE_STATES = ("waiting", "assigned", "picked_up")
+INSERT_RIDE = insert(db.ride_requests)
+INSERT_EVENT = insert(db.events)
 DRAIN_BATCH = 50  # queued rides retried per change of a plan; bounds the work one event can cause
 
 
@@ -284,13 +287,14 @@ class Dispatcher:
         self, conn: Connection, kind: str, vehicle_id: str | None, request_id: str | None, **detail: Any
     ) -> None:
         conn.execute(
-            insert(db.events).values(
-                stamp_us=now_us(),
-                kind=kind,
-                vehicle_id=vehicle_id,
-                request_id=request_id,
-                detail=detail or None,
-            )
+            INSERT_EVENT,
+            {
+                "stamp_us": now_us(),
+                "kind": kind,
+                "vehicle_id": vehicle_id,
+                "request_id": request_id,
+                "detail": detail or None,
+            },
         )
 
     def _vehicle_s(self, v: VehicleState) -> float:
@@ -363,7 +367,7 @@ class Dispatcher:
         trip_rows = [self._trip_row(t) for t in new_trips]
 
         def op(conn: Connection) -> None:
-            conn.execute(insert(db.ride_requests).values(**row))
+            conn.execute(INSERT_RIDE, row)
             if trip_rows:
                 conn.execute(insert(db.trips), trip_rows)
                 self._renumber(conn, rows)
@@ -840,17 +844,22 @@ class Dispatcher:
         self._touch()
 
     # ----------------------------------------------------------------------------------------- views
-    def snapshot(self) -> dict[str, Any]:
-        waiting_at: dict[str, int] = dict.fromkeys(self.route.order, 0)
+    def waiting_at(self) -> dict[str, int]:
+        """Riders (seats) waiting at each stop: queued or assigned, not yet picked up."""
+        out: dict[str, int] = dict.fromkeys(self.route.order, 0)
         for ride in self.rides.values():
             if ride["state"] in ("waiting", "assigned"):
-                waiting_at[ride["origin"]] = waiting_at.get(ride["origin"], 0) + ride["seats"]
-        recent = sorted(self.rides.values(), key=lambda r: r["created_us"], reverse=True)[:200]
+                out[ride["origin"]] = out.get(ride["origin"], 0) + ride["seats"]
+        return out
+
+    def snapshot(self) -> dict[str, Any]:
+        # Rides are kept in creation order, so the newest are at the end.
+        recent = list(itertools.islice(reversed(self.rides.values()), 200))
         return {
             "type": "snapshot",
             "time_us": now_us(),
             "vehicles": [self.vehicle_view(v) for v in self.vehicles.values()],
-            "stops": [{"id": k, "waiting": n} for k, n in waiting_at.items()],
+            "stops": [{"id": k, "waiting": n} for k, n in self.waiting_at().items()],
             "rides": [self.ride_view(r) for r in recent],
             "queued": len(self.waiting),
         }

@@ -57,12 +57,15 @@ class ServerConfig:
         db_url: SQLAlchemy URL (``sqlite:///...`` or ``postgresql://...``).
         out_dir: directory for ``tokens.json`` (tokens made at first start) and the default SQLite file.
         runs_dir: recorded runs operators may browse and download.
+        commit_batch: most writes one commit may carry; 1 is the naive commit-per-request design
+            (kept as the load benchmark's baseline).
     """
 
     db_url: str
     out_dir: Path
     runs_dir: Path
     scheduling: SchedulingConfig = field(default_factory=SchedulingConfig)
+    commit_batch: int = 512
 
 
 def _principal(request: Request, creds: HTTPAuthorizationCredentials | None) -> Principal:
@@ -74,7 +77,8 @@ def _principal(request: Request, creds: HTTPAuthorizationCredentials | None) -> 
 
 
 def role(*roles: str) -> Any:
-    def dep(
+    # async: FastAPI would run a plain function in its thread pool, a thread hop on every request.
+    async def dep(
         request: Request, creds: Annotated[HTTPAuthorizationCredentials | None, Depends(bearer)]
     ) -> Principal:
         principal = _principal(request, creds)
@@ -95,7 +99,7 @@ def create_app(config: ServerConfig) -> FastAPI:
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         engine = db.make_engine(config.db_url)
-        writer = db.Writer(engine)
+        writer = db.Writer(engine, max_batch=config.commit_batch)
         hdmap = load_campus_map()
         route = LoopRoute(hdmap)
         dispatcher = Dispatcher(engine, writer, route, Planner(route, config.scheduling))
@@ -147,14 +151,14 @@ def create_app(config: ServerConfig) -> FastAPI:
 
     # ----------------------------------------------------------------------------- shared
     @app.get("/api/map", tags=["map"])
-    def campus_map(request: Request, _who: Anyone) -> dict[str, Any]:
+    async def campus_map(request: Request, _who: Anyone) -> dict[str, Any]:
         """Lanelet outlines, the service loop, stops and buildings (metres, map frame)."""
         return request.app.state.map
 
     @app.get("/api/stops", tags=["map"], response_model=list[api.StopOut])
-    def list_stops(request: Request, _who: Anyone) -> list[dict[str, Any]]:
+    async def list_stops(request: Request, _who: Anyone) -> list[dict[str, Any]]:
         d = disp(request)
-        waiting = {s["id"]: s["waiting"] for s in d.snapshot()["stops"]}
+        waiting = d.waiting_at()
         return [
             {
                 "id": s.id,
@@ -168,7 +172,7 @@ def create_app(config: ServerConfig) -> FastAPI:
         ]
 
     @app.get("/api/timetable", tags=["map"], response_model=list[api.TimetableOut])
-    def list_timetable(request: Request, _who: Anyone) -> list[dict[str, Any]]:
+    async def list_timetable(request: Request, _who: Anyone) -> list[dict[str, Any]]:
         out = []
         for e in disp(request).timetable:
             t = round(e["time_s"])
@@ -177,7 +181,7 @@ def create_app(config: ServerConfig) -> FastAPI:
         return out
 
     @app.get("/api/whoami", tags=["auth"])
-    def whoami(who: Anyone) -> dict[str, str]:
+    async def whoami(who: Anyone) -> dict[str, str]:
         return {"role": who.role, "subject": who.subject}
 
     # ----------------------------------------------------------------------------- riders
@@ -194,7 +198,7 @@ def create_app(config: ServerConfig) -> FastAPI:
         return view
 
     @app.get("/api/rides/{ride_id}", tags=["rides"], response_model=api.RideOut)
-    def get_ride(request: Request, ride_id: str, who: Rider) -> dict[str, Any]:
+    async def get_ride(request: Request, ride_id: str, who: Rider) -> dict[str, Any]:
         d = disp(request)
         return d.ride_view(d.ride_or_404(ride_id, who))
 
@@ -203,7 +207,7 @@ def create_app(config: ServerConfig) -> FastAPI:
         return await disp(request).cancel_ride(who, ride_id)
 
     @app.get("/api/rides/{ride_id}/vehicle", tags=["rides"], response_model=api.VehicleOut)
-    def follow_shuttle(request: Request, ride_id: str, who: Rider) -> dict[str, Any]:
+    async def follow_shuttle(request: Request, ride_id: str, who: Rider) -> dict[str, Any]:
         """Where the rider's shuttle is now."""
         d = disp(request)
         ride = d.ride_or_404(ride_id, who)
@@ -214,7 +218,7 @@ def create_app(config: ServerConfig) -> FastAPI:
         return d.vehicle_view(d.vehicle_or_404(ride["vehicle_id"]))
 
     @app.get("/api/rides", tags=["rides"], response_model=list[api.RideOut])
-    def list_rides(
+    async def list_rides(
         request: Request,
         who: Rider,
         state: Annotated[str | None, Query(pattern=r"^(waiting|assigned|picked_up)$")] = None,
@@ -245,12 +249,12 @@ def create_app(config: ServerConfig) -> FastAPI:
         return view
 
     @app.get("/api/vehicles", tags=["vehicles"], response_model=list[api.VehicleOut])
-    def list_vehicles(request: Request, _who: Operator) -> list[dict[str, Any]]:
+    async def list_vehicles(request: Request, _who: Operator) -> list[dict[str, Any]]:
         d = disp(request)
         return [d.vehicle_view(v) for v in d.vehicles.values()]
 
     @app.get("/api/vehicles/{vehicle_id}", tags=["vehicles"], response_model=api.VehicleOut)
-    def get_vehicle(request: Request, vehicle_id: VehicleIdParam, _who: Operator) -> dict[str, Any]:
+    async def get_vehicle(request: Request, vehicle_id: VehicleIdParam, _who: Operator) -> dict[str, Any]:
         d = disp(request)
         return d.vehicle_view(d.vehicle_or_404(vehicle_id))
 

@@ -1,8 +1,9 @@
 """The dispatch database (SQLAlchemy Core): tables, and a writer thread that group-commits.
 
 Every change the server makes is a small function of a connection queued to one writer thread. The
-writer takes everything queued, runs each in its own savepoint, commits once, and only then tells the
-waiting requests they may answer. So a reply always means "on disk" (SQLite in WAL mode with
+writer takes everything queued, runs it in one transaction, commits once, and only then tells the
+waiting requests they may answer (if a write fails, the batch is redone one write per commit, so only
+the bad one fails). So a reply always means "on disk" (SQLite in WAL mode with
 ``synchronous=FULL``, or PostgreSQL), while one fsync is shared by every request that arrived during
 the previous one: that is what lets a single SQLite file take hundreds of ride requests per second.
 """
@@ -182,7 +183,7 @@ class Writer:
     """One thread that owns all writes and commits them in groups.
 
     ``submit(op)`` returns an awaitable resolved with ``op``'s result after the commit that included it
-    (or with the exception ``op`` raised; a failing op rolls back only its own savepoint).
+    (or with the exception ``op`` raised; a failing op fails alone).
     """
 
     def __init__(self, engine: Engine, max_batch: int = 512) -> None:
@@ -220,6 +221,10 @@ class Writer:
         else:
             fut.set_exception(value)
 
+    def _commit(self, batch: list[tuple[Op, asyncio.Future[Any] | None]]) -> list[tuple[Any, bool, Any]]:
+        with self.engine.begin() as conn:
+            return [(fut, True, op(conn)) for op, fut in batch]
+
     def _run(self) -> None:
         stopping = False
         while not stopping:
@@ -236,22 +241,17 @@ class Writer:
                     stopping = True
                     break
                 batch.append(nxt)
-            results: list[tuple[asyncio.Future[Any] | None, bool, Any]] = []
             try:
-                with self.engine.begin() as conn:
-                    for op, fut in batch:
-                        sp = conn.begin_nested()
-                        try:
-                            value = op(conn)
-                            sp.commit()
-                            results.append((fut, True, value))
-                        except Exception as exc:
-                            sp.rollback()
-                            log.warning("database write failed: %s", exc)
-                            results.append((fut, False, exc))
-            except Exception as exc:  # the commit itself failed: nothing in the batch is stored
-                log.error("database commit failed: %s", exc)
-                results = [(fut, False, exc) for _, fut in batch]
+                results = self._commit(batch)
+            except Exception:
+                # One bad write must not sink the writes it shared a commit with: redo them one by one.
+                results = []
+                for item in batch:
+                    try:
+                        results.extend(self._commit([item]))
+                    except Exception as exc:
+                        log.warning("database write failed: %s", exc)
+                        results.append((item[1], False, exc))
             self.commits += 1
             self.ops += len(batch)
             loop = self._loop
