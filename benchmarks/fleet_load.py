@@ -111,12 +111,21 @@ def _body(i: int, prefix: str) -> dict[str, Any]:
     return {"origin": o, "destination": d, "seats": 1 + i % 2, "client_ref": f"{prefix}{i}"}
 
 
+def _by_second(timeline: list[tuple[float, float]]) -> list[float]:
+    """Median latency (ms) of the requests due in each second of the run."""
+    buckets: dict[int, list[float]] = {}
+    for due_s, lat_s in timeline:
+        buckets.setdefault(int(due_s), []).append(lat_s)
+    return [1e3 * sorted(v)[len(v) // 2] for _, v in sorted(buckets.items())]
+
+
 async def open_loop(
     url: str, token: str, rate: float, seconds: float, prefix: str, conns: int
 ) -> dict[str, Any]:
     """Send ``rate * seconds`` requests on schedule; latency from each request's due time."""
     n = int(rate * seconds)
     lat: list[float] = []
+    timeline: list[tuple[float, float]] = []
     statuses: dict[int, int] = {}
     errors = 0
     connector = aiohttp.TCPConnector(limit=conns)
@@ -136,6 +145,7 @@ async def open_loop(
                 errors += 1
                 return
             lat.append(time.perf_counter() - due)
+            timeline.append((due - t0, time.perf_counter() - due))
 
         tasks = []
         for i in range(n):
@@ -159,6 +169,7 @@ async def open_loop(
         "p50_ms": 1e3 * lat[len(lat) // 2] if lat else None,
         "p99_ms": 1e3 * lat[int(len(lat) * 0.99)] if lat else None,
         "max_ms": 1e3 * lat[-1] if lat else None,
+        "p50_ms_by_second": _by_second(timeline),
     }
 
 

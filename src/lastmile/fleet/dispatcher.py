@@ -104,6 +104,9 @@ class Dispatcher:
         self._next_trip = 1
         self.push: Callable[[str, dict[str, Any]], None] = lambda vid, msg: None
         self.changed = asyncio.Event()
+        self._id_prefix = uuid.uuid4().hex[:16]
+        self._id_counter = 0
+        self._onboard_memo: dict[str, tuple[list[Visit], int]] = {}
 
     # ----------------------------------------------------------------------------------------- loading
     def load(self) -> dict[str, str]:
@@ -309,6 +312,12 @@ class Dispatcher:
     def _touch(self) -> None:
         self.changed.set()
 
+    def _ride_id(self) -> str:
+        """A random per-process prefix and a counter: unique across restarts without a system call per
+        ride (``uuid4`` reads the OS's entropy each time, 75-400 us on this shared machine)."""
+        self._id_counter += 1
+        return f"{self._id_prefix}{self._id_counter:010x}"
+
     # ----------------------------------------------------------------------------------------- tokens
     async def issue_token(self, role: str, subject: str) -> str:
         tok = new_token(role)
@@ -341,7 +350,7 @@ class Dispatcher:
         if client_ref is not None and client_ref in self.by_ref:
             return self.ride_view(self.ride_or_404(self.by_ref[client_ref], principal)), False
         ride: dict[str, Any] = {
-            "id": uuid.uuid4().hex,
+            "id": self._ride_id(),
             "client_ref": client_ref,
             "rider": principal.subject,
             "origin": origin,
@@ -366,18 +375,26 @@ class Dispatcher:
         rows = self._visit_rows(vehicle) if vehicle else []
         trip_rows = [self._trip_row(t) for t in new_trips]
 
+        event = {
+            "stamp_us": row["created_us"],
+            "kind": "ride_requested",
+            "vehicle_id": row["vehicle_id"],
+            "request_id": row["id"],
+            "detail": {"origin": origin, "destination": destination},
+        }
+
         def op(conn: Connection) -> None:
             conn.execute(INSERT_RIDE, row)
-            if trip_rows:
-                conn.execute(insert(db.trips), trip_rows)
-                self._renumber(conn, rows)
-            self._event(
-                conn, "ride_requested", row["vehicle_id"], row["id"], origin=origin, destination=destination
-            )
+            conn.execute(insert(db.trips), trip_rows)
+            self._renumber(conn, rows)
+            conn.execute(INSERT_EVENT, event)
 
         self._remember(ride)
         try:
-            await self.writer.submit(op)
+            # A queued ride touches no plan: two plain inserts the writer batches with others'.
+            await self.writer.submit(
+                op if trip_rows else db.InsertRows(((db.ride_requests, row), (db.events, event)))
+            )
         except Exception:
             self._forget_failed(ride, new_trips)
             raise
@@ -471,7 +488,13 @@ class Dispatcher:
         return [pick, drop], v
 
     def _onboard(self, v: VehicleState) -> int:
-        """Seats taken now: the larger of what the vehicle reports and what our own plan accounts for."""
+        """Seats taken now: the larger of what the vehicle reports and what our own plan accounts for.
+
+        Memoised on the plan's identity: a ride is picked up or dropped only through a change of plan.
+        """
+        hit = self._onboard_memo.get(v.id)
+        if hit is not None and hit[0] is v.plan:
+            return max(v.passengers, hit[1])
         planned = sum(
             self.rides[i.request_id]["seats"]
             for visit in v.plan
@@ -480,6 +503,7 @@ class Dispatcher:
             and i.request_id in self.rides
             and self.rides[i.request_id]["state"] == "picked_up"
         )
+        self._onboard_memo[v.id] = (v.plan, planned)
         return max(v.passengers, planned)
 
     def _drop_from_plan(self, trip: TripState) -> None:

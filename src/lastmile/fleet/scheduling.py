@@ -148,6 +148,7 @@ class Planner:
     def __init__(self, route: LoopRoute, config: SchedulingConfig | None = None) -> None:
         self.route = route
         self.config = config or SchedulingConfig()
+        self._memo: dict[str, tuple[list[Visit], float, int, list[float], list[int]]] = {}
 
     def first_ahead_m(self, vehicle_s_m: float, stop_id: str) -> float:
         """Distance to the next pass of ``stop_id``; 0 if the vehicle is at (or just past) it."""
@@ -174,6 +175,24 @@ class Planner:
                 return self.time_to_s(d, k)
         return None
 
+    def _profile(
+        self, vehicle_id: str, plan: list[Visit], vehicle_s_m: float, onboard: int
+    ) -> tuple[list[float], list[int]]:
+        """Distances ahead and seats taken after each visit; memoised per vehicle because a busy
+        server asks about the same unchanged plan for every queued ride (plans are replaced, never
+        edited, when they change, so the list's identity is the key)."""
+        hit = self._memo.get(vehicle_id)
+        if hit is not None and hit[0] is plan and hit[1] == vehicle_s_m and hit[2] == onboard:
+            return hit[3], hit[4]
+        ds = self.unrolled_m(plan, vehicle_s_m)
+        load_after: list[int] = []
+        load = onboard  # seats taken now, as the vehicle reports them
+        for visit in plan:
+            load += visit.net_seats()
+            load_after.append(load)
+        self._memo[vehicle_id] = (plan, vehicle_s_m, onboard, ds, load_after)
+        return ds, load_after
+
     def best_insertion(
         self,
         vehicle_id: str,
@@ -187,13 +206,7 @@ class Planner:
     ) -> Insertion | None:
         """The cheapest feasible place for a ride in one vehicle's plan, or None within the horizon."""
         cfg, route = self.config, self.route
-        ds = self.unrolled_m(plan, vehicle_s_m)
-        # Seats occupied after each visit, starting from what the vehicle reports on board.
-        load_after: list[int] = []
-        load = onboard
-        for visit in plan:
-            load += visit.net_seats()
-            load_after.append(load)
+        ds, load_after = self._profile(vehicle_id, plan, vehicle_s_m, onboard)
         best: Insertion | None = None
         ride_m = route.stop_ahead_m(origin, destination)
         first = self.first_ahead_m(vehicle_s_m, origin)

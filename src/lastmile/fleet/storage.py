@@ -15,6 +15,7 @@ import logging
 import queue
 import threading
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -179,6 +180,17 @@ def make_engine(url: str) -> Engine:
 Op = Callable[[Connection], Any]
 
 
+@dataclass(frozen=True, slots=True)
+class InsertRows:
+    """Plain inserts a writer may send as one executemany per table with the rest of its batch.
+
+    They go before the batch's other writes: safe because no write here ever depends on a row being
+    absent, and updates that follow an insert in time also follow it in the batch.
+    """
+
+    rows: tuple[tuple[Table, dict[str, Any]], ...]
+
+
 class Writer:
     """One thread that owns all writes and commits them in groups.
 
@@ -189,7 +201,9 @@ class Writer:
     def __init__(self, engine: Engine, max_batch: int = 512) -> None:
         self.engine = engine
         self.max_batch = max_batch
-        self._queue: queue.SimpleQueue[tuple[Op, asyncio.Future[Any] | None] | None] = queue.SimpleQueue()
+        self._queue: queue.SimpleQueue[tuple[Op | InsertRows, asyncio.Future[Any] | None] | None] = (
+            queue.SimpleQueue()
+        )
         self._thread = threading.Thread(target=self._run, name="fleet-db-writer", daemon=True)
         self._loop: asyncio.AbstractEventLoop | None = None
         self.commits = 0
@@ -199,7 +213,7 @@ class Writer:
         self._loop = loop
         self._thread.start()
 
-    def submit(self, op: Op) -> asyncio.Future[Any]:
+    def submit(self, op: Op | InsertRows) -> asyncio.Future[Any]:
         assert self._loop is not None, "Writer.start() first"
         fut: asyncio.Future[Any] = self._loop.create_future()
         self._queue.put((op, fut))
@@ -221,9 +235,18 @@ class Writer:
         else:
             fut.set_exception(value)
 
-    def _commit(self, batch: list[tuple[Op, asyncio.Future[Any] | None]]) -> list[tuple[Any, bool, Any]]:
+    def _commit(
+        self, batch: list[tuple[Op | InsertRows, asyncio.Future[Any] | None]]
+    ) -> list[tuple[Any, bool, Any]]:
         with self.engine.begin() as conn:
-            return [(fut, True, op(conn)) for op, fut in batch]
+            bulk: dict[Table, list[dict[str, Any]]] = {}
+            for op, _ in batch:
+                if isinstance(op, InsertRows):
+                    for table, row in op.rows:
+                        bulk.setdefault(table, []).append(row)
+            for table, rows in bulk.items():
+                conn.execute(table.insert(), rows)
+            return [(fut, True, None if isinstance(op, InsertRows) else op(conn)) for op, fut in batch]
 
     def _run(self) -> None:
         stopping = False
