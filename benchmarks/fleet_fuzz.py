@@ -47,7 +47,9 @@ def main() -> None:
         url = f"http://127.0.0.1:{port}"
         log = open(out / "server.log", "wb")  # noqa: SIM115  lives as long as the server
         cmd = [sys.executable, "-c", "from lastmile.cli import main; main()", "serve", "--port", str(port)]
-        server = subprocess.Popen([*cmd, "--out", str(out), "--runs", str(out / "runs")], stdout=log, stderr=log)
+        server = subprocess.Popen(
+            [*cmd, "--out", str(out), "--runs", str(out / "runs")], stdout=log, stderr=log
+        )
         try:
             for _ in range(300):
                 try:
@@ -84,13 +86,17 @@ def main() -> None:
     for col in ("token role", "cases", "passed", "exit", "wall s"):
         table.add_column(col, justify="right")
     for r in rows:
-        table.add_row(r["role"], str(r["generated"]), str(r["passed"]), str(r["exit_code"]), f"{r['wall_s']:.0f}")
+        table.add_row(
+            r["role"], str(r["generated"]), str(r["passed"]), str(r["exit_code"]), f"{r['wall_s']:.0f}"
+        )
     console = Console(width=120)
     console.print(table)
     ok = all(r["exit_code"] == 0 and r["generated"] == r["passed"] for r in rows) and tracebacks == 0
     console.print(f"server tracebacks: {tracebacks}; no server errors: {ok}")
     args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps({"rows": rows, "server_tracebacks": tracebacks, "ok": ok}, indent=2) + "\n")
+    args.json.write_text(
+        json.dumps({"rows": rows, "server_tracebacks": tracebacks, "ok": ok}, indent=2) + "\n"
+    )
     console.print(f"wrote {args.json}")
     if not ok:
         for r in rows:

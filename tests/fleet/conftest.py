@@ -34,6 +34,7 @@ class ServerProcess:
     port: int = field(default_factory=free_port)
     proc: subprocess.Popen[bytes] | None = None
     tokens: dict[str, str] = field(default_factory=dict)
+    db_url: str | None = None
 
     @property
     def url(self) -> str:
@@ -50,6 +51,8 @@ class ServerProcess:
             str(self.port),
         ]
         cmd += ["--out", str(self.out_dir), "--runs", str(self.runs_dir)]
+        if self.db_url is not None:
+            cmd += ["--db", self.db_url]
         self.proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=os.environ.copy())
         deadline = time.monotonic() + START_TIMEOUT_S
         while time.monotonic() < deadline:

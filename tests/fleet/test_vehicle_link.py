@@ -159,3 +159,40 @@ def test_a_vehicle_websocket_without_a_valid_token_is_refused(server: ServerProc
 
     asyncio.run(scenario())
     assert httpx.get(server.url + "/openapi.json").status_code == 200
+
+
+def test_seat_button_and_timetable_runs_reach_the_vehicle_as_trips(fresh_server: ServerProcess) -> None:
+    server = fresh_server
+
+    async def scenario() -> None:
+        client = await _start_vehicle(server, "shuttle-4")
+        # Driving east on the bottom straight 150 m before S1 at 4 m/s: S1 is the next stop it can make.
+        assert await client.send_status(x_m=410.0, y_m=-1.75, yaw_rad=0.0, speed_mps=4.0, behaviour="cruise")
+        await asyncio.sleep(0.3)
+        ack = await client.press_seat_button(seat=3)
+        assert ack["stop_id"] == "S1"
+        await client.wait_for(lambda c: any(a.kind == "seat_stop" for a in c.assignments.values()))
+        again = await client.press_seat_button(seat=5)  # a second press asks for the same stop once
+        assert again["trip_id"] == ack["trip_id"]
+        with server.client("operator") as op:
+            res = op.post("/api/vehicles/shuttle-4/timetable-run", json={"run_id": "morning-0820"})
+            assert res.status_code == 200
+            assert [t["stop_id"] for t in res.json()] == ["S1", "S2", "S3", "S4", "S1"]
+            assert (
+                op.post("/api/vehicles/shuttle-4/timetable-run", json={"run_id": "morning-0820"}).status_code
+                == 409
+            )
+            res = op.post("/api/vehicles/shuttle-4/timetable-run", json={"run_id": "midnight"})
+            assert res.status_code == 404 and "'midnight'" in res.json()["detail"]
+        await client.wait_for(lambda c: sum(a.kind == "timetable" for a in c.assignments.values()) == 5)
+        with server.client("operator") as op:
+            plan = op.get("/api/vehicles/shuttle-4").json()["plan"]
+        # The seat-button stop and the run's first call share the next pass of S1.
+        assert plan[0]["stop_id"] == "S1" and {t["kind"] for t in plan[0]["trips"]} == {
+            "seat_stop",
+            "timetable",
+        }
+        assert [v["stop_id"] for v in plan] == ["S1", "S2", "S3", "S4", "S1"]
+        await client.stop()
+
+    asyncio.run(scenario())

@@ -42,8 +42,8 @@ const Fleet = (() => {
   // Map frame (metres, y up) to canvas pixels (y down), keeping the aspect ratio.
   function projector(canvas, bounds) {
     const [x0, y0, x1, y1] = bounds;
-    const pad = 20;
-    const s = Math.min((canvas.width - 2 * pad) / (x1 - x0), (canvas.height - 2 * pad) / (y1 - y0));
+    const pad = 20, labels = 140;  // room on the right for stop names
+    const s = Math.min((canvas.width - 2 * pad - labels) / (x1 - x0), (canvas.height - 2 * pad) / (y1 - y0));
     return (x, y) => [pad + (x - x0) * s, canvas.height - pad - (y - y0) * s];
   }
 

@@ -33,7 +33,7 @@
     $("queued").textContent = `(${snap.queued} queued)`;
     const rb = $("rides").querySelector("tbody");
     rb.innerHTML = snap.rides.slice(0, 50).map((r) =>
-      `<tr><td>${r.id.slice(0, 8)}</td><td>${r.origin}</td><td>${r.destination}</td><td>${r.seats}</td>` +
+      `<tr><td>${r.id.slice(-8)}</td><td>${r.origin}</td><td>${r.destination}</td><td>${r.seats}</td>` +
       `<td>${r.state}</td><td>${r.vehicle_id || "—"}</td><td>${Fleet.fmtEta(r.eta_pickup_us)}</td></tr>`).join("");
   }
 
