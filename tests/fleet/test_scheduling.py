@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import itertools
+
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -59,7 +61,7 @@ def test_timetable_has_snow_lions_three_shifts_at_twenty_minute_headway(planner:
     assert "12:00" in clocks and "17:30" in clocks and "10:00" not in clocks and "19:00" not in clocks
     first_run = [e for e in table if e.run_id == "morning-0800"]
     assert [e.stop_id for e in first_run] == ["S1", "S2", "S3", "S4", "S1"]
-    assert all(b.time_s > a.time_s for a, b in zip(first_run, first_run[1:], strict=False))
+    assert all(b.time_s > a.time_s for a, b in itertools.pairwise(first_run))
 
 
 def test_a_seventh_rider_waits_for_the_next_lap(planner: Planner) -> None:
@@ -114,7 +116,7 @@ def test_insertion_keeps_seats_within_capacity_and_dropoffs_after_pickups(
     where = {i.trip_id: n for n, v in enumerate(plan) for i in v.items}
     assert all(where[t] < where[t + 1] for t in where if t % 2 == 0)
     ds = planner.unrolled_m(plan, start)
-    assert all(b > a for a, b in zip(ds, ds[1:], strict=False))  # one visit per stop pass, in loop order
+    assert all(b > a for a, b in itertools.pairwise(ds))  # one visit per stop pass, in loop order
 
 
 def test_the_seat_button_asks_for_the_next_stop_the_shuttle_can_still_stop_at(planner: Planner) -> None:
@@ -125,7 +127,7 @@ def test_the_seat_button_asks_for_the_next_stop_the_shuttle_can_still_stop_at(pl
 
 
 def test_bad_scheduling_parameters_are_rejected_with_the_value() -> None:
-    with pytest.raises(ConfigError, match="cruise_mps.*-1"):
+    with pytest.raises(ConfigError, match=r"cruise_mps.*-1"):
         SchedulingConfig(cruise_mps=-1.0)
     with pytest.raises(ConfigError, match="horizon_laps"):
         SchedulingConfig(horizon_laps=0)
