@@ -45,7 +45,7 @@ from pathlib import Path
 from lastmile.fleet.server import ServerConfig, create_app
 out = Path(sys.argv[1])
 cfg = ServerConfig(db_url=f"sqlite:///{out / 'fleet.db'}", out_dir=out, runs_dir=out / "runs",
-                   commit_batch=int(sys.argv[3]))
+                   commit_batch=int(sys.argv[3]), timetable_lead_s=0.0)
 uvicorn.run(create_app(cfg), host="127.0.0.1", port=int(sys.argv[2]), log_level="warning", access_log=False)
 """
 

@@ -80,6 +80,9 @@ def serve(
     ] = None,
     out: Annotated[Path, typer.Option(help="Directory for fleet.db and tokens.json.")] = Path("runs/serve"),
     runs: Annotated[Path, typer.Option(help="Recorded runs operators may browse.")] = Path("runs"),
+    timetable_lead: Annotated[
+        float, typer.Option(help="Hand timetable runs to shuttles this many s before departure; 0: off.")
+    ] = 600.0,
 ) -> None:
     """Run the dispatch server (HTTP + WebSocket API, web dashboard) until interrupted."""
     import uvicorn
@@ -97,7 +100,7 @@ def serve(
         f"lastmile serve: http://{host}:{port}/ (database {url}; first-start tokens in {out}/tokens.json)"
     )
     uvicorn.run(
-        create_app(ServerConfig(db_url=url, out_dir=out, runs_dir=runs)),
+        create_app(ServerConfig(db_url=url, out_dir=out, runs_dir=runs, timetable_lead_s=timetable_lead)),
         host=host,
         port=port,
         log_level="warning",

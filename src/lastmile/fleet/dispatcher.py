@@ -21,6 +21,7 @@ from typing import Any
 from fastapi import HTTPException, status
 from sqlalchemy import Connection, Engine, bindparam, func, insert, select, update
 
+from lastmile.fleet import scheduling
 from lastmile.fleet import storage as db
 from lastmile.fleet.auth import Principal, TokenBook, new_token, token_hash
 from lastmile.fleet.scheduling import (
@@ -107,6 +108,7 @@ class Dispatcher:
         self._id_prefix = uuid.uuid4().hex[:16]
         self._id_counter = 0
         self._onboard_memo: dict[str, tuple[list[Visit], int]] = {}
+        self.runs_dispatched: set[tuple[str, str]] = set()  # (service date, run id) handed out by the clock
 
     # ----------------------------------------------------------------------------------------- loading
     def load(self) -> dict[str, str]:
@@ -175,6 +177,11 @@ class Dispatcher:
                 if r.client_ref:
                     self.by_ref[r.client_ref] = r.id
             self._next_trip = (conn.execute(select(func.max(db.trips.c.id))).scalar_one() or 0) + 1
+            for r in conn.execute(
+                select(db.events.c.detail).where(db.events.c.kind == "timetable_run_assigned")
+            ):
+                if r.detail and r.detail.get("date"):
+                    self.runs_dispatched.add((r.detail["date"], r.detail["run_id"]))
             rows = conn.execute(
                 select(db.trips)
                 .where(db.trips.c.state.in_(("pending", "acked")))
@@ -710,7 +717,30 @@ class Dispatcher:
         self._touch()
         return self.vehicle_view(v)
 
-    async def assign_timetable_run(self, vehicle_id: str, run_id: str) -> list[dict[str, Any]]:
+    async def auto_dispatch_timetable(
+        self, now_s: float, service_date: str, lead_s: float
+    ) -> list[tuple[str, str]]:
+        """Hand each timetable run departing within ``lead_s`` to the in-service shuttle with the
+        fewest trips, once per service day; returns (run id, vehicle id) pairs handed out now."""
+        first = {e["run_id"]: e["time_s"] for e in self.timetable if e["seq"] == 0}
+        out: list[tuple[str, str]] = []
+        for run_id in scheduling.due_runs(first, now_s, lead_s):
+            if (service_date, run_id) in self.runs_dispatched or any(
+                t.run_id == run_id for t in self.trips.values()
+            ):
+                continue
+            candidates = [v for v in self.vehicles.values() if v.service == "in_service"]
+            if not candidates:
+                break  # tried again on the next tick, until the departure has passed
+            load = {v.id: sum(len(visit.items) for visit in v.plan) for v in candidates}
+            vehicle = min(candidates, key=lambda v: (load[v.id], v.id))
+            await self.assign_timetable_run(vehicle.id, run_id, service_date)
+            out.append((run_id, vehicle.id))
+        return out
+
+    async def assign_timetable_run(
+        self, vehicle_id: str, run_id: str, service_date: str | None = None
+    ) -> list[dict[str, Any]]:
         v = self.vehicle_or_404(vehicle_id)
         calls = [e for e in self.timetable if e["run_id"] == run_id]
         if not calls:
@@ -734,9 +764,11 @@ class Dispatcher:
         def op(conn: Connection) -> None:
             conn.execute(insert(db.trips), rows)
             self._renumber(conn, renumber)
-            self._event(conn, "timetable_run_assigned", vehicle_id, None, run_id=run_id)
+            self._event(conn, "timetable_run_assigned", vehicle_id, None, run_id=run_id, date=service_date)
 
         await self.writer.submit(op)
+        if service_date is not None:
+            self.runs_dispatched.add((service_date, run_id))
         for t in new:
             self.push(vehicle_id, {"type": "assignment", "trip": t.message()})
         self._touch()

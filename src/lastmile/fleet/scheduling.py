@@ -311,3 +311,10 @@ def build_timetable(route: LoopRoute, config: SchedulingConfig | None = None) ->
                 prev = stop_id
             depart += cfg.headway_s
     return out
+
+
+def due_runs(first_calls_s: dict[str, float], now_s: float, lead_s: float) -> list[str]:
+    """Timetable runs to hand out now: those departing within ``lead_s`` from ``now_s`` (both seconds
+    after midnight of the service day), soonest first. A run whose departure has passed is not due."""
+    due = [(t, run_id) for run_id, t in first_calls_s.items() if now_s <= t <= now_s + lead_s]
+    return [run_id for _, run_id in sorted(due)]

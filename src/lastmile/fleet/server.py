@@ -7,6 +7,7 @@ pages are public (they hold no data); every API call and WebSocket needs a beare
 from __future__ import annotations
 
 import asyncio
+import datetime
 import io
 import json
 import logging
@@ -59,6 +60,8 @@ class ServerConfig:
         runs_dir: recorded runs operators may browse and download.
         commit_batch: most writes one commit may carry; 1 is the naive commit-per-request design
             (kept as the load benchmark's baseline).
+        timetable_lead_s: timetable runs are handed to a shuttle this long before they depart, by
+            the server's local clock (0 turns the timetable clock off: operators assign runs).
     """
 
     db_url: str
@@ -66,6 +69,7 @@ class ServerConfig:
     runs_dir: Path
     scheduling: SchedulingConfig = field(default_factory=SchedulingConfig)
     commit_batch: int = 512
+    timetable_lead_s: float = 600.0
 
 
 def _principal(request: Request, creds: HTTPAuthorizationCredentials | None) -> Principal:
@@ -95,6 +99,20 @@ OperatorOrVehicle = Annotated[Principal, role("operator", "vehicle")]
 VehicleIdParam = Annotated[str, PathParam(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.-]+$")]
 
 
+async def _timetable_clock(dispatcher: Dispatcher, config: ServerConfig) -> None:
+    """Every 15 s, hand out the timetable runs about to depart (local time of day)."""
+    while True:
+        now = datetime.datetime.now()
+        midnight = now.replace(hour=0, minute=0, second=0, microsecond=0)
+        try:
+            await dispatcher.auto_dispatch_timetable(
+                (now - midnight).total_seconds(), now.date().isoformat(), config.timetable_lead_s
+            )
+        except Exception:  # a failed write is retried on the next tick; the clock must keep going
+            log.exception("timetable clock")
+        await asyncio.sleep(15.0)
+
+
 def create_app(config: ServerConfig) -> FastAPI:
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
@@ -117,9 +135,14 @@ def create_app(config: ServerConfig) -> FastAPI:
         app.state.hub = hub
         app.state.map = map_json(hdmap, route)
         hub.start()
+        clock = (
+            asyncio.create_task(_timetable_clock(dispatcher, config)) if config.timetable_lead_s > 0 else None
+        )
         try:
             yield
         finally:
+            if clock is not None:
+                clock.cancel()
             await hub.stop()
             await asyncio.get_running_loop().run_in_executor(None, writer.stop)
             engine.dispose()
