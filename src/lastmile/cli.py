@@ -81,7 +81,8 @@ def serve(
     out: Annotated[Path, typer.Option(help="Directory for fleet.db and tokens.json.")] = Path("runs/serve"),
     runs: Annotated[Path, typer.Option(help="Recorded runs operators may browse.")] = Path("runs"),
     timetable_lead: Annotated[
-        float, typer.Option(help="Hand timetable runs to shuttles this many s before departure; 0: off.")
+        float,
+        typer.Option(min=0.0, help="Hand timetable runs to shuttles this many s before departure; 0: off."),
     ] = 600.0,
 ) -> None:
     """Run the dispatch server (HTTP + WebSocket API, web dashboard) until interrupted."""
