@@ -108,6 +108,7 @@ class Dispatcher:
         self._id_prefix = uuid.uuid4().hex[:16]
         self._id_counter = 0
         self._onboard_memo: dict[str, tuple[list[Visit], int]] = {}
+        self._plan_sent: dict[str, list[Visit]] = {}
         self.runs_dispatched: set[tuple[str, str]] = set()  # (service date, run id) handed out by the clock
 
     # ----------------------------------------------------------------------------------------- loading
@@ -317,7 +318,23 @@ class Dispatcher:
         return [{"tid": item.trip_id, "visit": k} for k, visit in enumerate(v.plan) for item in visit.items]
 
     def _touch(self) -> None:
+        """Something changed: wake the dashboards, and tell each vehicle whose plan changed its new
+        plan (after the assignments it refers to, which were pushed before this is called)."""
         self.changed.set()
+        for v in self.vehicles.values():
+            if self._plan_sent.get(v.id) is not v.plan:
+                self._plan_sent[v.id] = v.plan
+                self.push(v.id, self.plan_message(v))
+
+    @staticmethod
+    def plan_message(v: VehicleState) -> dict[str, Any]:
+        """The order in which the vehicle should serve its trips: one entry per stop visit."""
+        return {
+            "type": "plan",
+            "visits": [
+                {"stop_id": visit.stop_id, "trip_ids": [i.trip_id for i in visit.items]} for visit in v.plan
+            ],
+        }
 
     def _ride_id(self) -> str:
         """A random per-process prefix and a counter: unique across restarts without a system call per
@@ -781,6 +798,8 @@ class Dispatcher:
         for visit in v.plan:
             for item in visit.items:
                 msgs.append({"type": "assignment", "trip": self.trips[item.trip_id].message()})
+        msgs.append(self.plan_message(v))
+        self._plan_sent[vehicle_id] = v.plan
         return msgs
 
     def vehicle_status(self, vehicle_id: str, msg: dict[str, Any]) -> None:

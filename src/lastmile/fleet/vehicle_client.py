@@ -55,8 +55,10 @@ class VehicleClient:
         base_url: the server, ``http://host:port``.
         vehicle_id: the registered vehicle id (``register()`` registers it over HTTP first).
         token: a bearer token with role ``vehicle`` for this id (or ``*``).
-        on_assignment / on_cancel / on_command: called on the event loop for each new trip, each
-            cancelled trip id, and each command (with the new service state).
+        on_assignment / on_cancel / on_command / on_plan: called on the event loop for each new trip,
+            each cancelled trip id, each command (with the new service state), and each new plan.
+            The plan (``self.plan``) is the order to serve trips in: (stop id, trip ids) per stop
+            visit along the loop; a driver goes to the first visit's stop and reports its trips done.
         reconnect_delay_s: wait between reconnection attempts.
     """
 
@@ -69,6 +71,7 @@ class VehicleClient:
         on_assignment: Callable[[Assignment], None] | None = None,
         on_cancel: Callable[[int], None] | None = None,
         on_command: Callable[[str, str], None] | None = None,
+        on_plan: Callable[[list[tuple[str, list[int]]]], None] | None = None,
         reconnect_delay_s: float = 0.2,
     ) -> None:
         if not base_url.startswith(("http://", "https://")):
@@ -79,6 +82,8 @@ class VehicleClient:
         self.on_assignment = on_assignment
         self.on_cancel = on_cancel
         self.on_command = on_command
+        self.on_plan = on_plan
+        self.plan: list[tuple[str, list[int]]] = []
         self.reconnect_delay_s = reconnect_delay_s
         self.assignments: dict[int, Assignment] = {}
         self.finished: set[int] = set()
@@ -217,6 +222,10 @@ class VehicleClient:
                 self.stats.commands.append(msg["command"])
             if self.on_command is not None:
                 self.on_command(msg.get("command", "resume"), self.service)
+        elif kind == "plan":
+            self.plan = [(v["stop_id"], [int(t) for t in v["trip_ids"]]) for v in msg["visits"]]
+            if self.on_plan is not None:
+                self.on_plan(self.plan)
         elif kind == "done_ack":
             fut = self._unconfirmed.pop(int(msg["trip_id"]), None)
             if fut is not None and not fut.done():
