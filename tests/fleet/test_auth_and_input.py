@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import httpx
 import pytest
 
@@ -111,3 +113,42 @@ def test_operators_browse_and_download_recorded_runs(server: ServerProcess) -> N
         assert op.get("/api/runs/run-a/files/report.md").text == "# a run\n"
         assert op.get("/api/runs/run-a/archive").content[:2] == b"PK"
         assert op.get("/api/runs/run-a/files/..%2F..%2Fetc%2Fpasswd").status_code == 404
+
+
+def test_a_rider_sees_only_their_own_rides(server: ServerProcess) -> None:
+    with server.client("operator") as op, server.client("rider") as alice:
+        res = op.post("/api/tokens", json={"role": "rider", "subject": "bob"})
+        assert res.status_code == 201
+        bob_token = res.json()["token"]
+        assert alice.post("/api/tokens", json={"role": "operator", "subject": "eve"}).status_code == 403
+        ride = alice.post("/api/rides", json={"origin": "S3", "destination": "S1"}).json()
+    with httpx.Client(base_url=server.url, headers={"Authorization": f"Bearer {bob_token}"}) as bob:
+        assert bob.get("/api/whoami").json() == {"role": "rider", "subject": "bob"}
+        res = bob.get(f"/api/rides/{ride['id']}")
+        assert res.status_code == 403 and "another rider" in res.json()["detail"]
+        assert bob.delete(f"/api/rides/{ride['id']}").status_code == 403
+        assert all(r["id"] != ride["id"] for r in bob.get("/api/rides").json())
+
+
+def test_bad_vehicle_messages_get_an_error_reply_and_the_link_stays_up(server: ServerProcess) -> None:
+    from websockets.sync.client import connect
+
+    with server.client("operator") as op:
+        assert op.post("/api/vehicles", json={"id": "bad-msgs"}).status_code in (200, 201)
+    url = server.url.replace("http", "ws") + "/ws/vehicle/bad-msgs"
+    with connect(url, additional_headers={"Authorization": f"Bearer {server.tokens['vehicle']}"}) as ws:
+        while json.loads(ws.recv(timeout=5))["type"] != "resumed":
+            pass
+        for bad, needle in (
+            ("not json", "expected a JSON object"),
+            ('{"type": "status", "x_m": "here", "y_m": 0}', "x_m"),
+            ('{"type": "status", "x_m": NaN, "y_m": 0}', "finite"),
+            ('{"type": "status", "x_m": 1, "y_m": 0, "door": "ajar"}', "door"),
+            ('{"type": "teleport"}', "unknown message type 'teleport'"),
+            ('{"type": "done"}', "trip_id"),
+        ):
+            ws.send(bad)
+            reply = json.loads(ws.recv(timeout=5))
+            assert reply["type"] == "error" and needle in reply["reason"], (bad, reply)
+        ws.send('{"type": "ping"}')
+        assert json.loads(ws.recv(timeout=5)) == {"type": "pong"}
