@@ -6,14 +6,12 @@ from __future__ import annotations
 
 import re
 
-import pytest
-
 from tests.fleet.conftest import ServerProcess
 
 
-@pytest.mark.parametrize(("role", "seed"), [("operator", 1), ("rider", 2)])
-def test_fuzzed_requests_never_cause_a_server_error(server: ServerProcess, role: str, seed: int) -> None:
-    result = server.fuzz(role, examples=5, seed=seed)
+def test_fuzzed_requests_never_cause_a_server_error(server: ServerProcess) -> None:
+    # The operator's token reaches every operation; the other roles' runs are in the longer script.
+    result = server.fuzz("operator", examples=5, seed=1)
     assert result.returncode == 0, result.stdout[-3000:]
     counts = re.search(r"(\d+) generated, (\d+) passed", result.stdout)
     assert counts is not None and int(counts[1]) == int(counts[2]) > 100, result.stdout[-3000:]
