@@ -1,6 +1,7 @@
 """End to end in a real headless browser: a rider requests a ride on the rider page, a scripted vehicle
 client (standing in for the simulated shuttle) is assigned it and reports the pick-up, and the page
-shows the rider picked up. Playwright drives Debian's Chromium (installed by scripts/ensure_chromium.sh)."""
+shows the rider picked up; then the operator's dashboard shows the shuttle and its emergency-stop
+button stops it. Playwright drives Debian's Chromium (installed by scripts/ensure_chromium.sh)."""
 
 from __future__ import annotations
 
@@ -76,6 +77,19 @@ def test_rider_page_shows_the_ride_picked_up_by_the_shuttle(fresh_server: Server
             await expect(state).to_have_attribute("data-state", "picked_up")
             await expect(state).to_have_text("picked_up")
             assert await page.locator("#cancel").is_disabled()
+            # The operator's dashboard shows the shuttle live and its emergency stop reaches the vehicle.
+            op_page = await browser.new_page()
+            op_page.on("pageerror", lambda exc: errors.append(str(exc)))
+            await op_page.goto(server.url + "/")
+            await op_page.fill("#token", server.tokens["operator"])
+            await op_page.click("#save-token")
+            row = op_page.locator('tr[data-vehicle="shuttle-web"]')
+            await expect(row.locator(".state")).to_have_text("in_service")
+            await expect(row).to_contain_text("dwell")
+            await row.locator('button[data-command="emergency_stop"]').click()
+            await expect(row.locator(".state")).to_have_text("emergency_stop")
+            await vehicle.wait_for(lambda v: v.service == "emergency_stop")
+            assert vehicle.stats.commands == ["emergency_stop"]
             assert errors == []
             await browser.close()
         await vehicle.stop()
