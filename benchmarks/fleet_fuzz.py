@@ -66,7 +66,7 @@ def main() -> None:
                 st = [sys.executable, "-m", "schemathesis.cli", "run", url + "/openapi.json"]
                 st += ["-H", f"Authorization: Bearer {tokens[role]}", "--checks", "not_a_server_error"]
                 st += ["-n", str(args.examples), "--seed", str(args.seed), "--workers", "1"]
-                res = subprocess.run(st, capture_output=True, text=True, timeout=1800, check=False)
+                res = subprocess.run(st, capture_output=True, text=True, timeout=1800, check=False, cwd=out)
                 counts = re.search(r"(\d+) generated, (\d+) passed", res.stdout)
                 rows.append(
                     {

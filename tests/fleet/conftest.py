@@ -81,7 +81,8 @@ class ServerProcess:
         cmd = [sys.executable, "-m", "schemathesis.cli", "run", self.url + "/openapi.json"]
         cmd += ["-H", f"Authorization: Bearer {self.tokens[role]}", "--checks", "not_a_server_error"]
         cmd += ["-n", str(examples), "--seed", str(seed), "--workers", "1", "--phases", phases]
-        return subprocess.run(cmd, capture_output=True, text=True, timeout=600, check=False)
+        # cwd: schemathesis keeps a cache folder in its working directory; not in the repository.
+        return subprocess.run(cmd, capture_output=True, text=True, timeout=600, check=False, cwd=self.out_dir)
 
     def kill(self) -> None:
         """SIGKILL: no shutdown handler runs, as in a crash or power cut of the process."""
