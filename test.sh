@@ -8,6 +8,8 @@ ruff check src tests benchmarks
 ruff format --check src tests benchmarks
 mypy
 lint-imports
+# The fleet dashboard's browser test drives Debian's Chromium; install it if this machine lacks it.
+bash scripts/ensure_chromium.sh
 set +e
 python -m pytest "$@"
 status=$?

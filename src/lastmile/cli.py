@@ -308,5 +308,43 @@ def eval_tracking(
         json_out.write_text(json.dumps(report, indent=2))
 
 
+@app.command()
+def serve(
+    host: Annotated[str, typer.Option(help="Address to listen on.")] = "127.0.0.1",
+    port: Annotated[int, typer.Option(help="TCP port.")] = 8080,
+    db: Annotated[
+        str | None, typer.Option(help="SQLAlchemy URL (postgresql://...); default: SQLite in --out.")
+    ] = None,
+    out: Annotated[Path, typer.Option(help="Directory for fleet.db and tokens.json.")] = Path("runs/serve"),
+    runs: Annotated[Path, typer.Option(help="Recorded runs operators may browse.")] = Path("runs"),
+    timetable_lead: Annotated[
+        float,
+        typer.Option(min=0.0, help="Hand timetable runs to shuttles this many s before departure; 0: off."),
+    ] = 600.0,
+) -> None:
+    """Run the dispatch server (HTTP + WebSocket API, web dashboard) until interrupted."""
+    import uvicorn
+
+    from lastmile.fleet.server import ServerConfig, create_app
+    from lastmile.fleet.storage import default_sqlite_url, make_engine
+
+    try:
+        url = db or default_sqlite_url(out)
+        make_engine(url).dispose()  # a bad URL or a missing driver fails here, as one line
+    except LastmileError as exc:
+        typer.echo(f"lastmile serve: {exc}", err=True)
+        raise typer.Exit(2) from None
+    typer.echo(
+        f"lastmile serve: http://{host}:{port}/ (database {url}; first-start tokens in {out}/tokens.json)"
+    )
+    uvicorn.run(
+        create_app(ServerConfig(db_url=url, out_dir=out, runs_dir=runs, timetable_lead_s=timetable_lead)),
+        host=host,
+        port=port,
+        log_level="warning",
+        access_log=False,
+    )
+
+
 def main() -> None:
     app()

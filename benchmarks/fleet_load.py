@@ -1,0 +1,296 @@
+"""Dispatch server under load on loopback: ride requests per second, latency, nothing lost or duplicated.
+
+Run: python benchmarks/fleet_load.py [--rate 500] [--seconds 60] [--json out.json]
+
+The server runs as its own process (uvicorn with uvloop/httptools, SQLite in WAL mode, group commit);
+this process is the client: asyncio + aiohttp (httpx costs ~4.6 ms of client CPU per request here,
+which alone would cap the load near 200/s on these cores), open loop (request i is due at
+t0 + i / rate, and its latency counts from when it was due, so a stalled server cannot hide its
+queueing). Four shuttles are
+in service, so every request runs the insertion heuristic. Afterwards the database is read back: every
+request sent must be there exactly once (each carries a unique ``client_ref``).
+
+Baseline, same run: the same server with one commit per request (``commit_batch=1``, the design one
+writes first), measured as the highest rate each sustains in a short closed-loop burst. Target of
+issue #6: >= 500 requests/s sustained for 60 s, none lost or duplicated, p99 printed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import aiohttp
+import httpx
+import sqlalchemy as sa
+from rich.console import Console
+from rich.table import Table
+
+TARGET_RPS = 500.0
+STOPS = ("S1", "S2", "S3", "S4")
+
+SERVER = """
+import sys, uvicorn
+from pathlib import Path
+from lastmile.fleet.server import ServerConfig, create_app
+out = Path(sys.argv[1])
+cfg = ServerConfig(db_url=f"sqlite:///{out / 'fleet.db'}", out_dir=out, runs_dir=out / "runs",
+                   commit_batch=int(sys.argv[3]), timetable_lead_s=0.0)
+uvicorn.run(create_app(cfg), host="127.0.0.1", port=int(sys.argv[2]), log_level="warning", access_log=False)
+"""
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+class Server:
+    def __init__(self, out: Path, commit_batch: int) -> None:
+        self.out = out
+        self.port = free_port()
+        self.url = f"http://127.0.0.1:{self.port}"
+        out.mkdir(parents=True, exist_ok=True)
+        self.proc = subprocess.Popen(
+            [sys.executable, "-c", SERVER, str(out), str(self.port), str(commit_batch)],
+            stdout=open(out / "server.log", "wb"),  # noqa: SIM115  lives as long as the process
+            stderr=subprocess.STDOUT,
+        )
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
+            try:
+                if httpx.get(self.url + "/openapi.json", timeout=1).status_code == 200:
+                    break
+            except httpx.TransportError:
+                time.sleep(0.1)
+        else:
+            raise RuntimeError("server did not start: " + (out / "server.log").read_text()[-2000:])
+        self.tokens = json.loads((out / "tokens.json").read_text())
+        op = {"Authorization": f"Bearer {self.tokens['operator']}"}
+        for k in range(4):
+            httpx.post(self.url + "/api/vehicles", json={"id": f"bench-{k}"}, headers=op).raise_for_status()
+            httpx.post(
+                self.url + f"/api/vehicles/bench-{k}/command", json={"command": "start_service"}, headers=op
+            ).raise_for_status()
+
+    def rows(self, prefix: str) -> tuple[int, int]:
+        """(rows whose client_ref starts with prefix, distinct such client_refs) in the database."""
+        engine = sa.create_engine(f"sqlite:///{self.out / 'fleet.db'}")
+        with engine.connect() as conn:
+            n, distinct = conn.execute(
+                sa.text(
+                    "SELECT count(*), count(DISTINCT client_ref) FROM ride_requests WHERE client_ref LIKE :p"
+                ),
+                {"p": prefix + "%"},
+            ).one()
+        engine.dispose()
+        return int(n), int(distinct)
+
+    def stop(self) -> None:
+        self.proc.send_signal(signal.SIGTERM)
+        try:
+            self.proc.wait(20)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+
+
+def _body(i: int, prefix: str) -> dict[str, Any]:
+    o = STOPS[i % 4]
+    d = STOPS[(i + 1 + (i // 4) % 3) % 4]
+    return {"origin": o, "destination": d, "seats": 1 + i % 2, "client_ref": f"{prefix}{i}"}
+
+
+def _by_second(timeline: list[tuple[float, float]]) -> list[float]:
+    """Median latency (ms) of the requests due in each second of the run."""
+    buckets: dict[int, list[float]] = {}
+    for due_s, lat_s in timeline:
+        buckets.setdefault(int(due_s), []).append(lat_s)
+    return [1e3 * sorted(v)[len(v) // 2] for _, v in sorted(buckets.items())]
+
+
+async def open_loop(
+    url: str, token: str, rate: float, seconds: float, prefix: str, conns: int
+) -> dict[str, Any]:
+    """Send ``rate * seconds`` requests on schedule; latency from each request's due time."""
+    n = int(rate * seconds)
+    lat: list[float] = []
+    timeline: list[tuple[float, float]] = []
+    statuses: dict[int, int] = {}
+    errors = 0
+    connector = aiohttp.TCPConnector(limit=conns)
+    async with aiohttp.ClientSession(
+        base_url=url, headers={"Authorization": f"Bearer {token}"}, connector=connector
+    ) as http:
+        t0 = time.perf_counter() + 0.2
+
+        async def one(i: int) -> None:
+            nonlocal errors
+            due = t0 + i / rate
+            try:
+                async with http.post("/api/rides", json=_body(i, prefix)) as res:
+                    await res.read()
+                    statuses[res.status] = statuses.get(res.status, 0) + 1
+            except aiohttp.ClientError:
+                errors += 1
+                return
+            lat.append(time.perf_counter() - due)
+            timeline.append((due - t0, time.perf_counter() - due))
+
+        tasks = []
+        for i in range(n):
+            delay = t0 + i / rate - time.perf_counter()
+            if delay > 0:
+                await asyncio.sleep(delay)
+            tasks.append(asyncio.create_task(one(i)))
+        await asyncio.gather(*tasks)
+        wall = time.perf_counter() - t0
+    lat.sort()
+    last_due = (n - 1) / rate
+    return {
+        "sent": n,
+        # How long after the last request was due the last answer came: under a second means the
+        # server kept up with the offered rate for the whole run instead of building a queue.
+        "backlog_at_end_s": wall - last_due,
+        "statuses": statuses,
+        "transport_errors": errors,
+        "wall_s": wall,
+        "achieved_rps": statuses.get(201, 0) / wall,
+        "p50_ms": 1e3 * lat[len(lat) // 2] if lat else None,
+        "p99_ms": 1e3 * lat[int(len(lat) * 0.99)] if lat else None,
+        "max_ms": 1e3 * lat[-1] if lat else None,
+        "p50_ms_by_second": _by_second(timeline),
+    }
+
+
+async def closed_loop(url: str, token: str, seconds: float, prefix: str, conns: int) -> dict[str, Any]:
+    """``conns`` clients each sending back to back: the highest rate the server sustains."""
+    done = 0
+    lat: list[float] = []
+    connector = aiohttp.TCPConnector(limit=conns)
+    async with aiohttp.ClientSession(
+        base_url=url, headers={"Authorization": f"Bearer {token}"}, connector=connector
+    ) as http:
+        t_end = time.perf_counter() + seconds
+        counter = iter(range(10**9))
+
+        async def worker() -> None:
+            nonlocal done
+            while time.perf_counter() < t_end:
+                t = time.perf_counter()
+                async with http.post("/api/rides", json=_body(next(counter), prefix)) as res:
+                    await res.read()
+                    if res.status == 201:
+                        done += 1
+                        lat.append(time.perf_counter() - t)
+
+        t0 = time.perf_counter()
+        await asyncio.gather(*(worker() for _ in range(conns)))
+        wall = time.perf_counter() - t0
+    lat.sort()
+    return {
+        "created": done,
+        "wall_s": wall,
+        "rps": done / wall,
+        "p50_ms": 1e3 * lat[len(lat) // 2] if lat else None,
+        "p99_ms": 1e3 * lat[int(len(lat) * 0.99)] if lat else None,
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--rate", type=float, default=TARGET_RPS, help="requests per second to sustain")
+    parser.add_argument("--seconds", type=float, default=60.0)
+    parser.add_argument("--burst-seconds", type=float, default=10.0, help="closed-loop capacity bursts")
+    parser.add_argument("--conns", type=int, default=32)
+    parser.add_argument("--json", type=Path, default=Path("benchmarks/results/fleet_load.json"))
+    args = parser.parse_args()
+    console = Console(width=150)
+    result: dict[str, Any] = {"cpus": os.cpu_count(), "rate": args.rate, "seconds": args.seconds}
+    with tempfile.TemporaryDirectory(prefix="fleet-load-") as tmp:
+        for name, batch in (("group_commit", 512), ("commit_per_request", 1)):
+            server = Server(Path(tmp) / name, batch)
+            try:
+                token = server.tokens["rider"]
+                burst = asyncio.run(
+                    closed_loop(server.url, token, args.burst_seconds, f"{name}-burst-", args.conns)
+                )
+                entry: dict[str, Any] = {"capacity": burst}
+                rows, distinct = server.rows(f"{name}-burst-")
+                entry["capacity"]["db_rows"] = rows
+                if name == "group_commit":
+                    run = asyncio.run(
+                        open_loop(server.url, token, args.rate, args.seconds, "sustain-", args.conns)
+                    )
+                    rows, distinct = server.rows("sustain-")
+                    run |= {"db_rows": rows, "db_distinct": distinct}
+                    run["lost"] = run["sent"] - rows
+                    run["duplicated"] = rows - distinct
+                    entry["sustained"] = run
+                result[name] = entry
+            finally:
+                server.stop()
+    s = result["group_commit"]["sustained"]
+    cap, base = result["group_commit"]["capacity"], result["commit_per_request"]["capacity"]
+    result["capacity_ratio_vs_commit_per_request"] = cap["rps"] / base["rps"]
+    ok_rate = s["statuses"].get(201, 0) == s["sent"] and s["backlog_at_end_s"] < 1.0
+    result["target_met"] = bool(
+        ok_rate and s["lost"] == 0 and s["duplicated"] == 0 and args.seconds >= 60 and args.rate >= TARGET_RPS
+    )
+    table = Table(
+        title=f"dispatch server on loopback ({os.cpu_count()} cores shared, client in this process)"
+    )
+    for col in ("run", "requests", "req/s done", "p50 ms", "p99 ms", "lost", "dup", "capacity ratio"):
+        table.add_column(col, justify="right")
+    table.add_row(
+        f"sustained {args.rate:g}/s x {args.seconds:g} s",
+        str(s["sent"]),
+        f"{s['achieved_rps']:.0f}",
+        f"{s['p50_ms']:.1f}",
+        f"{s['p99_ms']:.1f}",
+        str(s["lost"]),
+        str(s["duplicated"]),
+        "",
+    )
+    table.add_row(
+        f"capacity, group commit ({args.conns} clients)",
+        str(cap["created"]),
+        f"{cap['rps']:.0f}",
+        f"{cap['p50_ms']:.1f}",
+        f"{cap['p99_ms']:.1f}",
+        str(cap["created"] - cap["db_rows"]),
+        "",
+        f"{result['capacity_ratio_vs_commit_per_request']:.2f}x",
+    )
+    table.add_row(
+        "capacity, commit per request (baseline)",
+        str(base["created"]),
+        f"{base['rps']:.0f}",
+        f"{base['p50_ms']:.1f}",
+        f"{base['p99_ms']:.1f}",
+        str(base["created"] - base["db_rows"]),
+        "",
+        "1.00x",
+    )
+    console.print(table)
+    console.print(
+        f"sustained run: statuses {s['statuses']}, transport errors {s['transport_errors']}, last answer "
+        f"{s['backlog_at_end_s']:.2f} s after the last request was due; target met: {result['target_met']}"
+    )
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    args.json.write_text(json.dumps(result, indent=2) + "\n")
+    console.print(f"wrote {args.json}")
+
+
+if __name__ == "__main__":
+    main()
