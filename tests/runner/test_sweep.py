@@ -1,12 +1,16 @@
 import dataclasses
 import json
 
+import numpy as np
 import pytest
 from typer.testing import CliRunner
 
 from lastmile.cli import app
+from lastmile.core.vehicle_messages import BehaviourState
+from lastmile.evaluation.metrics import compute_metrics
 from lastmile.runner.closed_loop import run_scenario
-from lastmile.runner.sweep import generic_cases, run_sweep
+from lastmile.runner.sweep import CHECKS, generic_cases, run_sweep
+from lastmile.safety.supervisor import SafetySupervisor
 from lastmile.sim.faults import FAULT_MENU
 from lastmile.sim.scenario import load_scenario
 from lastmile.sim.scenario_generator import ScenarioSpace, sample_scenarios
@@ -81,14 +85,56 @@ def test_the_iso22737_suite_covers_the_plan():
         for weather in WEATHERS:
             for speed in SHUTTLE_SPEEDS_MPS:
                 assert f"{hazard}_{weather}_{round(speed * 3.6)}kph" in names
-    faults = {(f.kind, f.target) for c in cases for f in c.scenario.faults}
+    faults = {
+        (f.kind, f.target)
+        for c in cases
+        if c.group == "minimal risk manoeuvre on faults"
+        for f in c.scenario.faults
+    }
     assert faults == set(FAULT_MENU)
+    estops = {c.scenario.estop_in_state for c in cases if c.group == "emergency stop from every state"}
+    assert estops == {s.value for s in BehaviourState}
     assert {c.group for c in cases} >= {
         "hazard, clear view",
         "hazard, occluded view",
         "minimal risk manoeuvre on faults",
         "staying in the drivable area",
+        "emergency stop from every state",
     }
+
+
+def _estop_case(state: str, minutes: float):
+    case = next(c for c in iso22737_suite() if c.name == f"estop_from_{state}")
+    return case, dataclasses.replace(case.scenario, minutes=minutes)
+
+
+def test_operator_estop_while_cruising_stops_the_shuttle_and_holds_it_until_release():
+    _case, scenario = _estop_case("normal_driving", 1.0)
+    log = run_scenario(scenario)
+    result = CHECKS["estop_honoured"](log, compute_metrics(log))
+    assert result.ok, result.detail
+    press = log.events_of("operator_estop")[0]
+    t, v = log.column("t_s"), log.column("speed_mps")
+    assert v[np.searchsorted(t, press.t_s)] >= 4.0  # pressed at cruise, not at the start line
+    assert next(e.data["level"] for e in log.events_of("safety") if e.t_s >= press.t_s) == "EMERGENCY_STOP"
+    release = log.events_of("operator_release")[0]
+    assert v[t > release.t_s + 5.0].max() > 1.0  # released, it drives on
+
+
+def test_estop_check_fails_when_the_stack_ignores_the_button(monkeypatch):
+    monkeypatch.setattr(SafetySupervisor, "operator_emergency_stop", lambda self, now_us, reason: None)
+    _, scenario = _estop_case("normal_driving", 0.8)
+    log = run_scenario(scenario)
+    result = CHECKS["estop_honoured"](log, compute_metrics(log))
+    assert not result.ok and "EMERGENCY_STOP" in result.detail
+
+
+def test_estop_check_fails_when_the_state_is_never_reached():
+    # The encounter scenarios carry no riders: the shuttle never onboards.
+    base = next(c for c in iso22737_suite() if c.group == "hazard, clear view").scenario
+    log = run_scenario(dataclasses.replace(base, minutes=0.3, estop_in_state="onboarding"))
+    result = CHECKS["estop_honoured"](log, compute_metrics(log))
+    assert not result.ok and "never reached state 'onboarding'" in result.detail
 
 
 def test_sweep_cli_rejects_two_sources_in_one_line(tmp_path):

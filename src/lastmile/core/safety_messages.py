@@ -42,6 +42,7 @@ class MalfunctionKind(Enum):
     LOCALIZATION_COVARIANCE = "localization_covariance"
     GNSS_LOST = "gnss_lost"
     LOCALIZATION_GATE_REJECTIONS = "localization_gate_rejections"
+    OPERATOR_ESTOP = "operator_estop"
 
 
 class MrmKind(Enum):

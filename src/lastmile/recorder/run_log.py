@@ -114,6 +114,8 @@ EVENT_SCHEMAS: dict[str, dict[str, str]] = {
     "stack_crash": {"error": "str"},
     "safety": {"level": "str", "mrm": "str", "reason": "str"},
     "hardware_watchdog": {"reason": "str"},
+    "operator_estop": {"state": "str"},
+    "operator_release": {"state": "str"},
     "recording": {"path": "str", "trigger": "str"},
 }
 """Required ``data`` fields (name -> "int" | "float" | "bool" | "str") of the known event kinds."""

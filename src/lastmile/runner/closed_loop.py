@@ -24,6 +24,7 @@ from lastmile.hdmap.model import HDMap
 from lastmile.hdmap.routing import campus_shuttle_loop, route_polyline
 from lastmile.recorder.black_box import BlackBox, BlackBoxConfig
 from lastmile.recorder.run_log import STATE_NAMES, RunLog, RunLogWriter, RunMeta
+from lastmile.runner.operator_estop import EStopAction, OperatorEStop
 from lastmile.safety.hardware_watchdog import HardwareWatchdog
 from lastmile.sim.scenario import Scenario
 from lastmile.sim.simulation import Simulation
@@ -112,6 +113,7 @@ def _run(scenario: Scenario, progress: ProgressCallback | None, black_box_dir: P
     )
     last_level = FailSafeLevel.NONE
     operator_had_control = False
+    estop = OperatorEStop(scenario.estop_in_state, scenario.estop_release_s, scenario.estop_min_speed_mps)
     for tick in range(ticks):
         now = Stamp(tick * TICK_US)
         t_s = tick * TICK_US / 1e6
@@ -155,7 +157,7 @@ def _run(scenario: Scenario, progress: ProgressCallback | None, black_box_dir: P
             last_level = directive.level
         # The safety driver handing back is the operator's reset of a latched emergency stop.
         if operator_had_control and not sim.operator.in_control and stack_alive:
-            stack.safety.arbiter.operator_reset()
+            stack.safety.operator_reset(int(now))
         operator_had_control = sim.operator.in_control
         if box is not None:
             box.record_frames(int(now), frames)
@@ -178,6 +180,13 @@ def _run(scenario: Scenario, progress: ProgressCallback | None, black_box_dir: P
                 writer.add_event(t_s, "emergency_stop", reason=out.decision.reason)
                 _trigger(box, "emergency_stop", now, out.decision.reason)
             last_state = state
+        action = estop.step(t_s, state, sim.world.ego.state.speed_mps) if stack_alive else None
+        if action == EStopAction.PRESS:
+            stack.safety.operator_emergency_stop(int(now), f"operator e-stop in {scenario.estop_in_state}")
+            writer.add_event(t_s, "operator_estop", state=scenario.estop_in_state)
+        elif action == EStopAction.RELEASE:
+            stack.safety.operator_reset(int(now))
+            writer.add_event(t_s, "operator_release", state=scenario.estop_in_state)
         for msg in out.hmi if out is not None else ():
             writer.add_event(t_s, "hmi", screen=msg.screen, text=msg.text, sound=msg.sound)
         if tick % LOG_EVERY_TICKS == 0:
@@ -206,8 +215,9 @@ def _run(scenario: Scenario, progress: ProgressCallback | None, black_box_dir: P
     if box is not None:
         box.close()
         for path in sorted(box.dumps):
-            # blackbox_<trigger>_<t>s_<n>.mcap
-            trigger, t_text = path.stem.split("_")[1:3]
+            # blackbox_<trigger>_<t>s_<n>.mcap; the trigger may itself hold underscores (emergency_stop).
+            head, t_text, _ = path.stem.rsplit("_", 2)
+            trigger = head.removeprefix("blackbox_")
             writer.add_event(float(t_text.rstrip("s")), "recording", path=str(path), trigger=trigger)
     wall = time.perf_counter() - wall_start
     cpu = time.process_time() - cpu_start

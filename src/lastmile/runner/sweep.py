@@ -14,9 +14,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from lastmile.core.errors import ConfigError
 from lastmile.evaluation.metrics import compute_metrics
 from lastmile.recorder.run_log import RunLog
+from lastmile.runner.operator_estop import STANDSTILL_MPS
+from lastmile.safety.failsafe import FailSafeConfig
 from lastmile.sim.scenario import load_scenario, scenario_to_toml
 from lastmile.sim.suites import GENERIC_CHECKS, SuiteCase
 
@@ -137,6 +141,56 @@ def _check_no_stack_crash(log: RunLog, m: dict[str, Any]) -> CheckResult:
     return CheckResult(ok=not crashes, detail=str(crashes[0].data["error"]) if crashes else "no crash")
 
 
+# The operator's e-stop: the fail-safe must be at EMERGENCY_STOP within one stack tick plus 100 ms,
+# and the shuttle must stop within its maximum-deceleration stopping time plus this margin (actuator lag
+# and the brake's build-up), then stay put until the operator releases it.
+ESTOP_RESPONSE_BOUND_S = 0.15
+ESTOP_STOP_MARGIN_S = 1.0
+
+
+def _check_estop_honoured(log: RunLog, m: dict[str, Any]) -> CheckResult:
+    """The operator's e-stop stops the shuttle from the state it was pressed in, and holds it stopped."""
+    presses = log.events_of("operator_estop")
+    wanted = str(log.meta.config.get("estop_in_state", ""))
+    if not presses:
+        return CheckResult(ok=False, detail=f"the stack never reached state {wanted!r}: no e-stop pressed")
+    t0 = presses[0].t_s
+    # The level in force just after the bound (it may already have been EMERGENCY_STOP for another cause).
+    levels = [e for e in log.events_of("safety") if e.t_s <= t0 + ESTOP_RESPONSE_BOUND_S]
+    if not levels or levels[-1].data["level"] != "EMERGENCY_STOP":
+        return CheckResult(
+            ok=False,
+            detail=f"no EMERGENCY_STOP within {ESTOP_RESPONSE_BOUND_S:.2f} s of the press at {t0:.1f} s",
+        )
+    t = log.column("t_s")
+    v = log.column("speed_mps")
+    after = t >= t0 - 1e-9
+    if not after.any():
+        return CheckResult(ok=False, detail=f"the run ended at the press ({t0:.1f} s)")
+    v0 = float(abs(v[after][0]))
+    bound_s = v0 / FailSafeConfig().max_decel_mps2 + ESTOP_STOP_MARGIN_S
+    still = after & (np.abs(v) < STANDSTILL_MPS)
+    if not still.any():
+        return CheckResult(ok=False, detail=f"never stopped after the press at {t0:.1f} s")
+    t_stop = float(t[still][0])
+    if t_stop - t0 > bound_s:
+        return CheckResult(
+            ok=False,
+            detail=f"stopped {t_stop - t0:.2f} s after the press (bound {bound_s:.2f} s from {v0:.1f} m/s)",
+        )
+    releases = log.events_of("operator_release")
+    t_release = releases[0].t_s if releases else float(t[-1]) + 1.0
+    held = (t >= t_stop) & (t < t_release)
+    moved = float(np.max(np.abs(v[held]), initial=0.0))
+    if moved >= STANDSTILL_MPS:
+        return CheckResult(
+            ok=False, detail=f"moved at {moved:.2f} m/s before the operator released the e-stop"
+        )
+    return CheckResult(
+        ok=True, detail=f"stopped {t_stop - t0:.2f} s after the press in {wanted} (bound {bound_s:.2f} s)"
+    )
+
+
 CHECKS: dict[str, Callable[[RunLog, dict[str, Any]], CheckResult]] = {
     "no_stack_crash": _check_no_stack_crash,
     "no_collision": _check_no_collision,
@@ -145,6 +199,7 @@ CHECKS: dict[str, Callable[[RunLog, dict[str, Any]], CheckResult]] = {
     "in_drivable_area": _check_in_drivable_area,
     "no_rule_violation": _check_no_rule_violation,
     "fault_answered": _check_fault_answered,
+    "estop_honoured": _check_estop_honoured,
 }
 """Outcome checks by name; a suite case lists the ones its outcome must pass."""
 

@@ -4,12 +4,23 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 
-from lastmile.core.safety_messages import MalfunctionSignal, SafetyDirective, SystemHealth
+from lastmile.core.safety_messages import (
+    FailSafeLevel,
+    MalfunctionKind,
+    MalfunctionSignal,
+    SafetyDirective,
+    SystemHealth,
+)
 from lastmile.core.sensor_frames import SensorFrame
+from lastmile.core.stamp import Stamp
 from lastmile.core.vehicle_messages import Heartbeat, LocalizationEstimate
 from lastmile.safety.failsafe import FailSafeArbiter
 from lastmile.safety.health_monitor import HealthMonitor
 from lastmile.safety.reliability_monitor import ReliabilityMonitor
+
+
+RESET_GRACE_US = 1_000_000
+"""How long past the e-stop's clear-hold an operator's release stays pending."""
 
 
 class SafetySupervisor:
@@ -28,6 +39,34 @@ class SafetySupervisor:
         self.last_health: SystemHealth | None = None
         self.last_signals: tuple[MalfunctionSignal, ...] = ()
         self.last_directive: SafetyDirective | None = None
+        self._operator_estop: MalfunctionSignal | None = None
+        self._reset_until_us: int | None = None
+
+    def operator_emergency_stop(self, now_us: int, reason: str) -> None:
+        """The remote or on-board e-stop button: EMERGENCY_STOP until :meth:`operator_reset`.
+
+        The signal stays active on every tick, not only the one it arrived on, so the arbiter's hold
+        cannot time it out while the operator still holds the stop.
+        """
+        self._operator_estop = MalfunctionSignal(
+            stamp=Stamp(int(now_us)),
+            source="operator",
+            kind=MalfunctionKind.OPERATOR_ESTOP,
+            level=FailSafeLevel.EMERGENCY_STOP,
+            reason=reason,
+        )
+
+    def operator_reset(self, now_us: int) -> None:
+        """The operator releases the e-stop and confirms the cause is gone (effective at standstill).
+
+        The arbiter holds EMERGENCY_STOP for its clear-hold after the last signal, and discards a reset
+        that arrives while the level is still held. The release is therefore kept pending for that hold
+        plus one second: the e-stop clears once the hold has run out, and a cause that is still there
+        after the window keeps the shuttle stopped until the operator confirms again.
+        """
+        self._operator_estop = None
+        hold_us = self.arbiter.config.clear_hold_us[FailSafeLevel.EMERGENCY_STOP]
+        self._reset_until_us = int(now_us) + hold_us + RESET_GRACE_US
 
     def observe_frames(self, now_us: int, frames: Iterable[SensorFrame]) -> None:
         for frame in frames:
@@ -51,6 +90,15 @@ class SafetySupervisor:
             self.reliability.observe_gate_rejections(now_us, gate_rejections_total)
         health = self.health.check(now_us)
         signals = self.health.signals(health) + self.reliability.evaluate(now_us)
+        if self._operator_estop is not None:
+            signals = (*signals, self._operator_estop)
+        if self._reset_until_us is not None:
+            if now_us <= self._reset_until_us:
+                self.arbiter.operator_reset()
+            else:
+                self._reset_until_us = None
         directive = self.arbiter.update(now_us, signals, speed_mps=speed_mps, route_s_m=route_s_m)
+        if directive.level < FailSafeLevel.EMERGENCY_STOP:
+            self._reset_until_us = None
         self.last_health, self.last_signals, self.last_directive = health, signals, directive
         return directive

@@ -11,6 +11,7 @@ import tomli_w
 
 from lastmile.core.config import check_range, from_mapping, load_toml
 from lastmile.core.errors import ConfigError
+from lastmile.core.vehicle_messages import BehaviourState
 from lastmile.sim.faults import FaultSpec
 from lastmile.sim.passengers import PassengerConfig
 from lastmile.sim.weather import parse_weather
@@ -123,9 +124,23 @@ class Scenario:
     static_obstacles: tuple[StaticObstacle, ...] = ()
     faults: tuple[FaultSpec, ...] = ()
     cruise_speed_mps: float | None = None
+    estop_in_state: str = ""
+    """The operator presses the e-stop the first time the stack reports this behaviour state ("": never)."""
+    estop_min_speed_mps: float = 0.0
+    """...and the shuttle moves at least this fast (an e-stop at standstill proves little)."""
+    estop_release_s: float = 8.0
+    """How long after standstill the operator releases the e-stop (and confirms the cause is gone)."""
 
     def __post_init__(self) -> None:
         check_range("scenario.minutes", self.minutes, 0.01, 24 * 60.0)
+        states = [s.value for s in BehaviourState]
+        if self.estop_in_state and self.estop_in_state not in states:
+            raise ConfigError(
+                f"scenario.estop_in_state: expected one of {', '.join(states)} or empty, "
+                f"got {self.estop_in_state!r}"
+            )
+        check_range("scenario.estop_release_s", self.estop_release_s, 0.0, 3600.0)
+        check_range("scenario.estop_min_speed_mps", self.estop_min_speed_mps, 0.0, 20.0 / 3.6)
         if self.cruise_speed_mps is not None:
             # The shuttle's operating speeds: up to its 20 km/h top speed.
             check_range("scenario.cruise_speed_mps", self.cruise_speed_mps, 0.5, 20.0 / 3.6 + 1e-9)

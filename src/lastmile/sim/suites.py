@@ -12,6 +12,7 @@ import dataclasses
 from dataclasses import dataclass
 
 from lastmile.core.errors import ConfigError
+from lastmile.core.vehicle_messages import BehaviourState
 from lastmile.sim.faults import FAULT_MENU, FaultSpec
 from lastmile.sim.passengers import PassengerConfig
 from lastmile.sim.scenario import (
@@ -163,6 +164,7 @@ def iso22737_suite(seed: int = 0) -> list[SuiteCase]:
                 group="minimal risk manoeuvre on faults",
             )
         )
+    cases.extend(_estop_cases(seed))
     for weather in WEATHERS:
         name = f"drivable_area_service_{weather}"
         cases.append(
@@ -178,6 +180,46 @@ def iso22737_suite(seed: int = 0) -> list[SuiteCase]:
     names = [c.name for c in cases]
     if len(set(names)) != len(names):
         raise ConfigError("iso22737_suite: expected unique case names, got duplicates")
+    return cases
+
+
+# Press while the shuttle moves where the state has motion: at cruise in normal driving, rolling on the
+# approach, the swing to the curb and the pull-out. Onboarding happens at standstill (doors open).
+ESTOP_MIN_SPEED_MPS = {
+    BehaviourState.NORMAL_DRIVING: 4.0,
+    BehaviourState.INTERSECTION: 1.0,
+    BehaviourState.PULLOVER: 1.0,
+    BehaviourState.MERGING: 1.0,
+}
+
+
+def _estop_cases(seed: int) -> list[SuiteCase]:
+    """The operator's e-stop pressed in each decision state, on the service where that state occurs.
+
+    EMERGENCY_STOP is reached first through a hung localization module (an E-STOP fault), and the
+    operator presses the button on top of it; the release then also needs the fault to be gone.
+    """
+    cases = []
+    for state in BehaviourState:
+        name = f"estop_from_{state.value}"
+        base = default_service(seed=seed, minutes=4.0)
+        faults: tuple[FaultSpec, ...] = ()
+        if state == BehaviourState.EMERGENCY_STOP:
+            faults = (FaultSpec(kind="module_hang", target="localization", start_s=20.0, duration_s=6.0),)
+        cases.append(
+            SuiteCase(
+                name=name,
+                scenario=dataclasses.replace(
+                    base,
+                    name=name,
+                    estop_in_state=state.value,
+                    estop_min_speed_mps=ESTOP_MIN_SPEED_MPS.get(state, 0.0),
+                    faults=faults,
+                ),
+                checks=("no_stack_crash", "no_collision_at_fault", "in_drivable_area", "estop_honoured"),
+                group="emergency stop from every state",
+            )
+        )
     return cases
 
 
