@@ -14,7 +14,7 @@ from lastmile.safety.supervisor import SafetySupervisor
 from lastmile.sim.faults import FAULT_MENU
 from lastmile.sim.scenario import load_scenario
 from lastmile.sim.scenario_generator import ScenarioSpace, sample_scenarios
-from lastmile.sim.suites import SHUTTLE_SPEEDS_MPS, WEATHERS, iso22737_suite
+from lastmile.sim.suites import FAULT_CHECKS, GENERIC_CHECKS, SHUTTLE_SPEEDS_MPS, WEATHERS, iso22737_suite
 from lastmile.stack.shuttle_stack import ShuttleStack
 
 SHORT = ScenarioSpace(minutes=0.3, fault_start_s=(2.0, 5.0), fault_duration_s=(2.0, 5.0))
@@ -42,7 +42,7 @@ def test_local_sweep_writes_a_summary_row_per_scenario(tmp_path):
     assert [r["name"] for r in summary["rows"]] == [c.name for c in cases]
     for row in summary["rows"]:
         assert (tmp_path / "scenarios" / f"{row['name']}.toml").exists()
-        assert set(row["checks"]) >= {"no_stack_crash", "no_collision_at_fault", "no_takeover"}
+        assert tuple(row["checks"]) == (FAULT_CHECKS if row["faults"] else GENERIC_CHECKS)
 
 
 def test_ray_and_local_engines_give_identical_outcomes(tmp_path):

@@ -87,11 +87,14 @@ class RadarFrame:
         sensor_id: which radar ("front", "rear").
         objects: (N, 6) float64, columns :data:`RADAR_COLUMNS`; velocities are over ground, expressed
             in the radar frame (the radar compensates its own motion from the vehicle speed it is fed).
+        cycle: the radar's measurement-cycle counter, as automotive radars send it with each object
+            list (-1: not reported). A frozen driver repeats it, so a frozen empty list is detectable.
     """
 
     stamp: Stamp
     sensor_id: str
     objects: np.ndarray = field(default_factory=lambda: np.zeros((0, len(RADAR_COLUMNS))))
+    cycle: int = -1
 
     def __post_init__(self) -> None:
         object.__setattr__(
@@ -100,6 +103,8 @@ class RadarFrame:
 
     def validate(self) -> None:
         frozen_array(self.objects, np.float64, len(RADAR_COLUMNS), "RadarFrame.objects")
+        if not isinstance(self.cycle, int) or self.cycle < -1:
+            raise MessageError(f"RadarFrame.cycle: expected an int >= -1, got {self.cycle!r}")
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

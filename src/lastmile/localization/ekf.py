@@ -44,7 +44,9 @@ class PoseEkfConfig:
             receiver, is wrong: the next fix re-initialises it, provided the rejected fixes agree
             with each other (a drifted filter sees one consistent offset; multipath jumps around).
         reset_consistency_m: how far the rejected fixes' innovations may spread about their mean
-            for a reset, m.
+            for a reset, m. RTK noise is centimetres and a drifting filter's offset hardly changes in
+            3 s, while multipath jumping a few metres in a new direction every second can line up two
+            jumps within a metre by chance: hence 3 s of rejections and 0.3 m.
         max_pos_std_m: the estimate is marked invalid while its position sigma (largest axis)
             exceeds this, m.
         history_s: how far back a late input is inserted at its own stamp, s; older ones are dropped.
@@ -59,8 +61,8 @@ class PoseEkfConfig:
     yaw_rate_bias_walk_radps: float = 1e-4
     zero_slip_offset_m: float = 1.45
     gate_chi2: float = 13.8
-    reset_after_rejections: int = 20
-    reset_consistency_m: float = 1.0
+    reset_after_rejections: int = 30
+    reset_consistency_m: float = 0.3
     max_pos_std_m: float = 1.0
     history_s: float = 1.0
 

@@ -22,7 +22,7 @@ from lastmile.recorder.run_log import RunLog
 from lastmile.runner.operator_estop import STANDSTILL_MPS
 from lastmile.safety.failsafe import FailSafeConfig
 from lastmile.sim.scenario import load_scenario, scenario_to_toml
-from lastmile.sim.suites import GENERIC_CHECKS, SuiteCase
+from lastmile.sim.suites import FAULT_CHECKS, GENERIC_CHECKS, SuiteCase
 
 ENGINES = ("local", "ray")
 ProgressCallback = Callable[[int, int], None]
@@ -281,7 +281,7 @@ def generic_cases(scenarios: list[Any], group: str = "generated") -> list[SuiteC
         SuiteCase(
             name=s.name,
             scenario=s,
-            checks=(*GENERIC_CHECKS, "fault_answered") if s.faults else GENERIC_CHECKS,
+            checks=FAULT_CHECKS if s.faults else GENERIC_CHECKS,
             group=group,
         )
         for s in scenarios

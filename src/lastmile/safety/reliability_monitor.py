@@ -112,8 +112,9 @@ def default_sensor_specs() -> tuple[SensorSpec, ...]:
         SensorSpec(key="imu", rate_hz=50.0, frozen_after=5),
         SensorSpec(key="odom", rate_hz=50.0, frozen_after=5),
         SensorSpec(key="door", rate_hz=10.0, frozen_after=None, silent_level=FailSafeLevel.TAKEOVER_REQUEST),
-        SensorSpec(key="radar_front", rate_hz=20.0),
-        SensorSpec(key="radar_rear", rate_hz=20.0, silent_level=FailSafeLevel.SPEED_LIMIT),
+        # Radars send a cycle counter: one repeated list is already a frozen driver.
+        SensorSpec(key="radar_front", rate_hz=20.0, frozen_after=2),
+        SensorSpec(key="radar_rear", rate_hz=20.0, frozen_after=2, silent_level=FailSafeLevel.SPEED_LIMIT),
     )
 
 
@@ -129,7 +130,10 @@ class ReliabilityConfig:
         rate_window_us, min_rate_fraction: measured rate over the window below ``fraction * rate_hz``.
         event_hold_us: a one-off event (garbage frame, latency spike, out-of-order stamp) stays active
             this long.
+        overdue_margin_us: a stream's next frame is overdue (SENSOR_LATENCY) this long after one period
+            past its last stamp plus the lowest latency the stream has shown.
         out_of_order_max: more stamps going backwards within ``rate_window_us`` than this is a fault.
+            One sensor's stream travels one link in order, so by default a single step back is one.
         blockage_max, noise_max: perception's blockage fraction / noise level above these.
         visibility_degraded_m, visibility_min_m: below the first, speed limit; below the second, out of ODD.
         precipitation_degraded_mmph, precipitation_max_mmph: the same for precipitation.
@@ -150,7 +154,8 @@ class ReliabilityConfig:
     rate_window_us: int = 2_000_000
     min_rate_fraction: float = 0.6
     event_hold_us: int = 1_000_000
-    out_of_order_max: int = 1
+    overdue_margin_us: int = 30_000
+    out_of_order_max: int = 0
     blockage_max: float = 0.3
     noise_max: float = 0.25
     visibility_degraded_m: float = 150.0
@@ -220,6 +225,9 @@ def _payload_digest(frame: SensorFrame) -> tuple[object, ...] | None:
     differ, so a repeat there is a frozen driver)."""
     if isinstance(frame, WheelOdometryFrame) and frame.speed_mps < 0.1:
         return None
+    if isinstance(frame, RadarFrame) and frame.cycle >= 0:
+        # The cycle counter advances with every healthy list, empty or not.
+        return (frame.cycle, hash(frame.objects.tobytes()))
     parts: list[object] = []
     for f in fields(frame):
         if f.name == "stamp":
@@ -282,6 +290,7 @@ class _Stream:
         "first_us",
         "last_arrival_us",
         "last_stamp_us",
+        "latency_min_us",
         "out_of_order",
         "points_low",
         "repeats",
@@ -293,6 +302,7 @@ class _Stream:
         self.arrivals: deque[int] = deque()
         self.last_arrival_us = -1
         self.last_stamp_us = -1
+        self.latency_min_us: int | None = None
         self.first_us = -1
         self.digest: tuple[object, ...] | None = None
         self.repeats = 0
@@ -380,6 +390,8 @@ class ReliabilityMonitor:
                 )
         else:
             st.last_stamp_us = int(frame.stamp)
+            if st.latency_min_us is None or latency < st.latency_min_us:
+                st.latency_min_us = int(latency)
         if st.spec.frozen_after is not None:
             digest = _payload_digest(frame)
             if digest is not None and digest == st.digest:
@@ -476,6 +488,18 @@ class ReliabilityMonitor:
                     spec.silent_level,
                 )
                 continue
+            if st.latency_min_us is not None and K.SENSOR_LATENCY not in st.events:
+                # The next frame is due one period after the last stamp, plus the stream's own latency:
+                # a frame that late is a latency fault well before the stream counts as silent.
+                due_us = st.last_stamp_us + spec.period_us + st.latency_min_us + c.overdue_margin_us
+                if now_us > due_us:
+                    self._emit(
+                        out,
+                        now_us,
+                        src,
+                        K.SENSOR_LATENCY,
+                        f"next frame overdue by {(now_us - due_us + c.overdue_margin_us) / 1e3:.0f} ms",
+                    )
             while st.arrivals and st.arrivals[0] <= now_us - c.rate_window_us:
                 st.arrivals.popleft()
             if now_us - st.first_us >= c.rate_window_us:

@@ -18,7 +18,6 @@ from lastmile.safety.failsafe import FailSafeArbiter
 from lastmile.safety.health_monitor import HealthMonitor
 from lastmile.safety.reliability_monitor import ReliabilityMonitor
 
-
 RESET_GRACE_US = 1_000_000
 """How long past the e-stop's clear-hold an operator's release stays pending."""
 

@@ -124,6 +124,7 @@ class SensorSuite:
         self.faults = faults
         self._pending: list[_Pending] = []
         self._seq = 0
+        self._radar_cycles: dict[str, int] = {}
         self._odom_scale = 1.0 + float(self._rng["odom"].normal(0.0, 0.003))
         self.door_open = False
         self.person_in_doorway = False
@@ -269,8 +270,13 @@ class SensorSuite:
                     _range_rate(px, py, vx, vy, spec, s.speed_mps),
                 )
             )
+        cycle = self._radar_cycles.get(spec.sensor_id, -1) + 1
+        self._radar_cycles[spec.sensor_id] = cycle
         return RadarFrame(
-            stamp=now, sensor_id=spec.sensor_id, objects=np.array(rows, dtype=np.float64).reshape(-1, 6)
+            stamp=now,
+            sensor_id=spec.sensor_id,
+            objects=np.array(rows, dtype=np.float64).reshape(-1, 6),
+            cycle=cycle,
         )
 
 

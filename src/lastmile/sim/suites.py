@@ -32,6 +32,8 @@ SHUTTLE_SPEEDS_MPS = (20.0 / 3.6, 12.0 / 3.6)
 ENCOUNTER_S_M = 260.0
 
 GENERIC_CHECKS = ("no_stack_crash", "no_collision_at_fault", "no_takeover", "in_drivable_area")
+FAULT_CHECKS = ("no_stack_crash", "no_collision_at_fault", "in_drivable_area", "fault_answered")
+"""With a fault injected, a takeover request can be the right answer (GNSS lost): it is not a failure."""
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -160,7 +162,7 @@ def iso22737_suite(seed: int = 0) -> list[SuiteCase]:
                 scenario=dataclasses.replace(
                     _encounter_base(name, "clear", SHUTTLE_SPEEDS_MPS[0], seed, minutes=1.5), faults=(fault,)
                 ),
-                checks=("no_stack_crash", "no_collision_at_fault", "in_drivable_area", "fault_answered"),
+                checks=FAULT_CHECKS,
                 group="minimal risk manoeuvre on faults",
             )
         )

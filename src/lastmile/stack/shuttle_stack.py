@@ -68,8 +68,9 @@ DEFAULT_SENSORS = (
     SensorSpec(key="imu", rate_hz=50.0, frozen_after=5),
     SensorSpec(key="odom", rate_hz=50.0, frozen_after=5),
     SensorSpec(key="door", rate_hz=10.0, frozen_after=None, silent_level=FailSafeLevel.TAKEOVER_REQUEST),
-    SensorSpec(key="front", rate_hz=20.0),
-    SensorSpec(key="rear", rate_hz=20.0, silent_level=FailSafeLevel.SPEED_LIMIT),
+    # Radars send a cycle counter: one repeated list is already a frozen driver.
+    SensorSpec(key="front", rate_hz=20.0, frozen_after=2),
+    SensorSpec(key="rear", rate_hz=20.0, frozen_after=2, silent_level=FailSafeLevel.SPEED_LIMIT),
 )
 """The simulator's sensor suite as the reliability monitor watches it (radars by their sensor ids)."""
 
