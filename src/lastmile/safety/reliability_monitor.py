@@ -105,16 +105,23 @@ class SensorSpec:
         return round(1e6 / self.rate_hz)
 
 
-def default_sensor_specs() -> tuple[SensorSpec, ...]:
-    """The simulator's default suite (sim/sensors.py): GNSS 10 Hz, IMU and odometry 50 Hz, radars 20 Hz."""
+def default_sensor_specs(
+    radar_keys: tuple[str, str] = ("radar_front", "radar_rear"),
+) -> tuple[SensorSpec, ...]:
+    """The simulator's default suite (sim/sensors.py): GNSS 10 Hz, IMU and odometry 50 Hz, radars 20 Hz.
+
+    Args:
+        radar_keys: the front and rear radars' sensor ids (the simulator calls them "front", "rear").
+    """
+    front, rear = radar_keys
     return (
         SensorSpec(key="gnss", rate_hz=10.0),
         SensorSpec(key="imu", rate_hz=50.0, frozen_after=5),
         SensorSpec(key="odom", rate_hz=50.0, frozen_after=5),
         SensorSpec(key="door", rate_hz=10.0, frozen_after=None, silent_level=FailSafeLevel.TAKEOVER_REQUEST),
         # Radars send a cycle counter: one repeated list is already a frozen driver.
-        SensorSpec(key="radar_front", rate_hz=20.0, frozen_after=2),
-        SensorSpec(key="radar_rear", rate_hz=20.0, frozen_after=2, silent_level=FailSafeLevel.SPEED_LIMIT),
+        SensorSpec(key=front, rate_hz=20.0, frozen_after=2),
+        SensorSpec(key=rear, rate_hz=20.0, frozen_after=2, silent_level=FailSafeLevel.SPEED_LIMIT),
     )
 
 

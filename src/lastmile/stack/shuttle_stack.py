@@ -48,7 +48,11 @@ from lastmile.localization.ekf import PoseEkf, PoseEkfConfig
 from lastmile.planning.local_path import LocalPathConfig, LocalPathPlanner
 from lastmile.safety.failsafe import FailSafeArbiter, apply_safety_gate
 from lastmile.safety.health_monitor import HealthMonitor, ModuleSpec
-from lastmile.safety.reliability_monitor import ReliabilityConfig, ReliabilityMonitor, SensorSpec
+from lastmile.safety.reliability_monitor import (
+    ReliabilityConfig,
+    ReliabilityMonitor,
+    default_sensor_specs,
+)
 from lastmile.safety.supervisor import SafetySupervisor
 from lastmile.stack.profiler import ModuleProfiler
 from lastmile.tracking.radar_tracker import RadarObjectTracker, RadarTrackerConfig
@@ -63,15 +67,7 @@ HMI_TEXT = {
 }
 
 
-DEFAULT_SENSORS = (
-    SensorSpec(key="gnss", rate_hz=10.0),
-    SensorSpec(key="imu", rate_hz=50.0, frozen_after=5),
-    SensorSpec(key="odom", rate_hz=50.0, frozen_after=5),
-    SensorSpec(key="door", rate_hz=10.0, frozen_after=None, silent_level=FailSafeLevel.TAKEOVER_REQUEST),
-    # Radars send a cycle counter: one repeated list is already a frozen driver.
-    SensorSpec(key="front", rate_hz=20.0, frozen_after=2),
-    SensorSpec(key="rear", rate_hz=20.0, frozen_after=2, silent_level=FailSafeLevel.SPEED_LIMIT),
-)
+DEFAULT_SENSORS = default_sensor_specs(radar_keys=("front", "rear"))
 """The simulator's sensor suite as the reliability monitor watches it (radars by their sensor ids)."""
 
 
