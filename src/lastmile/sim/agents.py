@@ -87,10 +87,9 @@ class PathCar(Agent):
     def step(self, world: World, dt_s: float) -> None:
         gap_m, lead_speed_mps = world.leader_on_path(self, horizon_m=50.0)
         # Treat the next uncleared stop line as a standing leader until the arbiter lets us go.
-        for line in self.stop_lines:
+        for to_line, line in self._lines_ahead():
             if line.stop_line_id in self.cleared:
                 continue
-            to_line = line.s_m - self.s_m - self.length_m / 2.0
             if to_line < -1.0:
                 self.cleared.add(line.stop_line_id)
                 continue
@@ -128,6 +127,22 @@ class PathCar(Agent):
             self.speed_mps = 0.0
         x, y, yaw = self.path.point_at(self.s_m)
         self.x_m, self.y_m, self.yaw_rad = x, y, yaw
+
+    def _lines_ahead(self) -> list[tuple[float, StopLineOnPath]]:
+        """(distance from the front bumper to the line, line) in the order the car meets them."""
+        out = [(line.s_m - self.s_m - self.length_m / 2.0, line) for line in self.stop_lines]
+        if not self.path.closed:
+            return out
+        # On a loop s_m keeps growing past the length: each lap meets every line again, so a line
+        # far ahead (more than the look-ahead) is uncleared for the coming lap.
+        length_m = self.path.length_m
+        wrapped = []
+        for to_line, line in out:
+            to_line = (to_line + 1.0) % length_m - 1.0
+            if to_line > 60.0:
+                self.cleared.discard(line.stop_line_id)
+            wrapped.append((to_line, line))
+        return sorted(wrapped, key=lambda item: item[0])
 
 
 def idm_accel_mps2(

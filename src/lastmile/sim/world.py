@@ -119,6 +119,11 @@ class World:
                 continue
             f = car.path.project(x, y, hint_s_m=car.s_m + dist, window_m=dist + 5.0)
             ds = f.s_m - car.s_m
+            if car.path.closed:
+                # project() answers on [0, L) while a looping car's s_m keeps growing past L: compare
+                # on the circle, or a car that has lapped once no longer sees anything ahead of it.
+                half_m = car.path.length_m / 2.0
+                ds = (ds + half_m) % car.path.length_m - half_m
             if ds <= 0.0 or abs(f.d_m) > car.width_m / 2.0 + width / 2.0 + 0.3:
                 continue
             gap = ds - car.length_m / 2.0 - length / 2.0
