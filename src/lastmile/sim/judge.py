@@ -280,11 +280,19 @@ class Judge:
             self._ttc_min_logged = ttc
 
     def time_to_collision(self) -> tuple[float, int]:
-        """Constant-velocity time until the shuttle's front reaches something in its corridor."""
+        """Constant-velocity time until the shuttle's front reaches something in its corridor.
+
+        The other road user moves on at its velocity, sideways included: an oncoming car in its own
+        lane drifts out of the line ahead of a shuttle swinging out of a bay, and a pedestrian
+        stepping in is in the corridor when the front gets there. The corridor bends with the
+        shuttle's present turn rate (a constant-curvature arc), as a safety driver watching the wheel
+        judges it.
+        """
         w = self.world
         s, g = w.ego.state, w.geometry
         fx, fy = w.ego_front()
         c, si = math.cos(s.yaw_rad), math.sin(s.yaw_rad)
+        curvature = s.yaw_rate_radps / s.speed_mps if s.speed_mps > 0.5 else 0.0
         best, who = math.inf, -1
         for a in w.agents:
             if not a.active:
@@ -293,14 +301,15 @@ class Judge:
             along = dx * c + dy * si
             if along < -1.0 or along > 25.0:
                 continue
-            lateral = -dx * si + dy * c
-            if abs(lateral) > g.width_m / 2.0 + a.width_m / 2.0 + 0.2:
-                continue
             closing = s.speed_mps - (a.vx_mps * c + a.vy_mps * si)
             if closing <= 0.05:
                 continue
             gap = max(0.0, along - a.length_m / 2.0)
             ttc = gap / closing
+            drift = (-a.vx_mps * si + a.vy_mps * c) * ttc
+            lateral = -dx * si + dy * c + drift - 0.5 * curvature * max(along, 0.0) ** 2
+            if abs(lateral) > g.width_m / 2.0 + a.width_m / 2.0 + 0.2:
+                continue
             if ttc < best:
                 best, who = ttc, a.id
         return best, who
