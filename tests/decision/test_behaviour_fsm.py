@@ -101,6 +101,19 @@ def test_pedestrian_on_the_crosswalk_makes_the_shuttle_yield_before_it(straight_
     assert d.state == BehaviourState.NORMAL_DRIVING
 
 
+def test_pedestrian_walking_to_the_crosswalk_is_yielded_to_before_reaching_the_kerb(straight_layers):
+    # 4.75 m beyond the crosswalk's end, walking towards it at 1.3 m/s: at the kerb zone in about 2 s,
+    # on the lane in about 4 s, when a shuttle 24 m away at 5.5 m/s would be on the crossing.
+    walking_in = _tracks([(3, 100.0, 10.0, 0.0, -1.3, ObjectClass.PEDESTRIAN)])
+    d = _fsm(straight_layers).step(_inp(0.0, 70.0, v=5.5, tracks=walking_in))
+    assert d.stop_at_s_m is not None and d.stop_at_s_m <= 98.0
+    # The same person walking away, or standing back from the kerb, is not crossing.
+    for vy in (1.3, 0.0):
+        other = _tracks([(3, 100.0, 10.0, 0.0, vy, ObjectClass.PEDESTRIAN)])
+        d = _fsm(straight_layers).step(_inp(0.0, 70.0, v=5.5, tracks=other))
+        assert d.stop_at_s_m is None
+
+
 def test_obstacle_too_close_to_stop_comfortably_triggers_emergency_stop(straight_layers):
     fsm = _fsm(straight_layers)
     # Front bumper at 53.75 m, goose 3 m ahead of it: stopping would need over 6 m/s^2.

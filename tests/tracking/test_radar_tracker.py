@@ -245,3 +245,33 @@ def test_non_finite_objects_and_negative_stamps_raise_message_errors():
 def test_bad_configs_are_rejected_with_the_field_named(change, match):
     with pytest.raises(ConfigError, match=match):
         RadarTrackerConfig(**change)
+
+
+def test_a_goose_that_walks_beside_the_front_bumper_is_held_in_the_blind_zone_not_forgotten():
+    # The front radar at the origin looks along +x with +-75 deg; the goose walks from ahead of it
+    # to beside it (azimuth -80 deg) at 0.25 m/s and stops there, where no radar can see it.
+    config = RadarTrackerConfig()
+    tracker = RadarObjectTracker(config)
+    frames = []
+    for k in range(41):
+        t = k * 0.05
+        y = -0.5 - 0.25 * t
+        x = 1.5 - 0.6 * t
+        az = math.degrees(math.atan2(y, x))
+        frames.append(_frame(t, [(x, y, -0.6, -0.25, -15.0)] if az > -75.0 else []))
+    _drive(tracker, frames)
+    # Then empty lists for far longer than t_expire_s: it is beside the bumper, out of every view.
+    _drive(tracker, [_frame(2.0 + k * 0.05, []) for k in range(1, 61)])
+    tracks = tracker.tracks(stamp_from_s(5.0))
+    assert len(tracks) == 1
+    assert tracks.table[0, COL["x_m"]] < 1.5
+    # Held only so long: after blind_zone_hold_s without a detection the track goes.
+    _drive(tracker, [_frame(5.0 + k * 0.05, []) for k in range(1, int(config.blind_zone_hold_s / 0.05) + 2)])
+    assert len(tracker.tracks(stamp_from_s(5.0 + config.blind_zone_hold_s + 0.1))) == 0
+
+
+def test_a_track_lost_inside_the_field_of_view_is_not_held():
+    tracker = RadarObjectTracker()
+    _drive(tracker, [_frame(k * 0.05, [(3.0, 0.5, 0.0, 0.0, -15.0)]) for k in range(10)])
+    _drive(tracker, [_frame(0.5 + k * 0.05, []) for k in range(1, 21)])
+    assert len(tracker.tracks(stamp_from_s(1.5))) == 0

@@ -64,15 +64,24 @@ class ImuFrame:
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class WheelOdometryFrame:
-    """Wheel-speed and steering feedback from the vehicle bus (CAN)."""
+    """Wheel-speed and steering feedback from the vehicle bus (CAN).
+
+    Attributes:
+        cycle: the message's alive counter, as safety-relevant CAN messages carry one (-1: not
+            reported). At standstill the speed legitimately repeats; the counter tells a frozen
+            gateway from a parked vehicle.
+    """
 
     stamp: Stamp
     speed_mps: float
     steer_front_rad: float
     steer_rear_rad: float
+    cycle: int = -1
 
     def validate(self) -> None:
         _check_finite("WheelOdometryFrame", speed_mps=self.speed_mps, steer_front_rad=self.steer_front_rad)
+        if not isinstance(self.cycle, int) or self.cycle < -1:
+            raise MessageError(f"WheelOdometryFrame.cycle: expected an int >= -1, got {self.cycle!r}")
 
 
 RADAR_COLUMNS = ("x_m", "y_m", "vx_mps", "vy_mps", "rcs_dbsm", "range_rate_mps")
@@ -89,12 +98,18 @@ class RadarFrame:
             in the radar frame (the radar compensates its own motion from the vehicle speed it is fed).
         cycle: the radar's measurement-cycle counter, as automotive radars send it with each object
             list (-1: not reported). A frozen driver repeats it, so a frozen empty list is detectable.
+        raw_detections: how many reflections the radar's own signal processing found this cycle,
+            static clutter included (the ARS 408 reports it as its near and far cluster counts);
+            -1: not reported. A working radar facing a road always sees ground, curb and pole
+            returns, so an empty object list with zero raw reflections is a blocked (blind) radar,
+            while an empty list over the usual clutter is just an empty road.
     """
 
     stamp: Stamp
     sensor_id: str
     objects: np.ndarray = field(default_factory=lambda: np.zeros((0, len(RADAR_COLUMNS))))
     cycle: int = -1
+    raw_detections: int = -1
 
     def __post_init__(self) -> None:
         object.__setattr__(
@@ -105,6 +120,10 @@ class RadarFrame:
         frozen_array(self.objects, np.float64, len(RADAR_COLUMNS), "RadarFrame.objects")
         if not isinstance(self.cycle, int) or self.cycle < -1:
             raise MessageError(f"RadarFrame.cycle: expected an int >= -1, got {self.cycle!r}")
+        if not isinstance(self.raw_detections, int) or self.raw_detections < -1:
+            raise MessageError(
+                f"RadarFrame.raw_detections: expected an int >= -1, got {self.raw_detections!r}"
+            )
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -48,8 +48,14 @@ class DecisionConfig:
             reach the shuttle within rear_tta_s.
         curb_gap_target_m: distance kept between the shuttle's side and the curb at a stop.
         crosswalk_margin_m: how far beyond a crosswalk's ends a waiting pedestrian counts as crossing.
+        crosswalk_lookahead_s: a pedestrian or cyclist whose constant-velocity path reaches that zone
+            before the shuttle has cleared the crosswalk (at most this far ahead) counts as well: at
+            20 km/h the shuttle needs about 10 m to stop comfortably, and someone walking to the kerb
+            covers 5 m in that time.
         merge_room_m: room kept free ahead of a stopped shuttle's front so it can pull out around a
-            car parked further along the bay (with min_gap_m + 0.5 beyond it).
+            car parked further along the bay (with min_gap_m + 0.5 beyond it). 4 m, not 5: every
+            metre given here is taken from the swing in, and with a car at the end of S1's 24 m
+            platform a 5 m room left the swing so steep that the front corner grazed the curb.
         spot_scan_m: how far ahead of the front the pull-over spot scan looks. WATonoBus scans 20 m;
             our docking approach (curve, swing-in, 24 m platform) is longer than that, and a spot that
             moves back once a parked car comes into view leaves no room to swing in, so we look as far
@@ -73,8 +79,9 @@ class DecisionConfig:
     rear_tta_s: float = 7.0
     curb_gap_target_m: float = 0.2
     crosswalk_margin_m: float = 2.0
+    crosswalk_lookahead_s: float = 6.0
     transition_m: float = 32.0
-    merge_room_m: float = 5.0
+    merge_room_m: float = 4.0
     spot_scan_m: float = 40.0
 
 
@@ -154,7 +161,7 @@ class BehaviourStateMachine:
         reason = "cruise"
 
         constraints += self._in_path(obstacles, inp, front_s)
-        constraints += self._crosswalks(inp.tracks, front_s)
+        constraints += self._crosswalks(inp.tracks, front_s, inp.speed_mps)
         speed_cap = self._obey_safety(inp.safety, t_s, constraints, speed_cap)
 
         if self.state == BehaviourState.EMERGENCY_STOP:
@@ -231,8 +238,9 @@ class BehaviourStateMachine:
             out.append(_Constraint(effective - c.min_gap_m, o.cls.name.lower(), o.track_id))
         return out
 
-    def _crosswalks(self, tracks: TrackedObjects, front_s: float) -> list[_Constraint]:
-        """Yield at a crosswalk while a pedestrian or cyclist is on it or stepping onto it."""
+    def _crosswalks(self, tracks: TrackedObjects, front_s: float, speed_mps: float) -> list[_Constraint]:
+        """Yield at a crosswalk while a pedestrian or cyclist is on it, stepping onto it, or walking
+        towards it fast enough to get there before the shuttle has cleared it."""
         out: list[_Constraint] = []
         c = self.config
         for rc in self.layers.crosswalks:
@@ -242,11 +250,17 @@ class BehaviourStateMachine:
             if ahead < -0.5:
                 continue  # already on it: clear it rather than stop on it
             poly = rc.crosswalk.polygon
+            to_clear_m = ahead + (rc.s_end_m - rc.s_start_m) + self.geometry.length_m
+            horizon_s = min(c.crosswalk_lookahead_s, to_clear_m / max(speed_mps, 1.0))
+            steps_s = np.arange(0.0, horizon_s + 1e-9, 0.5)
             for tid, row in zip(tracks.ids.tolist(), tracks.table.tolist(), strict=True):
                 cls = ObjectClass(int(row[7]))
                 if not (cls.vulnerable or cls == ObjectClass.UNKNOWN):
                     continue
-                if _near_polygon(row[0], row[1], poly, c.crosswalk_margin_m):
+                if any(
+                    _near_polygon(row[0] + row[2] * t, row[1] + row[3] * t, poly, c.crosswalk_margin_m)
+                    for t in steps_s
+                ):
                     out.append(_Constraint(rc.s_start_m - 1.0, "crosswalk", int(tid), emergency_ok=False))
                     break
         return out

@@ -40,6 +40,9 @@ class PoseEkfConfig:
             the default shuttle's 2.9 m wheelbase (``VehicleGeometry``, all-wheel steer).
         gate_chi2: chi-square bound (2 dof, position) beyond which a fix is rejected as an outlier;
             13.8 is the 0.999 quantile.
+        gross_chi2: a rejected fix beyond this bound (400: 20 sigma) is counted as gross as well: no
+            noise or model error of a healthy run reaches it, so one such fix is already a
+            receiver fault (multipath, a map misalignment), not bad luck.
         reset_after_rejections: this many consecutive rejected fixes mean the filter, not the
             receiver, is wrong: the next fix re-initialises it, provided the rejected fixes agree
             with each other (a drifted filter sees one consistent offset; multipath jumps around).
@@ -61,6 +64,7 @@ class PoseEkfConfig:
     yaw_rate_bias_walk_radps: float = 1e-4
     zero_slip_offset_m: float = 1.45
     gate_chi2: float = 13.8
+    gross_chi2: float = 400.0
     reset_after_rejections: int = 30
     reset_consistency_m: float = 0.3
     max_pos_std_m: float = 1.0
@@ -75,6 +79,7 @@ class PoseEkfConfig:
             "pos_noise_mps",
             "yaw_rate_bias_std_radps",
             "gate_chi2",
+            "gross_chi2",
             "max_pos_std_m",
             "history_s",
         ):
@@ -85,6 +90,11 @@ class PoseEkfConfig:
             raise ConfigError(
                 "PoseEkfConfig: expected yaw_rate_bias_walk_radps >= 0 and a finite zero_slip_offset_m, "
                 f"got {self.yaw_rate_bias_walk_radps} and {self.zero_slip_offset_m}"
+            )
+        if self.gross_chi2 <= self.gate_chi2:
+            raise ConfigError(
+                f"PoseEkfConfig.gross_chi2: expected above gate_chi2 ({self.gate_chi2}), "
+                f"got {self.gross_chi2}"
             )
         if self.reset_after_rejections < 1:
             raise ConfigError(
@@ -119,6 +129,10 @@ class PoseEkf:
         self.config = c = config or PoseEkfConfig()
         self.rejected_fixes = 0
         """Fixes rejected by the chi-square gate (each counted once, when it arrives)."""
+        self.gross_rejections = 0
+        """Of those, the fixes beyond ``gross_chi2``."""
+        self.max_rejected_chi2 = 0.0
+        """The largest squared Mahalanobis distance of a rejected fix so far (for tuning reports)."""
         self.dropped_inputs = 0
         """Inputs older than the history, dropped."""
         self.resets = 0
@@ -358,6 +372,8 @@ class PoseEkf:
         if d2 > self.config.gate_chi2:
             if first_time:
                 self.rejected_fixes += 1
+                self.gross_rejections += d2 > self.config.gross_chi2
+                self.max_rejected_chi2 = max(self.max_rejected_chi2, d2)
                 self._consecutive_rejections += 1
                 self._rejected_innovations.append((dx, dy))
                 if (

@@ -76,7 +76,8 @@ class SensorSpec:
         frozen_after: this many identical payloads in a row mean a frozen driver (None: not checked, for
             streams that legitimately repeat, such as door state or odometry at standstill). A freeze is
             seen ``(frozen_after - 1)`` periods after it starts: keep that within one period + 100 ms.
-        min_points: a LiDAR sweep with fewer points is blocked (0: not checked).
+        min_points: a LiDAR sweep with fewer points, or a radar cycle with fewer raw reflections
+            (``RadarFrame.raw_detections``, clutter included), is blocked (0: not checked).
         silent_level, frozen_level: override the default levels for this stream (a rear radar matters
             less than the front LiDAR); None keeps :data:`DEFAULT_LEVELS`.
     """
@@ -117,11 +118,15 @@ def default_sensor_specs(
     return (
         SensorSpec(key="gnss", rate_hz=10.0),
         SensorSpec(key="imu", rate_hz=50.0, frozen_after=5),
-        SensorSpec(key="odom", rate_hz=50.0, frozen_after=5),
+        # Odometry carries an alive counter: one repeat is a frozen gateway, even at standstill.
+        SensorSpec(key="odom", rate_hz=50.0, frozen_after=2),
         SensorSpec(key="door", rate_hz=10.0, frozen_after=None, silent_level=FailSafeLevel.TAKEOVER_REQUEST),
-        # Radars send a cycle counter: one repeated list is already a frozen driver.
-        SensorSpec(key=front, rate_hz=20.0, frozen_after=2),
-        SensorSpec(key=rear, rate_hz=20.0, frozen_after=2, silent_level=FailSafeLevel.SPEED_LIMIT),
+        # Radars send a cycle counter: one repeated list is already a frozen driver. A cycle without a
+        # single raw reflection (not even the road's clutter) is a blocked radome.
+        SensorSpec(key=front, rate_hz=20.0, frozen_after=2, min_points=1),
+        SensorSpec(
+            key=rear, rate_hz=20.0, frozen_after=2, min_points=1, silent_level=FailSafeLevel.SPEED_LIMIT
+        ),
     )
 
 
@@ -151,6 +156,8 @@ class ReliabilityConfig:
         covariance_speed_cap_mps: that cap.
         gnss_lost_us: no usable GNSS fix for this long.
         gate_rejections_max, gate_window_us: more EKF gate rejections than this within the window.
+        gross_rejections_max: more gross rejections (``PoseEkf.gross_rejections``: a fix 20 sigma off)
+            than this within the window; 0: the first one is a fault, answered within one GNSS period.
         startup_grace_us: checks of things never seen (a stream, a valid pose) start after this.
     """
 
@@ -177,6 +184,7 @@ class ReliabilityConfig:
     gnss_lost_us: int = 2_000_000
     gate_rejections_max: int = 1
     gate_window_us: int = 2_000_000
+    gross_rejections_max: int = 0
     startup_grace_us: int = 2_000_000
 
     def __post_init__(self) -> None:
@@ -201,6 +209,11 @@ class ReliabilityConfig:
         if not 0.0 < self.min_rate_fraction < 1.0:
             raise ConfigError(
                 f"ReliabilityConfig.min_rate_fraction: expected in (0, 1), got {self.min_rate_fraction}"
+            )
+        if self.gate_rejections_max < 0 or self.gross_rejections_max < 0:
+            raise ConfigError(
+                "ReliabilityConfig: expected gate_rejections_max and gross_rejections_max >= 0, got "
+                f"{self.gate_rejections_max} and {self.gross_rejections_max}"
             )
 
     def level(self, kind: MalfunctionKind) -> FailSafeLevel:
@@ -228,8 +241,11 @@ def sensor_key(frame: SensorFrame) -> str | None:
 
 def _payload_digest(frame: SensorFrame) -> tuple[object, ...] | None:
     """Everything but the stamp, hashable; None when there is no content to compare (empty lists, or
-    odometry at standstill, which legitimately repeats; moving, wheel-speed noise makes every frame
-    differ, so a repeat there is a frozen driver)."""
+    odometry at standstill without an alive counter, which legitimately repeats; moving, wheel-speed
+    noise makes every frame differ, so a repeat there is a frozen driver). An alive counter or a
+    radar's cycle counter makes every healthy frame differ, standing still or not."""
+    if isinstance(frame, WheelOdometryFrame) and frame.cycle >= 0:
+        return (frame.cycle, frame.speed_mps, frame.steer_front_rad, frame.steer_rear_rad)
     if isinstance(frame, WheelOdometryFrame) and frame.speed_mps < 0.1:
         return None
     if isinstance(frame, RadarFrame) and frame.cycle >= 0:
@@ -353,6 +369,8 @@ class ReliabilityMonitor:
         self._gnss_seen = False
         self._gate: deque[tuple[int, int]] = deque()
         self._gate_total: int | None = None
+        self._gross: deque[tuple[int, int]] = deque()
+        self._gross_total: int | None = None
         self._weather: WeatherReport | None = None
         self._diagnostics: dict[str, SensorDiagnostics] = {}
 
@@ -408,6 +426,8 @@ class ReliabilityMonitor:
             st.digest = digest
         if isinstance(frame, LidarSweep) and st.spec.min_points > 0:
             st.points_low = frame.points.shape[0] < st.spec.min_points
+        if isinstance(frame, RadarFrame) and st.spec.min_points > 0 and frame.raw_detections >= 0:
+            st.points_low = frame.raw_detections < st.spec.min_points
         if isinstance(frame, GnssInsFrame):
             self._gnss_seen = True
             if frame.fix_ok:
@@ -423,12 +443,19 @@ class ReliabilityMonitor:
         self._pose_at_us = int(now_us)
         self._ever_valid |= estimate.valid
 
-    def observe_gate_rejections(self, now_us: int, rejected_total: int) -> None:
-        """The EKF's cumulative count of fixes its chi-square gate rejected (``PoseEkf.rejected_fixes``)."""
+    def observe_gate_rejections(
+        self, now_us: int, rejected_total: int, gross_total: int | None = None
+    ) -> None:
+        """The EKF's cumulative counts of fixes its chi-square gate rejected (``PoseEkf.rejected_fixes``)
+        and of those far beyond it (``PoseEkf.gross_rejections``; None: not reported)."""
         self._start(now_us)
         if self._gate_total is not None and rejected_total > self._gate_total:
             self._gate.append((int(now_us), rejected_total - self._gate_total))
         self._gate_total = rejected_total
+        if gross_total is not None:
+            if self._gross_total is not None and gross_total > self._gross_total:
+                self._gross.append((int(now_us), gross_total - self._gross_total))
+            self._gross_total = gross_total
 
     def observe_weather(self, report: WeatherReport) -> None:
         report.validate()
@@ -530,7 +557,11 @@ class ReliabilityMonitor:
                 )
             if st.points_low:
                 self._emit(
-                    out, now_us, src, K.SENSOR_BLOCKAGE, f"fewer than {spec.min_points} points per sweep"
+                    out,
+                    now_us,
+                    src,
+                    K.SENSOR_BLOCKAGE,
+                    f"fewer than {spec.min_points} points (LiDAR) or raw reflections (radar) per cycle",
                 )
             for kind, (at_us, reason) in list(st.events.items()):
                 if now_us - at_us >= c.event_hold_us:
@@ -637,6 +668,17 @@ class ReliabilityMonitor:
         while self._gate and self._gate[0][0] <= now_us - c.gate_window_us:
             self._gate.popleft()
         rejected = sum(n for _, n in self._gate)
+        while self._gross and self._gross[0][0] <= now_us - c.gate_window_us:
+            self._gross.popleft()
+        gross = sum(n for _, n in self._gross)
+        if gross > c.gross_rejections_max and rejected <= c.gate_rejections_max:
+            self._emit(
+                out,
+                now_us,
+                "localization",
+                K.LOCALIZATION_GATE_REJECTIONS,
+                f"{gross} GNSS fix(es) over 20 sigma off the estimate in {c.gate_window_us / 1e6:.0f} s",
+            )
         if rejected > c.gate_rejections_max:
             self._emit(
                 out,

@@ -78,6 +78,7 @@ class SafetySupervisor:
         *,
         estimate: LocalizationEstimate | None = None,
         gate_rejections_total: int | None = None,
+        gross_rejections_total: int | None = None,
         speed_mps: float = 0.0,
         route_s_m: float | None = None,
     ) -> SafetyDirective:
@@ -86,7 +87,7 @@ class SafetySupervisor:
         if estimate is not None:
             self.reliability.observe_localization(now_us, estimate)
         if gate_rejections_total is not None:
-            self.reliability.observe_gate_rejections(now_us, gate_rejections_total)
+            self.reliability.observe_gate_rejections(now_us, gate_rejections_total, gross_rejections_total)
         health = self.health.check(now_us)
         signals = self.health.signals(health) + self.reliability.evaluate(now_us)
         if self._operator_estop is not None:

@@ -84,7 +84,8 @@ class FaultSpec:
             ("localization", "tracking", "decision", "planning", "control") for module faults.
         start_s, duration_s: when, in simulated seconds.
         latency_ms: extra latency of a latency spike.
-        jitter_ms: the spread of random extra latency that delivers frames out of order.
+        jitter_ms: out-of-order delivery holds each frame back by a random delay in
+            [jitter_ms / 2, jitter_ms], so that later frames overtake it.
         offset_m: GNSS multipath error, or the map's misalignment, in metres.
     """
 
@@ -194,7 +195,9 @@ class FaultInjector:
         if f.kind == "latency_spike":
             return frame, latency_us + round(f.latency_ms * 1000.0)
         if f.kind == "out_of_order":
-            return frame, latency_us + round(float(rng.uniform(0.0, f.jitter_ms)) * 1000.0)
+            # Held back between half and all of the jitter: later frames overtake it from the first
+            # affected frame on. (A delay of a few ms would be no fault at all: nothing swaps.)
+            return frame, latency_us + round(float(rng.uniform(0.5 * f.jitter_ms, f.jitter_ms)) * 1000.0)
         if f.kind == "blind":
             return _blind(frame), latency_us
         if f.kind == "nan":
@@ -234,7 +237,8 @@ class FaultInjector:
 
 def _blind(frame: SensorFrame) -> SensorFrame:
     if isinstance(frame, RadarFrame):
-        return dataclasses.replace(frame, objects=np.zeros((0, frame.objects.shape[1])))
+        # A blocked radome: no reflections at all, clutter included (the radar still cycles).
+        return dataclasses.replace(frame, objects=np.zeros((0, frame.objects.shape[1])), raw_detections=0)
     if isinstance(frame, LidarSweep):
         return dataclasses.replace(frame, points=np.zeros((0, frame.points.shape[1]), np.float32))
     if isinstance(frame, CameraDetections):

@@ -30,6 +30,9 @@ from lastmile.sim.agents import agent_arrays
 from lastmile.sim.faults import FaultInjector
 from lastmile.sim.world import World
 
+# A 4-bit alive counter, as CAN end-to-end protection uses (AUTOSAR E2E profile 1).
+ODOM_CYCLE_MODULO = 16
+
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class RadarSpec:
@@ -44,6 +47,9 @@ class RadarSpec:
     pos_std_m: float = 0.12
     pos_std_per_m: float = 0.004
     vel_std_mps: float = 0.12
+    # Mean raw reflections per cycle from the static scene (road surface, curbs, poles, facades) in
+    # clear weather; objects come on top. Only their count leaves the radar (see RadarFrame).
+    static_clutter_per_cycle: float = 40.0
 
 
 def default_radars(front_from_rear_axle_m: float, rear_overhang_m: float) -> tuple[RadarSpec, ...]:
@@ -121,6 +127,11 @@ class SensorSuite:
             name: component_rng(seed, f"sensor.{name}")
             for name in ("gnss", "imu", "odom", "door", *(r.sensor_id for r in self.radars))
         }
+        # Separate streams, so adding the clutter count left every other draw as it was.
+        self._clutter_rng = {
+            r.sensor_id: component_rng(seed, f"sensor.{r.sensor_id}.clutter") for r in self.radars
+        }
+        self._odom_cycle = -1
         self.faults = faults
         self._pending: list[_Pending] = []
         self._seq = 0
@@ -200,11 +211,13 @@ class SensorSuite:
     def _odom(self, now: Stamp) -> WheelOdometryFrame:
         s, rng = self.world.ego.state, self._rng["odom"]
         slip = float(rng.normal(0.0, self.world.effects.wheel_slip_std)) if s.speed_mps > 0 else 0.0
+        self._odom_cycle = (self._odom_cycle + 1) % ODOM_CYCLE_MODULO
         return WheelOdometryFrame(
             stamp=now,
             speed_mps=max(0.0, s.speed_mps * (self._odom_scale + slip)),
             steer_front_rad=s.steer_front_rad,
             steer_rear_rad=s.steer_rear_rad,
+            cycle=self._odom_cycle,
         )
 
     def _radar(self, now: Stamp, spec: RadarSpec, agents: np.ndarray) -> RadarFrame:
@@ -272,11 +285,15 @@ class SensorSuite:
             )
         cycle = self._radar_cycles.get(spec.sensor_id, -1) + 1
         self._radar_cycles[spec.sensor_id] = cycle
+        clutter = int(
+            self._clutter_rng[spec.sensor_id].poisson(spec.static_clutter_per_cycle * fx.radar_range_factor)
+        )
         return RadarFrame(
             stamp=now,
             sensor_id=spec.sensor_id,
             objects=np.array(rows, dtype=np.float64).reshape(-1, 6),
             cycle=cycle,
+            raw_detections=len(rows) + clutter,
         )
 
 

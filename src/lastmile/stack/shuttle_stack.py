@@ -247,6 +247,7 @@ class ShuttleStack:
             now,
             estimate=est if planning_cycle else None,
             gate_rejections_total=self.ekf.rejected_fixes,
+            gross_rejections_total=self.ekf.gross_rejections,
             speed_mps=est.speed_mps if est.valid else self._speed_mps,
             route_s_m=front_s,
         )

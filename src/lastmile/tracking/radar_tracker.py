@@ -73,6 +73,12 @@ class RadarTrackerConfig:
         max_tracks: hard bound on live tracks; births beyond it are dropped (clutter storms must not
             grow memory or time without limit).
         min_speed_for_yaw_mps: below this speed the yaw is held, not taken from the velocity, m/s.
+        sensor_half_fov_rad: the radars' half field of view (the simulator's radars: 75 deg).
+        blind_zone_range_m, blind_zone_hold_s: a confirmed track whose prediction lies within this
+            range of a radar but outside every radar's field of view (beside the bumpers) is kept
+            for up to this long without detections. Its absence from the lists there is no evidence
+            that it has gone, and forgetting a goose standing beside the front corner would let the
+            shuttle drive off into it.
         classes: the RCS and speed model behind ``class_id``.
     """
 
@@ -87,6 +93,9 @@ class RadarTrackerConfig:
     t_expire_s: float = 0.6
     max_tracks: int = 200
     min_speed_for_yaw_mps: float = 0.5
+    sensor_half_fov_rad: float = math.radians(75.0)
+    blind_zone_range_m: float = 4.0
+    blind_zone_hold_s: float = 8.0
     classes: RadarClassConfig = field(default_factory=RadarClassConfig)
 
     def __post_init__(self) -> None:
@@ -97,6 +106,9 @@ class RadarTrackerConfig:
             "pos_noise_m",
             "vel_noise_mps",
             "t_expire_s",
+            "sensor_half_fov_rad",
+            "blind_zone_range_m",
+            "blind_zone_hold_s",
         ):
             value = getattr(self, name)
             if not (value > 0 and math.isfinite(value)):
@@ -131,6 +143,9 @@ class RadarObjectTracker:
         self._next_id = 1
         self._sensor_bits: dict[str, int] = {}
         self._latest_us = 0
+        # Where the radars were at the newest frame: the blind zone between their fields of view.
+        self._map_from_base: SE2 | None = None
+        self._mounts: dict[str, SE2] = {}
         self._accel_var = self.config.accel_noise_mps2**2
         self._vel_var = self.config.vel_noise_mps**2
 
@@ -159,7 +174,10 @@ class RadarObjectTracker:
                 f"got shape {objects.shape} with non-finite values or wrong columns"
             )
         t_us = int(frame.stamp)
+        if t_us >= self._latest_us:
+            self._map_from_base = map_from_base
         self._latest_us = max(self._latest_us, t_us)
+        self._mounts[frame.sensor_id] = base_from_sensor
         bit = self._sensor_bit(frame.sensor_id)
         z, pos_var = self._to_map(objects, map_from_base.compose(base_from_sensor))
         table = self._table
@@ -182,14 +200,11 @@ class RadarObjectTracker:
         """Confirmed tracks predicted to ``stamp``, in the map frame, with every TRACK_COLUMNS filled.
 
         Tracks unseen for longer than ``t_expire_s`` at ``stamp`` are left out (they are deleted at
-        the next frame).
+        the next frame), unless held in the blind zone beside the bumpers (``blind_zone_hold_s``).
         """
         table = self._table
         if table.shape[0]:
-            live = (table[:, _CONFIRMED] > 0) & (
-                stamp - table[:, _SEEN_US] <= self.config.t_expire_s * US_PER_S
-            )
-            table = table[live]
+            table = table[(table[:, _CONFIRMED] > 0) & self._alive(table, int(stamp))]
         if table.shape[0] == 0:
             return empty_tracks(stamp)
         c = self.config
@@ -335,12 +350,41 @@ class RadarObjectTracker:
         self._next_id += len(born)
         self._table = np.concatenate((self._table, rows))
 
+    def _alive(self, table: np.ndarray, now_us: int) -> np.ndarray:
+        """Tracks seen within ``t_expire_s``, or confirmed ones held in the blind zone (see config)."""
+        c = self.config
+        unseen_us = now_us - table[:, _SEEN_US]
+        alive = unseen_us <= c.t_expire_s * US_PER_S
+        held = ~alive & (table[:, _CONFIRMED] > 0) & (unseen_us <= c.blind_zone_hold_s * US_PER_S)
+        if held.any():
+            rows = table[held]
+            state, _ = cv_kalman.predict(
+                rows[:, _STATE], rows[:, _COV], (now_us - rows[:, _T_US]) / US_PER_S, self._accel_var
+            )
+            alive[held] = self._in_blind_zone(state[:, :2])
+        return alive
+
+    def _in_blind_zone(self, xy: np.ndarray) -> np.ndarray:
+        """(N,) True where a map point is near a radar yet outside every radar's field of view."""
+        near = np.zeros(len(xy), dtype=bool)
+        seen = np.zeros(len(xy), dtype=bool)
+        if self._map_from_base is None:
+            return near
+        for mount in self._mounts.values():
+            sensor = self._map_from_base.compose(mount)
+            c, s = math.cos(sensor.yaw_rad), math.sin(sensor.yaw_rad)
+            dx, dy = xy[:, 0] - sensor.x_m, xy[:, 1] - sensor.y_m
+            ahead, left = c * dx + s * dy, -s * dx + c * dy
+            near |= np.hypot(ahead, left) <= self.config.blind_zone_range_m
+            seen |= np.abs(np.arctan2(left, ahead)) <= self.config.sensor_half_fov_rad
+        return near & ~seen
+
     def _prune(self) -> None:
         c = self.config
         table = self._table
         if not table.shape[0]:
             return
-        fresh = self._latest_us - table[:, _SEEN_US] <= c.t_expire_s * US_PER_S
+        fresh = self._alive(table, self._latest_us)
         hopeless = (table[:, _CONFIRMED] == 0) & (
             table[:, _CHANCES] - table[:, _HITS] > c.confirm_window - c.confirm_hits
         )
