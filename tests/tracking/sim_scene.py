@@ -4,8 +4,9 @@ The shuttle stands 20 m before the campus loop's first crosswalk while cars pass
 (some queue behind it) and pedestrians cross. Four radars stamp their frames at different times (20, 16.7,
 14.3 and 12.5 Hz). Each frame arrives after a random latency (up to 300 ms): ``shuffled`` hands
 frames over as they arrive (frames of different radars, and consecutive frames of one radar, out of
-capture order); ``ordered`` hands them over in capture order (see :func:`deliveries`). Every 100 ms the tracks the tracker publishes for that instant are scored
-against the simulator's ground truth (evaluation may read it; the tracker never does).
+capture order); ``ordered`` hands them over in capture order (see :func:`deliveries`).
+Every 100 ms the tracks the tracker publishes for that instant are scored against the
+simulator's ground truth (evaluation may read it; the tracker never does).
 
 The ego pose used to bring radar objects into the map frame is the simulator's (the shuttle stands still;
 localisation is not what is measured here).
@@ -78,7 +79,9 @@ def scene(seed: int, seconds: float, weather: str) -> Scenario:
 def radar_rig(front_m: float, rear_overhang_m: float) -> tuple[RadarSpec, ...]:
     """Front, rear and two front-corner radars with different periods, so their stamps differ."""
     return (
-        RadarSpec(sensor_id="front", base_from_sensor=SE2(front_m, 0.0, 0.0), period_ticks=5, max_range_m=100.0),
+        RadarSpec(
+            sensor_id="front", base_from_sensor=SE2(front_m, 0.0, 0.0), period_ticks=5, max_range_m=100.0
+        ),
         RadarSpec(sensor_id="rear", base_from_sensor=SE2(-rear_overhang_m, 0.0, math.pi), period_ticks=7),
         RadarSpec(
             sensor_id="corner_left", base_from_sensor=SE2(front_m, 0.8, math.radians(60)), period_ticks=6
@@ -204,7 +207,11 @@ class FeedResult:
 
 
 def feed(
-    rec: Recording, delivered: list[tuple[int, DetectedBoxes]], *, rollback: bool, config: AutoTrackConfig | None = None
+    rec: Recording,
+    delivered: list[tuple[int, DetectedBoxes]],
+    *,
+    rollback: bool,
+    config: AutoTrackConfig | None = None,
 ) -> FeedResult:
     """Feed the tracker in delivery order; every 100 ms, score what it publishes for ``now``.
 
@@ -282,7 +289,9 @@ def score(rec: Recording, result: FeedResult) -> Score:
         # Tracks beyond the scored range are of objects the truth does not list: not false.
         unmatched = np.ones(tids.size, bool)
         unmatched[ti] = False
-        near = np.hypot(txy[:, 0] - rec.ego_xy_m[0], txy[:, 1] - rec.ego_xy_m[1]) <= SCENE_RANGE_M - MATCH_GATE_M
+        near = (
+            np.hypot(txy[:, 0] - rec.ego_xy_m[0], txy[:, 1] - rec.ego_xy_m[1]) <= SCENE_RANGE_M - MATCH_GATE_M
+        )
         false_tracks += int(np.count_nonzero(unmatched & near))
         errors.append(np.linalg.norm(gxy[gi] - txy[ti], axis=1))
     err = np.concatenate(errors) if errors else np.zeros(0)
