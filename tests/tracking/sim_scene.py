@@ -121,6 +121,13 @@ def radar_message(frame: RadarFrame, map_from_sensor: SE2) -> DetectedBoxes:
     speed = np.hypot(vx, vy)
     cls = radar_class(obj[:, 4], speed)
     size = np.array([RADAR_BOX_SIZE[ObjectClass(int(k))] for k in cls]).reshape(n, 3)
+    # A radar reports the reflection point on the object's near face: the box centre lies half the
+    # footprint's smaller side further along the line of sight. Without this shift, radars looking at
+    # one car from different places report points metres apart, which start duplicate tracks.
+    rng_m = np.maximum(np.hypot(obj[:, 0], obj[:, 1]), 1e-6)
+    behind = 0.5 * np.minimum(size[:, 0], size[:, 1]) / rng_m
+    x = x + behind * (x - map_from_sensor.x_m)
+    y = y + behind * (y - map_from_sensor.y_m)
     # Heading from the velocity where it is measurable; standing objects keep the sensor's bearing.
     yaw = np.where(speed > 0.5, np.arctan2(vy, vx), map_from_sensor.yaw_rad)
     boxes = np.column_stack([x, y, 0.5 * size[:, 2], size, yaw])
