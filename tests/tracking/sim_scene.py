@@ -9,7 +9,9 @@ Every 100 ms the tracks the tracker publishes for that instant are scored agains
 simulator's ground truth (evaluation may read it; the tracker never does).
 
 The ego pose used to bring radar objects into the map frame is the simulator's (the shuttle stands still;
-localisation is not what is measured here).
+localisation is not what is measured here). Optionally the three simulated LiDARs feed
+:class:`~lastmile.perception.pipeline.LidarPipeline` and its clusters join as a fifth source (fusion
+happens in the tracker: LiDAR boxes carry shape, radar boxes the Doppler velocity).
 """
 
 from __future__ import annotations
@@ -24,11 +26,14 @@ from lastmile.core.boxes3d import DetectedBoxes
 from lastmile.core.geometry import SE2
 from lastmile.core.object_class import ObjectClass
 from lastmile.core.rng import component_rng
-from lastmile.core.sensor_frames import RadarFrame
+from lastmile.core.sensor_frames import LidarSweep, RadarFrame
 from lastmile.core.stamp import Stamp
 from lastmile.core.vehicle import VehicleGeometry
 from lastmile.hdmap.loader import load_campus_map
 from lastmile.hdmap.routing import campus_shuttle_loop, route_polyline
+from lastmile.perception.pipeline import LidarPipeline, LidarPipelineResult
+from lastmile.sim.lidar_rig import LidarSpec
+from lastmile.sim.raw_sensors import RawSensorRig
 from lastmile.sim.scenario import CrosswalkPedestrians, RingCar, Scenario, SideRoadCar, Walker
 from lastmile.sim.sensors import RadarSpec, SensorSuite
 from lastmile.sim.simulation import Simulation
@@ -144,8 +149,52 @@ def radar_message(frame: RadarFrame, map_from_sensor: SE2) -> DetectedBoxes:
     )
 
 
-def record(seed: int, seconds: float, weather: str) -> Recording:
-    """Run the simulator (the shuttle standing) and keep every radar frame and the ground truth."""
+def base_from_lidar(spec: LidarSpec) -> np.ndarray:
+    """(4, 4) mounting of a simulated LiDAR (the extrinsics a real vehicle's calibration gives)."""
+    c, s = math.cos(spec.yaw_rad), math.sin(spec.yaw_rad)
+    m = np.eye(4)
+    m[:2, :2] = [[c, -s], [s, c]]
+    m[:3, 3] = (spec.x_m, spec.y_m, spec.z_m)
+    return m
+
+
+def lidar_message(result: LidarPipelineResult, map_from_base: SE2) -> DetectedBoxes:
+    """LiDAR clusters as map-frame boxes, class UNKNOWN (no camera here), no velocity."""
+    cl = result.clusters
+    n = len(cl.table)
+    c, s = math.cos(map_from_base.yaw_rad), math.sin(map_from_base.yaw_rad)
+    bx, by = cl.col("x_m"), cl.col("y_m")
+    z0, z1 = cl.col("z_min_m"), cl.col("z_max_m")
+    boxes = np.column_stack(
+        [
+            map_from_base.x_m + c * bx - s * by,
+            map_from_base.y_m + s * bx + c * by,
+            0.5 * (z0 + z1),
+            np.maximum(cl.col("length_m"), 0.1),
+            np.maximum(cl.col("width_m"), 0.1),
+            np.maximum(z1 - z0, 0.1),
+            cl.col("yaw_rad") + map_from_base.yaw_rad,
+        ]
+    ).reshape(n, 7)
+    return DetectedBoxes(
+        stamp=result.cloud.stamp,
+        frame="map",
+        source="lidar",
+        boxes=boxes,
+        class_id=np.full(n, int(ObjectClass.UNKNOWN), np.int64),
+        score=np.clip(cl.col("confidence"), 0.05, 1.0),
+        velocity_mps=np.zeros((n, 2)),
+        has_velocity=np.zeros(n, bool),
+        attributes=np.zeros((n, 0)),
+    )
+
+
+def record(seed: int, seconds: float, weather: str, *, lidar: bool = False) -> Recording:
+    """Run the simulator (the shuttle standing) and keep every radar frame and the ground truth.
+
+    With ``lidar``, the three simulated LiDARs (:class:`RawSensorRig`) are run through
+    :class:`LidarPipeline` every rig frame and their clusters added as a fifth source, ``lidar``.
+    """
     hdmap = load_campus_map()
     service = route_polyline(hdmap, campus_shuttle_loop(hdmap), closed=True)
     geometry = VehicleGeometry()
@@ -154,12 +203,19 @@ def record(seed: int, seconds: float, weather: str) -> Recording:
         sim.world, seed, TICK_US, radars=radar_rig(geometry.front_from_rear_axle_m, geometry.rear_overhang_m)
     )
     mounts = {r.sensor_id: r.base_from_sensor for r in sim.sensors.radars}
+    rig = RawSensorRig(sim.world, seed, TICK_US) if lidar else None
+    pipeline = LidarPipeline()
+    extrinsics = {spec.sensor_id: base_from_lidar(spec) for spec in rig.lidar_specs} if rig else {}
     out = Recording(messages=[], seconds=seconds)
     for tick in range(int(seconds * 1e6 / TICK_US) + 1):
         sim.advance_world(tick)
         sim.sensors.sample(tick)
         e = sim.world.ego.state
         map_from_base = SE2(e.x_m, e.y_m, e.yaw_rad)
+        if rig is not None:
+            sweeps = [f for f, _ in rig.sample(tick) if isinstance(f, LidarSweep)]
+            if sweeps:  # the shuttle stands still: no de-skew trajectory needed
+                out.messages.append(lidar_message(pipeline.process(sweeps, extrinsics), map_from_base))
         for frame in sim.sensors.deliver(10**15):  # all captured frames; delivery is modelled below
             if isinstance(frame, RadarFrame):
                 out.messages.append(radar_message(frame, map_from_base.compose(mounts[frame.sensor_id])))
