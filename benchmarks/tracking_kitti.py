@@ -254,7 +254,7 @@ def main() -> None:
     args = parser.parse_args()
     if hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
-    console = Console()
+    console = Console(width=170)  # wide tables stay readable when piped to a file
     labels = {s: read_labels(args.data / "labels" / f"{s}.txt") for s in SEQUENCES}
     n_frames = {s: int(labels[s].frame.max()) + 1 for s in SEQUENCES}
     data = {s: load_sequence(args.data / "detections", s, n_frames[s]) for s in SEQUENCES}

@@ -189,3 +189,61 @@ def test_reference_score_rounding_can_drop_the_only_track_and_exact_means_do_not
     no_quirk = ProtocolConfig(reference_score_rounding=False)
     exact = evaluate_class({"s": gt}, {"s": res}, "Car", config=no_quirk)
     assert quirky.samota == pytest.approx(0.0, abs=1e-9) and exact.samota == pytest.approx(5 / 40)
+
+
+def _with_camera_box(rows: KittiRows, index: int, camera_box: tuple[float, ...]) -> KittiRows:
+    cam = rows.camera_box.copy()
+    cam[index] = camera_box
+    return KittiRows(**{**{f: getattr(rows, f) for f in KittiRows.__slots__}, "camera_box": cam})  # type: ignore[attr-defined]
+
+
+def test_a_zero_volume_result_box_on_a_labelled_car_is_a_miss_and_a_false_positive_not_a_nan() -> None:
+    gt = _rows([(0, 0, "Car", 1.0, 10.0, 0.0), (1, 0, "Car", 1.0, 11.0, 0.0)])
+    res = _rows([(0, 5, "Car", 1.0, 10.0, 1.0), (1, 5, "Car", 1.0, 11.0, 1.0)])
+    flat = _with_camera_box(res, 1, (0.0, 0.0, 0.0, 1.0, 1.7, 11.0, -np.pi / 2))  # h = w = l = 0
+    r = evaluate_class({"s": gt}, {"s": flat}, "Car")
+    assert (r.tp, r.fn, r.fp) == (1, 1, 1)
+    assert math.isfinite(r.mota) and math.isfinite(r.motp) and math.isfinite(r.samota)
+
+
+def test_a_zero_volume_labelled_box_matches_nothing_even_an_identical_zero_volume_result() -> None:
+    flat = (0.0, 0.0, 0.0, 1.0, 1.7, 10.0, -np.pi / 2)
+    gt = _with_camera_box(_rows([(0, 0, "Car", 1.0, 10.0, 0.0)]), 0, flat)
+    res = _with_camera_box(_rows([(0, 3, "Car", 1.0, 10.0, 1.0)]), 0, flat)
+    r = evaluate_class({"s": gt}, {"s": res}, "Car")
+    assert (r.tp, r.fn, r.fp) == (0, 1, 1)
+    assert math.isfinite(r.mota)
+
+
+def test_two_tracks_with_identical_boxes_on_one_car_give_one_match_and_one_false_positive() -> None:
+    gt = _rows([(f, 0, "Car", 1.0, 10.0 + f, 0.0) for f in range(3)])
+    res = _rows([(f, t, "Car", 1.0, 10.0 + f, 1.0) for f in range(3) for t in (4, 9)])
+    r = evaluate_class({"s": gt}, {"s": res}, "Car")
+    assert (r.tp, r.fn, r.fp, r.id_switches) == (3, 0, 3, 0)
+    assert r.mota == pytest.approx(0.0)
+
+
+def test_no_results_at_all_for_a_labelled_sequence_counts_every_object_missed() -> None:
+    gt = _two_cars()
+    for res in ({}, {"s": KittiRows.empty()}):
+        r = evaluate_class({"s": gt}, res, "Car")
+        assert (r.tp, r.fn, r.fp, r.n_gt) == (0, 10, 0, 10)
+        assert (r.mota, r.samota, r.amota) == (0.0, 0.0, 0.0)
+
+
+def test_results_for_a_class_the_labels_lack_are_false_positives_and_scores_are_nan() -> None:
+    gt = _two_cars()
+    res = _rows([(0, 1, "Cyclist", 0.0, 10.0, 2.0), (1, 1, "Cyclist", 0.0, 11.0, 2.0)])
+    r = evaluate_class({"s": gt}, {"s": res}, "Cyclist")
+    assert (r.n_gt, r.tp, r.fp) == (0, 0, 2)
+    assert math.isnan(r.samota) and math.isnan(r.amota) and math.isnan(r.motp)
+
+
+def test_labels_and_results_both_empty_score_nan_without_error(tmp_path: Path) -> None:
+    write_results(tmp_path / "0000.txt", KittiRows.empty())
+    res = read_labels(tmp_path / "0000.txt", with_score=True)
+    assert len(res) == 0 and (tmp_path / "0000.txt").read_text() == ""
+    for cls in ("Car", "Pedestrian", "Cyclist"):
+        r = evaluate_class({"s": KittiRows.empty()}, {"s": res}, cls, n_frames={"s": 5})
+        assert (r.tp, r.fp, r.fn, r.n_gt, r.id_switches) == (0, 0, 0, 0, 0)
+        assert math.isnan(r.samota) and math.isnan(r.mota)

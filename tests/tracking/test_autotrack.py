@@ -74,6 +74,24 @@ def test_full_track_is_demoted_after_t_expire_and_pruned_after_t_prune() -> None
     assert len(tr) == 0  # pruned
 
 
+def test_a_lagging_source_holds_back_demotion_until_it_has_been_silent_for_source_timeout() -> None:
+    # The car is seen only by the "front" radar; "rear" sees nothing but keeps stamping frames.
+    tr = AutoTrack(replace(_config(t_birth_s=0.0, t_expire_s=0.15, t_prune_s=0.35), source_timeout_s=0.5))
+    tr.update(_msg(0.0, [(10.0, 0.0)], source="front"))
+    for k in range(1, 5):  # rear reports up to 0.4 s; front's frames after 0.0 have not arrived
+        tr.update(_msg(0.1 * k, [], source="rear"))
+    # Undetected over time "front" has not reported yet is not "undetected": still published.
+    assert len(tr.tracks(Stamp(400_000))) == 1
+    # Once "front" has been silent for more than source_timeout_s, the track is demoted, then pruned.
+    tr.update(_msg(0.6, [], source="rear"))
+    assert len(tr.tracks(Stamp(600_000))) == 0 and len(tr) == 0
+    # A single source behaves as before: judged at the message's own stamp.
+    one = AutoTrack(_config(t_birth_s=0.0, t_expire_s=0.15, t_prune_s=0.35))
+    one.update(_msg(0.0, [(10.0, 0.0)], source="front"))
+    one.update(_msg(0.2, [], source="front"))
+    assert len(one.tracks(Stamp(200_000))) == 0 and len(one) == 1
+
+
 def test_demoted_track_comes_back_with_its_id() -> None:
     tr = AutoTrack(_config(t_birth_s=0.0, t_expire_s=0.0, t_prune_s=0.5))
     tr.update(_msg(0.0, [(10.0, 0.0)]))

@@ -57,6 +57,21 @@ class KittiRows:
     def __len__(self) -> int:
         return int(self.frame.shape[0])
 
+    @staticmethod
+    def empty() -> KittiRows:
+        """Rows of an empty file (a tracker that output nothing, a sequence without results)."""
+        return KittiRows(
+            frame=np.zeros(0, np.int64),
+            track_id=np.zeros(0, np.int64),
+            obj_type=np.zeros(0, dtype=object),
+            truncation=np.zeros(0),
+            occlusion=np.zeros(0, np.int64),
+            alpha_rad=np.zeros(0),
+            image_box=np.zeros((0, 4)),
+            camera_box=np.zeros((0, 7)),
+            score=np.zeros(0),
+        )
+
     def boxes(self) -> np.ndarray:
         """The 3D boxes as z-up rows of :data:`lastmile.core.box3d.BOX3D_COLUMNS`."""
         return boxes_from_kitti_camera(self.camera_box)

@@ -324,17 +324,7 @@ def evaluate_class(
         nf = n_frames[name] if n_frames and name in n_frames else (int(g.frame.max()) + 1 if len(g) else 0)
         r = results.get(name)
         if r is None:
-            r = KittiRows(
-                frame=np.zeros(0, np.int64),
-                track_id=np.zeros(0, np.int64),
-                obj_type=np.zeros(0, dtype=object),
-                truncation=np.zeros(0),
-                occlusion=np.zeros(0, np.int64),
-                alpha_rad=np.zeros(0),
-                image_box=np.zeros((0, 4)),
-                camera_box=np.zeros((0, 7)),
-                score=np.zeros(0),
-            )
+            r = KittiRows.empty()
         seqs.append(_prepare(g, r, c, nf, cfg))
     first = _run(seqs, -10000.0, cfg)  # the reference's "no threshold"
     thresholds, recalls = _thresholds(first.scores, first.tp + first.fn)

@@ -116,23 +116,8 @@ def track_sequence(seq: SequenceFrames, config: AutoTrackConfig | None = None) -
             score=np.concatenate(out_score),
         )
     else:
-        rows = empty_rows()
+        rows = KittiRows.empty()
     return rows, elapsed
-
-
-def empty_rows() -> KittiRows:
-    """A KittiRows with no row."""
-    return KittiRows(
-        frame=np.zeros(0, np.int64),
-        track_id=np.zeros(0, np.int64),
-        obj_type=np.zeros(0, dtype=object),
-        truncation=np.zeros(0),
-        occlusion=np.zeros(0, np.int64),
-        alpha_rad=np.zeros(0),
-        image_box=np.zeros((0, 4)),
-        camera_box=np.zeros((0, 7)),
-        score=np.zeros(0),
-    )
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -13,6 +13,13 @@ One update per detection message (:class:`DetectedBoxes`, from any LiDAR, radar-
    detection); a track not detected for more than ``t_prune_s`` (``t_expire_s`` for one that was never
    full) is deleted. Only full tracks are published.
 
+Lifecycle with several sources: a track is "undetected" only over time every live source has
+reported. Demotion and pruning count from the oldest of the sources' newest stamps (sources silent for
+more than ``source_timeout_s`` excluded), so a sensor whose frames run late or stamp less often does not
+get the objects only it sees demoted before its frames are in. With one source this is the message's
+stamp. The horizon depends only on messages in capture order, so rollback keeps results independent of
+arrival order.
+
 Rollback: messages are kept in capture order (stamp, then source name) with the tracker state after
 each. A message older than the newest processed one rolls the tracker back to the state just before
 its stamp and replays it and every later message, so arrival order does not change the result.
@@ -139,6 +146,8 @@ class AutoTrackConfig:
         radar_velocity_std_mps: noise of a radar Doppler velocity (over ground, per axis).
         coast_score_penalty_per_s: a coasting full track's score drops by this per second undetected.
         rollback_window_s: how far back states are kept for replaying late messages.
+        source_timeout_s: a source (sensor) silent for longer no longer holds back demotion and
+            pruning (see "Lifecycle with several sources" in the module docstring).
         max_tracks: bound on live tracks (births beyond it are refused, counted in ``refused_births``).
     """
 
@@ -149,6 +158,7 @@ class AutoTrackConfig:
     radar_velocity_std_mps: float = 0.3
     coast_score_penalty_per_s: float = 5.0
     rollback_window_s: float = 2.0
+    source_timeout_s: float = 0.5
     max_tracks: int = 500
 
     def __post_init__(self) -> None:
@@ -159,9 +169,17 @@ class AutoTrackConfig:
             )
         if not 0.0 < self.size_gain <= 1.0:
             raise ConfigError(f"AutoTrackConfig.size_gain: expected in (0, 1], got {self.size_gain}")
-        if self.rollback_window_s < 0.0 or self.max_tracks < 1 or self.radar_velocity_std_mps <= 0.0:
+        if (
+            self.rollback_window_s < 0.0
+            or self.source_timeout_s < 0.0
+            or self.max_tracks < 1
+            or self.radar_velocity_std_mps <= 0.0
+        ):
             raise ConfigError(
-                "AutoTrackConfig: expected rollback_window_s >= 0, max_tracks >= 1, velocity std > 0"
+                "AutoTrackConfig: expected rollback_window_s >= 0, source_timeout_s >= 0, max_tracks >= 1, "
+                f"velocity std > 0, got {self.rollback_window_s}, {self.source_timeout_s}, "
+                f"{self.max_tracks}, "
+                f"{self.radar_velocity_std_mps}"
             )
 
 
@@ -189,6 +207,7 @@ class _Tracks:
     score: np.ndarray
     attributes: np.ndarray
     next_id: int
+    source_latest_us: dict[str, int] = field(default_factory=dict)  # newest stamp per source so far
 
     @staticmethod
     def empty(n_attributes: int) -> _Tracks:
@@ -210,7 +229,7 @@ class _Tracks:
 
     def copy(self) -> _Tracks:
         arrays = {f: getattr(self, f).copy() for f in _ARRAY_FIELDS}
-        return _Tracks(**arrays, next_id=self.next_id)
+        return _Tracks(**arrays, next_id=self.next_id, source_latest_us=dict(self.source_latest_us))
 
     def keep(self, mask: np.ndarray) -> None:
         for f in _ARRAY_FIELDS:
@@ -225,7 +244,7 @@ class _Tracks:
         return np.column_stack([self.x[:, 0:3], self.size, self.x[:, 3]])
 
 
-_ARRAY_FIELDS = tuple(f.name for f in fields(_Tracks) if f.name != "next_id")
+_ARRAY_FIELDS = tuple(f.name for f in fields(_Tracks) if f.name not in ("next_id", "source_latest_us"))
 
 
 class AutoTrack:
@@ -315,7 +334,10 @@ class AutoTrack:
         unmatched[di] = False
         born = unmatched & (msg.score >= self._params("birth_min_score", det_cls))
         self._birth(np.nonzero(born)[0], msg)
-        self._lifecycle(now)
+        t.source_latest_us[msg.source] = max(now, t.source_latest_us.get(msg.source, now))
+        timeout = now - cfg.source_timeout_s / _US
+        horizon = min(v for v in t.source_latest_us.values() if v >= timeout or v == now)
+        self._lifecycle(now, horizon)
 
     def _update_matched(self, ti: np.ndarray, di: np.ndarray, msg: DetectedBoxes) -> None:
         cfg = self.config
@@ -390,12 +412,13 @@ class AutoTrack:
         t.append(new)
         t.next_id += n
 
-    def _lifecycle(self, now: int) -> None:
+    def _lifecycle(self, now: int, horizon: int) -> None:
+        """Promote tracks detected at ``now``; demote and prune by the time undetected at ``horizon``."""
         t = self._t
         if t.ids.size == 0:
             return
         cls = np.argmax(t.class_prob, axis=1)
-        since = (now - t.last_det_us) * _US
+        since = (horizon - t.last_det_us) * _US
         detected_now = t.last_det_us == now
         span = (t.last_det_us - t.first_det_us) * _US
         promote = detected_now & (t.ever_full | (span >= self._params("t_birth_s", cls) - 1e-9))
