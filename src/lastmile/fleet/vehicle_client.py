@@ -91,6 +91,7 @@ class VehicleClient:
         self.stats = ClientStats()
         self._unconfirmed: dict[int, asyncio.Future[bool]] = {}
         self._seat_waiters: list[asyncio.Future[dict[str, Any]]] = []
+        self._pong_waiters: list[asyncio.Future[None]] = []
         self._ws: ClientConnection | None = None
         self._task: asyncio.Task[None] | None = None
         self._resumed = asyncio.Event()
@@ -233,6 +234,9 @@ class VehicleClient:
         elif kind == "seat_ack":
             if self._seat_waiters:
                 self._seat_waiters.pop(0).set_result(msg)
+        elif kind == "pong":
+            if self._pong_waiters:
+                self._pong_waiters.pop(0).set_result(None)
         elif kind == "resumed":
             self._resumed.set()
         elif kind == "error":
@@ -295,6 +299,18 @@ class VehicleClient:
         self._seat_waiters.append(fut)
         await self._ws.send(json.dumps({"type": "seat_button", "seat": seat}))
         return await asyncio.wait_for(fut, timeout_s)
+
+    async def sync(self, timeout_s: float = 10.0) -> None:
+        """Barrier: returns once the server has handled everything this client sent before and this
+        client has handled everything the server queued to it before (a ping answered on the link's
+        ordered queue). A simulator calls it to make what the vehicle knows a function of what it did,
+        not of network timing."""
+        if not self.connected or self._ws is None:
+            raise ConfigError(f"vehicle {self.vehicle_id!r}: sync needs a resumed connection, got none")
+        fut: asyncio.Future[None] = asyncio.get_running_loop().create_future()
+        self._pong_waiters.append(fut)
+        await self._ws.send(json.dumps({"type": "ping"}))
+        await asyncio.wait_for(fut, timeout_s)
 
     async def wait_for(self, predicate: Callable[[VehicleClient], bool], timeout_s: float = 10.0) -> None:
         """Wait until ``predicate(self)`` holds, re-checking after every message."""
