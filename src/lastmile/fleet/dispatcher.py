@@ -59,6 +59,7 @@ class VehicleState:
     health: str | None = None
     passengers: int = 0
     door: str | None = None
+    hmi: dict[str, str] | None = None  # live only (not stored): what the HMI shows now
     last_status_us: int | None = None
     registered_us: int = 0
     connected: bool = False
@@ -287,6 +288,7 @@ class Dispatcher:
             "health": v.health,
             "passengers": v.passengers,
             "door": v.door,
+            "hmi": v.hmi,
             "last_status_us": v.last_status_us,
             "plan": [
                 {"stop_id": visit.stop_id, "trips": [{"id": i.trip_id, "kind": i.kind} for i in visit.items]}
@@ -808,6 +810,8 @@ class Dispatcher:
         for key in ("x_m", "y_m", "yaw_rad", "speed_mps", "behaviour", "health", "passengers", "door"):
             if key in msg:
                 setattr(v, key, msg[key])
+        if msg.get("hmi") is not None:
+            v.hmi = dict(msg["hmi"])
         if v.x_m is not None and v.y_m is not None:
             v.route_s_m = self.route.project_s(v.x_m, v.y_m, v.route_s_m)
         v.last_status_us = now_us()

@@ -254,6 +254,7 @@ class VehicleClient:
         health: str = "ok",
         passengers: int = 0,
         door: str = "closed",
+        hmi: dict[str, str] | None = None,
     ) -> bool:
         """Stream one status report; False (dropped) while disconnected: the next one replaces it."""
         if not self.connected or self._ws is None:
@@ -269,6 +270,8 @@ class VehicleClient:
             "passengers": passengers,
             "door": door,
         }
+        if hmi is not None:  # {cue, light, front, rear, inside, sound}: what the HMI shows now
+            msg["hmi"] = hmi
         try:
             await self._ws.send(json.dumps(msg))
         except websockets.ConnectionClosed:

@@ -289,6 +289,7 @@ async def _run(
                             health="ok" if st.healthy else "degraded",
                             passengers=s.onboard,
                             door="open" if st.door_open else "closed",
+                            hmi=dict(s.hmi) if s.hmi else None,
                         )
                 while next_rider < len(demand) and demand[next_rider].t_s <= t_s:
                     d = demand[next_rider]
@@ -441,8 +442,13 @@ def _step(s: _Shuttle, tick: int, now: Stamp, t_s: float) -> None:
         )
         s.last_state = state
     for msg in out.hmi if out is not None else ():
-        w.add_event(t_s, "hmi", screen=msg.screen, text=msg.text, sound=msg.sound)
-        s.hmi = {"screen": msg.screen, "text": msg.text, "sound": msg.sound}
+        w.add_event(
+            t_s, "hmi", screen=msg.screen, text=msg.text, sound=msg.sound, light=msg.light, cue=msg.cue
+        )
+        s.hmi[msg.screen] = msg.text
+        s.hmi["cue"], s.hmi["light"] = msg.cue, msg.light
+        if msg.screen == "front":  # the cue's sound comes with its front message
+            s.hmi["sound"] = msg.sound
     if tick % LOG_EVERY_TICKS == 0:
         st = sim.world.ego.state
         code = STATE_NAMES.index(state.value) if state is not None else -1

@@ -54,18 +54,9 @@ from lastmile.safety.reliability_monitor import (
     default_sensor_specs,
 )
 from lastmile.safety.supervisor import SafetySupervisor
+from lastmile.stack.hmi import HmiComposer
 from lastmile.stack.profiler import ModuleProfiler
 from lastmile.tracking.radar_tracker import RadarObjectTracker, RadarTrackerConfig
-
-HMI_TEXT = {
-    BehaviourState.NORMAL_DRIVING: ("front", "Departing", "chime_depart"),
-    BehaviourState.INTERSECTION: ("front", "Stopping at intersection", ""),
-    BehaviourState.PULLOVER: ("rear", "Pulling over to stop", "indicator_right"),
-    BehaviourState.ONBOARDING: ("inside", "Doors open - please board", "door_chime"),
-    BehaviourState.MERGING: ("rear", "Merging - please wait", "indicator_left"),
-    BehaviourState.EMERGENCY_STOP: ("inside", "Emergency stop - please hold on", "alarm"),
-}
-
 
 DEFAULT_SENSORS = default_sensor_specs(radar_keys=("front", "rear"))
 """The simulator's sensor suite as the reliability monitor watches it (radars by their sensor ids)."""
@@ -169,7 +160,7 @@ class ShuttleStack:
         self._command = ActuatorCommand(
             stamp=Stamp(0), accel_mps2=-1.0, steer_front_rad=0.0, steer_rear_rad=0.0
         )
-        self._last_state = BehaviourState.NORMAL_DRIVING
+        self.hmi = HmiComposer()
         # Safety watches the modules from the side: heartbeats through guarded calls, the inputs as
         # they arrive, and a directive the decision and the actuator gate obey.
         self.safety = SafetySupervisor(
@@ -209,10 +200,6 @@ class ShuttleStack:
                 self._guarded("decision", now, self._decide, now)
             with p.measure("planning"):
                 self._guarded("planning", now, self._plan, now)
-            if self._decision is not None and self._decision.state != self._last_state:
-                screen, text, sound = HMI_TEXT[self._decision.state]
-                hmi.append(HmiMessage(stamp=now, screen=screen, text=text, sound=sound))
-                self._last_state = self._decision.state
         if self._tick % c.control_period_ticks == 0:
             with p.measure("control"):
                 self._guarded("control", now, self._control, now)
@@ -220,6 +207,7 @@ class ShuttleStack:
             directive = self._supervise(now, planning_cycle)
         if planning_cycle:
             status = self._status(now)
+            hmi.extend(self.hmi.step(now, self._decision, directive.takeover_request))
         self._tick += 1
         command = apply_safety_gate(self._command, directive, self._speed_mps)
         return StackOutput(
