@@ -51,6 +51,12 @@ def test_two_simulated_shuttles_serve_every_ride_through_the_real_server(tmp_pat
         log = json.loads((tmp_path / f"shuttle-{k}" / "run_log.json").read_text())
         done += [e for e in log["events"] if e["kind"] == "fleet_trip_done"]
     assert sorted(e["data"]["trip_kind"] for e in done) == ["dropoff", "dropoff", "pickup", "pickup"]
+    # The stacks announced the stops on their HMI (logged per screen with the light and the cue).
+    cues = set()
+    for k in range(2):
+        log = json.loads((tmp_path / f"shuttle-{k}" / "run_log.json").read_text())
+        cues |= {e["data"]["cue"] for e in log["events"] if e["kind"] == "hmi"}
+    assert {"driving", "pulling_over", "doors_open", "departing"} <= cues
     assert (tmp_path / "fleet_report.md").read_text().count("requests served") == 1
 
 
