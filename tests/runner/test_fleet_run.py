@@ -33,6 +33,7 @@ def test_two_simulated_shuttles_serve_every_ride_through_the_real_server(tmp_pat
     assert 0 < metrics["utilisation"] <= 1
     assert metrics["km_per_passenger"] > 0
     assert all(v["collisions"] == 0 for v in metrics["per_vehicle"].values())
+    assert all(0 < v["max_seats_on_board"] <= 6 for v in metrics["per_vehicle"].values() if v["stops_served"])
     rides = json.loads((tmp_path / "fleet_rides.json").read_text())
     assert all(r["requested_s"] < r["picked_up_s"] < r["dropped_off_s"] for r in rides)
     # The server's database agrees: both rides dropped off, by the vehicles the run says served them.

@@ -21,7 +21,8 @@ drawn separately in each shuttle's world, so the fleet scenario has none (a limi
 Stops. The shuttle's stack is told the next stop of its plan as ``StopCallFrame(source="dispatch")``
 (as the vehicle's fleet link would pass them on); a shuttle without the server (``lastmile run``)
 keeps its stop buttons. When the simulator's referee logs a stop served (door closed again at a
-stop), the shuttle reports done the trips of the first plan visit at that stop, drop-offs first.
+stop), the shuttle reports done the trips of its plan's next visit if that visit is at this stop,
+drop-offs first (a stop anywhere else is logged as ``fleet_unplanned_stop``).
 """
 
 from __future__ import annotations
@@ -171,6 +172,7 @@ class _Shuttle:
     served_stops: list[tuple[float, str]] = field(default_factory=list)
     calls: list[str] = field(default_factory=list)
     onboard: int = 0
+    max_onboard: int = 0
     distance_m: float = 0.0
     occupied_s: float = 0.0
     seat_s: float = 0.0
@@ -365,6 +367,7 @@ async def _run(
         shuttle_metrics = evaluate_run(log, out_dir / f"shuttle-{k}")
         metrics["per_vehicle"][s.vid]["collisions"] = shuttle_metrics.get("collisions_total")
         metrics["per_vehicle"][s.vid]["stops_served"] = shuttle_metrics.get("stops_served")
+        metrics["per_vehicle"][s.vid]["max_seats_on_board"] = s.max_onboard
     timing = {"wall_s": wall, "cpu_s": cpu, "realtime_factor": duration_s / wall if wall > 0 else None}
     metrics["timing"] = timing
     write_fleet_report(metrics, records, out_dir)
@@ -474,17 +477,21 @@ def _step(s: _Shuttle, tick: int, now: Stamp, t_s: float) -> None:
 
 
 async def _report_done(s: _Shuttle, by_request: dict[str, _Rider]) -> None:
-    """For each stop served since the last sync: the first plan visit there is done (drop-offs first)."""
+    """For each stop served since the last sync: the plan's next visit is done if it is at that stop
+    (drop-offs first). A later visit at the same stop stays for its lap: the server placed it there to
+    keep the seats on board within capacity."""
     for ev_t, stop_id in s.served_stops:
-        visit = next((trips for stop, trips in s.client.plan if stop == stop_id), None)
-        if visit is None:
-            continue  # a stop the server did not ask for (none in a fleet run: no stop buttons)
+        if not s.client.plan or s.client.plan[0][0] != stop_id:
+            s.writer.add_event(ev_t, "fleet_unplanned_stop", stop_id=stop_id)
+            continue
+        visit = s.client.plan[0][1]
         trips: list[Assignment] = [s.client.assignments[t] for t in visit if t in s.client.assignments]
         for trip in sorted(trips, key=lambda a: (a.kind != "dropoff", a.id)):
             await s.client.complete(trip.id)
             rider = by_request.get(trip.request_id or "")
             if trip.kind == "pickup":
                 s.onboard += trip.seats
+                s.max_onboard = max(s.max_onboard, s.onboard)
                 if rider is not None:
                     rider.picked_up_s, rider.vehicle_id = ev_t, s.vid
             elif trip.kind == "dropoff":
