@@ -105,6 +105,8 @@ class Dispatcher:
         self.timetable: list[dict[str, Any]] = []
         self._next_trip = 1
         self.push: Callable[[str, dict[str, Any]], None] = lambda vid, msg: None
+        # Newest report of each infrastructure node (live only: a presence report is stale in a second).
+        self.presence: dict[str, dict[str, Any]] = {}
         self.changed = asyncio.Event()
         self._id_prefix = uuid.uuid4().hex[:16]
         self._id_counter = 0
@@ -803,6 +805,24 @@ class Dispatcher:
         msgs.append(self.plan_message(v))
         self._plan_sent[vehicle_id] = v.plan
         return msgs
+
+    def broadcast_presence(self, node_id: str, crosswalk: int, present: bool, captured_us: int) -> int:
+        """Relay an infrastructure node's pedestrian presence to every connected vehicle, as it came;
+        returns how many vehicles it was queued to."""
+        msg = {
+            "type": "infrastructure",
+            "node_id": node_id,
+            "crosswalk": crosswalk,
+            "present": present,
+            "captured_us": captured_us,
+        }
+        self.presence[node_id] = {**msg, "received_us": now_us()}
+        sent = 0
+        for v in self.vehicles.values():
+            if v.connected:
+                self.push(v.id, msg)
+                sent += 1
+        return sent
 
     def vehicle_status(self, vehicle_id: str, msg: dict[str, Any]) -> None:
         """A status report: memory now, database without waiting (a lost status is replaced by the next)."""

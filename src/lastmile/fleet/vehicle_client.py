@@ -59,6 +59,9 @@ class VehicleClient:
             each cancelled trip id, each command (with the new service state), and each new plan.
             The plan (``self.plan``) is the order to serve trips in: (stop id, trip ids) per stop
             visit along the loop; a driver goes to the first visit's stop and reports its trips done.
+        on_infrastructure: called with each infrastructure report the server relays (a crossing
+            camera's ``{node_id, crosswalk, present, captured_us}``); the newest per node is kept in
+            ``self.infrastructure``.
         reconnect_delay_s: wait between reconnection attempts.
     """
 
@@ -72,6 +75,7 @@ class VehicleClient:
         on_cancel: Callable[[int], None] | None = None,
         on_command: Callable[[str, str], None] | None = None,
         on_plan: Callable[[list[tuple[str, list[int]]]], None] | None = None,
+        on_infrastructure: Callable[[dict[str, Any]], None] | None = None,
         reconnect_delay_s: float = 0.2,
     ) -> None:
         if not base_url.startswith(("http://", "https://")):
@@ -83,6 +87,9 @@ class VehicleClient:
         self.on_cancel = on_cancel
         self.on_command = on_command
         self.on_plan = on_plan
+        self.on_infrastructure = on_infrastructure
+        # Newest infrastructure report per node: {node_id, crosswalk, present, captured_us}.
+        self.infrastructure: dict[str, dict[str, Any]] = {}
         self.plan: list[tuple[str, list[int]]] = []
         self.reconnect_delay_s = reconnect_delay_s
         self.assignments: dict[int, Assignment] = {}
@@ -234,6 +241,10 @@ class VehicleClient:
         elif kind == "seat_ack":
             if self._seat_waiters:
                 self._seat_waiters.pop(0).set_result(msg)
+        elif kind == "infrastructure":
+            self.infrastructure[str(msg["node_id"])] = msg
+            if self.on_infrastructure is not None:
+                self.on_infrastructure(msg)
         elif kind == "pong":
             if self._pong_waiters:
                 self._pong_waiters.pop(0).set_result(None)
