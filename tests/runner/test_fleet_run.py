@@ -1,5 +1,6 @@
 """``lastmile run --fleet N --serve`` end to end: simulated shuttles with their own stacks, linked to the
-real dispatch server process over their WebSocket clients, serve every ride the demand model asks for."""
+real dispatch server process over their WebSocket clients, serve every ride the demand model asks for,
+and crossing cameras' reports reach their stacks through the server."""
 
 from __future__ import annotations
 
@@ -34,6 +35,14 @@ def test_two_simulated_shuttles_serve_every_ride_through_the_real_server(tmp_pat
     assert metrics["km_per_passenger"] > 0
     assert all(v["collisions"] == 0 for v in metrics["per_vehicle"].values())
     assert all(0 < v["max_seats_on_board"] <= 6 for v in metrics["per_vehicle"].values() if v["stops_served"])
+    assert all(v["rule_violations"] == 0 for v in metrics["per_vehicle"].values())
+    # Crossing cameras reported through the server to both shuttles' stacks, and a shuttle slowed for a
+    # crossing they reported occupied (seed 15: once).
+    infra = metrics["infrastructure"]
+    assert infra["cameras"] == 3 and infra["reports_posted"] > 0
+    assert infra["reports_delivered"] == 2 * infra["reports_posted"]
+    assert set(infra["reports_received_by_stacks"].values()) == {infra["reports_posted"]}
+    assert sum(v["v2i_anticipations"] for v in metrics["per_vehicle"].values()) >= 1
     rides = json.loads((tmp_path / "fleet_rides.json").read_text())
     assert all(r["requested_s"] < r["picked_up_s"] < r["dropped_off_s"] for r in rides)
     # The server's database agrees: both rides dropped off, by the vehicles the run says served them.

@@ -40,8 +40,10 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from lastmile.core.errors import ConfigError
+from lastmile.core.geometry import PreparedPolygon
 from lastmile.core.object_class import ObjectClass
-from lastmile.core.sensor_frames import SensorFrame, StopCallFrame
+from lastmile.core.rng import component_rng
+from lastmile.core.sensor_frames import CrossingPresenceFrame, SensorFrame, StopCallFrame
 from lastmile.core.stamp import Stamp
 from lastmile.core.vehicle_messages import BehaviourState, StackOutput, VehicleStatus
 from lastmile.evaluation.fleet_metrics import (
@@ -51,6 +53,8 @@ from lastmile.evaluation.fleet_metrics import (
     write_fleet_report,
 )
 from lastmile.fleet.vehicle_client import Assignment, VehicleClient
+from lastmile.hdmap.loader import load_campus_map
+from lastmile.hdmap.routing import campus_shuttle_loop, route_polyline
 from lastmile.recorder.run_log import STATE_NAMES, RunLog, RunLogWriter, RunMeta
 from lastmile.runner.closed_loop import (
     LOG_EVERY_TICKS,
@@ -62,14 +66,16 @@ from lastmile.runner.closed_loop import (
 from lastmile.runner.fleet_server import ServerProcess
 from lastmile.safety.hardware_watchdog import HardwareWatchdog
 from lastmile.sim.agents import Agent
+from lastmile.sim.infrastructure import CrossingCamera, CrossingCameraConfig
 from lastmile.sim.passengers import PassengerConfig
-from lastmile.sim.scenario import Scenario
+from lastmile.sim.scenario import CrosswalkPedestrians, Scenario
 from lastmile.sim.sensors import RCS_DBSM
 from lastmile.sim.simulation import Simulation
 from lastmile.stack.shuttle_stack import ShuttleStack
 
 CAPACITY_SEATS = 6
 PROXY_ID_BASE = 9000  # road-user ids of the other shuttles in each shuttle's world
+PEDESTRIAN_PROXY_BASE = 9100  # and of the mirrored pedestrians
 
 ProgressCallback = Callable[[float, float], None]
 
@@ -88,6 +94,12 @@ class FleetConfig:
         sync_period_s: simulated seconds between exchanges with the server.
         cruise_speed_mps: the shuttles' cruise speed (None: the stack's default, 20 km/h).
         max_seats: each request asks for 1..max_seats seats (uniform).
+        pedestrian_mean_gap_s: pedestrians cross at every crosswalk on the loop, this many seconds
+            apart on average, in the world all shuttles share (None: no pedestrians).
+        cameras: a crossing camera (NUS) at every crosswalk on the loop reports presence through the
+            server to the shuttles.
+        camera_rate_hz: the cameras' capture rate (NUS: 5 Hz, and 1 Hz).
+        camera_keepalive_s: a camera posts a report when presence changes, and at least this often.
     """
 
     shuttles: int = 2
@@ -99,6 +111,10 @@ class FleetConfig:
     sync_period_s: float = 1.0
     cruise_speed_mps: float | None = None
     max_seats: int = 2
+    pedestrian_mean_gap_s: float | None = 40.0
+    cameras: bool = True
+    camera_rate_hz: float = 5.0
+    camera_keepalive_s: float = 1.0
 
     def __post_init__(self) -> None:
         if self.shuttles < 1:
@@ -112,6 +128,12 @@ class FleetConfig:
                 f"fleet sync_period_s: expected a positive multiple of {TICK_US / 1e6} s, "
                 f"got {self.sync_period_s}"
             )
+        if self.pedestrian_mean_gap_s is not None and not self.pedestrian_mean_gap_s > 0:
+            raise ConfigError(
+                f"fleet pedestrian_mean_gap_s: expected > 0 or None, got {self.pedestrian_mean_gap_s}"
+            )
+        if not self.camera_keepalive_s > 0:
+            raise ConfigError(f"fleet camera_keepalive_s: expected > 0, got {self.camera_keepalive_s}")
         if not 1 <= self.max_seats <= CAPACITY_SEATS:
             raise ConfigError(f"fleet max_seats: expected 1..{CAPACITY_SEATS}, got {self.max_seats}")
 
@@ -178,10 +200,21 @@ class _Shuttle:
     seat_s: float = 0.0
     stack_wall_s: float = 0.0
     hmi: dict[str, str] = field(default_factory=dict)
+    frames: list[SensorFrame] = field(default_factory=list)
+    presence_seen: dict[str, int] = field(default_factory=dict)
+    pedestrian_proxies: list[tuple[Agent, Agent]] = field(default_factory=list)
+    anticipating: bool = False
 
 
 def _shuttle_scenario(config: FleetConfig, k: int, seed: int, start_s_m: float) -> Scenario:
-    # No stop-button riders: in a fleet run every rider comes through the server.
+    # No stop-button riders: in a fleet run every rider comes through the server. Pedestrians live in
+    # shuttle 0's world; the other shuttles' worlds mirror them (one set of pedestrians for all).
+    walkers: tuple[CrosswalkPedestrians, ...] = ()
+    if k == 0 and config.pedestrian_mean_gap_s is not None:
+        walkers = tuple(
+            CrosswalkPedestrians(crosswalk=i, mean_gap_s=config.pedestrian_mean_gap_s)
+            for i in _loop_crosswalks()
+        )
     return Scenario(
         name=f"fleet_shuttle_{k}",
         minutes=config.minutes,
@@ -189,7 +222,35 @@ def _shuttle_scenario(config: FleetConfig, k: int, seed: int, start_s_m: float) 
         start_route_s_m=start_s_m,
         passengers=PassengerConfig(arrivals_per_stop_per_min=0.0),
         cruise_speed_mps=config.cruise_speed_mps,
+        crosswalk_pedestrians=walkers,
     )
+
+
+def _loop_crosswalks() -> list[int]:
+    """Indices of the map's crosswalks the shuttle loop crosses (their centre within a lane of it)."""
+    hdmap = load_campus_map()
+    loop = route_polyline(hdmap, campus_shuttle_loop(hdmap), closed=True)
+    out = []
+    for i, cw in enumerate(hdmap.crosswalks):
+        cx, cy = np.asarray(cw.polygon, dtype=float).mean(axis=0)
+        if abs(loop.project(float(cx), float(cy)).d_m) < 4.0:
+            out.append(i)
+    return out
+
+
+@dataclass
+class _Camera:
+    """A crossing camera node of the fleet world and what it last posted."""
+
+    node_id: str
+    crosswalk_id: int
+    polygon: PreparedPolygon
+    camera: CrossingCamera
+    token: str = ""
+    last_captured_s: float = -1.0
+    last_posted: tuple[float, bool] | None = None
+    posts: int = 0
+    delivered: int = 0
 
 
 def run_fleet(config: FleetConfig, out_dir: Path, progress: ProgressCallback | None = None) -> dict[str, Any]:
@@ -245,6 +306,38 @@ async def _run(
                 s.proxies[id(other)] = _proxy(s, other, len(s.proxies))
                 s.sim.world.agents.append(s.proxies[id(other)])
 
+    # One set of pedestrians: they walk in shuttle 0's world and are mirrored into the others'.
+    owner = shuttles[0]
+    pedestrians = [a for a in owner.sim.world.agents if a.cls == ObjectClass.PEDESTRIAN]
+    for s in shuttles[1:]:
+        for j, a in enumerate(pedestrians):
+            proxy = Agent(
+                id=PEDESTRIAN_PROXY_BASE + j,
+                cls=ObjectClass.PEDESTRIAN,
+                x_m=a.x_m,
+                y_m=a.y_m,
+                yaw_rad=a.yaw_rad,
+                speed_mps=a.speed_mps,
+                length_m=a.length_m,
+                width_m=a.width_m,
+                rcs_dbsm=a.rcs_dbsm,
+                active=a.active,
+            )
+            s.pedestrian_proxies.append((a, proxy))
+            s.sim.world.agents.append(proxy)
+    cameras = [
+        _Camera(
+            node_id=f"crossing-cam-{rc.crosswalk.id}",
+            crosswalk_id=rc.crosswalk.id,
+            polygon=PreparedPolygon(rc.crosswalk.polygon),
+            camera=CrossingCamera(
+                CrossingCameraConfig(rate_hz=config.camera_rate_hz),
+                component_rng(config.seed, f"crossing_camera_{rc.crosswalk.id}"),
+            ),
+        )
+        for rc in (owner.stack.layers.crosswalks if config.cameras else ())
+    ]
+
     rider_headers = {"Authorization": f"Bearer {server.tokens['rider']}"}
     operator_headers = {"Authorization": f"Bearer {server.tokens['operator']}"}
     riders: list[_Rider] = []
@@ -258,6 +351,14 @@ async def _run(
             )
             _expect(res, 200, f"start_service {s.vid}")
             await s.client.start()
+        for cam in cameras:  # each node its own token, as an operator would issue them
+            res = await http.post(
+                "/api/tokens",
+                json={"role": "infrastructure", "subject": cam.node_id},
+                headers=operator_headers,
+            )
+            _expect(res, 201, f"token for {cam.node_id}")
+            cam.token = str(res.json()["token"])
         ticks = round(config.minutes * 60.0 * 1e6 / TICK_US)
         sync_ticks = round(config.sync_period_s * 1e6 / TICK_US)
         dt = TICK_US / 1e6
@@ -270,12 +371,20 @@ async def _run(
                 for other in shuttles:
                     if other is not s:
                         _place(s.proxies[id(other)], other.sim)
+                for a, proxy in s.pedestrian_proxies:
+                    proxy.x_m, proxy.y_m, proxy.yaw_rad = a.x_m, a.y_m, a.yaw_rad
+                    proxy.speed_mps, proxy.active = a.speed_mps, a.active
             for s in shuttles:
                 _step(s, tick, now, t_s)
                 s.distance_m += s.sim.world.ego.state.speed_mps * dt
                 if s.onboard > 0:
                     s.occupied_s += dt
                     s.seat_s += s.onboard * dt
+            if cameras and await _cameras(cameras, pedestrians, t_s, config, http):
+                # A report went out: let it reach every shuttle before simulated time moves on.
+                for s in shuttles:
+                    await s.client.sync()
+                    _take_presence(s, now)
             if tick % sync_ticks == 0:
                 for s in shuttles:
                     await _report_done(s, by_request)
@@ -368,6 +477,16 @@ async def _run(
         metrics["per_vehicle"][s.vid]["collisions"] = shuttle_metrics.get("collisions_total")
         metrics["per_vehicle"][s.vid]["stops_served"] = shuttle_metrics.get("stops_served")
         metrics["per_vehicle"][s.vid]["max_seats_on_board"] = s.max_onboard
+        metrics["per_vehicle"][s.vid]["rule_violations"] = shuttle_metrics.get("rule_violations")
+        metrics["per_vehicle"][s.vid]["v2i_anticipations"] = sum(
+            1 for e in log.events if e.kind == "v2i_anticipation" and e.data.get("active")
+        )
+    metrics["infrastructure"] = {
+        "cameras": len(cameras),
+        "reports_posted": sum(c.posts for c in cameras),
+        "reports_delivered": sum(c.delivered for c in cameras),
+        "reports_received_by_stacks": {s.vid: s.stack.v2i.received for s in shuttles},
+    }
     timing = {"wall_s": wall, "cpu_s": cpu, "realtime_factor": duration_s / wall if wall > 0 else None}
     metrics["timing"] = timing
     write_fleet_report(metrics, records, out_dir)
@@ -415,6 +534,8 @@ def _step(s: _Shuttle, tick: int, now: Stamp, t_s: float) -> None:
     # The plan's stops, as the vehicle's fleet link hands them to the stack.
     frames.extend(StopCallFrame(stamp=now, stop_id=stop, source="dispatch") for stop in s.calls)
     s.calls = []
+    frames.extend(s.frames)  # infrastructure reports relayed by the server
+    s.frames = []
     out: StackOutput | None = None
     if s.stack_alive:
         t0 = time.perf_counter()
@@ -444,6 +565,10 @@ def _step(s: _Shuttle, tick: int, now: Stamp, t_s: float) -> None:
             },
         )
         s.last_state = state
+    anticipating = out is not None and out.decision is not None and "infrastructure" in out.decision.reason
+    if anticipating != s.anticipating:
+        w.add_event(t_s, "v2i_anticipation", active=anticipating)
+        s.anticipating = anticipating
     for msg in out.hmi if out is not None else ():
         w.add_event(
             t_s, "hmi", screen=msg.screen, text=msg.text, sound=msg.sound, light=msg.light, cue=msg.cue
@@ -507,3 +632,65 @@ async def _report_done(s: _Shuttle, by_request: dict[str, _Rider]) -> None:
                 request_id=trip.request_id or "",
             )
     s.served_stops.clear()
+
+
+async def _cameras(
+    cameras: list[_Camera], pedestrians: list[Agent], t_s: float, config: FleetConfig, http: httpx.AsyncClient
+) -> bool:
+    """Step every crossing camera; post a received capture when presence changed or the keepalive is
+    due. Returns whether anything was posted."""
+    posted = False
+    for cam in cameras:
+        # On the crossing, or stepping onto it within the next second.
+        truth = any(
+            a.active
+            and (
+                cam.polygon.contains(a.x_m, a.y_m) or cam.polygon.contains(a.x_m + a.vx_mps, a.y_m + a.vy_mps)
+            )
+            for a in pedestrians
+        )
+        cam.camera.step(t_s, truth)
+        msg = cam.camera.latest
+        if msg is None or msg.captured_s == cam.last_captured_s:
+            continue
+        cam.last_captured_s = msg.captured_s
+        last = cam.last_posted
+        if (
+            last is not None
+            and last[1] == msg.pedestrians_present
+            and msg.captured_s - last[0] < config.camera_keepalive_s
+        ):
+            continue
+        body = {
+            "node_id": cam.node_id,
+            "crosswalk": cam.crosswalk_id,
+            "present": msg.pedestrians_present,
+            "captured_us": round(msg.captured_s * 1e6),
+        }
+        res = await http.post(
+            "/api/infrastructure/presence", json=body, headers={"Authorization": f"Bearer {cam.token}"}
+        )
+        _expect(res, 200, f"presence from {cam.node_id}")
+        cam.delivered += int(res.json()["delivered_to"])
+        cam.posts += 1
+        cam.last_posted = (msg.captured_s, msg.pedestrians_present)
+        posted = True
+    return posted
+
+
+def _take_presence(s: _Shuttle, now: Stamp) -> None:
+    """Reports the shuttle's link received since the last look, as frames for its next stack tick."""
+    for node, msg in s.client.infrastructure.items():
+        captured_us = int(msg["captured_us"])
+        if captured_us <= s.presence_seen.get(node, -1):
+            continue
+        s.presence_seen[node] = captured_us
+        s.frames.append(
+            CrossingPresenceFrame(
+                stamp=Stamp(int(now) + TICK_US),
+                node_id=node,
+                crosswalk_id=int(msg["crosswalk"]),
+                pedestrians_present=bool(msg["present"]),
+                captured=Stamp(captured_us),
+            )
+        )
