@@ -33,9 +33,22 @@ def run(
     scenario: Annotated[
         Path | None, typer.Option(help="Scenario TOML file (default: the campus service).")
     ] = None,
+    fleet: Annotated[
+        int | None, typer.Option(help="N shuttles in one world, dispatched by the server (needs --serve).")
+    ] = None,
+    serve: Annotated[
+        bool, typer.Option(help="Start the dispatch server for the run and link every shuttle to it.")
+    ] = False,
+    demand: Annotated[
+        float, typer.Option(help="--fleet: ride requests per hour per ordered stop pair (Poisson).")
+    ] = 2.0,
 ) -> None:
     """Simulate the shuttle service in closed loop and write a run directory with report.md."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    if fleet is not None or serve:
+        _run_fleet(fleet, serve, minutes, seed, demand, out, scenario is not None or weather is not None)
+        return
 
     try:
         from lastmile.runner.closed_loop import evaluate_run, run_scenario
@@ -68,6 +81,54 @@ def run(
         f"wrote {out}/report.md: {metrics['distance_m']:.0f} m, {metrics['stops_served']} stops served, "
         f"{metrics['collisions_total']} collisions, {metrics['takeovers']} takeovers, "
         f"real-time factor {log.timing['realtime_factor']:.1f}x"
+    )
+
+
+def _run_fleet(
+    fleet: int | None,
+    serve: bool,
+    minutes: float | None,
+    seed: int | None,
+    demand: float,
+    out: Path,
+    scenario_given: bool,
+) -> None:
+    """``lastmile run --fleet N --serve``: see :mod:`lastmile.runner.fleet_run`."""
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    try:
+        if fleet is None or not serve:
+            raise ConfigError(
+                f"expected --fleet N together with --serve, got --fleet {fleet} and --serve {serve}"
+            )
+        if scenario_given:
+            raise ConfigError(
+                "--fleet: expected no --scenario or --weather (the fleet world is its own), got one"
+            )
+        from lastmile.runner.fleet_run import FleetConfig, run_fleet
+
+        config = FleetConfig(
+            shuttles=fleet,
+            minutes=minutes if minutes is not None else 10.0,
+            seed=seed if seed is not None else 0,
+            demand_per_pair_per_h=demand,
+        )
+        with Progress(
+            TextColumn(f"[bold]simulating[/bold] {fleet} shuttles with the server"),
+            BarColumn(),
+            TextColumn("{task.completed:.0f}/{task.total:.0f} s"),
+            TimeElapsedColumn(),
+        ) as bar:
+            task = bar.add_task("fleet", total=config.minutes * 60.0)
+            m = run_fleet(config, out, progress=lambda done, total: bar.update(task, completed=done))
+    except LastmileError as exc:
+        typer.echo(f"lastmile run: {exc}", err=True)
+        raise typer.Exit(2) from None
+    wait = m["wait_s"]["median"]
+    typer.echo(
+        f"wrote {out}/fleet_report.md: {m['requests_served']}/{m['requests_made']} requests served, "
+        f"median wait {'-' if wait is None else f'{wait:.0f} s'}, "
+        f"{m['fleet_distance_km']:.1f} km, real-time factor {m['timing']['realtime_factor']:.1f}x"
     )
 
 

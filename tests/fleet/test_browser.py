@@ -86,6 +86,21 @@ def test_rider_page_shows_the_ride_picked_up_by_the_shuttle(fresh_server: Server
             row = op_page.locator('tr[data-vehicle="shuttle-web"]')
             await expect(row.locator(".state")).to_have_text("in_service")
             await expect(row).to_contain_text("dwell")
+            # The vehicle's HMI (what its screens and autonomy light show) reaches the dashboard.
+            hmi = {
+                "cue": "yielding_pedestrian",
+                "light": "amber",
+                "front": "After you - please cross",
+                "rear": "Stopping for pedestrians",
+                "inside": "Giving way to pedestrians",
+                "sound": "yield_chime",
+            }
+            await vehicle.send_status(
+                x_m=766.5, y_m=200.0, yaw_rad=1.57, speed_mps=0.0, behaviour="dwell", door="open", hmi=hmi
+            )
+            await expect(row.locator(".hmi")).to_contain_text("After you - please cross")
+            await expect(row.locator(".hmi")).to_contain_text("yielding_pedestrian")
+            await expect(row.locator(".hmi")).to_have_attribute("data-light", "amber")
             await row.locator('button[data-command="emergency_stop"]').click()
             await expect(row.locator(".state")).to_have_text("emergency_stop")
             await vehicle.wait_for(lambda v: v.service == "emergency_stop")

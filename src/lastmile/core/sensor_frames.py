@@ -156,6 +156,26 @@ class StopCallFrame:
             )
 
 
+@dataclass(frozen=True, slots=True, kw_only=True)
+class CrossingPresenceFrame:
+    """An infrastructure camera's report relayed to the shuttle (NUS): pedestrians on a crossing or not.
+
+    ``crosswalk_id`` is the HD map's crosswalk id; ``captured`` when the node saw it (its clock).
+    """
+
+    stamp: Stamp
+    node_id: str
+    crosswalk_id: int
+    pedestrians_present: bool
+    captured: Stamp
+
+    def validate(self) -> None:
+        if not self.node_id:
+            raise MessageError("CrossingPresenceFrame.node_id: expected a node id, got an empty string")
+        if self.crosswalk_id < 0:
+            raise MessageError(f"CrossingPresenceFrame.crosswalk_id: expected >= 0, got {self.crosswalk_id}")
+
+
 LIDAR_COLUMNS = ("x_m", "y_m", "z_m", "intensity", "ring", "t_offset_us")
 
 
@@ -213,6 +233,7 @@ SensorFrame = (
     | RadarFrame
     | DoorSensorFrame
     | StopCallFrame
+    | CrossingPresenceFrame
     | LidarSweep
     | CameraDetections
 )

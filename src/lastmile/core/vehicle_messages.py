@@ -122,12 +122,36 @@ class Heartbeat:
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class HmiMessage:
-    """Text and sound for passengers and pedestrians (LED screens, speaker, autonomy light)."""
+    """Text and sound for passengers and pedestrians (LED screens, speaker, autonomy light).
+
+    Attributes:
+        screen: which display shows ``text``: "front" (the LED screen pedestrians see ahead), "rear"
+            (the rear screen, for traffic behind) or "inside" (the passengers' screen).
+        text: what it shows.
+        sound: the speaker's cue with it ("" silent).
+        light: the autonomy-state light's colour at the same time ("" unchanged): "turquoise"
+            (driving itself), "amber" (yielding, stopping, doors), "red" (emergency stop), "red_flashing"
+            (a person must take over).
+        cue: the behaviour the HMI announces, e.g. "yielding_pedestrian", "pulling_over", "departing",
+            "emergency_stop", "takeover_requested" ("" for none).
+    """
 
     stamp: Stamp
     screen: str
     text: str
     sound: str = ""
+    light: str = ""
+    cue: str = ""
+
+    def validate(self) -> None:
+        if self.screen not in HMI_SCREENS:
+            raise MessageError(f"HmiMessage.screen: expected one of {HMI_SCREENS}, got {self.screen!r}")
+        if self.light not in HMI_LIGHTS:
+            raise MessageError(f"HmiMessage.light: expected one of {HMI_LIGHTS}, got {self.light!r}")
+
+
+HMI_SCREENS = ("front", "rear", "inside")
+HMI_LIGHTS = ("", "turquoise", "amber", "red", "red_flashing")
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

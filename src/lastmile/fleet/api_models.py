@@ -69,6 +69,20 @@ class VehicleOut(BaseModel):
     door: str | None
     last_status_us: int | None
     plan: list[dict[str, object]]
+    hmi: dict[str, str] | None = None
+
+
+class PresenceIn(Strict):
+    """An infrastructure node's report (NUS crossing camera): pedestrians on a crossing or not.
+
+    ``crosswalk`` is the crossing's index in the HD map; ``captured_us`` the node's capture time in its
+    own clock (microseconds), passed through to the vehicles unchanged.
+    """
+
+    node_id: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.-]+$")
+    crosswalk: int = Field(ge=0, le=10_000)
+    present: bool
+    captured_us: int = Field(ge=0)
 
 
 class CommandIn(Strict):
@@ -81,7 +95,7 @@ class TimetableRunIn(Strict):
 
 
 class TokenIn(Strict):
-    role: Literal["rider", "operator", "vehicle"]
+    role: Literal["rider", "operator", "vehicle", "infrastructure"]
     subject: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.*-]+$")
 
 

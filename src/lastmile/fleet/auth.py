@@ -1,4 +1,4 @@
-"""Bearer tokens with a role (rider, operator, vehicle): who may call what.
+"""Bearer tokens with a role (rider, operator, vehicle, infrastructure): who may call what.
 
 Tokens are random strings; the database keeps only their SHA-256, so a copied database grants nothing.
 No token or an unknown one is 401; a known token whose role is not allowed is 403.
@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 from fastapi import HTTPException, status
 
-ROLES = ("rider", "operator", "vehicle")
+ROLES = ("rider", "operator", "vehicle", "infrastructure")
 
 
 @dataclass(frozen=True, slots=True)

@@ -59,6 +59,7 @@ class VehicleState:
     health: str | None = None
     passengers: int = 0
     door: str | None = None
+    hmi: dict[str, str] | None = None  # live only (not stored): what the HMI shows now
     last_status_us: int | None = None
     registered_us: int = 0
     connected: bool = False
@@ -104,6 +105,8 @@ class Dispatcher:
         self.timetable: list[dict[str, Any]] = []
         self._next_trip = 1
         self.push: Callable[[str, dict[str, Any]], None] = lambda vid, msg: None
+        # Newest report of each infrastructure node (live only: a presence report is stale in a second).
+        self.presence: dict[str, dict[str, Any]] = {}
         self.changed = asyncio.Event()
         self._id_prefix = uuid.uuid4().hex[:16]
         self._id_counter = 0
@@ -287,6 +290,7 @@ class Dispatcher:
             "health": v.health,
             "passengers": v.passengers,
             "door": v.door,
+            "hmi": v.hmi,
             "last_status_us": v.last_status_us,
             "plan": [
                 {"stop_id": visit.stop_id, "trips": [{"id": i.trip_id, "kind": i.kind} for i in visit.items]}
@@ -802,12 +806,32 @@ class Dispatcher:
         self._plan_sent[vehicle_id] = v.plan
         return msgs
 
+    def broadcast_presence(self, node_id: str, crosswalk: int, present: bool, captured_us: int) -> int:
+        """Relay an infrastructure node's pedestrian presence to every connected vehicle, as it came;
+        returns how many vehicles it was queued to."""
+        msg = {
+            "type": "infrastructure",
+            "node_id": node_id,
+            "crosswalk": crosswalk,
+            "present": present,
+            "captured_us": captured_us,
+        }
+        self.presence[node_id] = {**msg, "received_us": now_us()}
+        sent = 0
+        for v in self.vehicles.values():
+            if v.connected:
+                self.push(v.id, msg)
+                sent += 1
+        return sent
+
     def vehicle_status(self, vehicle_id: str, msg: dict[str, Any]) -> None:
         """A status report: memory now, database without waiting (a lost status is replaced by the next)."""
         v = self.vehicles[vehicle_id]
         for key in ("x_m", "y_m", "yaw_rad", "speed_mps", "behaviour", "health", "passengers", "door"):
             if key in msg:
                 setattr(v, key, msg[key])
+        if msg.get("hmi") is not None:
+            v.hmi = dict(msg["hmi"])
         if v.x_m is not None and v.y_m is not None:
             v.route_s_m = self.route.project_s(v.x_m, v.y_m, v.route_s_m)
         v.last_status_us = now_us()

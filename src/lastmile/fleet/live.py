@@ -14,14 +14,31 @@ import math
 from typing import Any
 
 from fastapi import WebSocket
-from pydantic import BaseModel, ValidationError
+from pydantic import BaseModel, Field, ValidationError
 from starlette.websockets import WebSocketDisconnect
 
+from lastmile.core.vehicle_messages import HMI_LIGHTS
 from lastmile.fleet.dispatcher import Dispatcher
 
 log = logging.getLogger(__name__)
 SNAPSHOT_PERIOD_S = 0.2  # at most five dashboard updates a second
 LIVE_QUEUE = 4  # snapshots a slow browser may lag before older ones are dropped
+
+
+class HmiStatus(BaseModel):
+    """What the vehicle's HMI shows now (see ``lastmile.stack.hmi``): the announced behaviour, the
+    autonomy-state light, each screen's text and the last sound."""
+
+    cue: str = Field(default="", max_length=40)
+    light: str = ""
+    front: str = Field(default="", max_length=120)
+    rear: str = Field(default="", max_length=120)
+    inside: str = Field(default="", max_length=120)
+    sound: str = Field(default="", max_length=40)
+
+    def check(self) -> None:
+        if self.light not in HMI_LIGHTS:
+            raise ValueError(f"hmi.light: expected one of {HMI_LIGHTS}, got {self.light!r}")
 
 
 class StatusMsg(BaseModel):
@@ -35,8 +52,11 @@ class StatusMsg(BaseModel):
     health: str = "ok"
     passengers: int = 0
     door: str = "closed"
+    hmi: HmiStatus | None = None
 
     def check(self) -> None:
+        if self.hmi is not None:
+            self.hmi.check()
         for name in ("x_m", "y_m", "yaw_rad", "speed_mps"):
             if not math.isfinite(getattr(self, name)):
                 raise ValueError(f"{name}: expected a finite number, got {getattr(self, name)}")

@@ -96,6 +96,7 @@ Anyone = Annotated[Principal, role("rider", "operator", "vehicle")]
 Rider = Annotated[Principal, role("rider", "operator")]
 Operator = Annotated[Principal, role("operator")]
 OperatorOrVehicle = Annotated[Principal, role("operator", "vehicle")]
+Infrastructure = Annotated[Principal, role("infrastructure", "operator")]
 VehicleIdParam = Annotated[str, PathParam(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.-]+$")]
 
 
@@ -294,6 +295,23 @@ def create_app(config: ServerConfig) -> FastAPI:
     ) -> list[dict[str, Any]]:
         """Hand a timetable run (every stop once around the loop) to a shuttle."""
         return await disp(request).assign_timetable_run(vehicle_id, body.run_id)
+
+    # ----------------------------------------------------------------------------- infrastructure
+    @app.post("/api/infrastructure/presence", tags=["infrastructure"])
+    async def report_presence(request: Request, body: api.PresenceIn, who: Infrastructure) -> dict[str, int]:
+        """A crossing camera's pedestrian presence, relayed at once to every connected vehicle (NUS)."""
+        if who.role == "infrastructure" and who.subject not in ("*", body.node_id):
+            raise HTTPException(
+                status.HTTP_403_FORBIDDEN,
+                f"infrastructure token for {who.subject!r} cannot report as {body.node_id!r}",
+            )
+        n = disp(request).broadcast_presence(body.node_id, body.crosswalk, body.present, body.captured_us)
+        return {"delivered_to": n}
+
+    @app.get("/api/infrastructure", tags=["infrastructure"])
+    async def list_presence(request: Request, _who: Anyone) -> list[dict[str, Any]]:
+        """The newest report of each infrastructure node."""
+        return list(disp(request).presence.values())
 
     @app.post("/api/tokens", tags=["auth"], response_model=api.TokenOut, status_code=201)
     async def issue_token(request: Request, body: api.TokenIn, _who: Operator) -> dict[str, str]:

@@ -59,6 +59,9 @@ class VehicleClient:
             each cancelled trip id, each command (with the new service state), and each new plan.
             The plan (``self.plan``) is the order to serve trips in: (stop id, trip ids) per stop
             visit along the loop; a driver goes to the first visit's stop and reports its trips done.
+        on_infrastructure: called with each infrastructure report the server relays (a crossing
+            camera's ``{node_id, crosswalk, present, captured_us}``); the newest per node is kept in
+            ``self.infrastructure``.
         reconnect_delay_s: wait between reconnection attempts.
     """
 
@@ -72,6 +75,7 @@ class VehicleClient:
         on_cancel: Callable[[int], None] | None = None,
         on_command: Callable[[str, str], None] | None = None,
         on_plan: Callable[[list[tuple[str, list[int]]]], None] | None = None,
+        on_infrastructure: Callable[[dict[str, Any]], None] | None = None,
         reconnect_delay_s: float = 0.2,
     ) -> None:
         if not base_url.startswith(("http://", "https://")):
@@ -83,6 +87,9 @@ class VehicleClient:
         self.on_cancel = on_cancel
         self.on_command = on_command
         self.on_plan = on_plan
+        self.on_infrastructure = on_infrastructure
+        # Newest infrastructure report per node: {node_id, crosswalk, present, captured_us}.
+        self.infrastructure: dict[str, dict[str, Any]] = {}
         self.plan: list[tuple[str, list[int]]] = []
         self.reconnect_delay_s = reconnect_delay_s
         self.assignments: dict[int, Assignment] = {}
@@ -91,6 +98,7 @@ class VehicleClient:
         self.stats = ClientStats()
         self._unconfirmed: dict[int, asyncio.Future[bool]] = {}
         self._seat_waiters: list[asyncio.Future[dict[str, Any]]] = []
+        self._pong_waiters: list[asyncio.Future[None]] = []
         self._ws: ClientConnection | None = None
         self._task: asyncio.Task[None] | None = None
         self._resumed = asyncio.Event()
@@ -233,6 +241,13 @@ class VehicleClient:
         elif kind == "seat_ack":
             if self._seat_waiters:
                 self._seat_waiters.pop(0).set_result(msg)
+        elif kind == "infrastructure":
+            self.infrastructure[str(msg["node_id"])] = msg
+            if self.on_infrastructure is not None:
+                self.on_infrastructure(msg)
+        elif kind == "pong":
+            if self._pong_waiters:
+                self._pong_waiters.pop(0).set_result(None)
         elif kind == "resumed":
             self._resumed.set()
         elif kind == "error":
@@ -250,6 +265,7 @@ class VehicleClient:
         health: str = "ok",
         passengers: int = 0,
         door: str = "closed",
+        hmi: dict[str, str] | None = None,
     ) -> bool:
         """Stream one status report; False (dropped) while disconnected: the next one replaces it."""
         if not self.connected or self._ws is None:
@@ -265,6 +281,8 @@ class VehicleClient:
             "passengers": passengers,
             "door": door,
         }
+        if hmi is not None:  # {cue, light, front, rear, inside, sound}: what the HMI shows now
+            msg["hmi"] = hmi
         try:
             await self._ws.send(json.dumps(msg))
         except websockets.ConnectionClosed:
@@ -295,6 +313,18 @@ class VehicleClient:
         self._seat_waiters.append(fut)
         await self._ws.send(json.dumps({"type": "seat_button", "seat": seat}))
         return await asyncio.wait_for(fut, timeout_s)
+
+    async def sync(self, timeout_s: float = 10.0) -> None:
+        """Barrier: returns once the server has handled everything this client sent before and this
+        client has handled everything the server queued to it before (a ping answered on the link's
+        ordered queue). A simulator calls it to make what the vehicle knows a function of what it did,
+        not of network timing."""
+        if not self.connected or self._ws is None:
+            raise ConfigError(f"vehicle {self.vehicle_id!r}: sync needs a resumed connection, got none")
+        fut: asyncio.Future[None] = asyncio.get_running_loop().create_future()
+        self._pong_waiters.append(fut)
+        await self._ws.send(json.dumps({"type": "ping"}))
+        await asyncio.wait_for(fut, timeout_s)
 
     async def wait_for(self, predicate: Callable[[VehicleClient], bool], timeout_s: float = 10.0) -> None:
         """Wait until ``predicate(self)`` holds, re-checking after every message."""

@@ -33,7 +33,8 @@ this table are accepted with any JSON-able data, so new sources can log without 
 - ``passenger_alighted`` {passenger_id: int, stop_id: str, ride_s: float}
 - ``state_change`` {from: str, to: str, reason: str}
 - ``emergency_stop`` {reason: str}
-- ``hmi`` {screen: str, text: str, sound: str}
+- ``hmi`` {screen: str ("front" | "rear" | "inside"), text: str, sound: str, light: str (autonomy-state
+  light colour), cue: str (the announced behaviour, e.g. "yielding_pedestrian", "takeover_requested")}
 - ``min_ttc`` {ttc_s: float, agent_id: int}, logged when time-to-collision drops below 3 s
 - ``intersection_entry`` {order_ok: bool, ...}
 - ``loop_completed`` {loop: int}
@@ -105,7 +106,7 @@ EVENT_SCHEMAS: dict[str, dict[str, str]] = {
     "passenger_alighted": {"passenger_id": "int", "stop_id": "str", "ride_s": "float"},
     "state_change": {"from": "str", "to": "str", "reason": "str"},
     "emergency_stop": {"reason": "str"},
-    "hmi": {"screen": "str", "text": "str", "sound": "str"},
+    "hmi": {"screen": "str", "text": "str", "sound": "str", "light": "str", "cue": "str"},
     "min_ttc": {"ttc_s": "float", "agent_id": "int"},
     "intersection_entry": {"order_ok": "bool"},
     "loop_completed": {"loop": "int"},

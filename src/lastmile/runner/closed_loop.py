@@ -188,7 +188,9 @@ def _run(scenario: Scenario, progress: ProgressCallback | None, black_box_dir: P
             stack.safety.operator_reset(int(now))
             writer.add_event(t_s, "operator_release", state=scenario.estop_in_state)
         for msg in out.hmi if out is not None else ():
-            writer.add_event(t_s, "hmi", screen=msg.screen, text=msg.text, sound=msg.sound)
+            writer.add_event(
+                t_s, "hmi", screen=msg.screen, text=msg.text, sound=msg.sound, light=msg.light, cue=msg.cue
+            )
         if tick % LOG_EVERY_TICKS == 0:
             s = sim.world.ego.state
             code = STATE_NAMES.index(state.value) if state is not None else -1

@@ -20,6 +20,7 @@ from lastmile.core.safety_messages import (
 )
 from lastmile.core.sensor_frames import (
     CameraDetections,
+    CrossingPresenceFrame,
     DoorSensorFrame,
     GnssInsFrame,
     ImuFrame,
@@ -234,7 +235,7 @@ def sensor_key(frame: SensorFrame) -> str | None:
         return "odom"
     if isinstance(frame, DoorSensorFrame):
         return "door"
-    if isinstance(frame, StopCallFrame):
+    if isinstance(frame, StopCallFrame | CrossingPresenceFrame):
         return None
     raise MessageError(f"sensor_key: expected a SensorFrame, got {type(frame).__name__}")
 

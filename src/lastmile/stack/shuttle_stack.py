@@ -21,6 +21,7 @@ from lastmile.core.polyline import Polyline
 from lastmile.core.route_obstacles import route_obstacles
 from lastmile.core.safety_messages import FailSafeLevel, SafetyDirective
 from lastmile.core.sensor_frames import (
+    CrossingPresenceFrame,
     DoorSensorFrame,
     GnssInsFrame,
     ImuFrame,
@@ -54,18 +55,10 @@ from lastmile.safety.reliability_monitor import (
     default_sensor_specs,
 )
 from lastmile.safety.supervisor import SafetySupervisor
+from lastmile.stack.hmi import HmiComposer
 from lastmile.stack.profiler import ModuleProfiler
+from lastmile.stack.v2i import AnticipationConfig, CrossingAnticipation
 from lastmile.tracking.radar_tracker import RadarObjectTracker, RadarTrackerConfig
-
-HMI_TEXT = {
-    BehaviourState.NORMAL_DRIVING: ("front", "Departing", "chime_depart"),
-    BehaviourState.INTERSECTION: ("front", "Stopping at intersection", ""),
-    BehaviourState.PULLOVER: ("rear", "Pulling over to stop", "indicator_right"),
-    BehaviourState.ONBOARDING: ("inside", "Doors open - please board", "door_chime"),
-    BehaviourState.MERGING: ("rear", "Merging - please wait", "indicator_left"),
-    BehaviourState.EMERGENCY_STOP: ("inside", "Emergency stop - please hold on", "alarm"),
-}
-
 
 DEFAULT_SENSORS = default_sensor_specs(radar_keys=("front", "rear"))
 """The simulator's sensor suite as the reliability monitor watches it (radars by their sensor ids)."""
@@ -81,6 +74,7 @@ class StackConfig:
         lateral_controller: "heading_pid" (WATonoBus, default) or "pure_pursuit".
         radar_mounts: base_from_sensor pose of each radar by sensor id.
         serve_all_stops: timetable mode (serve every stop) instead of on request.
+        v2i: anticipation of crossings reported occupied by infrastructure cameras (``stack.v2i``).
     """
 
     tick_us: int = 10_000
@@ -96,6 +90,7 @@ class StackConfig:
     ekf: PoseEkfConfig = field(default_factory=PoseEkfConfig)
     tracker: RadarTrackerConfig = field(default_factory=RadarTrackerConfig)
     reliability: ReliabilityConfig = field(default_factory=lambda: ReliabilityConfig(sensors=DEFAULT_SENSORS))
+    v2i: AnticipationConfig = field(default_factory=AnticipationConfig)
 
 
 MODULE_PERIODS_US = {
@@ -169,7 +164,8 @@ class ShuttleStack:
         self._command = ActuatorCommand(
             stamp=Stamp(0), accel_mps2=-1.0, steer_front_rad=0.0, steer_rear_rad=0.0
         )
-        self._last_state = BehaviourState.NORMAL_DRIVING
+        self.hmi = HmiComposer()
+        self.v2i = CrossingAnticipation(layers.crosswalks, self.route.length_m, self.route.closed, config.v2i)
         # Safety watches the modules from the side: heartbeats through guarded calls, the inputs as
         # they arrive, and a directive the decision and the actuator gate obey.
         self.safety = SafetySupervisor(
@@ -209,10 +205,6 @@ class ShuttleStack:
                 self._guarded("decision", now, self._decide, now)
             with p.measure("planning"):
                 self._guarded("planning", now, self._plan, now)
-            if self._decision is not None and self._decision.state != self._last_state:
-                screen, text, sound = HMI_TEXT[self._decision.state]
-                hmi.append(HmiMessage(stamp=now, screen=screen, text=text, sound=sound))
-                self._last_state = self._decision.state
         if self._tick % c.control_period_ticks == 0:
             with p.measure("control"):
                 self._guarded("control", now, self._control, now)
@@ -220,6 +212,7 @@ class ShuttleStack:
             directive = self._supervise(now, planning_cycle)
         if planning_cycle:
             status = self._status(now)
+            hmi.extend(self.hmi.step(now, self._decision, directive.takeover_request))
         self._tick += 1
         command = apply_safety_gate(self._command, directive, self._speed_mps)
         return StackOutput(
@@ -294,6 +287,8 @@ class ShuttleStack:
             self._person_in_doorway = frame.person_in_doorway
         elif isinstance(frame, StopCallFrame):
             self.mission.on_call(frame)
+        elif isinstance(frame, CrossingPresenceFrame):
+            self.v2i.on_frame(frame)
 
     def _decide(self, now: Stamp) -> None:
         est = self.ekf.estimate(now)
@@ -317,6 +312,21 @@ class ShuttleStack:
                 safety=self._directive,
             )
         )
+        self._anticipate(now, f.s_m, est.speed_mps)
+
+    def _anticipate(self, now: Stamp, route_s_m: float, speed_mps: float) -> None:
+        """A crossing the infrastructure reports occupied: stop before it, unless a nearer stop binds."""
+        d = self._decision
+        if d is None or d.state != BehaviourState.NORMAL_DRIVING or not self.v2i.reports:
+            return
+        front_s = route_s_m + self.geometry.front_from_rear_axle_m
+        stop = self.v2i.stop_point(now, front_s, speed_mps)
+        if stop is not None and self.v2i.nearer(stop, d.stop_at_s_m, front_s):
+            self._decision = dataclasses.replace(
+                d,
+                stop_at_s_m=stop,
+                reason=f"{d.reason}; stop for crosswalk (infrastructure reports pedestrians)",
+            )
 
     def _plan(self, now: Stamp) -> None:
         if self._decision is None or self._route_s is None:

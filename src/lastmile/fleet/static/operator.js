@@ -1,6 +1,8 @@
 "use strict";
 (() => {
   const $ = (id) => document.getElementById(id);
+  // Vehicles' HMI texts arrive from the vehicles: shown as text, never as markup.
+  const esc = (t) => String(t).replace(/[&<>"']/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;", "'": "&#39;" })[c]);
   let map = null, snap = null, link = null;
   const err = (e) => { $("op-error").textContent = e ? String(e.message || e) : ""; };
 
@@ -18,7 +20,8 @@
       tr.dataset.vehicle = v.id;
       tr.innerHTML = `<td>${v.id}</td><td class="state">${v.service}</td><td>${v.connected ? "up" : "down"}</td>` +
         `<td>${v.speed_mps === null ? "—" : (v.speed_mps * 3.6).toFixed(1) + " km/h"}</td><td>${v.behaviour || "—"}</td>` +
-        `<td>${v.health || "—"}</td><td>${v.passengers}/${v.capacity}</td><td>${v.door || "—"}</td><td></td>`;
+        `<td>${v.health || "—"}</td><td>${v.passengers}/${v.capacity}</td><td>${v.door || "—"}</td>` +
+        `<td class="hmi" data-light="${v.hmi ? esc(v.hmi.light) : ""}"><span class="light"></span>${v.hmi ? `${esc(v.hmi.front)} · ${esc(v.hmi.rear)} (${esc(v.hmi.cue)})` : "—"}</td><td></td>`;
       const cell = tr.lastChild;
       for (const [label, cmd] of [["start", "start_service"], ["suspend", "suspend_service"], ["E-STOP", "emergency_stop"], ["release", "release_emergency_stop"]]) {
         const b = document.createElement("button");

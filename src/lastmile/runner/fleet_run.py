@@ -1,0 +1,696 @@
+"""``lastmile run --fleet N --serve``: N shuttles in one simulated world, each with its own stack and
+vehicle model, each linked to the real dispatch server over its own ``VehicleClient`` WebSocket, and
+riders from a Poisson demand model asking for rides over the real HTTP API.
+
+Time. The run is the clock: it advances simulated time as fast as the CPU allows and talks to the
+server only at sync points, every ``sync_period_s`` of simulated time. At a sync point it (1) reports
+the trips each shuttle finished since the last one (``done``, waiting for the server's ack), (2) sends
+each shuttle's status, (3) posts the riders whose request time has come, and (4) ends with a barrier
+on every link (a ping answered through the link's ordered queue), so every assignment and plan the
+server made in reply has reached the shuttle before simulated time moves on. What a shuttle knows is
+then a function of the seed, never of network or CPU timing, and the run never waits on wall-clock
+timers; the server's own timestamps (wall clock) are not used for any metric. Wait and ride times
+are measured by the run in simulated seconds. The server's timetable clock is off (``--timetable-lead
+0``): it would hand out runs by the server's time of day.
+
+The world. Each shuttle has its own :class:`~lastmile.sim.simulation.Simulation` (vehicle model,
+sensors, door, referee); the other shuttles are placed in it every tick as road users at their true
+poses, so shuttles see (radar), avoid and can collide with each other. Other road users would be
+drawn separately in each shuttle's world, so the fleet scenario has none (a limitation).
+
+Stops. The shuttle's stack is told the next stop of its plan as ``StopCallFrame(source="dispatch")``
+(as the vehicle's fleet link would pass them on); a shuttle without the server (``lastmile run``)
+keeps its stop buttons. When the simulator's referee logs a stop served (door closed again at a
+stop), the shuttle reports done the trips of its plan's next visit if that visit is at this stop,
+drop-offs first (a stop anywhere else is logged as ``fleet_unplanned_stop``).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import dataclasses
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import httpx
+import numpy as np
+from threadpoolctl import threadpool_limits
+
+from lastmile.core.errors import ConfigError
+from lastmile.core.geometry import PreparedPolygon
+from lastmile.core.object_class import ObjectClass
+from lastmile.core.rng import component_rng
+from lastmile.core.sensor_frames import CrossingPresenceFrame, SensorFrame, StopCallFrame
+from lastmile.core.stamp import Stamp
+from lastmile.core.vehicle_messages import BehaviourState, StackOutput, VehicleStatus
+from lastmile.evaluation.fleet_metrics import (
+    RideRecord,
+    VehicleRecord,
+    compute_fleet_metrics,
+    write_fleet_report,
+)
+from lastmile.fleet.vehicle_client import Assignment, VehicleClient
+from lastmile.hdmap.loader import load_campus_map
+from lastmile.hdmap.routing import campus_shuttle_loop, route_polyline
+from lastmile.recorder.run_log import STATE_NAMES, RunLog, RunLogWriter, RunMeta
+from lastmile.runner.closed_loop import (
+    LOG_EVERY_TICKS,
+    PERCEPTION_MODE,
+    TICK_US,
+    build_closed_loop,
+    evaluate_run,
+)
+from lastmile.runner.fleet_server import ServerProcess
+from lastmile.safety.hardware_watchdog import HardwareWatchdog
+from lastmile.sim.agents import Agent
+from lastmile.sim.infrastructure import CrossingCamera, CrossingCameraConfig
+from lastmile.sim.passengers import PassengerConfig
+from lastmile.sim.scenario import CrosswalkPedestrians, Scenario
+from lastmile.sim.sensors import RCS_DBSM
+from lastmile.sim.simulation import Simulation
+from lastmile.stack.shuttle_stack import ShuttleStack
+
+CAPACITY_SEATS = 6
+PROXY_ID_BASE = 9000  # road-user ids of the other shuttles in each shuttle's world
+PEDESTRIAN_PROXY_BASE = 9100  # and of the mirrored pedestrians
+
+ProgressCallback = Callable[[float, float], None]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class FleetConfig:
+    """A fleet run.
+
+    Attributes:
+        shuttles: how many shuttles, >= 1; spaced evenly round the loop at the start.
+        minutes: longest simulated duration.
+        seed: the root seed; each shuttle's simulator and the demand model get their own stream.
+        demand_per_pair_per_h: Poisson rate of ride requests per ordered stop pair (riders per hour).
+        demand_minutes: riders arrive during the first this-many simulated minutes (None: all run).
+        until_served: end early once the demand window is over and every request has been dropped off.
+        sync_period_s: simulated seconds between exchanges with the server.
+        cruise_speed_mps: the shuttles' cruise speed (None: the stack's default, 20 km/h).
+        max_seats: each request asks for 1..max_seats seats (uniform).
+        pedestrian_mean_gap_s: pedestrians cross at every crosswalk on the loop, this many seconds
+            apart on average, in the world all shuttles share (None: no pedestrians).
+        cameras: a crossing camera (NUS) at every crosswalk on the loop reports presence through the
+            server to the shuttles.
+        camera_rate_hz: the cameras' capture rate (NUS: 5 Hz, and 1 Hz).
+        camera_keepalive_s: a camera posts a report when presence changes, and at least this often.
+    """
+
+    shuttles: int = 2
+    minutes: float = 10.0
+    seed: int = 0
+    demand_per_pair_per_h: float = 2.0
+    demand_minutes: float | None = None
+    until_served: bool = False
+    sync_period_s: float = 1.0
+    cruise_speed_mps: float | None = None
+    max_seats: int = 2
+    pedestrian_mean_gap_s: float | None = 40.0
+    cameras: bool = True
+    camera_rate_hz: float = 5.0
+    camera_keepalive_s: float = 1.0
+
+    def __post_init__(self) -> None:
+        if self.shuttles < 1:
+            raise ConfigError(f"fleet: expected at least 1 shuttle, got {self.shuttles}")
+        if not self.minutes > 0:
+            raise ConfigError(f"fleet minutes: expected > 0, got {self.minutes}")
+        if self.demand_per_pair_per_h < 0:
+            raise ConfigError(f"fleet demand_per_pair_per_h: expected >= 0, got {self.demand_per_pair_per_h}")
+        if not self.sync_period_s > 0 or round(self.sync_period_s * 1e6) % TICK_US:
+            raise ConfigError(
+                f"fleet sync_period_s: expected a positive multiple of {TICK_US / 1e6} s, "
+                f"got {self.sync_period_s}"
+            )
+        if self.pedestrian_mean_gap_s is not None and not self.pedestrian_mean_gap_s > 0:
+            raise ConfigError(
+                f"fleet pedestrian_mean_gap_s: expected > 0 or None, got {self.pedestrian_mean_gap_s}"
+            )
+        if not self.camera_keepalive_s > 0:
+            raise ConfigError(f"fleet camera_keepalive_s: expected > 0, got {self.camera_keepalive_s}")
+        if not 1 <= self.max_seats <= CAPACITY_SEATS:
+            raise ConfigError(f"fleet max_seats: expected 1..{CAPACITY_SEATS}, got {self.max_seats}")
+
+
+@dataclass(frozen=True, slots=True)
+class Demand:
+    """One rider: when they ask, from where to where, how many seats."""
+
+    t_s: float
+    origin: str
+    destination: str
+    seats: int
+
+
+def poisson_demand(
+    stop_ids: list[str], rate_per_pair_per_h: float, window_s: float, max_seats: int, rng: np.random.Generator
+) -> list[Demand]:
+    """Riders for every ordered stop pair as independent Poisson processes over ``[0, window_s)``."""
+    out: list[Demand] = []
+    rate_s = rate_per_pair_per_h / 3600.0
+    for o in stop_ids:
+        for d in stop_ids:
+            if o == d or rate_s <= 0:
+                continue
+            n = int(rng.poisson(rate_s * window_s))
+            times = np.sort(rng.uniform(0.0, window_s, size=n))
+            seats = rng.integers(1, max_seats + 1, size=n)
+            out.extend(Demand(float(t), o, d, int(k)) for t, k in zip(times, seats, strict=True))
+    return sorted(out, key=lambda r: (r.t_s, r.origin, r.destination))
+
+
+@dataclass
+class _Rider:
+    ref: str
+    demand: Demand
+    requested_s: float
+    ride_id: str = ""
+    vehicle_id: str = ""
+    picked_up_s: float | None = None
+    dropped_off_s: float | None = None
+
+
+@dataclass
+class _Shuttle:
+    """One shuttle: its simulator, its stack, its log and its link to the server."""
+
+    vid: str
+    sim: Simulation
+    stack: ShuttleStack
+    writer: RunLogWriter
+    client: VehicleClient
+    proxies: dict[int, Agent] = field(default_factory=dict)
+    watchdog: HardwareWatchdog = field(default_factory=HardwareWatchdog)
+    stack_alive: bool = True
+    status: VehicleStatus | None = None
+    last_state: BehaviourState | None = None
+    judge_seen: int = 0
+    served_stops: list[tuple[float, str]] = field(default_factory=list)
+    calls: list[str] = field(default_factory=list)
+    onboard: int = 0
+    max_onboard: int = 0
+    distance_m: float = 0.0
+    occupied_s: float = 0.0
+    seat_s: float = 0.0
+    stack_wall_s: float = 0.0
+    hmi: dict[str, str] = field(default_factory=dict)
+    frames: list[SensorFrame] = field(default_factory=list)
+    presence_seen: dict[str, int] = field(default_factory=dict)
+    pedestrian_proxies: list[tuple[Agent, Agent]] = field(default_factory=list)
+    anticipating: bool = False
+
+
+def _shuttle_scenario(config: FleetConfig, k: int, seed: int, start_s_m: float) -> Scenario:
+    # No stop-button riders: in a fleet run every rider comes through the server. Pedestrians live in
+    # shuttle 0's world; the other shuttles' worlds mirror them (one set of pedestrians for all).
+    walkers: tuple[CrosswalkPedestrians, ...] = ()
+    if k == 0 and config.pedestrian_mean_gap_s is not None:
+        walkers = tuple(
+            CrosswalkPedestrians(crosswalk=i, mean_gap_s=config.pedestrian_mean_gap_s)
+            for i in _loop_crosswalks()
+        )
+    return Scenario(
+        name=f"fleet_shuttle_{k}",
+        minutes=config.minutes,
+        seed=seed,
+        start_route_s_m=start_s_m,
+        passengers=PassengerConfig(arrivals_per_stop_per_min=0.0),
+        cruise_speed_mps=config.cruise_speed_mps,
+        crosswalk_pedestrians=walkers,
+    )
+
+
+def _loop_crosswalks() -> list[int]:
+    """Indices of the map's crosswalks the shuttle loop crosses (their centre within a lane of it)."""
+    hdmap = load_campus_map()
+    loop = route_polyline(hdmap, campus_shuttle_loop(hdmap), closed=True)
+    out = []
+    for i, cw in enumerate(hdmap.crosswalks):
+        cx, cy = np.asarray(cw.polygon, dtype=float).mean(axis=0)
+        if abs(loop.project(float(cx), float(cy)).d_m) < 4.0:
+            out.append(i)
+    return out
+
+
+@dataclass
+class _Camera:
+    """A crossing camera node of the fleet world and what it last posted."""
+
+    node_id: str
+    crosswalk_id: int
+    polygon: PreparedPolygon
+    camera: CrossingCamera
+    token: str = ""
+    last_captured_s: float = -1.0
+    last_posted: tuple[float, bool] | None = None
+    posts: int = 0
+    delivered: int = 0
+
+
+def run_fleet(config: FleetConfig, out_dir: Path, progress: ProgressCallback | None = None) -> dict[str, Any]:
+    """Run the fleet against a fresh server in ``out_dir/server``; writes the run directory and returns
+    the fleet metrics (each shuttle's own metrics under ``shuttle-<k>/``)."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    server = ServerProcess(out_dir / "server", out_dir / "server" / "runs").start()
+    try:
+        with threadpool_limits(limits=1):
+            return asyncio.run(_run(config, out_dir, server, progress))
+    finally:
+        server.stop()
+
+
+async def _run(
+    config: FleetConfig, out_dir: Path, server: ServerProcess, progress: ProgressCallback | None
+) -> dict[str, Any]:
+    seeds = np.random.SeedSequence(config.seed).spawn(config.shuttles + 1)
+    shuttles: list[_Shuttle] = []
+    loop_length_m: float | None = None
+    for k in range(config.shuttles):
+        seed_k = int(seeds[k].generate_state(1)[0])
+        # Start positions: evenly round the loop (loop length from the first shuttle's simulator).
+        start = 0.0 if loop_length_m is None else k * loop_length_m / config.shuttles
+        scenario = _shuttle_scenario(config, k, seed_k, start)
+        hdmap, sim, stack = build_closed_loop(scenario)
+        loop_length_m = sim.service_route.length_m
+        meta = RunMeta(
+            seed=seed_k,
+            weather=scenario.weather,
+            perception_mode=PERCEPTION_MODE,
+            scenario_name=scenario.name,
+            map_name=hdmap.name,
+            tick_s=TICK_US / 1e6,
+            duration_s=config.minutes * 60.0,
+            config={"fleet": dataclasses.asdict(config), "shuttle": k, "start_route_s_m": start},
+        )
+        vid = f"sim-{k}"
+        client = VehicleClient(server.url, vid, server.tokens["vehicle"])
+        shuttles.append(_Shuttle(vid=vid, sim=sim, stack=stack, writer=RunLogWriter(meta), client=client))
+    stop_ids = [s.id for s in shuttles[0].sim.world.hdmap.stops]
+    window_s = (config.demand_minutes if config.demand_minutes is not None else config.minutes) * 60.0
+    demand = poisson_demand(
+        stop_ids,
+        config.demand_per_pair_per_h,
+        min(window_s, config.minutes * 60.0),
+        config.max_seats,
+        np.random.default_rng(seeds[-1]),
+    )
+    for s in shuttles:
+        for other in shuttles:
+            if other is not s:
+                s.proxies[id(other)] = _proxy(s, other, len(s.proxies))
+                s.sim.world.agents.append(s.proxies[id(other)])
+
+    # One set of pedestrians: they walk in shuttle 0's world and are mirrored into the others'.
+    owner = shuttles[0]
+    pedestrians = [a for a in owner.sim.world.agents if a.cls == ObjectClass.PEDESTRIAN]
+    for s in shuttles[1:]:
+        for j, a in enumerate(pedestrians):
+            proxy = Agent(
+                id=PEDESTRIAN_PROXY_BASE + j,
+                cls=ObjectClass.PEDESTRIAN,
+                x_m=a.x_m,
+                y_m=a.y_m,
+                yaw_rad=a.yaw_rad,
+                speed_mps=a.speed_mps,
+                length_m=a.length_m,
+                width_m=a.width_m,
+                rcs_dbsm=a.rcs_dbsm,
+                active=a.active,
+            )
+            s.pedestrian_proxies.append((a, proxy))
+            s.sim.world.agents.append(proxy)
+    cameras = [
+        _Camera(
+            node_id=f"crossing-cam-{rc.crosswalk.id}",
+            crosswalk_id=rc.crosswalk.id,
+            polygon=PreparedPolygon(rc.crosswalk.polygon),
+            camera=CrossingCamera(
+                CrossingCameraConfig(rate_hz=config.camera_rate_hz),
+                component_rng(config.seed, f"crossing_camera_{rc.crosswalk.id}"),
+            ),
+        )
+        for rc in (owner.stack.layers.crosswalks if config.cameras else ())
+    ]
+
+    rider_headers = {"Authorization": f"Bearer {server.tokens['rider']}"}
+    operator_headers = {"Authorization": f"Bearer {server.tokens['operator']}"}
+    riders: list[_Rider] = []
+    by_request: dict[str, _Rider] = {}
+    wall0, cpu0 = time.perf_counter(), time.process_time()
+    async with httpx.AsyncClient(base_url=server.url, timeout=30) as http:
+        for s in shuttles:
+            await s.client.register(capacity=CAPACITY_SEATS)
+            res = await http.post(
+                f"/api/vehicles/{s.vid}/command", json={"command": "start_service"}, headers=operator_headers
+            )
+            _expect(res, 200, f"start_service {s.vid}")
+            await s.client.start()
+        for cam in cameras:  # each node its own token, as an operator would issue them
+            res = await http.post(
+                "/api/tokens",
+                json={"role": "infrastructure", "subject": cam.node_id},
+                headers=operator_headers,
+            )
+            _expect(res, 201, f"token for {cam.node_id}")
+            cam.token = str(res.json()["token"])
+        ticks = round(config.minutes * 60.0 * 1e6 / TICK_US)
+        sync_ticks = round(config.sync_period_s * 1e6 / TICK_US)
+        dt = TICK_US / 1e6
+        next_rider = 0
+        end_tick = ticks
+        for tick in range(ticks):
+            now = Stamp(tick * TICK_US)
+            t_s = tick * dt
+            for s in shuttles:
+                for other in shuttles:
+                    if other is not s:
+                        _place(s.proxies[id(other)], other.sim)
+                for a, proxy in s.pedestrian_proxies:
+                    proxy.x_m, proxy.y_m, proxy.yaw_rad = a.x_m, a.y_m, a.yaw_rad
+                    proxy.speed_mps, proxy.active = a.speed_mps, a.active
+            for s in shuttles:
+                _step(s, tick, now, t_s)
+                s.distance_m += s.sim.world.ego.state.speed_mps * dt
+                if s.onboard > 0:
+                    s.occupied_s += dt
+                    s.seat_s += s.onboard * dt
+            if cameras and await _cameras(cameras, pedestrians, t_s, config, http):
+                # A report went out: let it reach every shuttle before simulated time moves on.
+                for s in shuttles:
+                    await s.client.sync()
+                    _take_presence(s, now)
+            if tick % sync_ticks == 0:
+                for s in shuttles:
+                    await _report_done(s, by_request)
+                    st = s.status
+                    if st is not None and st.map_from_base is not None:
+                        pose = st.map_from_base
+                        await s.client.send_status(
+                            x_m=pose.x_m,
+                            y_m=pose.y_m,
+                            yaw_rad=pose.yaw_rad,
+                            speed_mps=st.speed_mps,
+                            behaviour=st.state.value,
+                            health="ok" if st.healthy else "degraded",
+                            passengers=s.onboard,
+                            door="open" if st.door_open else "closed",
+                            hmi=dict(s.hmi) if s.hmi else None,
+                        )
+                while next_rider < len(demand) and demand[next_rider].t_s <= t_s:
+                    d = demand[next_rider]
+                    rider = _Rider(ref=f"rider-{config.seed}-{next_rider}", demand=d, requested_s=t_s)
+                    body = {
+                        "origin": d.origin,
+                        "destination": d.destination,
+                        "seats": d.seats,
+                        "client_ref": rider.ref,
+                    }
+                    res = await http.post("/api/rides", json=body, headers=rider_headers)
+                    _expect(res, 201, f"ride {rider.ref}")
+                    rider.ride_id = str(res.json()["id"])
+                    by_request[rider.ride_id] = rider
+                    riders.append(rider)
+                    next_rider += 1
+                for s in shuttles:
+                    await s.client.sync()
+                for s in shuttles:
+                    # Only the next visit: the stack's mission is a set of stops, and a later visit's
+                    # stop may lie on a later lap (the server keeps seats within capacity that way).
+                    s.calls = [s.client.plan[0][0]] if s.client.plan else []
+                if (
+                    config.until_served
+                    and next_rider == len(demand)
+                    and t_s >= window_s
+                    and all(r.dropped_off_s is not None for r in riders)
+                ):
+                    end_tick = tick + 1
+                    break
+            if progress is not None and tick % 100 == 0:
+                progress(t_s, config.minutes * 60.0)
+        for s in shuttles:
+            await s.client.stop()
+    wall, cpu = time.perf_counter() - wall0, time.process_time() - cpu0
+    duration_s = end_tick * TICK_US / 1e6
+    records = [
+        RideRecord(
+            ref=r.ref,
+            origin=r.demand.origin,
+            destination=r.demand.destination,
+            seats=r.demand.seats,
+            requested_s=r.requested_s,
+            picked_up_s=r.picked_up_s,
+            dropped_off_s=r.dropped_off_s,
+            vehicle_id=r.vehicle_id,
+        )
+        for r in riders
+    ]
+    vehicles = [
+        VehicleRecord(
+            vehicle_id=s.vid,
+            distance_m=s.distance_m,
+            duration_s=duration_s,
+            occupied_s=s.occupied_s,
+            seat_s=s.seat_s,
+        )
+        for s in shuttles
+    ]
+    metrics = compute_fleet_metrics(records, vehicles, CAPACITY_SEATS)
+    metrics["duration_s"] = duration_s
+    for k, s in enumerate(shuttles):
+        s.writer.set_timing(
+            {
+                "wall_s": wall,
+                "realtime_factor": duration_s / wall if wall > 0 else None,
+                "cpu_s": cpu,
+                "stack_wall_s": s.stack_wall_s,
+                "modules": s.stack.profiler.summary(),
+            }
+        )
+        log: RunLog = s.writer.finish()
+        shuttle_metrics = evaluate_run(log, out_dir / f"shuttle-{k}")
+        metrics["per_vehicle"][s.vid]["collisions"] = shuttle_metrics.get("collisions_total")
+        metrics["per_vehicle"][s.vid]["stops_served"] = shuttle_metrics.get("stops_served")
+        metrics["per_vehicle"][s.vid]["max_seats_on_board"] = s.max_onboard
+        metrics["per_vehicle"][s.vid]["rule_violations"] = shuttle_metrics.get("rule_violations")
+        metrics["per_vehicle"][s.vid]["v2i_anticipations"] = sum(
+            1 for e in log.events if e.kind == "v2i_anticipation" and e.data.get("active")
+        )
+    metrics["infrastructure"] = {
+        "cameras": len(cameras),
+        "reports_posted": sum(c.posts for c in cameras),
+        "reports_delivered": sum(c.delivered for c in cameras),
+        "reports_received_by_stacks": {s.vid: s.stack.v2i.received for s in shuttles},
+    }
+    timing = {"wall_s": wall, "cpu_s": cpu, "realtime_factor": duration_s / wall if wall > 0 else None}
+    metrics["timing"] = timing
+    write_fleet_report(metrics, records, out_dir)
+    if progress is not None:
+        progress(config.minutes * 60.0, config.minutes * 60.0)
+    return metrics
+
+
+def _expect(res: httpx.Response, code: int, what: str) -> None:
+    if res.status_code != code:
+        raise ConfigError(
+            f"dispatch server, {what}: expected HTTP {code}, got {res.status_code} {res.text[:200]}"
+        )
+
+
+def _proxy(host: _Shuttle, other: _Shuttle, k: int) -> Agent:
+    g = other.sim.world.geometry
+    agent = Agent(
+        id=PROXY_ID_BASE + k,
+        cls=ObjectClass.CAR,
+        x_m=0.0,
+        y_m=0.0,
+        yaw_rad=0.0,
+        speed_mps=0.0,
+        length_m=g.length_m,
+        width_m=g.width_m,
+        rcs_dbsm=RCS_DBSM[ObjectClass.CAR],
+    )
+    _place(agent, other.sim)
+    return agent
+
+
+def _place(agent: Agent, sim: Simulation) -> None:
+    """Put the other shuttle where it truly is (footprint centre, heading, speed)."""
+    agent.x_m, agent.y_m = sim.world.ego_centre()
+    agent.yaw_rad = sim.world.ego.state.yaw_rad
+    agent.speed_mps = sim.world.ego.state.speed_mps
+
+
+def _step(s: _Shuttle, tick: int, now: Stamp, t_s: float) -> None:
+    """One base tick of one shuttle, in DESIGN.md's phase order (as ``closed_loop`` does)."""
+    sim, w = s.sim, s.writer
+    sim.advance_world(tick)
+    frames: list[SensorFrame] = list(sim.sensor_frames(tick))
+    # The plan's stops, as the vehicle's fleet link hands them to the stack.
+    frames.extend(StopCallFrame(stamp=now, stop_id=stop, source="dispatch") for stop in s.calls)
+    s.calls = []
+    frames.extend(s.frames)  # infrastructure reports relayed by the server
+    s.frames = []
+    out: StackOutput | None = None
+    if s.stack_alive:
+        t0 = time.perf_counter()
+        try:
+            out = s.stack.tick(now, frames)
+        except Exception as exc:
+            s.stack_alive = False
+            w.add_event(t_s, "stack_crash", error=f"{type(exc).__name__}: {exc}")
+        s.stack_wall_s += time.perf_counter() - t0
+    command = out.command if out is not None else None
+    brake = s.watchdog.observe(int(now), command)
+    if brake is not None:
+        command = brake
+    sim.apply_command(command)
+    sim.referee(out.takeover_request if out is not None else False)
+    if out is not None and out.status is not None:
+        s.status = out.status
+    state = out.decision.state if out is not None and out.decision is not None else None
+    if out is not None and state is not None and state != s.last_state:
+        w.add_event(
+            t_s,
+            "state_change",
+            **{
+                "from": s.last_state.value if s.last_state else "",
+                "to": state.value,
+                "reason": out.decision.reason if out.decision else "",
+            },
+        )
+        s.last_state = state
+    anticipating = out is not None and out.decision is not None and "infrastructure" in out.decision.reason
+    if anticipating != s.anticipating:
+        w.add_event(t_s, "v2i_anticipation", active=anticipating)
+        s.anticipating = anticipating
+    for msg in out.hmi if out is not None else ():
+        w.add_event(
+            t_s, "hmi", screen=msg.screen, text=msg.text, sound=msg.sound, light=msg.light, cue=msg.cue
+        )
+        s.hmi[msg.screen] = msg.text
+        s.hmi["cue"], s.hmi["light"] = msg.cue, msg.light
+        if msg.screen == "front":  # the cue's sound comes with its front message
+            s.hmi["sound"] = msg.sound
+    if tick % LOG_EVERY_TICKS == 0:
+        st = sim.world.ego.state
+        code = STATE_NAMES.index(state.value) if state is not None else -1
+        w.add_ego_row(
+            t_s,
+            st.x_m,
+            st.y_m,
+            st.yaw_rad,
+            st.speed_mps,
+            st.accel_mps2,
+            st.steer_front_rad,
+            code,
+            sim.judge.route_s_m,
+        )
+    events = sim.judge.events
+    if len(events) > s.judge_seen:
+        fresh = events[s.judge_seen :]
+        w.add_events(fresh)
+        s.judge_seen = len(events)
+        for ev_t, kind, data in fresh:
+            if kind == "stop_served":
+                s.served_stops.append((ev_t, str(data["stop_id"])))
+
+
+async def _report_done(s: _Shuttle, by_request: dict[str, _Rider]) -> None:
+    """For each stop served since the last sync: the plan's next visit is done if it is at that stop
+    (drop-offs first). A later visit at the same stop stays for its lap: the server placed it there to
+    keep the seats on board within capacity."""
+    for ev_t, stop_id in s.served_stops:
+        if not s.client.plan or s.client.plan[0][0] != stop_id:
+            s.writer.add_event(ev_t, "fleet_unplanned_stop", stop_id=stop_id)
+            continue
+        visit = s.client.plan[0][1]
+        trips: list[Assignment] = [s.client.assignments[t] for t in visit if t in s.client.assignments]
+        for trip in sorted(trips, key=lambda a: (a.kind != "dropoff", a.id)):
+            await s.client.complete(trip.id)
+            rider = by_request.get(trip.request_id or "")
+            if trip.kind == "pickup":
+                s.onboard += trip.seats
+                s.max_onboard = max(s.max_onboard, s.onboard)
+                if rider is not None:
+                    rider.picked_up_s, rider.vehicle_id = ev_t, s.vid
+            elif trip.kind == "dropoff":
+                s.onboard -= trip.seats
+                if rider is not None:
+                    rider.dropped_off_s = ev_t
+            s.writer.add_event(
+                ev_t,
+                "fleet_trip_done",
+                trip_id=trip.id,
+                trip_kind=trip.kind,
+                stop_id=trip.stop_id,
+                request_id=trip.request_id or "",
+            )
+    s.served_stops.clear()
+
+
+async def _cameras(
+    cameras: list[_Camera], pedestrians: list[Agent], t_s: float, config: FleetConfig, http: httpx.AsyncClient
+) -> bool:
+    """Step every crossing camera; post a received capture when presence changed or the keepalive is
+    due. Returns whether anything was posted."""
+    posted = False
+    for cam in cameras:
+        # On the crossing, or stepping onto it within the next second.
+        truth = any(
+            a.active
+            and (
+                cam.polygon.contains(a.x_m, a.y_m) or cam.polygon.contains(a.x_m + a.vx_mps, a.y_m + a.vy_mps)
+            )
+            for a in pedestrians
+        )
+        cam.camera.step(t_s, truth)
+        msg = cam.camera.latest
+        if msg is None or msg.captured_s == cam.last_captured_s:
+            continue
+        cam.last_captured_s = msg.captured_s
+        last = cam.last_posted
+        if (
+            last is not None
+            and last[1] == msg.pedestrians_present
+            and msg.captured_s - last[0] < config.camera_keepalive_s
+        ):
+            continue
+        body = {
+            "node_id": cam.node_id,
+            "crosswalk": cam.crosswalk_id,
+            "present": msg.pedestrians_present,
+            "captured_us": round(msg.captured_s * 1e6),
+        }
+        res = await http.post(
+            "/api/infrastructure/presence", json=body, headers={"Authorization": f"Bearer {cam.token}"}
+        )
+        _expect(res, 200, f"presence from {cam.node_id}")
+        cam.delivered += int(res.json()["delivered_to"])
+        cam.posts += 1
+        cam.last_posted = (msg.captured_s, msg.pedestrians_present)
+        posted = True
+    return posted
+
+
+def _take_presence(s: _Shuttle, now: Stamp) -> None:
+    """Reports the shuttle's link received since the last look, as frames for its next stack tick."""
+    for node, msg in s.client.infrastructure.items():
+        captured_us = int(msg["captured_us"])
+        if captured_us <= s.presence_seen.get(node, -1):
+            continue
+        s.presence_seen[node] = captured_us
+        s.frames.append(
+            CrossingPresenceFrame(
+                stamp=Stamp(int(now) + TICK_US),
+                node_id=node,
+                crosswalk_id=int(msg["crosswalk"]),
+                pedestrians_present=bool(msg["present"]),
+                captured=Stamp(captured_us),
+            )
+        )
