@@ -187,24 +187,7 @@ def _run(scenario: Scenario, progress: ProgressCallback | None, black_box_dir: P
         elif action == EStopAction.RELEASE:
             stack.safety.operator_reset(int(now))
             writer.add_event(t_s, "operator_release", state=scenario.estop_in_state)
-        for msg in out.hmi if out is not None else ():
-            writer.add_event(
-                t_s, "hmi", screen=msg.screen, text=msg.text, sound=msg.sound, light=msg.light, cue=msg.cue
-            )
-        if tick % LOG_EVERY_TICKS == 0:
-            s = sim.world.ego.state
-            code = STATE_NAMES.index(state.value) if state is not None else -1
-            writer.add_ego_row(
-                t_s,
-                s.x_m,
-                s.y_m,
-                s.yaw_rad,
-                s.speed_mps,
-                s.accel_mps2,
-                s.steer_front_rad,
-                code,
-                sim.judge.route_s_m,
-            )
+        log_hmi_and_ego(writer, t_s, tick, out, sim, state)
         if len(sim.judge.events) > emitted:
             fresh = sim.judge.events[emitted:]
             writer.add_events(fresh)
@@ -237,6 +220,35 @@ def _run(scenario: Scenario, progress: ProgressCallback | None, black_box_dir: P
     if progress is not None:
         progress(duration_s, duration_s)
     return writer.finish()
+
+
+def log_hmi_and_ego(
+    writer: RunLogWriter,
+    t_s: float,
+    tick: int,
+    out: StackOutput | None,
+    sim: Simulation,
+    state: BehaviourState | None,
+) -> None:
+    """The tick's HMI messages as events, and every LOG_EVERY_TICKS the ego row (one shuttle's log)."""
+    for msg in out.hmi if out is not None else ():
+        writer.add_event(
+            t_s, "hmi", screen=msg.screen, text=msg.text, sound=msg.sound, light=msg.light, cue=msg.cue
+        )
+    if tick % LOG_EVERY_TICKS == 0:
+        s = sim.world.ego.state
+        code = STATE_NAMES.index(state.value) if state is not None else -1
+        writer.add_ego_row(
+            t_s,
+            s.x_m,
+            s.y_m,
+            s.yaw_rad,
+            s.speed_mps,
+            s.accel_mps2,
+            s.steer_front_rad,
+            code,
+            sim.judge.route_s_m,
+        )
 
 
 def _trigger(box: BlackBox | None, kind: str, now: Stamp, reason: str) -> None:

@@ -55,13 +55,13 @@ from lastmile.evaluation.fleet_metrics import (
 from lastmile.fleet.vehicle_client import Assignment, VehicleClient
 from lastmile.hdmap.loader import load_campus_map
 from lastmile.hdmap.routing import campus_shuttle_loop, route_polyline
-from lastmile.recorder.run_log import STATE_NAMES, RunLog, RunLogWriter, RunMeta
+from lastmile.recorder.run_log import RunLog, RunLogWriter, RunMeta
 from lastmile.runner.closed_loop import (
-    LOG_EVERY_TICKS,
     PERCEPTION_MODE,
     TICK_US,
     build_closed_loop,
     evaluate_run,
+    log_hmi_and_ego,
 )
 from lastmile.runner.fleet_server import ServerProcess
 from lastmile.safety.hardware_watchdog import HardwareWatchdog
@@ -570,27 +570,11 @@ def _step(s: _Shuttle, tick: int, now: Stamp, t_s: float) -> None:
         w.add_event(t_s, "v2i_anticipation", active=anticipating)
         s.anticipating = anticipating
     for msg in out.hmi if out is not None else ():
-        w.add_event(
-            t_s, "hmi", screen=msg.screen, text=msg.text, sound=msg.sound, light=msg.light, cue=msg.cue
-        )
         s.hmi[msg.screen] = msg.text
         s.hmi["cue"], s.hmi["light"] = msg.cue, msg.light
         if msg.screen == "front":  # the cue's sound comes with its front message
             s.hmi["sound"] = msg.sound
-    if tick % LOG_EVERY_TICKS == 0:
-        st = sim.world.ego.state
-        code = STATE_NAMES.index(state.value) if state is not None else -1
-        w.add_ego_row(
-            t_s,
-            st.x_m,
-            st.y_m,
-            st.yaw_rad,
-            st.speed_mps,
-            st.accel_mps2,
-            st.steer_front_rad,
-            code,
-            sim.judge.route_s_m,
-        )
+    log_hmi_and_ego(w, t_s, tick, out, sim, state)
     events = sim.judge.events
     if len(events) > s.judge_seen:
         fresh = events[s.judge_seen :]

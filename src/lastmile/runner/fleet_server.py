@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import json
+import signal
 import socket
 import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Self
 
 import httpx
 
@@ -24,12 +26,14 @@ def free_port() -> int:
 
 
 class ServerProcess:
-    """``lastmile serve`` with its SQLite database and tokens in ``out_dir``; the timetable clock is off
-    (the run's shuttles get only the rides its riders ask for)."""
+    """``lastmile serve`` with its database (SQLite in ``out_dir`` unless ``db_url``) and tokens in
+    ``out_dir``; the timetable clock is off (the run's shuttles get only the rides its riders ask for).
+    The fleet tests run the server through this class too."""
 
-    def __init__(self, out_dir: Path, runs_dir: Path) -> None:
+    def __init__(self, out_dir: Path, runs_dir: Path, db_url: str | None = None) -> None:
         self.out_dir = out_dir
         self.runs_dir = runs_dir
+        self.db_url = db_url
         self.port = free_port()
         self.proc: subprocess.Popen[bytes] | None = None
         self.tokens: dict[str, str] = {}
@@ -38,12 +42,14 @@ class ServerProcess:
     def url(self) -> str:
         return f"http://127.0.0.1:{self.port}"
 
-    def start(self) -> ServerProcess:
+    def start(self) -> Self:
         self.out_dir.mkdir(parents=True, exist_ok=True)
         self.runs_dir.mkdir(parents=True, exist_ok=True)
         cmd = [sys.executable, "-c", "from lastmile.cli import main; main()", "serve"]
         cmd += ["--port", str(self.port), "--out", str(self.out_dir), "--runs", str(self.runs_dir)]
         cmd += ["--timetable-lead", "0"]
+        if self.db_url is not None:
+            cmd += ["--db", self.db_url]
         with open(self.out_dir / "server.log", "ab") as log:
             self.proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT)
         deadline = time.monotonic() + START_TIMEOUT_S
@@ -71,11 +77,16 @@ class ServerProcess:
         path = self.out_dir / "server.log"
         return path.read_text(errors="replace")[-1500:] if path.exists() else ""
 
+    def kill(self) -> None:
+        """SIGKILL: no shutdown handler runs, as in a crash or power cut of the process."""
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGKILL)
+            self.proc.wait(10)
+
     def stop(self) -> None:
         if self.proc is not None and self.proc.poll() is None:
             self.proc.terminate()
             try:
                 self.proc.wait(10)
             except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(10)
+                self.kill()
