@@ -111,12 +111,14 @@ def _scan_line_sure(
     """Points with at least ``k`` of their ``k`` azimuth neighbours on each side within radius."""
     # One float sort key (scan line, then azimuth in [0, 2 pi) < 10): far cheaper than lexsort.
     order = np.argsort(key.astype(np.float64) * 10.0 + (azimuth + np.pi))
-    ps, ks, rs = p[order], key[order], radius[order]
+    xs, ys, zs = p[order, 0], p[order, 1], p[order, 2]
+    ks, rs = key[order], radius[order]
     count = np.zeros(len(p), dtype=np.int64)
     for off in range(1, k + 1):
         same = ks[off:] == ks[:-off]
-        d = ps[off:] - ps[:-off]
-        near = same & ((d * d).sum(axis=1) <= np.minimum(rs[off:], rs[:-off]) ** 2)
+        # Column by column: the same sum in the same order as (d * d).sum(axis=1), much cheaper.
+        dx, dy, dz = xs[off:] - xs[:-off], ys[off:] - ys[:-off], zs[off:] - zs[:-off]
+        near = same & (dx * dx + dy * dy + dz * dz <= np.minimum(rs[off:], rs[:-off]) ** 2)
         count[off:] += near  # neighbour behind
         count[:-off] += near  # neighbour ahead
     sure = np.zeros(len(p), dtype=bool)
