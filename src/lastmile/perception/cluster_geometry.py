@@ -286,11 +286,19 @@ def _support(xy: np.ndarray, row: np.ndarray, starts: np.ndarray, D: int) -> np.
     ``xy`` is sorted by cluster row; ``starts`` are the first index of each (non-empty) cluster.
     """
     ang = np.arange(D) * (2 * math.pi / D)
-    # Broadcast products: NumPy's matmul is slow for an inner dimension of 2.
-    proj = xy[:, 0:1] * np.cos(ang) + xy[:, 1:2] * np.sin(ang)  # (N, D)
-    best = np.maximum.reduceat(proj, starts, axis=0)
-    idx_or_n = np.where(proj >= best[row], np.arange(len(xy))[:, None], len(xy))
-    return np.minimum.reduceat(idx_or_n, starts, axis=0)
+    cos, sin = np.cos(ang), np.sin(ang)
+    # One direction at a time on contiguous columns: 1-D products and segment reductions are far
+    # cheaper than (N, D) blocks reduced along axis 0 (NumPy's matmul is slow for an inner
+    # dimension of 2), and the arithmetic per element is the same.
+    x, y = np.ascontiguousarray(xy[:, 0]), np.ascontiguousarray(xy[:, 1])
+    counts = np.diff(np.append(starts, len(xy)))
+    index = np.arange(len(xy))
+    out = np.empty((len(starts), D), dtype=np.int64)
+    for j in range(D):
+        proj = x * cos[j] + y * sin[j]
+        best = np.repeat(np.maximum.reduceat(proj, starts), counts)
+        out[:, j] = np.minimum.reduceat(np.where(proj >= best, index, len(xy)), starts)
+    return out
 
 
 def _empty(D: int) -> ClusterSet:
