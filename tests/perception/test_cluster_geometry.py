@@ -77,3 +77,28 @@ def test_reflective_barrel_gets_high_confidence_and_a_dull_one_low():
     for inten, conf in ((220.0, 0.9), (40.0, 0.4)):
         cs = describe_clusters(barrel, np.full(200, inten), np.zeros(200, np.int64))
         assert cs.table[0, 10] == ClusterKind.BARREL and cs.table[0, 11] == conf
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n_clusters=st.integers(1, 12))
+def test_every_hull_vertex_is_its_clusters_farthest_point_in_its_direction(
+    seed: int, n_clusters: int
+) -> None:
+    # Many clusters in one call: the vectorised support search must not mix clusters up.
+    rng = np.random.default_rng(seed)
+    sizes = rng.integers(8, 200, n_clusters)
+    centres = rng.uniform(-20, 20, (n_clusters, 2))
+    labels = np.repeat(np.arange(n_clusters), sizes)
+    rng.shuffle(labels)
+    xy = centres[labels] + rng.normal(size=(len(labels), 2)) * rng.uniform(0.1, 2.0, (n_clusters, 2))[labels]
+    xyz = np.c_[xy, rng.uniform(0.0, 1.5, len(labels))]
+    cfg = ClusterGeometryConfig(min_points_at_1m=0.0, min_points_floor=1, min_points_cap=1)
+    cs = describe_clusters(xyz, np.zeros(len(labels)), labels, cfg)
+    assert cs.labels.tolist() == list(range(n_clusters))
+    ang = np.arange(cfg.hull_directions) * (2 * math.pi / cfg.hull_directions)
+    for i in range(n_clusters):
+        pts = xy[labels == i]
+        best = (pts[:, 0:1] * np.cos(ang) + pts[:, 1:2] * np.sin(ang)).max(axis=0)
+        got = cs.hull_xy[i, :, 0] * np.cos(ang) + cs.hull_xy[i, :, 1] * np.sin(ang)
+        np.testing.assert_array_equal(got, best)
+        assert set(map(tuple, cs.hull(i))) <= set(map(tuple, pts[ConvexHull(pts).vertices]))

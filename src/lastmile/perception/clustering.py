@@ -76,10 +76,14 @@ def euclidean_cluster_labels(xyz_m: npt.ArrayLike, eps_m: float) -> IntArray:
     eps2 = eps_m * eps_m
     # A hair under eps/sqrt(3): the cell diagonal stays strictly below eps despite rounding.
     side = eps_m / math.sqrt(3.0) * (1.0 - 1e-6)
-    lo = pts.min(axis=0)
-    cell = np.floor((pts - lo) / side).astype(np.int64) + 2  # +2: neighbour offsets never go negative
-    dims = cell.max(axis=0) + 3
-    key = (cell[:, 0] * dims[1] + cell[:, 1]) * dims[2] + cell[:, 2]
+    # Contiguous columns: 1-D operations on them are much cheaper than on (N, 3) blocks and do
+    # the same arithmetic.
+    cols = [np.ascontiguousarray(pts[:, i]) for i in range(3)]
+    lo = [float(c.min()) for c in cols]
+    # +2: neighbour offsets never go negative
+    cell = [np.floor((c - c_lo) / side).astype(np.int64) + 2 for c, c_lo in zip(cols, lo, strict=True)]
+    dims = [int(c.max()) + 3 for c in cell]
+    key = (cell[0] * dims[1] + cell[1]) * dims[2] + cell[2]
     order = np.argsort(key)  # order inside a cell is irrelevant: labels are renumbered at the end
     skey = key[order]
     is_first = np.empty(n, dtype=bool)
@@ -93,12 +97,14 @@ def euclidean_cluster_labels(xyz_m: npt.ArrayLike, eps_m: float) -> IntArray:
     spts = pts[order]
 
     # Representative of each cell: its point nearest the cell centre (most likely to reach neighbours).
-    centre = (cell[order] - 2 + 0.5) * side + lo
-    d_centre = ((spts - centre) ** 2).sum(axis=1)
+    d_centre = np.zeros(n)
+    for c, ci, c_lo in zip(cols, cell, lo, strict=True):
+        d_centre += (c[order] - ((ci[order] - 2 + 0.5) * side + c_lo)) ** 2
     # Points are already grouped by cell: two segment reductions find each cell's nearest point.
     nearest = np.minimum.reduceat(d_centre, start)
     first_at_min = np.where(d_centre == nearest[cell_of_sorted], np.arange(n), n)
-    rep = spts[np.minimum.reduceat(first_at_min, start)]
+    rep_idx = order[np.minimum.reduceat(first_at_min, start)]
+    rep = [c[rep_idx] for c in cols]
 
     pa, pb, adjacent = _neighbour_cell_pairs(ukeys, int(dims[2]), int(dims[1]))
 
@@ -106,8 +112,8 @@ def euclidean_cluster_labels(xyz_m: npt.ArrayLike, eps_m: float) -> IntArray:
     # certainly connected. Cells two apart have centres >= 1.15 eps apart: their representatives
     # almost never link, so they go straight to pass 2 when still in different components.
     ra, rb = pa[adjacent], pb[adjacent]
-    d = rep[ra] - rep[rb]
-    near = (d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2]) <= eps2
+    d0, d1, d2 = (c[ra] - c[rb] for c in rep)
+    near = (d0 * d0 + d1 * d1 + d2 * d2) <= eps2
     la, lb = ra[near], rb[near]
     comp = _components(n_cells, la, lb)
 

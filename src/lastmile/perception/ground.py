@@ -133,7 +133,8 @@ class AdaptiveGridGroundSegmenter:
         ground = np.zeros(n, dtype=bool)
         if n == 0:
             return ground
-        x, y, z = p[:, 0], p[:, 1], p[:, 2]
+        # Contiguous columns: every later step is a 1-D operation on them.
+        x, y, z = (np.ascontiguousarray(p[:, i]) for i in range(3))
         r = np.hypot(x, y)
         az = np.arctan2(y, x)
         road = np.ones(n, dtype=bool) if road_mask is None else np.asarray(road_mask(p[:, :2]), dtype=bool)
@@ -161,8 +162,8 @@ class AdaptiveGridGroundSegmenter:
             px, py, pz = x[idx], y[idx], z[idx]
             window = tol[idx]
             for it in range(cfg.iterations + 1):
-                pl = planes[region]
-                res = pz - (pl[:, 0] + pl[:, 1] * px + pl[:, 2] * py)
+                # Column gathers: cheaper than gathering (n, 3) rows; the same arithmetic.
+                res = pz - (planes[:, 0][region] + planes[:, 1][region] * px + planes[:, 2][region] * py)
                 if it == cfg.iterations:
                     break
                 if it == 0:
