@@ -50,7 +50,7 @@ MODULES = ("localization", "tracking", "decision", "planning", "control")
 
 def run(seed: int, seconds: float) -> dict[str, object]:
     scenario = dataclasses.replace(default_service(seed=seed), minutes=seconds / 60.0)
-    hdmap, sim, stack = build_closed_loop(scenario)
+    hdmap, sim, stack = build_closed_loop(scenario, "radar_tracking")
     sup = SafetySupervisor(
         HealthMonitor([ModuleSpec(name=m, period_us=100_000) for m in MODULES]),
         ReliabilityMonitor(ReliabilityConfig(sensors=SENSORS), hdmap=hdmap, route=stack.route),

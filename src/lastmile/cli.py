@@ -16,6 +16,10 @@ app = typer.Typer(
 )
 
 
+PERCEPTION_OPTIONS = {"lidar": "lidar_camera_radar", "radar": "radar_tracking"}
+"""``--perception`` values and the stack's perception modes they select."""
+
+
 @app.command()
 def version() -> None:
     """Print the installed version."""
@@ -42,6 +46,13 @@ def run(
     demand: Annotated[
         float, typer.Option(help="--fleet: ride requests per hour per ordered stop pair (Poisson).")
     ] = 2.0,
+    perception: Annotated[
+        str,
+        typer.Option(
+            help="lidar: raw LiDAR sweeps + camera boxes + radar through the stack's perception; "
+            "radar: the radars' object lists only (faster)."
+        ),
+    ] = "lidar",
 ) -> None:
     """Simulate the shuttle service in closed loop and write a run directory with report.md."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
@@ -51,6 +62,10 @@ def run(
         return
 
     try:
+        if perception not in PERCEPTION_OPTIONS:
+            raise ConfigError(
+                f"--perception: expected one of {sorted(PERCEPTION_OPTIONS)}, got {perception!r}"
+            )
         from lastmile.runner.closed_loop import evaluate_run, run_scenario
         from lastmile.sim.scenario import default_service, load_scenario
         from lastmile.sim.weather import parse_weather
@@ -72,7 +87,11 @@ def run(
             TimeElapsedColumn(),
         ) as bar:
             task = bar.add_task(f"{spec.name} seed {spec.seed} {spec.weather}", total=spec.minutes * 60.0)
-            log = run_scenario(spec, progress=lambda done, total: bar.update(task, completed=done))
+            log = run_scenario(
+                spec,
+                progress=lambda done, total: bar.update(task, completed=done),
+                perception_mode=PERCEPTION_OPTIONS[perception],
+            )
         metrics = evaluate_run(log, out)
     except LastmileError as exc:
         typer.echo(f"lastmile run: {exc}", err=True)
@@ -148,6 +167,9 @@ def sweep(
         str | None, typer.Option(help="Ray cluster address (default: start Ray on this machine).")
     ] = None,
     out: Annotated[Path, typer.Option(help="Output folder.")] = Path("runs/sweep"),
+    perception: Annotated[
+        str, typer.Option(help="radar (object lists, faster) or lidar (raw LiDAR + camera + radar).")
+    ] = "radar",
 ) -> None:
     """Run many scenarios; writes summary.json, report.md and every scenario file under OUT."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
@@ -159,6 +181,10 @@ def sweep(
         from lastmile.sim.scenario_generator import ScenarioSpace, sample_scenarios
         from lastmile.sim.suites import SUITES
 
+        if perception not in PERCEPTION_OPTIONS:
+            raise ConfigError(
+                f"--perception: expected one of {sorted(PERCEPTION_OPTIONS)}, got {perception!r}"
+            )
         chosen = [x for x in (suite, generate, scenarios) if x is not None]
         if len(chosen) != 1:
             raise ConfigError(
@@ -190,6 +216,7 @@ def sweep(
                 workers=workers,
                 ray_address=ray_address,
                 progress=lambda done, total: bar.update(task, completed=done),
+                perception_mode=PERCEPTION_OPTIONS[perception],
             )
         report = write_sweep_report(summary, out, title)
     except LastmileError as exc:

@@ -23,7 +23,7 @@ class Step:
 
 
 def steps(scenario: Scenario, until: Callable[[Step], bool] | None = None) -> Iterator[Step]:
-    _, sim, stack = build_closed_loop(scenario)
+    _, sim, stack = build_closed_loop(scenario, "radar_tracking")
     for tick in range(round(scenario.minutes * 60e6 / TICK_US)):
         sim.advance_world(tick)
         out = stack.tick(Stamp(tick * TICK_US), sim.sensor_frames(tick))

@@ -19,7 +19,7 @@ pytestmark = pytest.mark.closed_loop
 
 def test_recorded_frames_replayed_through_a_fresh_stack_give_the_recorded_commands(tmp_path: Path) -> None:
     scenario = dataclasses.replace(default_service(seed=3), minutes=12.0 / 60.0)
-    _, sim, stack = build_closed_loop(scenario)
+    _, sim, stack = build_closed_loop(scenario, "radar_tracking")
     bb = BlackBox(BlackBoxConfig(out_dir=tmp_path))
     for tick in range(round(12e6 / TICK_US)):  # shorter than the window: the recording starts at t = 0
         now = Stamp(tick * TICK_US)
@@ -37,7 +37,7 @@ def test_recorded_frames_replayed_through_a_fresh_stack_give_the_recorded_comman
     assert rec.span_us[0] == 0 and len(recorded) == round(12e6 / TICK_US)
     assert max(abs(c.accel_mps2) for c in recorded) > 0.1  # the shuttle did something worth replaying
 
-    _, _, fresh = build_closed_loop(scenario)
+    _, _, fresh = build_closed_loop(scenario, "radar_tracking")
     replayed = []
     for now, frames in rec.ticks(TICK_US):
         out = fresh.tick(now, frames)

@@ -9,7 +9,7 @@ from lastmile.cli import app
 from lastmile.core.vehicle_messages import BehaviourState
 from lastmile.evaluation.metrics import compute_metrics
 from lastmile.runner.closed_loop import run_scenario
-from lastmile.runner.sweep import CHECKS, generic_cases, run_sweep
+from lastmile.runner.sweep import CHECKS, SWEEP_PERCEPTION_MODE, generic_cases, run_sweep
 from lastmile.safety.supervisor import SafetySupervisor
 from lastmile.sim.faults import FAULT_MENU
 from lastmile.sim.scenario import load_scenario
@@ -64,7 +64,7 @@ def test_a_crashing_stack_is_recorded_and_the_vehicle_brakes_to_a_stop(monkeypat
 
     monkeypatch.setattr(ShuttleStack, "tick", tick)
     scenario = dataclasses.replace(sample_scenarios(SHORT, 1, seed=2)[0], minutes=0.6, faults=())
-    log = run_scenario(scenario)
+    log = run_scenario(scenario, perception_mode=SWEEP_PERCEPTION_MODE)
     crashes = log.events_of("stack_crash")
     assert len(crashes) == 1 and crashes[0].t_s == 20.0 and "segfault" in crashes[0].data["error"]
     t, v = log.column("t_s"), log.column("speed_mps")
@@ -110,7 +110,7 @@ def _estop_case(state: str, minutes: float):
 
 def test_operator_estop_while_cruising_stops_the_shuttle_and_holds_it_until_release():
     _case, scenario = _estop_case("normal_driving", 1.0)
-    log = run_scenario(scenario)
+    log = run_scenario(scenario, perception_mode=SWEEP_PERCEPTION_MODE)
     result = CHECKS["estop_honoured"](log, compute_metrics(log))
     assert result.ok, result.detail
     press = log.events_of("operator_estop")[0]
@@ -124,7 +124,7 @@ def test_operator_estop_while_cruising_stops_the_shuttle_and_holds_it_until_rele
 def test_estop_check_fails_when_the_stack_ignores_the_button(monkeypatch):
     monkeypatch.setattr(SafetySupervisor, "operator_emergency_stop", lambda self, now_us, reason: None)
     _, scenario = _estop_case("normal_driving", 0.8)
-    log = run_scenario(scenario)
+    log = run_scenario(scenario, perception_mode=SWEEP_PERCEPTION_MODE)
     result = CHECKS["estop_honoured"](log, compute_metrics(log))
     assert not result.ok and "EMERGENCY_STOP" in result.detail
 
@@ -132,7 +132,9 @@ def test_estop_check_fails_when_the_stack_ignores_the_button(monkeypatch):
 def test_estop_check_fails_when_the_state_is_never_reached():
     # The encounter scenarios carry no riders: the shuttle never onboards.
     base = next(c for c in iso22737_suite() if c.group == "hazard, clear view").scenario
-    log = run_scenario(dataclasses.replace(base, minutes=0.3, estop_in_state="onboarding"))
+    log = run_scenario(
+        dataclasses.replace(base, minutes=0.3, estop_in_state="onboarding"), perception_mode=SWEEP_PERCEPTION_MODE
+    )
     result = CHECKS["estop_honoured"](log, compute_metrics(log))
     assert not result.ok and "never reached state 'onboarding'" in result.detail
 

@@ -37,7 +37,7 @@ def _drive(
     seconds: float, out_dir: Path, radar_dies_at_s: float | None = None
 ) -> tuple[list[SafetyDirective], list[float], BlackBox]:
     scenario = dataclasses.replace(default_service(seed=0), minutes=seconds / 60.0)
-    hdmap, sim, stack = build_closed_loop(scenario)
+    hdmap, sim, stack = build_closed_loop(scenario, "radar_tracking")
     sup = SafetySupervisor(
         HealthMonitor([ModuleSpec(name=m, period_us=100_000) for m in MODULES]),
         ReliabilityMonitor(ReliabilityConfig(sensors=SENSORS), hdmap=hdmap, route=stack.route),

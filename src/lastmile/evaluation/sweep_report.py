@@ -27,6 +27,8 @@ def write_sweep_report(summary: dict[str, Any], out_dir: Path, title: str) -> Pa
         f"{summary['scenarios']} scenarios: **{summary['passed']} passed, {summary['failed']} failed**; "
         f"{summary['collisions_total']} collisions, of which {summary['collisions_at_fault']} at fault.",
         "",
+        f"Perception mode: {', '.join(summary.get('perception_modes', [])) or 'unknown'}.",
+        "",
         "![outcomes per group](outcomes.png)",
         "",
         "## By group",

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from lastmile.core.camera_model import PinholeCamera as CameraModel
 from lastmile.core.errors import MessageError
 
 FloatArray = npt.NDArray[np.float64]
@@ -59,6 +60,21 @@ class PinholeCamera:
         T.setflags(write=False)
         object.__setattr__(self, "K", K)
         object.__setattr__(self, "camera_from_base", T)
+
+    @staticmethod
+    def from_model(camera: CameraModel) -> PinholeCamera:
+        """The same calibration as a :class:`lastmile.core.camera_model.PinholeCamera` (the sensor's)."""
+        R, t = camera.camera_from_base()
+        T = np.eye(4)
+        T[:3, :3] = R
+        T[:3, 3] = t
+        return PinholeCamera(
+            camera_id=camera.camera_id,
+            K=camera.K,
+            camera_from_base=T,
+            width_px=camera.width_px,
+            height_px=camera.height_px,
+        )
 
     @staticmethod
     def looking_forward(

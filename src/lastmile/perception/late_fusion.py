@@ -82,6 +82,24 @@ def _box_distance(px: np.ndarray, py: np.ndarray, t: np.ndarray) -> np.ndarray:
     return np.hypot(ou, ov)
 
 
+@dataclass(frozen=True, slots=True, kw_only=True)
+class FusedObjects:
+    """:func:`fuse_objects` output: the detections and, per row, what confirmed them.
+
+    Attributes:
+        objects: the fused detections.
+        radar_matched: (N,) bool, the row took a radar object's velocity.
+        camera_matched: (N,) bool, the row took a camera box's class.
+        z_min_m, z_max_m: (N,) vertical extent in the base frame (radar-only rows: 0 .. 1.5 m).
+    """
+
+    objects: DetectedObjects
+    radar_matched: np.ndarray
+    camera_matched: np.ndarray
+    z_min_m: np.ndarray
+    z_max_m: np.ndarray
+
+
 def fuse(
     stamp: Stamp,
     clusters: ClusterSet,
@@ -97,6 +115,22 @@ def fuse(
     Raises:
         MessageError: a radar without a mounting or camera detections without their camera.
     """
+    return fuse_objects(
+        stamp, clusters, radar_frames, base_from_radar, cameras, camera_detections, map_from_base, config
+    ).objects
+
+
+def fuse_objects(
+    stamp: Stamp,
+    clusters: ClusterSet,
+    radar_frames: Sequence[RadarFrame] = (),
+    base_from_radar: Mapping[str, SE2] | None = None,
+    cameras: Sequence[PinholeCamera] = (),
+    camera_detections: Sequence[CameraDetections] = (),
+    map_from_base: SE2 | None = None,
+    config: LateFusionConfig | None = None,
+) -> FusedObjects:
+    """:func:`fuse`, also saying which rows radar and camera confirmed (a tracker uses the Doppler)."""
     cfg = config or LateFusionConfig()
     mounts = base_from_radar or {}
     t = clusters.table
@@ -160,7 +194,13 @@ def fuse(
         out[:, 2], out[:, 3] = c * vx - s * vy, s * vx + c * vy
         out[:, 6] = wrap_angles_rad(out[:, 6] + map_from_base.yaw_rad)
         frame = "map"
-    return DetectedObjects(stamp=stamp, frame=frame, source="fusion", table=out)
+    return FusedObjects(
+        objects=DetectedObjects(stamp=stamp, frame=frame, source="fusion", table=out),
+        radar_matched=r[:, 9] > 0,
+        camera_matched=camera_ok[keep],
+        z_min_m=r[:, 2].copy(),
+        z_max_m=r[:, 3].copy(),
+    )
 
 
 def _mount(mounts: Mapping[str, SE2], sensor_id: str) -> SE2:

@@ -9,8 +9,10 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from threadpoolctl import threadpool_limits
 
+from lastmile.core.errors import ConfigError
 from lastmile.core.safety_messages import FailSafeLevel
 from lastmile.core.stamp import Stamp
 from lastmile.core.vehicle import VehicleGeometry
@@ -26,19 +28,25 @@ from lastmile.recorder.black_box import BlackBox, BlackBoxConfig
 from lastmile.recorder.run_log import STATE_NAMES, RunLog, RunLogWriter, RunMeta
 from lastmile.runner.operator_estop import EStopAction, OperatorEStop
 from lastmile.safety.hardware_watchdog import HardwareWatchdog
+from lastmile.safety.reliability_monitor import ReliabilityConfig, raw_sensor_specs
 from lastmile.sim.scenario import Scenario
 from lastmile.sim.simulation import Simulation
-from lastmile.stack.shuttle_stack import ShuttleStack, StackConfig
+from lastmile.stack.shuttle_stack import DEFAULT_SENSORS, PERCEPTION_MODES, ShuttleStack, StackConfig
 
 TICK_US = 10_000
 LOG_EVERY_TICKS = 2  # ego trace at 50 Hz
-PERCEPTION_MODE = "radar_tracking"  # the stack perceives through simulated radars; no oracle
+DEFAULT_PERCEPTION_MODE = "lidar_camera_radar"
+"""Raw LiDAR sweeps, camera boxes and radar objects through the stack's own perception; no oracle.
+"radar_tracking" (radar object lists only) is the cheaper mode the safety sweeps and fleet runs use."""
 
 ProgressCallback = Callable[[float, float], None]
 
 
 def run_scenario(
-    scenario: Scenario, progress: ProgressCallback | None = None, black_box_dir: Path | None = None
+    scenario: Scenario,
+    progress: ProgressCallback | None = None,
+    black_box_dir: Path | None = None,
+    perception_mode: str = DEFAULT_PERCEPTION_MODE,
 ) -> RunLog:
     """Simulate ``scenario``; returns the run log (wall-clock figures only in ``log.timing``).
 
@@ -46,16 +54,26 @@ def run_scenario(
     takeover, an emergency stop, a collision or a crash of the stack (``recording`` events say where).
     """
     with threadpool_limits(limits=1):  # small matrices: BLAS threads only compete with the loop
-        return _run(scenario, progress, black_box_dir)
+        return _run(scenario, progress, black_box_dir, perception_mode)
 
 
-def build_closed_loop(scenario: Scenario) -> tuple[HDMap, Simulation, ShuttleStack]:
-    """The campus map, the simulator for ``scenario`` and a stack configured for it."""
+def build_closed_loop(
+    scenario: Scenario, perception_mode: str = DEFAULT_PERCEPTION_MODE
+) -> tuple[HDMap, Simulation, ShuttleStack]:
+    """The campus map, the simulator for ``scenario`` and a stack configured for it.
+
+    ``perception_mode`` is one of :data:`lastmile.stack.shuttle_stack.PERCEPTION_MODES`; the raw mode
+    makes the simulator cast LiDAR sweeps and run its camera detectors.
+    """
+    if perception_mode not in PERCEPTION_MODES:
+        raise ConfigError(f"perception mode: expected one of {PERCEPTION_MODES}, got {perception_mode!r}")
     hdmap = load_campus_map()
     loop_ids = campus_shuttle_loop(hdmap)
     service_route = route_polyline(hdmap, loop_ids, closed=True)
     geometry = VehicleGeometry()
-    sim = Simulation(scenario, hdmap, service_route, geometry, TICK_US)
+    raw = perception_mode == "lidar_camera_radar"
+    sim = Simulation(scenario, hdmap, service_route, geometry, TICK_US, raw_sensors=raw)
+    rig = sim.raw_sensors
     # The stack gets the map and its own configuration, never the simulator's objects.
     layers = SLayerDatabase.build(hdmap, loop_ids, step_m=1.0, closed=True)
     decision = DecisionConfig()
@@ -70,6 +88,20 @@ def build_closed_loop(scenario: Scenario) -> tuple[HDMap, Simulation, ShuttleSta
             radar_mounts=sim.radar_mounts,
             serve_all_stops=scenario.serve_all_stops,
             decision=decision,
+            perception_mode=perception_mode,
+            # The sensors' calibration, as a real vehicle's stack is configured with it.
+            lidar_mounts={s.sensor_id: s.base_from_sensor for s in rig.lidar_specs} if rig else {},
+            cameras=tuple(c.camera for c in rig.cameras) if rig else (),
+            reliability=ReliabilityConfig(
+                sensors=DEFAULT_SENSORS
+                + (
+                    raw_sensor_specs(
+                        tuple(s.sensor_id for s in rig.lidar_specs), tuple(c.camera_id for c in rig.cameras)
+                    )
+                    if rig
+                    else ()
+                )
+            ),
         ),
         # Module faults of the scenario reach the stack through its fault-injection port.
         fault_hook=lambda module, now_us: sim.faults.module_fault(module, now_us / 1e6),
@@ -77,13 +109,15 @@ def build_closed_loop(scenario: Scenario) -> tuple[HDMap, Simulation, ShuttleSta
     return hdmap, sim, stack
 
 
-def _run(scenario: Scenario, progress: ProgressCallback | None, black_box_dir: Path | None) -> RunLog:
-    hdmap, sim, stack = build_closed_loop(scenario)
+def _run(
+    scenario: Scenario, progress: ProgressCallback | None, black_box_dir: Path | None, perception_mode: str
+) -> RunLog:
+    hdmap, sim, stack = build_closed_loop(scenario, perception_mode)
     duration_s = scenario.minutes * 60.0
     meta = RunMeta(
         seed=scenario.seed,
         weather=scenario.weather,
-        perception_mode=PERCEPTION_MODE,
+        perception_mode=perception_mode,
         scenario_name=scenario.name,
         map_name=hdmap.name,
         tick_s=TICK_US / 1e6,
@@ -216,6 +250,17 @@ def _run(scenario: Scenario, progress: ProgressCallback | None, black_box_dir: P
         "stack_tick_mean_ms": 1e3 * stack_wall / max(ticks, 1),
         "modules": stack.profiler.summary(),
     }
+    if stack.raw is not None:
+        st = stack.raw.stats
+        offsets = st.curb_offsets_m
+        timing["raw_perception"] = {
+            "rig_frames": st.rig_frames,
+            "incomplete_frames": st.incomplete_frames,
+            "skipped_no_pose": st.skipped_no_pose,
+            "clusters_per_frame": st.clusters / max(st.rig_frames, 1),
+            "curb_valid_frames": st.curb_valid,
+            "curb_offset_median_m": float(np.median(offsets)) if offsets else None,
+        }
     writer.set_timing(timing)
     if progress is not None:
         progress(duration_s, duration_s)

@@ -204,7 +204,14 @@ CHECKS: dict[str, Callable[[RunLog, dict[str, Any]], CheckResult]] = {
 """Outcome checks by name; a suite case lists the ones its outcome must pass."""
 
 
-def run_case(scenario_path: str, checks: tuple[str, ...], group: str) -> dict[str, Any]:
+SWEEP_PERCEPTION_MODE = "radar_tracking"
+"""Sweeps perceive through the radars by default: four times cheaper than the raw LiDAR chain, and
+what a sweep validates (decision, safety, faults) sits behind either."""
+
+
+def run_case(
+    scenario_path: str, checks: tuple[str, ...], group: str, perception_mode: str = SWEEP_PERCEPTION_MODE
+) -> dict[str, Any]:
     """Run one scenario file and judge it: a row of the sweep table (no wall-clock figures in it).
 
     Black-box recordings go to ``recordings/<scenario name>/`` beside the ``scenarios`` folder.
@@ -215,7 +222,9 @@ def run_case(scenario_path: str, checks: tuple[str, ...], group: str) -> dict[st
     path = Path(scenario_path)
     sweep_dir = path.parent.parent
     scenario = load_scenario(path)
-    log = run_scenario(scenario, black_box_dir=sweep_dir / "recordings" / scenario.name)
+    log = run_scenario(
+        scenario, black_box_dir=sweep_dir / "recordings" / scenario.name, perception_mode=perception_mode
+    )
     m = compute_metrics(log)
     results = {name: CHECKS[name](log, m) for name in checks}
     incidents = [
@@ -233,6 +242,7 @@ def run_case(scenario_path: str, checks: tuple[str, ...], group: str) -> dict[st
         "scenario_file": scenario_path,
         "seed": scenario.seed,
         "weather": scenario.weather,
+        "perception_mode": perception_mode,
         "faults": [f"{f.kind}:{f.target}" for f in scenario.faults],
         "passed": all(r.ok for r in results.values()),
         "checks": {k: {"ok": r.ok, "detail": r.detail} for k, r in results.items()},
@@ -295,12 +305,13 @@ def run_sweep(
     workers: int | None = None,
     ray_address: str | None = None,
     progress: ProgressCallback | None = None,
+    perception_mode: str = SWEEP_PERCEPTION_MODE,
 ) -> dict[str, Any]:
     """Run every case; writes ``summary.json`` and returns it (rows in case order)."""
     if engine not in ENGINES:
         raise ConfigError(f"sweep --engine: expected one of {ENGINES}, got {engine!r}")
     written = write_cases(cases, out_dir)
-    jobs = [(str(path), case.checks, case.group) for case, path in written]
+    jobs = [(str(path), case.checks, case.group, perception_mode) for case, path in written]
     rows = _run_local(jobs, workers, progress) if engine == "local" else _run_ray(jobs, ray_address, progress)
     summary = summarize(rows)
     (out_dir / "summary.json").write_text(json.dumps(summary, indent=2))
@@ -315,6 +326,7 @@ def summarize(rows: list[dict[str, Any]]) -> dict[str, Any]:
         "failed": len(rows) - passed,
         "collisions_at_fault": sum(r["collisions_at_fault"] for r in rows),
         "collisions_total": sum(r["collisions_total"] for r in rows),
+        "perception_modes": sorted({r["perception_mode"] for r in rows}),
         "rows": rows,
     }
 
@@ -326,7 +338,7 @@ def _pin_blas() -> None:
 
 
 def _run_local(
-    jobs: list[tuple[str, tuple[str, ...], str]], workers: int | None, progress: ProgressCallback | None
+    jobs: list[tuple[str, tuple[str, ...], str, str]], workers: int | None, progress: ProgressCallback | None
 ) -> list[dict[str, Any]]:
     workers = workers or os.cpu_count() or 1
     rows: list[dict[str, Any] | None] = [None] * len(jobs)
@@ -340,7 +352,7 @@ def _run_local(
 
 
 def _run_ray(
-    jobs: list[tuple[str, tuple[str, ...], str]], address: str | None, progress: ProgressCallback | None
+    jobs: list[tuple[str, tuple[str, ...], str, str]], address: str | None, progress: ProgressCallback | None
 ) -> list[dict[str, Any]]:
     try:
         import ray

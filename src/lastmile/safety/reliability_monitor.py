@@ -131,6 +131,25 @@ def default_sensor_specs(
     )
 
 
+def raw_sensor_specs(lidar_ids: tuple[str, ...], camera_ids: tuple[str, ...]) -> tuple[SensorSpec, ...]:
+    """LiDAR and camera streams of the raw-sensor rig (10 Hz each), keyed as :func:`sensor_key` does.
+
+    A LiDAR never repeats a sweep point for point, so two equal ones are a frozen driver; one with
+    fewer than 500 returns is blocked (a 16-channel unit gives thousands even in fog). A camera's box
+    list may repeat (an empty road), so it is not checked for freezing, and losing one leaves the LiDAR
+    to detect: a speed limit, not a manoeuvre.
+    """
+    return (
+        *(SensorSpec(key=f"lidar_{i}", rate_hz=10.0, frozen_after=2, min_points=500) for i in lidar_ids),
+        *(
+            SensorSpec(
+                key=f"camera_{i}", rate_hz=10.0, frozen_after=None, silent_level=FailSafeLevel.SPEED_LIMIT
+            )
+            for i in camera_ids
+        ),
+    )
+
+
 @dataclass(frozen=True, slots=True, kw_only=True)
 class ReliabilityConfig:
     """Thresholds of the reliability monitor (units in the names).
@@ -223,10 +242,14 @@ class ReliabilityConfig:
 
 def sensor_key(frame: SensorFrame) -> str | None:
     """The stream a frame belongs to (None for event-driven frames such as stop calls)."""
-    if isinstance(frame, RadarFrame | LidarSweep):
+    # Radars keep their bare ids (the suite's first streams); LiDARs and cameras are prefixed, since a
+    # front radar, a front LiDAR and a front camera are three streams.
+    if isinstance(frame, RadarFrame):
         return frame.sensor_id
+    if isinstance(frame, LidarSweep):
+        return f"lidar_{frame.sensor_id}"
     if isinstance(frame, CameraDetections):
-        return frame.camera_id
+        return f"camera_{frame.camera_id}"
     if isinstance(frame, GnssInsFrame):
         return "gnss"
     if isinstance(frame, ImuFrame):

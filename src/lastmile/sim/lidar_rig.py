@@ -92,6 +92,15 @@ class LidarSpec:
             )
 
     @property
+    def base_from_sensor(self) -> np.ndarray:
+        """(4, 4) mounting transform (level unit: a yaw and a translation), the stack's calibration."""
+        c, s = math.cos(self.yaw_rad), math.sin(self.yaw_rad)
+        T = np.eye(4)
+        T[:2, :2] = ((c, -s), (s, c))
+        T[:3, 3] = (self.x_m, self.y_m, self.z_m)
+        return T
+
+    @property
     def n_columns(self) -> int:
         return round(360.0 / self.azimuth_res_deg)
 

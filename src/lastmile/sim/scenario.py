@@ -124,6 +124,8 @@ class Scenario:
     static_obstacles: tuple[StaticObstacle, ...] = ()
     faults: tuple[FaultSpec, ...] = ()
     cruise_speed_mps: float | None = None
+    snow_cover_lane_m: float = 0.0
+    """In snow, this much of the lane beside the curb lies under snow at curb height (raw LiDAR only)."""
     estop_in_state: str = ""
     """The operator presses the e-stop the first time the stack reports this behaviour state ("": never)."""
     estop_min_speed_mps: float = 0.0
@@ -145,6 +147,8 @@ class Scenario:
             # The shuttle's operating speeds: up to its 20 km/h top speed.
             check_range("scenario.cruise_speed_mps", self.cruise_speed_mps, 0.5, 20.0 / 3.6 + 1e-9)
         parse_weather(self.weather)
+        # The snow bank (0.6 m) and the cover together stay under 4 m: a lane is 3.5 m wide.
+        check_range("scenario.snow_cover_lane_m", self.snow_cover_lane_m, 0.0, 3.4)
         if self.lateral_controller not in ("heading_pid", "pure_pursuit"):
             raise ConfigError(
                 "scenario.lateral_controller: expected heading_pid or pure_pursuit, "

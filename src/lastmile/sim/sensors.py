@@ -140,7 +140,8 @@ class SensorSuite:
         self.door_open = False
         self.person_in_doorway = False
 
-    def _push(self, frame: SensorFrame, latency_us: int) -> None:
+    def push(self, frame: SensorFrame, latency_us: int) -> None:
+        """Queue ``frame`` for delivery ``latency_us`` after its stamp (through the fault injector)."""
         if self.faults is None:
             delivered = [(frame, latency_us)]
         else:
@@ -151,7 +152,7 @@ class SensorSuite:
 
     def push_stop_call(self, now_us: int, stop_id: str, source: str) -> None:
         """A stop button or seat button press, carried over V2I / the vehicle bus."""
-        self._push(
+        self.push(
             StopCallFrame(stamp=Stamp(now_us), stop_id=stop_id, source=source), self.rates.v2i_latency_us
         )
 
@@ -160,13 +161,13 @@ class SensorSuite:
         now = Stamp(tick * self.tick_us)
         r = self.rates
         if tick % r.gnss_period_ticks == 0:
-            self._push(self._gnss(now), r.gnss_latency_us)
+            self.push(self._gnss(now), r.gnss_latency_us)
         if tick % r.imu_period_ticks == 0:
-            self._push(self._imu(now), r.imu_latency_us)
+            self.push(self._imu(now), r.imu_latency_us)
         if tick % r.odom_period_ticks == 0:
-            self._push(self._odom(now), r.odom_latency_us)
+            self.push(self._odom(now), r.odom_latency_us)
         if tick % r.door_period_ticks == 0:
-            self._push(
+            self.push(
                 DoorSensorFrame(
                     stamp=now, door_open=self.door_open, person_in_doorway=self.person_in_doorway
                 ),
@@ -177,7 +178,7 @@ class SensorSuite:
             if tick % spec.period_ticks == 0:
                 if agents is None:
                     agents = agent_arrays(self.world.agents)
-                self._push(self._radar(now, spec, agents), spec.latency_us)
+                self.push(self._radar(now, spec, agents), spec.latency_us)
 
     def deliver(self, now_us: int) -> list[SensorFrame]:
         """Frames whose latency has elapsed by ``now_us``, in delivery order."""

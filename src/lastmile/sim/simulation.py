@@ -25,6 +25,7 @@ from lastmile.sim.faults import FaultInjector
 from lastmile.sim.judge import Judge
 from lastmile.sim.operator import OperatorModel
 from lastmile.sim.passengers import PassengerModel
+from lastmile.sim.raw_sensors import RawSensorRig
 from lastmile.sim.scenario import Scenario
 from lastmile.sim.sensors import RCS_DBSM, SensorSuite
 from lastmile.sim.vehicle_model import ActuatorDynamics, KinematicBicycle, VehicleState
@@ -46,6 +47,7 @@ class Simulation:
         service_route: Polyline,
         geometry: VehicleGeometry,
         tick_us: int,
+        raw_sensors: bool = False,
     ) -> None:
         self.scenario = scenario
         self.tick_us = tick_us
@@ -59,6 +61,12 @@ class Simulation:
         )
         self.faults = FaultInjector(scenario.faults, scenario.seed)
         self.sensors = SensorSuite(self.world, scenario.seed, tick_us, faults=self.faults)
+        # The LiDAR rig and cameras cost ~10 ms per 10 Hz frame: built only when the stack reads them.
+        self.raw_sensors = (
+            RawSensorRig(self.world, scenario.seed, tick_us, snow_cover_lane_m=scenario.snow_cover_lane_m)
+            if raw_sensors
+            else None
+        )
         self.passengers = PassengerModel(
             hdmap.stops, scenario.passengers, component_rng(scenario.seed, "passengers"), geometry.seats
         )
@@ -107,6 +115,10 @@ class Simulation:
 
     def sensor_frames(self, tick: int) -> list[SensorFrame]:
         self.sensors.sample(tick)
+        if self.raw_sensors is not None:
+            # Raw frames share the suite's delivery queue (latency, faults) with every other sensor.
+            for frame, latency_us in self.raw_sensors.sample(tick):
+                self.sensors.push(frame, latency_us)
         return self.sensors.deliver(tick * self.tick_us)
 
     def apply_command(self, command: ActuatorCommand | None) -> None:

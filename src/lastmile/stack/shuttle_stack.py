@@ -1,8 +1,12 @@
-"""The shuttle's software, wired: localization, radar tracking, decision, planning, control.
+"""The shuttle's software, wired: localization, perception and tracking, decision, planning, control.
 
 It sees only sensor frames, the map and its own configuration (import-linter keeps ``sim`` out).
 Modules run at integer divisors of the base tick: planning and decision at 10 Hz, control at 50 Hz,
-estimation whenever a frame arrives.
+estimation whenever a frame arrives, LiDAR perception whenever a rig frame is complete.
+
+Perception modes (``StackConfig.perception_mode``): "lidar_camera_radar" runs the raw-sensor chain of
+:mod:`lastmile.stack.raw_perception` (LiDAR clusters fused with radar and camera, aUToTrack);
+"radar_tracking" tracks the radars' object lists alone (cheaper: the safety sweeps use it).
 """
 
 from __future__ import annotations
@@ -12,19 +16,24 @@ import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from lastmile.control.lateral import LateralConfig, make_lateral_controller
 from lastmile.control.longitudinal import LongitudinalConfig, WatonobusLongitudinalController, stopping_gap_m
-from lastmile.core.errors import MessageError
+from lastmile.core.camera_model import PinholeCamera
+from lastmile.core.errors import ConfigError, MessageError
 from lastmile.core.geometry import SE2, FloatArray
 from lastmile.core.objects import TrackedObjects, empty_tracks
 from lastmile.core.polyline import Polyline
 from lastmile.core.route_obstacles import route_obstacles
 from lastmile.core.safety_messages import FailSafeLevel, SafetyDirective
 from lastmile.core.sensor_frames import (
+    CameraDetections,
     CrossingPresenceFrame,
     DoorSensorFrame,
     GnssInsFrame,
     ImuFrame,
+    LidarSweep,
     RadarFrame,
     SensorFrame,
     StopCallFrame,
@@ -57,8 +66,12 @@ from lastmile.safety.reliability_monitor import (
 from lastmile.safety.supervisor import SafetySupervisor
 from lastmile.stack.hmi import HmiComposer
 from lastmile.stack.profiler import ModuleProfiler
+from lastmile.stack.raw_perception import RawPerception, RawPerceptionConfig
 from lastmile.stack.v2i import AnticipationConfig, CrossingAnticipation
 from lastmile.tracking.radar_tracker import RadarObjectTracker, RadarTrackerConfig
+
+PERCEPTION_MODES = ("lidar_camera_radar", "radar_tracking")
+"""What the stack perceives through: raw LiDAR + camera + radar, or the radars' object lists alone."""
 
 DEFAULT_SENSORS = default_sensor_specs(radar_keys=("front", "rear"))
 """The simulator's sensor suite as the reliability monitor watches it (radars by their sensor ids)."""
@@ -75,6 +88,10 @@ class StackConfig:
         radar_mounts: base_from_sensor pose of each radar by sensor id.
         serve_all_stops: timetable mode (serve every stop) instead of on request.
         v2i: anticipation of crossings reported occupied by infrastructure cameras (``stack.v2i``).
+        perception_mode: one of :data:`PERCEPTION_MODES`.
+        lidar_mounts: (4, 4) base_from_sensor of each LiDAR by sensor id (raw perception).
+        cameras: the cameras' calibration (raw perception).
+        raw_perception: the raw-sensor chain's parameters.
     """
 
     tick_us: int = 10_000
@@ -91,6 +108,22 @@ class StackConfig:
     tracker: RadarTrackerConfig = field(default_factory=RadarTrackerConfig)
     reliability: ReliabilityConfig = field(default_factory=lambda: ReliabilityConfig(sensors=DEFAULT_SENSORS))
     v2i: AnticipationConfig = field(default_factory=AnticipationConfig)
+    perception_mode: str = "radar_tracking"
+    lidar_mounts: dict[str, np.ndarray] = field(default_factory=dict)
+    cameras: tuple[PinholeCamera, ...] = ()
+    raw_perception: RawPerceptionConfig = field(default_factory=RawPerceptionConfig)
+
+    def __post_init__(self) -> None:
+        if self.perception_mode not in PERCEPTION_MODES:
+            raise ConfigError(
+                f"StackConfig.perception_mode: expected one of {PERCEPTION_MODES}, "
+                f"got {self.perception_mode!r}"
+            )
+        if self.perception_mode == "lidar_camera_radar" and not self.lidar_mounts:
+            raise ConfigError(
+                "StackConfig: perception_mode 'lidar_camera_radar' expects lidar_mounts (the LiDAR "
+                "calibration), got none"
+            )
 
 
 MODULE_PERIODS_US = {
@@ -134,6 +167,13 @@ class ShuttleStack:
         zero_slip_m = geometry.wheelbase_m / 2.0 if geometry.all_wheel_steer else 0.0
         self.ekf = PoseEkf(dataclasses.replace(config.ekf, zero_slip_offset_m=zero_slip_m))
         self.tracker = RadarObjectTracker(config.tracker)
+        self.raw = (
+            RawPerception(
+                config.raw_perception, layers, config.lidar_mounts, config.cameras, config.radar_mounts
+            )
+            if config.perception_mode == "lidar_camera_radar"
+            else None
+        )
         self.mission = MissionManager(
             stop_order=tuple(rs.stop.id for rs in layers.stops), serve_all=config.serve_all_stops
         )
@@ -151,6 +191,7 @@ class ShuttleStack:
         self.longitudinal = WatonobusLongitudinalController(config.longitudinal)
         self.lateral = make_lateral_controller(config.lateral_controller, geometry, config.lateral)
         self._tick = 0
+        self._now = Stamp(0)
         self._speed_mps = 0.0
         self._yaw_rate_radps = 0.0
         self._door_open = False
@@ -190,15 +231,22 @@ class ShuttleStack:
     def tick(self, now: Stamp, frames: Sequence[SensorFrame]) -> StackOutput:
         p = self.profiler
         hmi: list[HmiMessage] = []
+        self._now = now
         self.safety.observe_frames(now, frames)
         with p.measure("estimation"):
             self._guarded("localization", now, self._ingest_all, frames)
         c = self.config
         status = None
         planning_cycle = self._tick % c.planning_period_ticks == 0
+        raw = self.raw
+        if raw is not None and raw.pending:
+            with p.measure("perception"):
+                # Perception and tracking are one module for the watchdog: the chain ends in tracks.
+                self._guarded("tracking", now, raw.step, now, self.ekf.estimate, self._route_s)
         if planning_cycle:
             with p.measure("tracking"):
-                tracks = self._guarded("tracking", now, self.tracker.tracks, now)
+                source = raw.tracks if raw is not None else self.tracker.tracks
+                tracks = self._guarded("tracking", now, source, now)
                 if isinstance(tracks, TrackedObjects):
                     self._tracks = tracks
             with p.measure("decision"):
@@ -277,6 +325,9 @@ class ShuttleStack:
             self._yaw_rate_radps = frame.yaw_rate_radps
         elif isinstance(frame, GnssInsFrame):
             self.ekf.update_gnss(frame)
+        elif isinstance(frame, LidarSweep | CameraDetections | RadarFrame) and self.raw is not None:
+            # Raw perception fuses the radar objects with the LiDAR clusters (no separate radar tracker).
+            self.raw.on_frame(frame, self._now)
         elif isinstance(frame, RadarFrame):
             est = self.ekf.estimate(frame.stamp)
             mount = self.config.radar_mounts.get(frame.sensor_id)

@@ -1,0 +1,126 @@
+"""Raw-sensor perception in the stack: what reaches decision making, and what is kept from it."""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+import pytest
+
+from lastmile.core.boxes3d import DetectedBoxes
+from lastmile.core.errors import ConfigError, MessageError
+from lastmile.core.object_class import ObjectClass
+from lastmile.core.sensor_frames import LidarSweep
+from lastmile.core.stamp import Stamp
+from lastmile.hdmap.drivable import DrivableRaster
+from lastmile.perception.map_curbs import MapCurbIndex
+from lastmile.runner.closed_loop import TICK_US, build_closed_loop
+from lastmile.sim.scenario import Scenario, StaticObstacle
+from lastmile.stack.raw_perception import RawPerception, RawPerceptionConfig
+from lastmile.stack.shuttle_stack import StackConfig
+
+
+@functools.cache
+def _obstacle_run() -> tuple[list[tuple[float, float, int, float]], float, float, RawPerception]:
+    """The shuttle drives at a 0.8 m box on its lane 60 m ahead, perceiving through LiDAR only."""
+    scenario = Scenario(name="box_ahead", minutes=0.5, static_obstacles=(StaticObstacle(route_s_m=60.0),))
+    _, sim, stack = build_closed_loop(scenario)
+    box = sim.world.agents[-1]
+    trace = []
+    for tick in range(round(30e6 / TICK_US)):
+        sim.advance_world(tick)
+        out = stack.tick(Stamp(tick * TICK_US), sim.sensor_frames(tick))
+        sim.apply_command(out.command)
+        sim.referee(out.takeover_request)
+        if tick % 10 == 0 and stack._route_s is not None:
+            near = [float(np.hypot(r[0] - box.x_m, r[1] - box.y_m)) for r in stack._tracks.table.tolist()]
+            trace.append((tick / 100.0, stack._route_s, len(near), min(near, default=np.inf)))
+    assert stack.raw is not None
+    return trace, box.x_m, box.y_m, stack.raw
+
+
+def test_the_stack_stops_for_a_box_it_only_sees_in_its_lidar_clusters() -> None:
+    trace, _, _, raw = _obstacle_run()
+    # The box is tracked (within 0.5 m of where it stands) long before the shuttle reaches it...
+    seen = [t for t, s, _, d in trace if d < 0.5]
+    assert seen and seen[0] < 8.0, trace[:40]
+    # ...and the shuttle stops short of it and stays there (route s of the rear axle; box at 60 m).
+    final_s = trace[-1][1]
+    assert 45.0 < final_s < 60.0 - 4.0, trace[-5:]
+    assert raw.stats.rig_frames >= 290 and raw.stats.incomplete_frames == 0
+    assert raw.stats.skipped_no_pose <= 1  # the first frame may precede the first fix
+
+
+def test_curb_faces_are_not_objects_but_a_goose_on_the_curb_line_is() -> None:
+    *_, raw = _obstacle_run()
+    assert raw.stats.curb_returns > 0  # driving along a curbed road: its face shows in every frame
+    curbs = MapCurbIndex(raw.layers.hdmap)
+    on_curb = np.asarray(raw.layers.hdmap.curbs[0].xy_m[0], dtype=float)[None, :]
+    assert curbs.curb_returns(on_curb, [0.2]).tolist() == [True]
+    assert curbs.curb_returns(on_curb, [0.4]).tolist() == [False]  # goose-high: an object
+    far = np.array([[1e4, 1e4]])  # nowhere near a curb: low, but an object
+    assert curbs.curb_returns(far, [0.1]).tolist() == [False]
+
+
+def _perception() -> RawPerception:
+    _, _, stack = build_closed_loop(Scenario(name="unit", minutes=0.1))
+    assert stack.raw is not None
+    return RawPerception(
+        RawPerceptionConfig(),
+        stack.layers,
+        stack.config.lidar_mounts,
+        stack.config.cameras,
+        stack.config.radar_mounts,
+    )
+
+
+def _off_and_on_road(raw: RawPerception) -> tuple[np.ndarray, np.ndarray]:
+    route = raw.layers.centerline
+    for s in np.arange(0.0, route.length_m, 5.0):
+        x, y, h = route.point_at(float(s))
+        off = np.array([x - 15.0 * np.sin(h), y + 15.0 * np.cos(h)])
+        if raw.road.raster.classify(off[None, :])[0] == DrivableRaster.OUTSIDE:
+            return off, np.array([x, y])
+    raise AssertionError("no off-road point 15 m beside the route")
+
+
+def test_scenery_off_the_road_is_hidden_but_road_users_and_anything_on_the_road_are_not() -> None:
+    raw = _perception()
+    off, on = _off_and_on_road(raw)
+    # Four objects seen for 1.5 s: a static unclassified one off the road (a pole), the same on the
+    # road, a pedestrian the camera named standing off the road, and an unclassified one walking there.
+    for k in range(16):
+        t_s = 0.1 * k
+        xy = np.array([off, on, off + np.array([3.0, 0.0]), off + np.array([-3.0 + 1.2 * t_s, 0.0])])
+        raw.tracker.update(
+            DetectedBoxes(
+                stamp=Stamp(round(t_s * 1e6)),
+                frame="map",
+                source="lidar_fusion",
+                boxes=np.column_stack([xy, np.full((4, 1), 0.8), np.full((4, 3), 0.6), np.zeros((4, 1))]),
+                class_id=np.array([0, 0, int(ObjectClass.PEDESTRIAN), 0]),
+                score=np.full(4, 0.6),
+                velocity_mps=np.zeros((4, 2)),
+                has_velocity=np.zeros(4, bool),
+                attributes=np.zeros((4, 0)),
+            )
+        )
+    tracks = raw.tracks(Stamp(1_500_000))
+    kept = {(round(r[0] - off[0]), round(r[1] - off[1])) for r in tracks.table.tolist()}
+    assert len(raw.tracker.tracks(Stamp(1_500_000))) == 4
+    assert len(tracks) == 3 and (0, 0) not in kept
+    assert raw.stats.scenery_tracks_hidden == 1
+
+
+def test_bad_calibration_and_unknown_sensors_are_refused() -> None:
+    raw = _perception()
+    with pytest.raises(MessageError, match="calibrated LiDAR"):
+        raw.on_frame(LidarSweep(stamp=Stamp(0), sensor_id="roof", points=np.zeros((1, 6))), Stamp(0))
+    with pytest.raises(ConfigError, match="lidar_mounts"):
+        StackConfig(perception_mode="lidar_camera_radar")
+    with pytest.raises(ConfigError, match="perception_mode"):
+        StackConfig(perception_mode="oracle")
+    with pytest.raises(ConfigError, match=r"\(4, 4\)"):
+        RawPerception(RawPerceptionConfig(), raw.layers, {"front": np.eye(3)}, (), {})
+    with pytest.raises(ConfigError, match="set_timeout_us"):
+        RawPerceptionConfig(set_timeout_us=0)
