@@ -65,13 +65,15 @@ from lastmile.core.stamp import Stamp  # noqa: E402
 from lastmile.hdmap.model import HDMap  # noqa: E402
 from lastmile.perception.curbs import frenet_of_points  # noqa: E402
 from lastmile.perception.motion_compensation import PoseTrajectory, se3_matrix  # noqa: E402
-from lastmile.perception.pipeline import LidarPipeline  # noqa: E402
+from lastmile.perception.pipeline import LidarPipeline, LidarPipelineResult  # noqa: E402
 from lastmile.perception.road_region import MapRoadRegion  # noqa: E402
 from lastmile.runner.closed_loop import TICK_US, build_closed_loop  # noqa: E402
 from lastmile.sim.agents import Agent  # noqa: E402
+from lastmile.sim.lidar_ground import bank_height_m  # noqa: E402
 from lastmile.sim.raw_sensors import RawSensorRig  # noqa: E402
 from lastmile.sim.scenario import default_service  # noqa: E402
 from lastmile.sim.sensors import RCS_DBSM  # noqa: E402
+from lastmile.sim.world import World  # noqa: E402
 
 WEATHERS = ("clear", "rain", "snow", "fog")
 RANGE_M = 30.0
@@ -91,11 +93,15 @@ EXTRA_ID0 = 10_000
 
 # --- scene -------------------------------------------------------------------------------------------
 def extra_agents(hdmap: HDMap, route_xy: np.ndarray, spacing_m: float, seed: int) -> list[Agent]:
-    """Standing pedestrians and geese on the verge side of every mapped curb near the route.
+    """Standing pedestrians and geese beside every mapped curb near the route (seeded).
 
-    Every ``spacing_m`` along each curb within 12 m of the route, alternately a pedestrian and a
-    goose, 0.6-2.5 m behind the curb (off the road, so the shuttle's path stays clear), with a
-    random heading. Seeded: the same seed places the same agents.
+    Every ``spacing_m`` along each curb within 12 m of the route, in turn: a pedestrian on the
+    verge 0.6-2.5 m behind the curb, a goose on the road 1.5-2.5 m from the curb, a car parked
+    along the curb (centre 1.1-1.4 m out), a pedestrian on the road 0.4-1.2 m from the curb
+    (stepping off the kerb), a goose on the road again. Geese stand
+    on the road because the simulator puts every road user's feet at z = 0: on a 0.15 m sidewalk a
+    0.4 m goose would stand only 0.25 m proud; on the road it is the WATonoBus case (a goose near
+    the curb). Positions whose side is not as intended (drivable or not) are skipped.
     """
     rng = np.random.default_rng(seed)
     agents: list[Agent] = []
@@ -105,32 +111,41 @@ def extra_agents(hdmap: HDMap, route_xy: np.ndarray, spacing_m: float, seed: int
         if len(s_all) == 0:
             continue
         pts = curb.points_at(s_all)
-        near = np.min(np.hypot(*(pts[:, None, :] - route_xy[None, ::5, :]).transpose(2, 0, 1)), axis=1) < 12.0
+        near = np.min(np.hypot(*(pts[:, None, :] - route_xy[None, :, :]).transpose(2, 0, 1)), axis=1) < 12.0
         for s, p in zip(s_all[near], pts[near], strict=True):
             h = curb.heading_at(float(s))
             normal = np.array([-math.sin(h), math.cos(h)])
-            # The verge is the side that is not drivable.
-            side = 1.0 if not hdmap.is_drivable((p + 0.5 * normal)[None])[0] else -1.0
-            goose = k % 2 == 1
-            off = rng.uniform(0.6, 2.5)
-            xy = p + side * off * normal
-            if hdmap.is_drivable(xy[None])[0]:
+            # Toward the road: the side that is drivable half a metre out.
+            road_side = 1.0 if hdmap.is_drivable((p + 0.5 * normal)[None])[0] else -1.0
+            kind = k % 5
+            goose, car = kind in (1, 4), kind == 2
+            if kind == 0:
+                off = -rng.uniform(0.6, 2.5)
+            elif goose:
+                off = rng.uniform(1.5, 2.5)
+            elif car:
+                off = rng.uniform(1.1, 1.4)
+            else:
+                off = rng.uniform(0.4, 1.2)
+            xy = p + road_side * off * normal
+            k += 1
+            if bool(hdmap.is_drivable(xy[None])[0]) != (off > 0):
                 continue
-            cls = ObjectClass.ANIMAL if goose else ObjectClass.PEDESTRIAN
+            cls = ObjectClass.ANIMAL if goose else ObjectClass.CAR if car else ObjectClass.PEDESTRIAN
+            yaw = h + rng.normal(0.0, 0.05) if car else rng.uniform(-math.pi, math.pi)
             agents.append(
                 Agent(
                     id=EXTRA_ID0 + k,
                     cls=cls,
                     x_m=float(xy[0]),
                     y_m=float(xy[1]),
-                    yaw_rad=float(rng.uniform(-math.pi, math.pi)),
+                    yaw_rad=float(yaw),
                     speed_mps=0.0,
-                    length_m=0.5,
-                    width_m=0.3 if goose else 0.5,
+                    length_m=4.5 if car else 0.5,
+                    width_m=1.8 if car else 0.3 if goose else 0.5,
                     rcs_dbsm=RCS_DBSM[cls],
                 )
             )
-            k += 1
     return agents
 
 
@@ -157,13 +172,35 @@ def right_curb_ahead(hdmap: HDMap, pose: SE2) -> np.ndarray | None:
         s0, s1 = float(np.clip(s0, 0.0, curb.length_m)), float(np.clip(s1, 0.0, curb.length_m))
         if abs(s1 - s0) < 10.0:
             continue
-        xy = curb.sub(s0, s1, 0.5)
+        xy = curb.sub(s0, s1, 2.0)
         if best is None or -lateral < best[0]:
             best = (-lateral, xy)
     return None if best is None else best[1]
 
 
 # --- scoring of one frame ---------------------------------------------------------------------------------
+def _clear_of_ego(agent: Agent, world: World, clearance_m: float = 1.0) -> bool:
+    cx, cy = world.ego_centre()
+    g = world.geometry
+    ego = np.array([[cx, cy, world.ego.state.yaw_rad, g.length_m, g.width_m]])
+    corners = agent.radius_m
+    return float(qs.footprint_distance_m([[agent.x_m, agent.y_m]], ego)[0, 0]) > corners + clearance_m
+
+
+def _ground_z_m(rig: RawSensorRig, xy_m: np.ndarray) -> np.ndarray:
+    """(M,) simulated ground height at map points: 0 on the road (plus snow lying there), the curb
+    height elsewhere."""
+    scene, w = rig.lidar.scene, rig.lidar.weather
+    if scene.ground is None or len(xy_m) == 0:
+        return np.zeros(len(xy_m))
+    road = scene.ground.is_road(xy_m[:, 0], xy_m[:, 1])
+    snow = np.zeros(len(xy_m))
+    if w.snow_on_road:
+        dist = scene.ground.curb_distance_m(xy_m[:, 0], xy_m[:, 1])
+        snow = bank_height_m(dist, scene.curb_height_m, w.snow_bank_width_m, w.snow_cover_lane_m)
+    return np.where(road, snow, scene.curb_height_m)
+
+
 def _boxes_in_base(agents: list[Agent], pose: SE2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(M,) ids, (M,) classes and (M, 5) footprints ``x y yaw length width`` in the true base frame."""
     inv = pose.inverse()
@@ -189,7 +226,7 @@ def _score_clusters(
 ) -> tuple[np.ndarray, int]:
     """(M,) found among eligible objects, and the number of false clusters."""
     matched = qs.match_clusters(centres, boxes, margin_m)
-    found = qs.objects_found(matched, len(boxes)) & eligible
+    found = qs.objects_found(matched, len(boxes))
     false = qs.false_clusters(matched, point_cluster, point_label)
     return found, int(false.sum())
 
@@ -211,10 +248,58 @@ def _dbscan_baseline(xyz: np.ndarray, ground: np.ndarray) -> tuple[np.ndarray, n
     return 0.5 * (lo + hi), point_cluster, cpu_ms
 
 
+def _why_missed(
+    res: LidarPipelineResult, obj: np.ndarray, obj_id: int, box: np.ndarray, centres: np.ndarray
+) -> dict[str, object]:
+    """Where a missed object's returns went: ground, weather filter, dropped small clusters, or
+    clusters whose centre lies elsewhere (merged with something bigger)."""
+    on = obj == obj_id
+    lab = res.labels[on]
+    kept = np.isin(lab, res.clusters.labels)
+    rows = [int(np.flatnonzero(res.clusters.labels == k)[0]) for k in np.unique(lab[kept])]
+    return {
+        "id": int(obj_id),
+        "x_m": float(box[0]),
+        "y_m": float(box[1]),
+        "returns": int(on.sum()),
+        "ground": int(res.ground[on].sum()),
+        "noise": int(res.noise[on].sum()),
+        "in_dropped_clusters": int(((lab >= 0) & ~kept).sum()),
+        "in_kept_clusters": int(kept.sum()),
+        "kept_cluster_centres": [[round(float(v), 2) for v in centres[r]] for r in rows],
+        "kept_cluster_sizes": [int((res.labels == res.clusters.labels[r]).sum()) for r in rows],
+    }
+
+
+def _false_details(
+    res: LidarPipelineResult,
+    label: np.ndarray,
+    centres: np.ndarray,
+    boxes: np.ndarray,
+    point_cluster: np.ndarray,
+    margin_m: float,
+) -> list[dict[str, object]]:
+    matched = qs.match_clusters(centres, boxes, margin_m)
+    false = qs.false_clusters(matched, point_cluster, label)
+    out = []
+    for r in np.flatnonzero(false):
+        lab = label[point_cluster == r]
+        counts = np.bincount(lab.astype(np.int64), minlength=len(qs.PointLabel))
+        out.append(
+            {
+                "x_m": round(float(centres[r, 0]), 2),
+                "y_m": round(float(centres[r, 1]), 2),
+                "points": len(lab),
+                "labels": {qs.PointLabel(k).name: int(c) for k, c in enumerate(counts) if c},
+            }
+        )
+    return out
+
+
 def evaluate_frame(
     res_args: tuple[list[LidarSweep], dict[str, np.ndarray], PoseTrajectory, SE2],
     truths: list[object],
-    objects: tuple[np.ndarray, np.ndarray, np.ndarray],
+    objects: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
     true_pose: SE2,
     hdmap: HDMap,
     road: MapRoadRegion,
@@ -233,10 +318,14 @@ def evaluate_frame(
     obj_all = np.concatenate([t.object_id for t in truths])  # type: ignore[attr-defined]
     label = label_all[res.source_index]
     obj = obj_all[res.source_index]
-    ids, cls, boxes = objects
+    ids, cls, boxes, ground_z = objects
     returns = qs.returns_per_object(obj, ids)
+    z_all = np.concatenate([t.xyz_map_m[:, 2] for t in truths])  # type: ignore[attr-defined]
+    high = qs.returns_above_ground(obj, z_all[res.source_index], ids, ground_z, args.min_height_m)
     rng_m = np.hypot(boxes[:, 0], boxes[:, 1])
-    eligible = (returns >= args.min_returns) & (rng_m <= RANGE_M)
+    # Visible: enough returns standing clear of the ground; "any" counts every return on it.
+    eligible = (high >= args.min_returns) & (rng_m <= RANGE_M)
+    eligible_any = (returns >= args.min_returns) & (rng_m <= RANGE_M)
 
     # Ours: kept clusters, centre of the oriented box.
     cl = res.clusters
@@ -269,14 +358,21 @@ def evaluate_frame(
                 "class": int(cls[i]),
                 "range_m": float(rng_m[i]),
                 "returns": int(returns[i]),
+                "returns_above_ground": int(high[i]),
+                "visible": bool(eligible[i]),
                 "found": bool(found[i]),
                 "baseline_found": bool(b_found[i]),
             }
-            for i in np.flatnonzero(eligible)
+            for i in np.flatnonzero(eligible_any)
         ],
         "curb_errors_m": [],
         "map_curb_errors_m": [],
         "curb_valid": None,
+        "missed": [
+            _why_missed(res, obj, ids[i], boxes[i], centres) for i in np.flatnonzero(eligible & ~found)
+        ],
+        "false_clusters": _false_details(res, label, centres, boxes, point_cluster, args.margin_m),
+        "stage_ms": res.stage_ms,
     }
     if res.curb is not None and curb_map is not None:
         frame["curb_valid"] = bool(res.curb.valid)
@@ -295,9 +391,10 @@ def evaluate_frame(
 def run_weather(weather: str, args: argparse.Namespace) -> list[dict[str, object]]:
     scenario = default_service(seed=args.seed, minutes=args.minutes, weather=weather)
     hdmap, sim, stack = build_closed_loop(scenario)
-    sim.world.agents.extend(
-        extra_agents(hdmap, np.asarray(sim.service_route.xy_m), args.extra_spacing_m, args.seed)
-    )
+    # The extra road users are seen by the LiDARs only (added for the rig's sampling and removed
+    # after): the stack, the radars and the other road users never meet them, so the shuttle
+    # drives the service as it would and nobody stops for a goose that is not there for them.
+    extras = extra_agents(hdmap, sim.service_route.resampled(2.0).xy_m, args.extra_spacing_m, args.seed)
     cover = args.snow_cover_m if weather == "snow" else 0.0
     rig = RawSensorRig(sim.world, seed=args.seed, tick_us=TICK_US, snow_cover_lane_m=cover, keep_truth=True)
     bare = rig.lidar.weather.bare_road_from_curb_m
@@ -322,6 +419,10 @@ def run_weather(weather: str, args: argparse.Namespace) -> list[dict[str, object
         delivered = sim.sensor_frames(tick)
         ins.extend(f for f in delivered if isinstance(f, GnssInsFrame) and f.fix_ok)
         if tick in window:
+            # A road user the shuttle is driving through would hold a LiDAR inside it: leave out
+            # those within 1 m of the body (the stack would have stopped short of a real one).
+            present = [a for a in extras if _clear_of_ego(a, sim.world)]
+            sim.world.agents.extend(present)
             produced = rig.sample(tick)
             if tick in scored:
                 # Everything of this instant is frozen now; the pipeline runs once the INS sample
@@ -335,11 +436,15 @@ def run_weather(weather: str, args: argparse.Namespace) -> list[dict[str, object
                         tick,
                         sweeps,
                         [rig.lidar_truth[s.sensor_id] for s in sweeps],
-                        _boxes_in_base(active, truth_pose),
+                        (
+                            *_boxes_in_base(active, truth_pose),
+                            _ground_z_m(rig, np.array([[a.x_m, a.y_m] for a in active]).reshape(-1, 2)),
+                        ),
                         truth_pose,
                         st.speed_mps,
                     )
                 )
+            del sim.world.agents[len(sim.world.agents) - len(present) :]
         while pending and ins and int(ins[-1].stamp) >= pending[0][0] * TICK_US:
             t_ref, sweeps, truths, objects, truth_pose, speed = pending.pop(0)
             traj = PoseTrajectory.from_ins(list(ins))
@@ -358,7 +463,8 @@ def run_weather(weather: str, args: argparse.Namespace) -> list[dict[str, object
 
 
 def summarise(weather: str, frames: list[dict[str, object]], cover_m: float) -> dict[str, object]:
-    objs = [o for f in frames for o in f["objects"]]  # type: ignore[attr-defined]
+    every = [o for f in frames for o in f["objects"]]  # type: ignore[attr-defined]
+    objs = [o for o in every if o["visible"]]
     row: dict[str, object] = {"weather": weather, "frames": len(frames), "snow_cover_lane_m": cover_m}
     for name, c in CLASSES.items():
         mine = [o for o in objs if o["class"] == int(c)]
@@ -367,6 +473,9 @@ def summarise(weather: str, frames: list[dict[str, object]], cover_m: float) -> 
         row[f"{name}_distinct"] = len({o["id"] for o in mine})
         row[f"{name}_recall"] = sum(o["found"] for o in mine) / n if n else math.nan
         row[f"{name}_baseline_recall"] = sum(o["baseline_found"] for o in mine) / n if n else math.nan
+        anyv = [o for o in every if o["class"] == int(c)]
+        row[f"{name}_n_any_returns"] = len(anyv)
+        row[f"{name}_recall_any_returns"] = sum(o["found"] for o in anyv) / len(anyv) if anyv else math.nan
     nf = max(len(frames), 1)
     row["false_per_frame"] = sum(int(f["false"]) for f in frames) / nf  # type: ignore[call-overload]
     row["baseline_false_per_frame"] = sum(int(f["baseline_false"]) for f in frames) / nf  # type: ignore[call-overload]
@@ -417,6 +526,9 @@ def main() -> None:
     parser.add_argument("--min-returns", type=int, default=5, help="returns that make an object visible")
     parser.add_argument(
         "--margin-m", type=float, default=0.5, help="hit: box centre within footprint + margin"
+    )
+    parser.add_argument(
+        "--min-height-m", type=float, default=0.10, help="visible returns stand this far above the ground"
     )
     parser.add_argument("--snow-cover-m", type=float, default=0.5, help="lane under snow beside curbs (snow)")
     parser.add_argument(

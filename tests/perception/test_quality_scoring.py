@@ -84,3 +84,12 @@ def test_visibility_counts_the_returns_carrying_each_object_id(
     assert qs.returns_per_object(point_object, ids).tolist() == [4, 1, 0]
     assert qs.visible_objects(point_object, ids, min_returns).tolist() == expected
     assert qs.returns_per_object(np.array([-1, -1]), ids).tolist() == [0, 0, 0]
+
+
+def test_returns_near_the_ground_do_not_make_an_object_visible() -> None:
+    # Object 7 stands on the road (z 0), object 3 on a 0.15 m sidewalk; id 9 is not a listed object.
+    point_object = np.array([7, 7, 7, 3, 3, 9, -1])
+    z = np.array([0.05, 0.12, 0.3, 0.2, 0.3, 1.0, 1.0])
+    counts = qs.returns_above_ground(point_object, z, np.array([3, 7]), np.array([0.15, 0.0]), 0.1)
+    assert counts.tolist() == [1, 2]
+    assert qs.returns_above_ground(point_object, z, np.zeros(0, np.int64), np.zeros(0), 0.1).tolist() == []
