@@ -27,7 +27,7 @@ from lastmile.perception.himmelsbach import HimmelsbachConfig
 from lastmile.perception.merge import MergedCloud, merge_sweeps
 from lastmile.perception.motion_compensation import PoseTrajectory
 from lastmile.perception.road_region import RoadMask
-from lastmile.perception.weather_filter import DrorConfig, dror_keep_mask
+from lastmile.perception.weather_filter import DrorConfig, azimuth_step_from_times, dror_keep_mask
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -187,9 +187,14 @@ class LidarPipeline:
         ng = np.flatnonzero(~ground)
         noise = np.zeros(len(xyz), dtype=bool)
         if cfg.weather_filter and len(ng):
+            sweep_of = {s.sensor_id: s for s in sweeps}
             sensor_xy = _sensor_xy(cloud, base_from_sensor)
             scan = cloud.points[ng, 5].astype(np.int64) * 1000 + cloud.points[ng, 4].astype(np.int64)
-            keep = dror_keep_mask(xyz[ng], cfg.dror, sensor_xy[ng], scan)
+            steps = np.array(
+                [azimuth_step_from_times(sweep_of[sid].points[:, 5]) for sid in cloud.sensor_ids]
+            )
+            az_step = steps[cloud.points[ng, 5].astype(np.int64)]
+            keep = dror_keep_mask(xyz[ng], cfg.dror, sensor_xy[ng], scan, az_step)
             noise[ng[~keep]] = True
             ng = ng[keep]
         t4 = time.perf_counter()
