@@ -87,6 +87,7 @@ TARGET_RECALL = {"car": 0.95, "pedestrian": 0.95, "goose": 0.90}
 TARGET_FALSE_PER_FRAME_SNOW = 0.5
 TARGET_CURB_ERROR_M = 0.15
 LIDAR_PERIOD_TICKS = 10
+SWEEP_S = 0.1
 CURB_AHEAD_M = 35.0
 EXTRA_ID0 = 10_000
 
@@ -221,10 +222,9 @@ def _score_clusters(
     point_cluster: np.ndarray,
     point_label: np.ndarray,
     boxes: np.ndarray,
-    eligible: np.ndarray,
-    margin_m: float,
+    margin_m: np.ndarray,
 ) -> tuple[np.ndarray, int]:
-    """(M,) found among eligible objects, and the number of false clusters."""
+    """(M,) found objects, and the number of false clusters."""
     matched = qs.match_clusters(centres, boxes, margin_m)
     found = qs.objects_found(matched, len(boxes))
     false = qs.false_clusters(matched, point_cluster, point_label)
@@ -277,7 +277,7 @@ def _false_details(
     centres: np.ndarray,
     boxes: np.ndarray,
     point_cluster: np.ndarray,
-    margin_m: float,
+    margin_m: np.ndarray,
 ) -> list[dict[str, object]]:
     matched = qs.match_clusters(centres, boxes, margin_m)
     false = qs.false_clusters(matched, point_cluster, label)
@@ -299,7 +299,7 @@ def _false_details(
 def evaluate_frame(
     res_args: tuple[list[LidarSweep], dict[str, np.ndarray], PoseTrajectory, SE2],
     truths: list[object],
-    objects: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+    objects: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray],
     true_pose: SE2,
     hdmap: HDMap,
     road: MapRoadRegion,
@@ -318,7 +318,9 @@ def evaluate_frame(
     obj_all = np.concatenate([t.object_id for t in truths])  # type: ignore[attr-defined]
     label = label_all[res.source_index]
     obj = obj_all[res.source_index]
-    ids, cls, boxes, ground_z = objects
+    ids, cls, boxes, ground_z, speed = objects
+    # Returns were taken up to one sweep before the reference time: moving objects get that slack.
+    margin = args.margin_m + speed * SWEEP_S
     returns = qs.returns_per_object(obj, ids)
     z_all = np.concatenate([t.xyz_map_m[:, 2] for t in truths])  # type: ignore[attr-defined]
     high = qs.returns_above_ground(obj, z_all[res.source_index], ids, ground_z, args.min_height_m)
@@ -333,11 +335,11 @@ def evaluate_frame(
     row_of[cl.labels] = np.arange(len(cl))
     point_cluster = np.where(res.labels >= 0, row_of[res.labels], -1)
     centres = np.c_[cl.col("x_m"), cl.col("y_m")]
-    found, n_false = _score_clusters(centres, point_cluster, label, boxes, eligible, args.margin_m)
+    found, n_false = _score_clusters(centres, point_cluster, label, boxes, margin)
 
     xyz = res.cloud.points[:, :3].astype(np.float64)
     b_centres, b_pc, b_cpu = _dbscan_baseline(xyz, res.ground)
-    b_found, b_false = _score_clusters(b_centres, b_pc, label, boxes, eligible, args.margin_m)
+    b_found, b_false = _score_clusters(b_centres, b_pc, label, boxes, margin)
 
     noise_pts = label == qs.PointLabel.WEATHER_NOISE
     frame: dict[str, object] = {
@@ -371,7 +373,7 @@ def evaluate_frame(
         "missed": [
             _why_missed(res, obj, ids[i], boxes[i], centres) for i in np.flatnonzero(eligible & ~found)
         ],
-        "false_clusters": _false_details(res, label, centres, boxes, point_cluster, args.margin_m),
+        "false_clusters": _false_details(res, label, centres, boxes, point_cluster, margin),
         "stage_ms": res.stage_ms,
     }
     if res.curb is not None and curb_map is not None:
@@ -439,6 +441,7 @@ def run_weather(weather: str, args: argparse.Namespace) -> list[dict[str, object
                         (
                             *_boxes_in_base(active, truth_pose),
                             _ground_z_m(rig, np.array([[a.x_m, a.y_m] for a in active]).reshape(-1, 2)),
+                            np.array([abs(a.speed_mps) for a in active]),
                         ),
                         truth_pose,
                         st.speed_mps,

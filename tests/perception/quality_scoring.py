@@ -6,7 +6,9 @@ Rules (stated once here, printed by the benchmark):
 - **Visible**: a road user with at least ``min_returns`` LiDAR returns on it in the merged rig frame
   the pipeline received (all three LiDARs, after the pipeline's crop), per the per-point truth.
 - **Hit**: a cluster whose box centre lies inside the object's true footprint (oriented rectangle at
-  the frame's reference time) grown by ``margin_m``. Each cluster is given to the nearest such
+  the frame's reference time) grown by ``margin_m`` plus the distance the object moves in one
+  sweep (its returns were taken up to one period before the reference time; de-skewing undoes
+  the shuttle's motion, not the object's). Each cluster is given to the nearest such
   footprint only; an object is found when at least one cluster is given to it (a car split in two
   fragments is found once, and neither fragment is false).
 - **False object**: a cluster given to no road user whose points are mostly (> half) phantom
@@ -42,15 +44,18 @@ def footprint_distance_m(xy_m: npt.ArrayLike, boxes: npt.ArrayLike) -> np.ndarra
     return np.hypot(np.maximum(along, 0.0), np.maximum(across, 0.0))
 
 
-def match_clusters(cluster_xy_m: npt.ArrayLike, boxes: npt.ArrayLike, margin_m: float) -> np.ndarray:
+def match_clusters(
+    cluster_xy_m: npt.ArrayLike, boxes: npt.ArrayLike, margin_m: float | npt.ArrayLike
+) -> np.ndarray:
     """(K,) index of the object each cluster centre is given to (nearest footprint within
-    ``margin_m``), -1 for none."""
+    ``margin_m``, a scalar or one per object), -1 for none."""
     d = footprint_distance_m(cluster_xy_m, boxes)
-    k = d.shape[0]
-    if d.shape[1] == 0:
+    k, m = d.shape
+    if m == 0:
         return np.full(k, -1, dtype=np.int64)
+    margin = np.broadcast_to(np.asarray(margin_m, dtype=np.float64), (m,))
     best = np.argmin(d, axis=1)
-    return np.where(d[np.arange(k), best] <= margin_m, best, -1).astype(np.int64)
+    return np.where(d[np.arange(k), best] <= margin[best], best, -1).astype(np.int64)
 
 
 def objects_found(matched: npt.ArrayLike, n_objects: int) -> np.ndarray:
