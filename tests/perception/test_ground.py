@@ -94,3 +94,19 @@ def test_threshold_grows_with_range_and_is_capped():
 def test_empty_cloud():
     for name in ("adaptive_grid", "himmelsbach"):
         assert make_ground_segmenter(name).segment(np.zeros((0, 3))).shape == (0,)
+
+
+def test_a_cell_that_sees_only_a_car_side_keeps_the_prior_plane_and_the_car_stays_an_object():
+    # Ring 20-30 m behind the bus: the road there is hidden, a horizontal beam draws one line along
+    # a car's side at 0.9 m. The inner rings see flat road.
+    rng = np.random.default_rng(3)
+    r = rng.uniform(2.0, 19.5, 4000)
+    a = rng.uniform(-np.pi, np.pi, 4000)
+    road = np.c_[r * np.cos(a), r * np.sin(a), rng.normal(0.0, 0.01, 4000)]
+    car = np.c_[np.linspace(-26.0, -22.0, 25), np.full(25, 2.5), np.full(25, 0.9)]
+    ground = AdaptiveGridGroundSegmenter().segment(np.vstack([road, car]))
+    assert ground[:4000].mean() > 0.99
+    assert not ground[4000:].any()
+    # Without the step limit the cell fits its plane through the car (the failure this guards).
+    loose = AdaptiveGridGroundSegmenter(AdaptiveGridConfig(max_step_m=5.0)).segment(np.vstack([road, car]))
+    assert loose[4000:].all()

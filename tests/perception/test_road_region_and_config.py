@@ -38,3 +38,17 @@ def test_pipeline_config_from_a_table_and_unknown_keys_are_refused():
         from_mapping(LidarPipelineConfig, {"eps": 0.4}, "perception")
     with pytest.raises(ConfigError, match="residual_degree"):
         from_mapping(LidarPipelineConfig, {"curb": {"residual_degree": 5}}, "perception")
+
+
+def test_road_mask_is_exact_at_the_edge_of_the_road(straight_map):
+    # Next to a curb, a sidewalk point 5-30 cm off the road must not be called road (the raster's
+    # edge cells are up to half a metre wide): it would stand 0.15 m out of the road's plane.
+    region = MapRoadRegion(straight_map)
+    top = float(straight_map.lanelets[1].polygon()[:, 1].max())
+    x = np.linspace(10.0, 90.0, 41)
+    for dy, on_road in ((-0.3, True), (-0.05, True), (0.05, False), (0.12, False), (0.3, False)):
+        xy = np.c_[x, np.full_like(x, top + dy)]
+        assert region.contains(xy).tolist() == [on_road] * len(x), dy
+    # The same through the vehicle-frame mask.
+    mask = region.mask_for(SE2(40.0, top - 2.0, 0.0))
+    assert mask(np.array([[5.0, 1.9], [5.0, 2.1]])).tolist() == [True, False]

@@ -7,9 +7,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from lastmile.core.errors import ConfigError
+from lastmile.core.errors import ConfigError, MessageError
 from lastmile.perception.ground import make_ground_segmenter
-from lastmile.perception.weather_filter import DrorConfig, dror_keep_mask
+from lastmile.perception.weather_filter import DrorConfig, azimuth_step_from_times, dror_keep_mask
 from tests.perception.synthetic import base_cloud, campus_scene, default_rig, sweep
 
 
@@ -75,3 +75,27 @@ def test_scan_line_shortcut_gives_the_same_mask():
     full = dror_keep_mask(p[:, :3], DrorConfig())
     fast = dror_keep_mask(p[:, :3], DrorConfig(), scan_key=key)
     assert np.array_equal(full, fast) and (~full).sum() > 100
+
+
+@pytest.mark.parametrize(("columns", "deg"), [(1800, 0.2), (900, 0.4), (3600, 0.1)])
+def test_azimuth_step_is_read_from_the_column_firing_times(columns: int, deg: float) -> None:
+    k = np.repeat(np.arange(columns), 3)  # three returns per column
+    t = (k * 100_000) // columns  # integer microseconds, as the LiDAR stamps them
+    assert azimuth_step_from_times(t) == pytest.approx(np.radians(deg), rel=0.01)
+    assert azimuth_step_from_times(np.zeros(5)) == 0.0
+
+
+def test_a_thin_object_seen_by_a_coarse_unit_survives_with_that_units_step() -> None:
+    # A blind-spot unit (0.4 deg columns) sees a post 9.6 m away with one ring: five columns
+    # 6.7 cm apart. With the 32-channel unit's 0.2 deg the radius (0.17 m) leaves the two end
+    # points of the row two neighbours each, one short of the three DROR asks for.
+    step = np.radians(0.4)
+    az = step * np.arange(-2, 3)
+    xyz = np.c_[9.6 * np.cos(az), 9.6 * np.sin(az), np.full(5, 0.9)]
+    assert dror_keep_mask(xyz).tolist() == [False, True, True, True, False]
+    assert dror_keep_mask(xyz, azimuth_step_rad=np.full(len(xyz), step)).all()
+    # A lone flake near the same unit still goes.
+    flake = np.vstack([xyz, [[2.0, 0.5, 0.8]]])
+    assert not dror_keep_mask(flake, azimuth_step_rad=np.full(len(flake), step))[-1]
+    with pytest.raises(MessageError, match="azimuth_step_rad"):
+        dror_keep_mask(xyz, azimuth_step_rad=np.ones(2))

@@ -24,7 +24,7 @@ frame, ordered in the driving direction with the road on its left. Steps:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import numpy.typing as npt
@@ -55,6 +55,13 @@ class CurbConfig:
         obstacle_margin_m: clearance left of the boundary before a raised point counts as an obstacle.
         obstacle_height_m: height above the road for such a point.
         below_road_m: points deeper than this under the fitted road are ignored as noise.
+        toe_m: a snow bank slopes down to the road over half a metre or more: past the raised
+            chain the boundary follows the ramp's bins while their lowest point stays above this
+            height, so it lands where the bare road starts (a curb's vertical step has no ramp).
+        max_toe_m: the ramp is followed at most this far.
+        surface_max_m: band points on the curb side of the boundary up to this height above the
+            road are the curb, sidewalk or snow bank itself (reported in ``surface_idx``), not
+            objects; a goose or a person there still stands out above it.
     """
 
     band_m: float = 1.5
@@ -71,6 +78,9 @@ class CurbConfig:
     obstacle_margin_m: float = 0.15
     obstacle_height_m: float = 0.1
     below_road_m: float = 0.2
+    toe_m: float = 0.03
+    max_toe_m: float = 1.0
+    surface_max_m: float = 0.3
 
     def __post_init__(self) -> None:
         for name in (
@@ -81,6 +91,9 @@ class CurbConfig:
             "max_gap_m",
             "road_fit_width_m",
             "snow_reject_m",
+            "toe_m",
+            "max_toe_m",
+            "surface_max_m",
         ):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
@@ -109,6 +122,8 @@ class CurbEstimate:
         residual_coeffs: polynomial coefficients of r(s), highest power first (np.polyval order).
         road_plane: (a, b, c) of the road surface z = a + b s + c d.
         obstacle_idx: (M,) int64 indices (into the input cloud) reassigned as obstacles.
+        surface_idx: (S,) int64 indices of low band points on the curb side of the boundary (curb,
+            sidewalk edge, snow bank): boundary, not objects. Empty when the estimate is invalid.
     """
 
     valid: bool
@@ -119,6 +134,7 @@ class CurbEstimate:
     residual_coeffs: FloatArray
     road_plane: FloatArray
     obstacle_idx: npt.NDArray[np.int64]
+    surface_idx: npt.NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
 
 
 def frenet_of_points(polyline_xy: FloatArray, xy: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -163,11 +179,15 @@ def points_at(polyline_xy: FloatArray, s: FloatArray, d: FloatArray) -> FloatArr
 
 
 def _irls_plane(
-    s: FloatArray, d: FloatArray, z: FloatArray, prior_w: FloatArray, reject_m: float
+    s: FloatArray, d: FloatArray, z: FloatArray, prior_w: FloatArray, reject_m: float, clear_of_m: float
 ) -> FloatArray:
     A = np.stack([np.ones_like(s), s, d], axis=1)
     w = prior_w.copy()
-    coef = np.array([np.median(z), 0.0, 0.0])
+    # Start from the low quantile of the road beyond the band, not the median of all: snow lying
+    # on the lane edge can be most of the points next to the bus (which hides the lane under it),
+    # and a start on the snow would hold the fit there.
+    clear = d > clear_of_m
+    coef = np.array([np.quantile(z[clear] if clear.sum() >= 10 else z, 0.2), 0.0, 0.0])
     for _ in range(4):
         sw = np.sqrt(w)
         coef = np.linalg.lstsq(A * sw[:, None], z * sw, rcond=None)[0]
@@ -214,9 +234,10 @@ def detect_curb(
     road = in_s & (d > -0.0) & (d <= reach)
     if road.sum() < 3:
         raise MessageError(f"detect_curb: expected road points left of the map curb, got {int(road.sum())}")
-    # Trust grows with distance from the map curb: the edge is where snow piles up.
-    lat_w = np.clip(d[road] / cfg.band_m, 0.1, 1.0)
-    plane = _irls_plane(s[road], d[road], z[road], lat_w, cfg.snow_reject_m)
+    # Trust grows with distance from the map curb: the band is where snow piles up and the map
+    # may be off, so its points only count where the road beyond it is not seen.
+    lat_w = np.where(d[road] > cfg.band_m, 1.0, 0.02 + 0.08 * d[road] / cfg.band_m)
+    plane = _irls_plane(s[road], d[road], z[road], lat_w, cfg.snow_reject_m, cfg.band_m)
     h = z - (plane[0] + plane[1] * s + plane[2] * d)
     band &= h >= -cfg.below_road_m  # returns under the road (multipath, noise) cannot be a curb
 
@@ -240,6 +261,7 @@ def detect_curb(
     np.maximum.at(up_flat, flat[up], d[band][up])
     far_up = up_flat.reshape(n_slices, n_bins)
     max_gap_bins = max(1, round(cfg.max_gap_m / cfg.bin_m))
+    max_toe_bins = max(1, round(cfg.max_toe_m / cfg.bin_m))
     for k in range(n_slices):
         occ = np.flatnonzero(np.isfinite(low[k]))
         if len(occ) == 0:
@@ -258,6 +280,29 @@ def detect_curb(
         nxt = occ[end] + 1
         if nxt < n_bins and np.isfinite(far_up[k, nxt]):
             detected[k] = far_up[k, nxt]
+        # A snow bank's ramp: bins below the raised height but still above the road, falling.
+        start = occ[end]
+        prev_h = float(low[k, start])
+        ramp = [start]
+        reached_road = False
+        for j in range(start + 1, min(n_bins, start + 1 + max_toe_bins)):
+            if not np.isfinite(low[k, j]):
+                continue
+            if low[k, j] <= cfg.toe_m:
+                reached_road = True
+                break
+            if low[k, j] > prev_h + cfg.toe_m:
+                break
+            prev_h = float(low[k, j])
+            ramp.append(j)
+            detected[k] = max(detected[k], far_d[k, j])
+        if not reached_road and len(ramp) >= 3:
+            # The road beyond is hidden (the bus's own shadow): extend the ramp's line to the road.
+            x, y = far_d[k, ramp], low[k, ramp]
+            slope = np.polyfit(x, y, 1)[0]
+            if slope < -cfg.toe_m / cfg.max_toe_m:
+                toe = x[-1] - (y[-1] - cfg.toe_m) / slope
+                detected[k] = min(toe, far_d[k, start] + cfg.max_toe_m)
     ok = np.isfinite(detected)
     valid = int(ok.sum()) >= cfg.min_slices
     coeffs = np.zeros(cfg.residual_degree + 1)
@@ -269,6 +314,8 @@ def detect_curb(
     off_at = np.clip(np.polyval(coeffs, s), -cfg.band_m, cfg.band_m)
     obst = in_s & (d > off_at + cfg.obstacle_margin_m) & (d <= reach) & (h >= cfg.obstacle_height_m)
     obstacle_idx = near[obst] if valid else np.zeros(0, dtype=np.int64)
+    surface = band & (d <= off_at + cfg.obstacle_margin_m) & (h <= cfg.surface_max_m)
+    surface_idx = near[surface] if valid else np.zeros(0, dtype=np.int64)
     return CurbEstimate(
         valid=valid,
         s_m=centres,
@@ -278,6 +325,7 @@ def detect_curb(
         residual_coeffs=coeffs,
         road_plane=plane,
         obstacle_idx=obstacle_idx.astype(np.int64),
+        surface_idx=surface_idx.astype(np.int64),
     )
 
 

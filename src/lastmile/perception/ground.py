@@ -49,6 +49,11 @@ class AdaptiveGridConfig:
         seed_band_m: seeds lie within this of that reference.
         max_slope: steepest road-surface slope accepted for a cell's plane (rise over run).
         min_fit_points: fewer points than this keep the prior (inner ring's) plane.
+        max_step_m: a cell's plane may depart from its prior by at most this much at the centroid
+            of the points it was fitted to; more keeps the prior. A cell the road is hidden in
+            (only a car's side seen by a horizontal beam, all at one height) otherwise fits its
+            plane through the car and calls the car ground. 0.5 m passes a high kerb or a raised
+            verge (0.15-0.35 m) fitted from the road's prior in the first ring.
         prior_weight: regularisation pulling a cell's plane toward its prior (in squared-metre units
             of one point), so sparse cells cannot tilt wildly.
         iterations: refits with the shrinking window.
@@ -65,6 +70,7 @@ class AdaptiveGridConfig:
     seed_quantile: float = 0.2
     max_slope: float = 0.2
     min_fit_points: int = 8
+    max_step_m: float = 0.5
     prior_weight: float = 4.0
     iterations: int = 2
 
@@ -86,6 +92,7 @@ class AdaptiveGridConfig:
             "max_slope",
             "max_below_m",
             "seed_band_m",
+            "max_step_m",
         )
         for name in positive:
             v = getattr(self, name)
@@ -230,6 +237,12 @@ def _fit_planes(
     count = np.bincount(region, weights=(w > 0).astype(np.float64), minlength=n_regions)
     ok = (count >= cfg.min_fit_points) & (np.hypot(sol[:, 1], sol[:, 2]) <= cfg.max_slope)
     ok &= np.isfinite(sol).all(axis=1)
+    # The step from the prior, measured where the fitted points are (not at the sensor, where a
+    # small tilt of a far cell's plane would read as a large offset).
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cx, cy = sx / sw, sy / sw
+    step = (sol[:, 0] - prior[:, 0]) + (sol[:, 1] - prior[:, 1]) * cx + (sol[:, 2] - prior[:, 2]) * cy
+    ok &= np.abs(np.nan_to_num(step, nan=np.inf)) <= cfg.max_step_m
     out = np.where(ok[:, None], sol, prior)
     # An off-road part without its own fit borrows the road plane of its cell (and vice versa)
     # rather than the inner ring's, since the cell's other half is the nearer evidence.

@@ -27,7 +27,7 @@ from lastmile.perception.himmelsbach import HimmelsbachConfig
 from lastmile.perception.merge import MergedCloud, merge_sweeps
 from lastmile.perception.motion_compensation import PoseTrajectory
 from lastmile.perception.road_region import RoadMask
-from lastmile.perception.weather_filter import DrorConfig, dror_keep_mask
+from lastmile.perception.weather_filter import DrorConfig, azimuth_step_from_times, dror_keep_mask
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -103,6 +103,8 @@ class LidarPipelineResult:
         clusters: clusters that passed the size filter (see :class:`ClusterSet`).
         curb: the curb estimate (None when no map curb was given).
         curb_obstacle: (N,) bool points the curb step reassigned as obstacles.
+        curb_surface: (N,) bool non-ground points the curb step found to be the curb, sidewalk
+            edge or snow bank on the curb side of the boundary (not clustered).
         stage_ms: wall time per stage, milliseconds (reporting only).
     """
 
@@ -115,6 +117,7 @@ class LidarPipelineResult:
     curb: CurbEstimate | None
     curb_obstacle: np.ndarray
     stage_ms: dict[str, float]
+    curb_surface: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
 
     def detected_objects(self, min_confidence: float = 0.0) -> DetectedObjects:
         """Clusters as :class:`DetectedObjects` in the base frame, class UNKNOWN, velocity 0."""
@@ -187,29 +190,39 @@ class LidarPipeline:
         ng = np.flatnonzero(~ground)
         noise = np.zeros(len(xyz), dtype=bool)
         if cfg.weather_filter and len(ng):
+            sweep_of = {s.sensor_id: s for s in sweeps}
             sensor_xy = _sensor_xy(cloud, base_from_sensor)
             scan = cloud.points[ng, 5].astype(np.int64) * 1000 + cloud.points[ng, 4].astype(np.int64)
-            keep = dror_keep_mask(xyz[ng], cfg.dror, sensor_xy[ng], scan)
+            steps = np.array(
+                [azimuth_step_from_times(sweep_of[sid].points[:, 5]) for sid in cloud.sensor_ids]
+            )
+            az_step = steps[cloud.points[ng, 5].astype(np.int64)]
+            keep = dror_keep_mask(xyz[ng], cfg.dror, sensor_xy[ng], scan, az_step)
             noise[ng[~keep]] = True
             ng = ng[keep]
         t4 = time.perf_counter()
         ms["weather_filter"] = (t4 - t3) * 1e3
-        labels = np.full(len(xyz), -1, dtype=np.int64)
-        labels[ng] = euclidean_cluster_labels(xyz[ng], cfg.cluster_eps_m)
-        t5 = time.perf_counter()
-        ms["clustering"] = (t5 - t4) * 1e3
+        # Curbs first: the boundary decides which raised points near it are curb, sidewalk edge or
+        # snow bank (not objects) and which ground points on the road side are obstacles.
         curb = None
         curb_obstacle = np.zeros(len(xyz), dtype=bool)
+        curb_surface = np.zeros(len(xyz), dtype=bool)
         if map_curb_xy_m is not None:
             curb = detect_curb(xyz, map_curb_xy_m, cfg.curb)
             curb_obstacle[curb.obstacle_idx] = True
-            # Reassigned points the ground step had taken become obstacle points of their own.
-            newly = np.flatnonzero(curb_obstacle & (labels < 0) & ~noise)
-            if len(newly):
-                extra = euclidean_cluster_labels(xyz[newly], cfg.cluster_eps_m)
-                labels[newly] = extra + (labels.max() + 1)
+            curb_surface[curb.surface_idx] = True
+        t5 = time.perf_counter()
+        ms["curbs"] = (t5 - t4) * 1e3
+        labels = np.full(len(xyz), -1, dtype=np.int64)
+        objects = ng[~curb_surface[ng]]
+        labels[objects] = euclidean_cluster_labels(xyz[objects], cfg.cluster_eps_m)
+        # Reassigned points the ground step had taken become obstacle points of their own.
+        newly = np.flatnonzero(curb_obstacle & (labels < 0) & ~noise)
+        if len(newly):
+            extra = euclidean_cluster_labels(xyz[newly], cfg.cluster_eps_m)
+            labels[newly] = extra + (labels.max() + 1)
         t6 = time.perf_counter()
-        ms["curbs"] = (t6 - t5) * 1e3
+        ms["clustering"] = (t6 - t5) * 1e3
         has = labels >= 0
         clusters = describe_clusters(xyz[has], cloud.points[has, 3], labels[has], cfg.geometry)
         t7 = time.perf_counter()
@@ -225,6 +238,7 @@ class LidarPipeline:
             curb=curb,
             curb_obstacle=curb_obstacle,
             stage_ms=ms,
+            curb_surface=curb_surface,
         )
 
 

@@ -26,7 +26,7 @@ from lastmile.core.errors import ConfigError, MessageError
 class DrorConfig:
     """Attributes:
     azimuth_step_rad: the LiDAR's horizontal angular resolution (0.2 deg at 10 Hz for a typical
-        32-channel unit).
+        32-channel unit); with per-point steps given (a rig of mixed units), the floor of those.
     multiplier: beta of DROR, how many beam spacings the radius spans (the paper uses 3; 5 keeps
         the end points of thin objects' ring segments, measured on synthetic scans: object points
         kept 92 % vs 90 %, flakes removed 96 % vs 98 %).
@@ -57,6 +57,7 @@ def dror_keep_mask(
     config: DrorConfig | None = None,
     sensor_xy_m: npt.ArrayLike | None = None,
     scan_key: npt.ArrayLike | None = None,
+    azimuth_step_rad: npt.ArrayLike | None = None,
 ) -> npt.NDArray[np.bool_]:
     """(N,) bool, True for points DROR keeps.
 
@@ -69,6 +70,10 @@ def dror_keep_mask(
             scan line. When given, a point with ``min_neighbours`` scan-line neighbours (the
             nearest in azimuth on each side) inside its radius is kept without a KD-tree query;
             the result is the same, only faster.
+        azimuth_step_rad: (N,) horizontal resolution of the LiDAR that measured each point
+            (:func:`azimuth_step_from_times`); a coarser unit gets a proportionally wider radius,
+            or a blind-spot unit's sparser columns would lose thin objects with the snow. None:
+            ``config.azimuth_step_rad`` for every point; given steps are floored at it.
     """
     cfg = config or DrorConfig()
     p = np.asarray(xyz_m, dtype=np.float64).reshape(-1, 3)
@@ -84,7 +89,13 @@ def dror_keep_mask(
             raise MessageError(f"dror_keep_mask.sensor_xy_m: expected ({n}, 2), got {s.shape}")
         dx, dy = p[:, 0] - s[:, 0], p[:, 1] - s[:, 1]
     rng = np.hypot(dx, dy)
-    radius = np.maximum(cfg.min_radius_m, cfg.multiplier * rng * cfg.azimuth_step_rad)
+    step: float | np.ndarray = cfg.azimuth_step_rad
+    if azimuth_step_rad is not None:
+        given = np.asarray(azimuth_step_rad, dtype=np.float64).reshape(-1)
+        if given.shape != (n,) or not np.isfinite(given).all():
+            raise MessageError(f"dror_keep_mask.azimuth_step_rad: expected ({n},) finite, got {given.shape}")
+        step = np.maximum(given, cfg.azimuth_step_rad)
+    radius = np.maximum(cfg.min_radius_m, cfg.multiplier * rng * step)
     candidate = rng <= cfg.max_range_m
     sure = np.zeros(n, dtype=bool)
     if scan_key is not None:
@@ -105,6 +116,21 @@ def dror_keep_mask(
     dist, _ = tree.query(p[test], k=cfg.min_neighbours + 1, distance_upper_bound=r_max)
     keep[test] = dist[:, -1] <= radius[test]
     return keep
+
+
+def azimuth_step_from_times(t_offset_us: npt.ArrayLike) -> float:
+    """A spinning LiDAR's horizontal resolution from one sweep's per-point firing times.
+
+    Columns fire at equal intervals over the period, so the typical gap between distinct firing
+    times is one column and the sweep spans one period: step = 2 pi * gap / period. Returns 0 for
+    a sweep whose times do not show columns (fewer than two distinct times).
+    """
+    t = np.unique(np.asarray(t_offset_us, dtype=np.float64))
+    if len(t) < 2:
+        return 0.0
+    gap = float(np.median(np.diff(t)))
+    period = float(t[-1] - t[0]) + gap
+    return 2.0 * math.pi * gap / period
 
 
 def _scan_line_sure(
