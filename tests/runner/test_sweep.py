@@ -133,7 +133,8 @@ def test_estop_check_fails_when_the_state_is_never_reached():
     # The encounter scenarios carry no riders: the shuttle never onboards.
     base = next(c for c in iso22737_suite() if c.group == "hazard, clear view").scenario
     log = run_scenario(
-        dataclasses.replace(base, minutes=0.3, estop_in_state="onboarding"), perception_mode=SWEEP_PERCEPTION_MODE
+        dataclasses.replace(base, minutes=0.3, estop_in_state="onboarding"),
+        perception_mode=SWEEP_PERCEPTION_MODE,
     )
     result = CHECKS["estop_honoured"](log, compute_metrics(log))
     assert not result.ok and "never reached state 'onboarding'" in result.detail
