@@ -72,9 +72,7 @@ class Feed:
                 if frame is not None:
                     self.mon.observe_frame(t, frame)
                 pts = self.rng.normal(size=(self.lidar_points, 6)).astype(np.float32)
-                self.mon.observe_frame(
-                    t, LidarSweep(stamp=Stamp(t - 50_000), sensor_id="top", points=pts)
-                )
+                self.mon.observe_frame(t, LidarSweep(stamp=Stamp(t - 50_000), sensor_id="top", points=pts))
             if t % 20_000 == 0:
                 imu = ImuFrame(
                     stamp=Stamp(t - 4_000),
