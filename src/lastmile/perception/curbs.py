@@ -57,7 +57,8 @@ class CurbConfig:
         below_road_m: points deeper than this under the fitted road are ignored as noise.
         toe_m: a snow bank slopes down to the road over half a metre or more: past the raised
             chain the boundary follows the ramp's bins while their lowest point stays above this
-            height, so it lands where the bare road starts (a curb's vertical step has no ramp).
+            height and extends the ramp's line to the road, so it lands where the bare road
+            starts (a curb's vertical step has no ramp).
         max_toe_m: the ramp is followed at most this far.
         surface_max_m: band points on the curb side of the boundary up to this height above the
             road are the curb, sidewalk or snow bank itself (reported in ``surface_idx``), not
@@ -281,28 +282,28 @@ def detect_curb(
         if nxt < n_bins and np.isfinite(far_up[k, nxt]):
             detected[k] = far_up[k, nxt]
         # A snow bank's ramp: bins below the raised height but still above the road, falling.
+        # Its line, extended to the road surface, is where the bare road starts; a curb's vertical
+        # step has no ramp (its next bin is road) and keeps the boundary found above.
         start = occ[end]
         prev_h = float(low[k, start])
         ramp = [start]
-        reached_road = False
+        cap = far_d[k, start] + cfg.max_toe_m
         for j in range(start + 1, min(n_bins, start + 1 + max_toe_bins)):
             if not np.isfinite(low[k, j]):
                 continue
             if low[k, j] <= cfg.toe_m:
-                reached_road = True
+                cap = far_d[k, j]  # the road is seen here: the toe is no farther
                 break
             if low[k, j] > prev_h + cfg.toe_m:
                 break
             prev_h = float(low[k, j])
             ramp.append(j)
             detected[k] = max(detected[k], far_d[k, j])
-        if not reached_road and len(ramp) >= 3:
-            # The road beyond is hidden (the bus's own shadow): extend the ramp's line to the road.
+        if len(ramp) >= 3:
             x, y = far_d[k, ramp], low[k, ramp]
             slope = np.polyfit(x, y, 1)[0]
             if slope < -cfg.toe_m / cfg.max_toe_m:
-                toe = x[-1] - (y[-1] - cfg.toe_m) / slope
-                detected[k] = min(toe, far_d[k, start] + cfg.max_toe_m)
+                detected[k] = float(np.clip(x[-1] - y[-1] / slope, detected[k], max(cap, detected[k])))
     ok = np.isfinite(detected)
     valid = int(ok.sum()) >= cfg.min_slices
     coeffs = np.zeros(cfg.residual_degree + 1)
