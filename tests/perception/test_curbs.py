@@ -128,3 +128,24 @@ def test_snow_lying_on_the_lane_edge_moves_the_boundary_onto_the_road_and_is_not
     assert not np.isin(cover, est.obstacle_idx).any()
     goose = np.flatnonzero((box == 0) & (xyz[:, 2] > 0.1))
     assert len(goose) >= 3 and not np.isin(goose, est.surface_idx).any()
+
+
+def test_slices_whose_edge_lies_in_an_unseen_stretch_do_not_vote_when_others_see_it():
+    # Dense hand-made slices along a straight map curb at y = 0 (road at y > 0). In 10 of 30
+    # slices the raised surface runs to 0.8 m and the road starts there; in the other 20 the
+    # points stop at the curb and the road is seen only from 1.2 m on (a ring skipped the stretch).
+    pts = []
+    for k in range(30):
+        x = k + 0.5 + np.linspace(-0.4, 0.4, 5)
+        seen_to, road_from = (0.0, 1.2) if k % 3 else (0.8, 0.8)
+        for y in np.arange(-1.45, 4.0, 0.05):
+            if seen_to < y < road_from:
+                continue
+            z = 0.15 if y <= seen_to else 0.0
+            pts.append(np.c_[x, np.full_like(x, y), np.full_like(x, z)])
+    xyz = np.vstack(pts)
+    curb = np.array([[0.0, 0.0], [40.0, 0.0]])
+    est = detect_curb(xyz, curb)
+    assert est.valid
+    assert np.all(np.abs(est.offset_m - 0.8) <= 0.1)
+    assert np.isnan(est.detected_offset_m).sum() == 0  # the ambiguous slices still report their edge
