@@ -512,6 +512,17 @@ def summarise(weather: str, frames: list[dict[str, object]], cover_m: float) -> 
     return row
 
 
+def _finite(x: object) -> object:
+    """NaN (no object of a class seen) as JSON null."""
+    if isinstance(x, float) and math.isnan(x):
+        return None
+    if isinstance(x, dict):
+        return {k: _finite(v) for k, v in x.items()}
+    if isinstance(x, list | tuple):
+        return [_finite(v) for v in x]
+    return x
+
+
 def _fmt(x: object, digits: int = 2) -> str:
     if isinstance(x, float):
         return "-" if math.isnan(x) else f"{x:.{digits}f}"
@@ -630,18 +641,20 @@ def main() -> None:
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(
         json.dumps(
-            {
-                "args": {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()},
-                "rules": qs.__doc__,
-                "summary": rows,
-                "targets": {
-                    "recall": TARGET_RECALL,
-                    "false_per_frame_snow": TARGET_FALSE_PER_FRAME_SNOW,
-                    "curb_error_median_m": TARGET_CURB_ERROR_M,
-                },
-                "checks": [{"check": n, "value": v, "met": ok} for n, v, ok in checks],
-                "frames": per_frame,
-            },
+            _finite(
+                {
+                    "args": {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()},
+                    "rules": qs.__doc__,
+                    "summary": rows,
+                    "targets": {
+                        "recall": TARGET_RECALL,
+                        "false_per_frame_snow": TARGET_FALSE_PER_FRAME_SNOW,
+                        "curb_error_median_m": TARGET_CURB_ERROR_M,
+                    },
+                    "checks": [{"check": n, "value": v, "met": ok} for n, v, ok in checks],
+                    "frames": per_frame,
+                }
+            ),
             indent=1,
         )
     )
