@@ -57,8 +57,12 @@ class CurbConfig:
         below_road_m: points deeper than this under the fitted road are ignored as noise.
         toe_m: a snow bank slopes down to the road over half a metre or more: past the raised
             chain the boundary follows the ramp's bins while their lowest point stays above this
-            height, so it lands where the bare road starts (a curb's vertical step has no ramp).
+            height and extends the ramp's line to the road, so it lands where the bare road
+            starts (a curb's vertical step has no ramp).
         max_toe_m: the ramp is followed at most this far.
+        max_unseen_m: a slice whose raised chain (or ramp) ends more than this short of the first
+            road-level return beyond it is ambiguous (the edge lies in the unseen stretch); the
+            residual model uses ambiguous slices only when fewer than ``min_slices`` others exist.
         surface_max_m: band points on the curb side of the boundary up to this height above the
             road are the curb, sidewalk or snow bank itself (reported in ``surface_idx``), not
             objects; a goose or a person there still stands out above it.
@@ -80,6 +84,7 @@ class CurbConfig:
     below_road_m: float = 0.2
     toe_m: float = 0.03
     max_toe_m: float = 1.0
+    max_unseen_m: float = 0.3
     surface_max_m: float = 0.3
 
     def __post_init__(self) -> None:
@@ -93,6 +98,7 @@ class CurbConfig:
             "snow_reject_m",
             "toe_m",
             "max_toe_m",
+            "max_unseen_m",
             "surface_max_m",
         ):
             v = getattr(self, name)
@@ -265,6 +271,7 @@ def detect_curb(
     far_up = up_flat.reshape(n_slices, n_bins)
     max_gap_bins = max(1, round(cfg.max_gap_m / cfg.bin_m))
     max_toe_bins = max(1, round(cfg.max_toe_m / cfg.bin_m))
+    ambiguous = np.zeros(n_slices, dtype=bool)
     for k in range(n_slices):
         occ = np.flatnonzero(np.isfinite(low[k]))
         if len(occ) == 0:
@@ -284,29 +291,37 @@ def detect_curb(
         if nxt < n_bins and np.isfinite(far_up[k, nxt]):
             detected[k] = far_up[k, nxt]
         # A snow bank's ramp: bins below the raised height but still above the road, falling.
+        # Its line, extended to the road surface, is where the bare road starts; a curb's vertical
+        # step has no ramp (its next bin is road) and keeps the boundary found above.
         start = occ[end]
         prev_h = float(low[k, start])
         ramp = [start]
-        reached_road = False
+        cap = far_d[k, start] + cfg.max_toe_m
+        road_from = math.inf  # the near edge of the first road-level bin beyond the chain
         for j in range(start + 1, min(n_bins, start + 1 + max_toe_bins)):
             if not np.isfinite(low[k, j]):
                 continue
             if low[k, j] <= cfg.toe_m:
-                reached_road = True
+                cap = far_d[k, j]  # the road is seen here: the toe is no farther
+                road_from = j * cfg.bin_m - cfg.band_m
                 break
             if low[k, j] > prev_h + cfg.toe_m:
                 break
             prev_h = float(low[k, j])
             ramp.append(j)
             detected[k] = max(detected[k], far_d[k, j])
-        if not reached_road and len(ramp) >= 3:
-            # The road beyond is hidden (the bus's own shadow): extend the ramp's line to the road.
+        if len(ramp) >= 3:
             x, y = far_d[k, ramp], low[k, ramp]
             slope = np.polyfit(x, y, 1)[0]
             if slope < -cfg.toe_m / cfg.max_toe_m:
-                toe = x[-1] - (y[-1] - cfg.toe_m) / slope
-                detected[k] = min(toe, far_d[k, start] + cfg.max_toe_m)
+                detected[k] = float(np.clip(x[-1] - y[-1] / slope, detected[k], max(cap, detected[k])))
+        # Raised surface, nothing, then road: the edge lies somewhere in the unseen stretch (a
+        # curb's face or a snow ramp a sparse ring skipped); such a slice votes only if too few
+        # others see the edge itself.
+        ambiguous[k] = road_from - detected[k] > cfg.max_unseen_m
     ok = np.isfinite(detected)
+    if int((ok & ~ambiguous).sum()) >= cfg.min_slices:
+        ok &= ~ambiguous
     valid = int(ok.sum()) >= cfg.min_slices
     coeffs = np.zeros(cfg.residual_degree + 1)
     if valid:
