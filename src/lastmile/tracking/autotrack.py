@@ -49,6 +49,7 @@ from lastmile.tracking.class_hmm import (
     initial_prob,
     match_camera_detections,
 )
+from lastmile.tracking.published_ids import PublishedIds
 
 _US = 1e-6
 
@@ -206,6 +207,8 @@ class _Tracks:
     class_prob: np.ndarray
     score: np.ndarray
     attributes: np.ndarray
+    birth_source: np.ndarray  # code of the source whose detection started the track
+    birth_index: np.ndarray  # that detection's row in its message
     next_id: int
     source_latest_us: dict[str, int] = field(default_factory=dict)  # newest stamp per source so far
 
@@ -224,6 +227,8 @@ class _Tracks:
             class_prob=np.zeros((0, N_CLASSES)),
             score=np.zeros(0),
             attributes=np.zeros((0, n_attributes)),
+            birth_source=np.zeros(0, np.int64),
+            birth_index=np.zeros(0, np.int64),
             next_id=0,
         )
 
@@ -244,6 +249,17 @@ class _Tracks:
         return np.column_stack([self.x[:, 0:3], self.size, self.x[:, 3]])
 
 
+@dataclass(frozen=True, slots=True)
+class _CameraEvidence:
+    """2D camera detections queued with the detection messages (class evidence only)."""
+
+    stamp_us: int
+    boxes: np.ndarray  # (M, 4) image boxes
+    classes: np.ndarray  # (M,) ObjectClass values
+    camera_from_frame: np.ndarray  # (4, 4)
+    intrinsics: np.ndarray  # (3, 3)
+
+
 _ARRAY_FIELDS = tuple(f.name for f in fields(_Tracks) if f.name not in ("next_id", "source_latest_us"))
 
 
@@ -255,12 +271,15 @@ class AutoTrack:
         self._ct = _class_table(self.config)
         self._n_attr = n_attributes
         self._t = _Tracks.empty(n_attributes)
-        self._queue: list[tuple[tuple[int, str], DetectedBoxes]] = []
+        self._queue: list[tuple[tuple[int, int, str], DetectedBoxes | _CameraEvidence]] = []
         self._states: list[_Tracks] = []  # state after each queued message
         self._base = self._t.copy()  # state before the first queued message
         self.late_beyond_window = 0
         self.rollbacks = 0
         self.refused_births = 0
+        self._source_codes: dict[str, int] = {}
+        # Not part of the rolled-back state: which ids have been published is a fact replays don't undo.
+        self.published_ids = PublishedIds()
 
     def __len__(self) -> int:
         return int(self._t.ids.shape[0])
@@ -276,25 +295,74 @@ class AutoTrack:
             raise MessageError(
                 f"DetectedBoxes.attributes: expected {self._n_attr} columns, got {msg.attributes.shape[1]}"
             )
-        key = (int(msg.stamp), msg.source)
+        self._enqueue((int(msg.stamp), 0, msg.source), msg)
+
+    def _enqueue(self, key: tuple[int, int, str], item: DetectedBoxes | _CameraEvidence) -> int:
+        """Apply ``item`` in capture order (rolling back and replaying if it is late); returns its result."""
         if not self._queue or key >= self._queue[-1][0]:
-            self._step(msg)
-            self._queue.append((key, msg))
+            result = self._apply(item)
+            self._queue.append((key, item))
             self._states.append(self._t.copy())
         else:
             self.rollbacks += 1
+            before = self._published_snapshot()
             pos = bisect.bisect_right([k for k, _ in self._queue], key)
             if pos == 0:
                 self.late_beyond_window += int(
                     self._queue[0][0][0] - key[0] > self.config.rollback_window_s / _US
                 )
             self._t = (self._states[pos - 1] if pos > 0 else self._base).copy()
-            self._queue.insert(pos, (key, msg))
+            self._queue.insert(pos, (key, item))
             del self._states[pos:]
-            for _, m in self._queue[pos:]:
-                self._step(m)
+            result = 0
+            for i, (_, m) in enumerate(self._queue[pos:]):
+                r = self._apply(m)
+                result = r if i == 0 else result
                 self._states.append(self._t.copy())
+            keys, xy, vxy, expires = before
+            self.published_ids.retire(
+                keys, xy, vxy, self._queue[-1][0][0], expires, set(self._keys(np.nonzero(self._t.full)[0]))
+            )
         self._trim()
+        self._assign_public_ids()
+        return result
+
+    def _apply(self, item: DetectedBoxes | _CameraEvidence) -> int:
+        if isinstance(item, _CameraEvidence):
+            return self._camera_step(item)
+        self._step(item)
+        return 0
+
+    # ----------------------------------------------------------------- published ids
+    def _source_code(self, source: str) -> int:
+        return self._source_codes.setdefault(source, len(self._source_codes))
+
+    def _keys(self, rows: np.ndarray) -> list[tuple[int, int, int]]:
+        t = self._t
+        return list(
+            zip(
+                t.first_det_us[rows].tolist(),
+                t.birth_source[rows].tolist(),
+                t.birth_index[rows].tolist(),
+                strict=True,
+            )
+        )
+
+    def _published_snapshot(self) -> tuple[list[tuple[int, int, int]], np.ndarray, np.ndarray, np.ndarray]:
+        """Keys, positions, velocities and prune times of the full tracks (before a replay)."""
+        t = self._t
+        sel = np.nonzero(t.full)[0]
+        cls = np.argmax(t.class_prob[sel], axis=1)
+        expires = t.last_det_us[sel] + np.round(self._params("t_prune_s", cls) / _US).astype(np.int64)
+        return self._keys(sel), t.x[sel, 0:2], t.x[sel, 4:6], expires
+
+    def _assign_public_ids(self) -> None:
+        t = self._t
+        sel = np.nonzero(t.full)[0]
+        cls = np.argmax(t.class_prob[sel], axis=1)
+        self.published_ids.assign(
+            self._keys(sel), t.x[sel, 0:2], self._params("gate_m", cls), self._queue[-1][0][0]
+        )
 
     def _trim(self) -> None:
         newest = self._queue[-1][0][0]
@@ -306,6 +374,12 @@ class AutoTrack:
             self._base = self._states[cut - 1]
             del self._queue[:cut]
             del self._states[:cut]
+        if len(self.published_ids) > 2 * self._t.ids.size + 64:
+            # Ids of hypotheses gone from the current state and the oldest one a replay can restore.
+            keep = set(self._keys(np.arange(self._t.ids.size)))
+            keep.update(zip(self._base.first_det_us.tolist(), self._base.birth_source.tolist(),
+                            self._base.birth_index.tolist(), strict=True))  # fmt: skip
+            self.published_ids.forget_except(keep)
 
     # ----------------------------------------------------------------- one message
     def _params(self, name: str, cls: np.ndarray) -> np.ndarray:
@@ -407,6 +481,8 @@ class AutoTrack:
             class_prob=initial_prob(cls, cfg.hmm.lidar_accuracy),
             score=msg.score[di].astype(np.float64),
             attributes=msg.attributes[di].copy(),
+            birth_source=np.full(n, self._source_code(msg.source), np.int64),
+            birth_index=di.astype(np.int64),
             next_id=0,
         )
         t.append(new)
@@ -436,29 +512,47 @@ class AutoTrack:
         camera_class: np.ndarray,
         camera_from_frame: np.ndarray,
         intrinsics: np.ndarray,
+        *,
+        source: str = "camera",
     ) -> int:
         """Update track classes (only) from 2D camera detections matched by projection; returns matches.
 
+        The evidence joins the capture-ordered queue like a detection message, so a later rollback replays
+        it at its stamp instead of losing it, and a late camera frame rolls back like a late LiDAR one.
         Tracks are predicted to ``stamp`` for the projection only; their states are left unchanged.
+
+        Raises:
+            MessageError: not one class per camera box.
         """
-        camera_class = np.asarray(camera_class, dtype=np.int64)
-        if camera_class.shape[0] != np.asarray(camera_boxes).shape[0]:
+        camera_class = np.array(camera_class, dtype=np.int64)
+        camera_boxes = np.array(camera_boxes, dtype=np.float64)
+        if camera_class.shape[0] != camera_boxes.shape[0]:
             raise MessageError(
-                f"camera_class: expected one class per camera box ({np.asarray(camera_boxes).shape[0]}), "
+                f"camera_class: expected one class per camera box ({camera_boxes.shape[0]}), "
                 f"got {camera_class.shape[0]}"
             )
-        boxes = self._predicted_boxes(int(stamp))
+        ev = _CameraEvidence(
+            stamp_us=int(stamp),
+            boxes=camera_boxes,
+            classes=camera_class,
+            camera_from_frame=np.array(camera_from_frame, dtype=np.float64),
+            intrinsics=np.array(intrinsics, dtype=np.float64),
+        )
+        # Evidence sorts after the detection messages of its stamp: it labels tracks, it never starts one.
+        return self._enqueue((int(stamp), 1, source), ev)
+
+    def _camera_step(self, ev: _CameraEvidence) -> int:
         ti, ci = match_camera_detections(
-            boxes,
-            np.asarray(camera_boxes, np.float64),
-            camera_from_frame,
-            intrinsics,
+            self._predicted_boxes(ev.stamp_us),
+            ev.boxes,
+            ev.camera_from_frame,
+            ev.intrinsics,
             self.config.hmm.min_camera_iou,
         )
         if ti.size:
             self._t.class_prob[ti] = hmm_update(
                 self._t.class_prob[ti],
-                camera_class[ci],
+                ev.classes[ci],
                 self.config.hmm.camera_accuracy,
                 self.config.hmm.switch_prob,
             )
@@ -500,7 +594,7 @@ class AutoTrack:
         assert table.shape[1] == len(TRACK_BOX_COLUMNS) and len(BOX3D_COLUMNS) == 7
         return TrackedBoxes(
             stamp=stamp,
-            ids=t.ids[sel],
+            ids=self.published_ids.ids_of(self._keys(sel)),
             table=table.reshape(-1, len(TRACK_BOX_COLUMNS)),
             class_id=cls,
             class_prob=t.class_prob[sel],
