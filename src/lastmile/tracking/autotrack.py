@@ -61,6 +61,10 @@ class ClassParams:
     Attributes:
         gate_m: centre-distance gate for association.
         birth_min_score: detections scoring lower update tracks but never start one.
+        birth_min_evidence: a trial track becomes full only once the sum of its detections' scores
+            reaches this, besides ``t_birth_s`` (scores read as the detector's log-odds that the object
+            exists, so the sum is the track's accumulated existence evidence, a sequential test: one
+            confident detection suffices, a run of doubtful ones needs many); -inf: off.
         t_birth_s: detected over this long (first to latest detection) before a trial track is full.
         t_expire_s: a full track undetected for longer is demoted (no longer published).
         t_prune_s: a track undetected for longer is deleted.
@@ -73,6 +77,7 @@ class ClassParams:
 
     gate_m: float = 3.0
     birth_min_score: float = -np.inf
+    birth_min_evidence: float = -np.inf
     t_birth_s: float = 0.2
     t_expire_s: float = 0.0
     t_prune_s: float = 0.3
@@ -85,9 +90,9 @@ class ClassParams:
     def __post_init__(self) -> None:
         for f in fields(self):
             v = getattr(self, f.name)
-            if f.name == "birth_min_score":
+            if f.name in ("birth_min_score", "birth_min_evidence"):
                 if np.isnan(v):
-                    raise ConfigError("ClassParams.birth_min_score: expected a number, got NaN")
+                    raise ConfigError(f"ClassParams.{f.name}: expected a number, got NaN")
             elif not (np.isfinite(v) and v >= 0.0):
                 raise ConfigError(f"ClassParams.{f.name}: expected a finite value >= 0, got {v!r}")
         if self.gate_m <= 0.0 or self.pos_std_m <= 0.0 or self.yaw_std_rad <= 0.0:
@@ -206,6 +211,7 @@ class _Tracks:
     ever_full: np.ndarray
     class_prob: np.ndarray
     score: np.ndarray
+    evidence: np.ndarray  # sum of the scores of the track's detections
     attributes: np.ndarray
     birth_source: np.ndarray  # code of the source whose detection started the track
     birth_index: np.ndarray  # that detection's row in its message
@@ -226,6 +232,7 @@ class _Tracks:
             ever_full=np.zeros(0, bool),
             class_prob=np.zeros((0, N_CLASSES)),
             score=np.zeros(0),
+            evidence=np.zeros(0),
             attributes=np.zeros((0, n_attributes)),
             birth_source=np.zeros(0, np.int64),
             birth_index=np.zeros(0, np.int64),
@@ -436,6 +443,7 @@ class AutoTrack:
         t.size[ti] += cfg.size_gain * (b[:, 3:6] - t.size[ti])
         t.class_prob[ti] = hmm_update(t.class_prob[ti], cls, cfg.hmm.lidar_accuracy, cfg.hmm.switch_prob)
         t.score[ti] = msg.score[di]
+        t.evidence[ti] += msg.score[di]
         t.attributes[ti] = msg.attributes[di]
         t.last_det_us[ti] = int(msg.stamp)
 
@@ -480,6 +488,7 @@ class AutoTrack:
             ever_full=np.zeros(n, bool),
             class_prob=initial_prob(cls, cfg.hmm.lidar_accuracy),
             score=msg.score[di].astype(np.float64),
+            evidence=msg.score[di].astype(np.float64),
             attributes=msg.attributes[di].copy(),
             birth_source=np.full(n, self._source_code(msg.source), np.int64),
             birth_index=di.astype(np.int64),
@@ -497,7 +506,10 @@ class AutoTrack:
         since = (horizon - t.last_det_us) * _US
         detected_now = t.last_det_us == now
         span = (t.last_det_us - t.first_det_us) * _US
-        promote = detected_now & (t.ever_full | (span >= self._params("t_birth_s", cls) - 1e-9))
+        born = (span >= self._params("t_birth_s", cls) - 1e-9) & (
+            t.evidence >= self._params("birth_min_evidence", cls)
+        )
+        promote = detected_now & (t.ever_full | born)
         t.full |= promote
         t.ever_full |= promote
         t.full &= since <= self._params("t_expire_s", cls) + 1e-9
