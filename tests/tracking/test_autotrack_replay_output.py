@@ -9,6 +9,7 @@ from lastmile.core.object_class import ObjectClass
 from lastmile.core.stamp import Stamp
 from lastmile.tracking.autotrack import AutoTrack
 from lastmile.tracking.class_hmm import project_boxes
+from tests.tracking import sim_scene
 from tests.tracking.test_autotrack import CAR, PED, _config, _msg
 
 
@@ -81,3 +82,11 @@ def test_camera_class_evidence_is_replayed_by_a_rollback_and_late_evidence_rolls
     assert ObjectClass(int(a.class_id[0])) is ObjectClass.PEDESTRIAN
     np.testing.assert_array_equal(a.class_prob, b.class_prob)
     np.testing.assert_array_equal(a.table, b.table)
+
+
+def test_ids_handed_over_by_replays_stay_unique_among_published_tracks() -> None:
+    rec = sim_scene.record(seed=1, seconds=10.0, weather="rain")
+    res = sim_scene.feed(rec, sim_scene.deliveries(rec, "shuffled", 1), rollback=True)
+    assert res.inherited > 0  # replays did hand ids over
+    for ids, _ in res.published.values():
+        assert len(set(ids.tolist())) == ids.size
