@@ -20,9 +20,11 @@ get the objects only it sees demoted before its frames are in. With one source t
 stamp. The horizon depends only on messages in capture order, so rollback keeps results independent of
 arrival order.
 
-Rollback: messages are kept in capture order (stamp, then source name) with the tracker state after
-each. A message older than the newest processed one rolls the tracker back to the state just before
-its stamp and replays it and every later message, so arrival order does not change the result.
+Rollback: messages (detections, and camera class evidence, which sorts after the detections of its
+stamp) are kept in capture order (stamp, kind, source name) with the tracker state after each. A message
+older than the newest processed one rolls the tracker back to the state just before its stamp and
+replays it and every later message, so arrival order does not change the result. Published ids are
+kept through replays by :mod:`lastmile.tracking.published_ids`.
 Nothing is dropped: a message older than the retained window (``rollback_window_s``) is replayed from
 the oldest retained state, its tracks retrodicted to its stamp (counted in ``late_beyond_window``).
 """
