@@ -358,11 +358,15 @@ class AutoTrack:
         )
 
     def _published_snapshot(self) -> tuple[list[tuple[int, int, int]], np.ndarray, np.ndarray, np.ndarray]:
-        """Keys, positions, velocities and prune times of the full tracks (before a replay)."""
+        """Keys, positions, velocities and id expiry times of the published tracks (before a replay).
+
+        A track a replay retracts keeps its id reserved for its class's ``t_prune_s`` after it was last
+        published (the tracker's current stamp): as long as it could have coasted had it stayed.
+        """
         t = self._t
         sel = np.nonzero(t.full)[0]
         cls = np.argmax(t.class_prob[sel], axis=1)
-        expires = t.last_det_us[sel] + np.round(self._params("t_prune_s", cls) / _US).astype(np.int64)
+        expires = t.stamp_us[sel] + np.round(self._params("t_prune_s", cls) / _US).astype(np.int64)
         return self._keys(sel), t.x[sel, 0:2], t.x[sel, 4:6], expires
 
     def _assign_public_ids(self) -> None:

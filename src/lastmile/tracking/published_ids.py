@@ -17,8 +17,8 @@ never shows (measured in ``benchmarks/tracking_sim.py``). This module keeps the 
   replay does not change (a birth counter does: an extra birth in a late message shifts every later id);
 - its public id is given once, when it is first published (full), and kept while it lives;
 - a published track that a *replay* removes from the output (deleted or no longer full) is retired
-  with its public id, position and velocity; until the moment it would have been pruned had it
-  coasted (its last detection + ``t_prune_s``), a newly published track within its class's
+  with its public id, position and velocity; for as long as it could have coasted had it stayed
+  (``t_prune_s`` after it was last published), a newly published track within its class's
   association gate of the retired one's predicted position takes that id (Hungarian on distance).
   If the retired track itself is published again first (it was only demoted), it keeps its id.
 
@@ -43,7 +43,7 @@ class _Retired:
     xy_m: np.ndarray  # (2,) position at stamp_us
     vxy_mps: np.ndarray  # (2,) velocity
     stamp_us: int
-    expires_us: int  # the track's last detection + its class's t_prune_s
+    expires_us: int  # when the track was last published + its class's t_prune_s
 
 
 class PublishedIds:
@@ -78,7 +78,7 @@ class PublishedIds:
             xy_m: (N, 2) their positions at ``stamp_us``.
             vxy_mps: (N, 2) their velocities.
             stamp_us: the stamp their states were at.
-            expires_us: (N,) when each would have been pruned had it coasted undetected.
+            expires_us: (N,) until when each one's id stays reserved for a successor.
             still_published: keys published after the replay.
         """
         for i, key in enumerate(before):
