@@ -57,13 +57,20 @@ AB3DMOT_REFERENCE_FPS = 80.0
 KITTI_CLASS = {"Car": ObjectClass.CAR, "Pedestrian": ObjectClass.PEDESTRIAN, "Cyclist": ObjectClass.CYCLIST}
 
 
+BIRTH_EVIDENCE = 3.0
+"""Summed detection scores a track needs to be published under the score-aware birth rule: log(19), the
+log-odds of 95 % if PointRCNN's scores are read as log-odds. Fixed before any run, not tuned."""
+
+
 def candidates() -> dict[str, AutoTrackConfig]:
     """The grid the cross-validation chooses from: association method x birth time x coasting time x
-    smallest detection score that may start a track (16 candidates)."""
+    birth score rule (24 candidates). Birth score rules: any detection may start a track (-inf); only a
+    detection scoring >= 0 may (0.0); any may, but the track is published only once its detections'
+    summed scores reach ``BIRTH_EVIDENCE`` ("evidence", ``ClassParams.birth_min_evidence``)."""
     out = {}
     base = default_class_params()
     for method, birth, coast, min_score in itertools.product(
-        ("hungarian", "greedy"), ("fast", "slow"), ("short", "long"), (-np.inf, 0.0)
+        ("hungarian", "greedy"), ("fast", "slow"), ("short", "long"), (-np.inf, 0.0, "evidence")
     ):
         if True:
             if True:
@@ -74,14 +81,17 @@ def candidates() -> dict[str, AutoTrackConfig]:
                 cp[ped] = replace(cp[ped], t_birth_s=0.0 if fast else 0.1)
                 cp[cyc] = replace(cp[cyc], t_birth_s=0.1 if fast else 0.2)
                 expire = {"short": (0.1, 0.3, 0.3), "long": (0.2, 0.4, 0.4)}[coast]
+                evidence = min_score == "evidence"
                 for k, e in zip((car, ped, cyc), expire, strict=True):
                     cp[k] = replace(
                         cp[k],
                         t_expire_s=e,
                         t_prune_s=max(cp[k].t_prune_s, e + 0.1),
-                        birth_min_score=min_score,
+                        birth_min_score=-np.inf if evidence else float(min_score),
+                        birth_min_evidence=BIRTH_EVIDENCE if evidence else -np.inf,
                     )
-                out[f"{method}/{birth}-birth/{coast}-coast/birth-score>={min_score}"] = AutoTrackConfig(
+                rule = f"birth-evidence>={BIRTH_EVIDENCE}" if evidence else f"birth-score>={min_score}"
+                out[f"{method}/{birth}-birth/{coast}-coast/{rule}"] = AutoTrackConfig(
                     classes=cp, association=AssociationConfig(method=method)
                 )
     return out

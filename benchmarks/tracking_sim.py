@@ -33,6 +33,7 @@ from pathlib import Path
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
+import numpy as np
 from rich.console import Console
 from rich.table import Table
 
@@ -49,17 +50,25 @@ def _label(order: str, rollback: bool) -> str:
     return f"{order}" if rollback else f"{order}, drop late (no rollback)"
 
 
-def run(seconds: float, seeds: list[int], lidar: bool) -> dict:
-    """Totals over the seeds, per weather and mode."""
+def run(seconds: float, seeds: list[int], lidar: bool) -> tuple[dict, dict[str, bool]]:
+    """Totals over the seeds, per weather and mode; per weather, whether the final states were identical."""
     out: dict = {}
+    same: dict[str, bool] = {}
     for weather in WEATHERS:
         out[weather] = {}
         per_mode: dict[str, list] = {_label(o, r): [] for o, r in MODES}
+        identical: list[bool] = []
         for seed in seeds:
             rec = sim_scene.record(seed, seconds, weather, lidar=lidar)
             for order, rollback in MODES:
                 res = sim_scene.feed(rec, sim_scene.deliveries(rec, order, seed), rollback=rollback)
                 per_mode[_label(order, rollback)].append((sim_scene.score(rec, res), res))
+            # Once every frame is in, rollback must leave exactly the state in-order delivery leaves.
+            a, b = (per_mode[_label(o, True)][-1][1].final for o in ("ordered", "shuffled"))
+            assert a is not None and b is not None
+            identical.append(
+                bool(np.array_equal(a.table, b.table) and np.array_equal(a.class_prob, b.class_prob))
+            )
         for label, runs in per_mode.items():
             scores = [s for s, _ in runs]
             results = [r for _, r in runs]
@@ -78,9 +87,11 @@ def run(seconds: float, seeds: list[int], lidar: bool) -> dict:
                 "frames_fed": sum(r.fed for r in results),
                 "frames_dropped": sum(r.dropped for r in results),
                 "rollbacks": sum(r.rollbacks for r in results),
+                "ids_inherited": sum(r.inherited for r in results),
                 "tracker_cpu_s": sum(r.seconds for r in results),
             }
-    return out
+        same[weather] = all(identical)
+    return out, same
 
 
 def main() -> None:
@@ -97,7 +108,9 @@ def main() -> None:
     if hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
     console = Console(width=170)  # wide tables stay readable when piped to a file
-    report = {sensors: run(args.seconds, args.seeds, sensors == "radar+lidar") for sensors in args.sensors}
+    runs = {sensors: run(args.seconds, args.seeds, sensors == "radar+lidar") for sensors in args.sensors}
+    report = {sensors: r[0] for sensors, r in runs.items()}
+    identical = {sensors: r[1] for sensors, r in runs.items()}
     table = Table(
         title=f"aUToTrack in simulation, {args.seconds:.0f} s x seeds {args.seeds}, scored every 100 ms"
     )
@@ -113,6 +126,7 @@ def main() -> None:
         "median m",
         "p95 m",
         "fed/dropped",
+        "ids kept",
     ):
         table.add_column(col, justify="right")
     for sensors, by_weather in report.items():
@@ -130,6 +144,7 @@ def main() -> None:
                     f"{m['median_m']:.3f}",
                     f"{m['p95_m']:.3f}",
                     f"{m['frames_fed']}/{m['frames_dropped']}",
+                    str(m["ids_inherited"]),
                 )
     console.print(table)
     ratios = Table(
@@ -145,6 +160,7 @@ def main() -> None:
         "matches drop/rb",
         "IDS drop/rb",
         "median drop/rb",
+        "final state shuf == ord",
     ):
         ratios.add_column(col, justify="right")
     drop = _label("shuffled", False)
@@ -165,11 +181,20 @@ def main() -> None:
                 ratio(d["matches"], s["matches"]),
                 ratio(d["id_switches"], s["id_switches"]),
                 ratio(d["median_m"], s["median_m"]),
+                "identical" if identical[sensors][weather] else "DIFFERENT",
             )
     console.print(ratios)
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(
-        json.dumps({"seconds": args.seconds, "seeds": args.seeds, "results": report}, indent=2)
+        json.dumps(
+            {
+                "seconds": args.seconds,
+                "seeds": args.seeds,
+                "results": report,
+                "final_state_identical": identical,
+            },
+            indent=2,
+        )
     )
     console.print(f"wrote {args.json}")
 

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from lastmile.core.boxes3d import DetectedBoxes
+from lastmile.core.boxes3d import DetectedBoxes, TrackedBoxes
 from lastmile.core.geometry import SE2
 from lastmile.core.object_class import ObjectClass
 from lastmile.core.rng import component_rng
@@ -260,13 +260,20 @@ def deliveries(rec: Recording, order: str, seed: int) -> list[tuple[int, Detecte
 
 @dataclass(slots=True)
 class FeedResult:
-    """Published tracks on the evaluation grid and how many messages were fed, dropped, rolled back."""
+    """Published tracks on the evaluation grid and how many messages were fed, dropped, rolled back.
+
+    ``final`` is the tracker's output at the end of the recording once every frame has been delivered
+    (frames arriving after the last evaluation instant included): rollback makes it independent of the
+    arrival order. ``inherited``: published ids handed over across replays (see ``published_ids``).
+    """
 
     published: dict[int, tuple[np.ndarray, np.ndarray]]  # query stamp -> track ids, (M, 2) xy
     fed: int
     dropped: int
     rollbacks: int
     seconds: float
+    final: TrackedBoxes | None = None
+    inherited: int = 0
 
 
 def feed(
@@ -303,12 +310,19 @@ def feed(
         if now in rec.truth:
             tr = tracker.tracks(Stamp(now))
             published[now] = (tr.ids.copy(), tr.table[:, 0:2].copy())
+    seconds = time.process_time() - t0
+    for _, msg in delivered[k:]:  # the frames still in flight at the end
+        if rollback or int(msg.stamp) >= newest:
+            tracker.update(msg)
+            newest = max(newest, int(msg.stamp))
     return FeedResult(
         published=published,
         fed=fed,
         dropped=dropped,
         rollbacks=tracker.rollbacks,
-        seconds=time.process_time() - t0,
+        seconds=seconds,
+        final=tracker.tracks(Stamp(end)),
+        inherited=tracker.published_ids.inherited,
     )
 
 

@@ -112,6 +112,27 @@ def test_low_score_detections_update_but_do_not_start_tracks() -> None:
     assert len(out) == 1 and out.score[0] == 0.5
 
 
+def test_doubtful_detections_are_published_only_once_their_summed_scores_reach_birth_min_evidence() -> None:
+    cfg = _config(t_birth_s=0.0, birth_min_evidence=3.0)
+    doubtful = AutoTrack(cfg)
+    published = []
+    for k in range(5):  # 1.0 per detection: evidence 1, 2, 3, ...
+        doubtful.update(_msg(0.1 * k, [(10.0, 0.0)], score=1.0))
+        published.append(len(doubtful.tracks(Stamp(100_000 * k))))
+    assert published == [0, 0, 1, 1, 1]
+    confident = AutoTrack(cfg)
+    confident.update(_msg(0.0, [(10.0, 0.0)], score=3.5))
+    assert len(confident.tracks(Stamp(0))) == 1
+    # Negative scores count against the track; the rule is off by default.
+    negative = AutoTrack(cfg)
+    for k in range(5):
+        negative.update(_msg(0.1 * k, [(10.0, 0.0)], score=-0.5))
+    assert len(negative.tracks(Stamp(400_000))) == 0
+    default = AutoTrack(_config(t_birth_s=0.0))
+    default.update(_msg(0.0, [(10.0, 0.0)], score=-0.5))
+    assert len(default.tracks(Stamp(0))) == 1
+
+
 def test_radar_doppler_velocity_sets_the_track_velocity_at_once() -> None:
     tr = AutoTrack(_config(t_birth_s=0.0))
     tr.update(_msg(0.0, [(10.0, 0.0)], velocity=[(3.0, -1.0)]))

@@ -20,9 +20,11 @@ get the objects only it sees demoted before its frames are in. With one source t
 stamp. The horizon depends only on messages in capture order, so rollback keeps results independent of
 arrival order.
 
-Rollback: messages are kept in capture order (stamp, then source name) with the tracker state after
-each. A message older than the newest processed one rolls the tracker back to the state just before
-its stamp and replays it and every later message, so arrival order does not change the result.
+Rollback: messages (detections, and camera class evidence, which sorts after the detections of its
+stamp) are kept in capture order (stamp, kind, source name) with the tracker state after each. A message
+older than the newest processed one rolls the tracker back to the state just before its stamp and
+replays it and every later message, so arrival order does not change the result. Published ids are
+kept through replays by :mod:`lastmile.tracking.published_ids`.
 Nothing is dropped: a message older than the retained window (``rollback_window_s``) is replayed from
 the oldest retained state, its tracks retrodicted to its stamp (counted in ``late_beyond_window``).
 """
@@ -49,6 +51,7 @@ from lastmile.tracking.class_hmm import (
     initial_prob,
     match_camera_detections,
 )
+from lastmile.tracking.published_ids import PublishedIds
 
 _US = 1e-6
 
@@ -60,6 +63,10 @@ class ClassParams:
     Attributes:
         gate_m: centre-distance gate for association.
         birth_min_score: detections scoring lower update tracks but never start one.
+        birth_min_evidence: a trial track becomes full only once the sum of its detections' scores
+            reaches this, besides ``t_birth_s`` (scores read as the detector's log-odds that the object
+            exists, so the sum is the track's accumulated existence evidence, a sequential test: one
+            confident detection suffices, a run of doubtful ones needs many); -inf: off.
         t_birth_s: detected over this long (first to latest detection) before a trial track is full.
         t_expire_s: a full track undetected for longer is demoted (no longer published).
         t_prune_s: a track undetected for longer is deleted.
@@ -72,6 +79,7 @@ class ClassParams:
 
     gate_m: float = 3.0
     birth_min_score: float = -np.inf
+    birth_min_evidence: float = -np.inf
     t_birth_s: float = 0.2
     t_expire_s: float = 0.0
     t_prune_s: float = 0.3
@@ -84,9 +92,9 @@ class ClassParams:
     def __post_init__(self) -> None:
         for f in fields(self):
             v = getattr(self, f.name)
-            if f.name == "birth_min_score":
+            if f.name in ("birth_min_score", "birth_min_evidence"):
                 if np.isnan(v):
-                    raise ConfigError("ClassParams.birth_min_score: expected a number, got NaN")
+                    raise ConfigError(f"ClassParams.{f.name}: expected a number, got NaN")
             elif not (np.isfinite(v) and v >= 0.0):
                 raise ConfigError(f"ClassParams.{f.name}: expected a finite value >= 0, got {v!r}")
         if self.gate_m <= 0.0 or self.pos_std_m <= 0.0 or self.yaw_std_rad <= 0.0:
@@ -205,7 +213,10 @@ class _Tracks:
     ever_full: np.ndarray
     class_prob: np.ndarray
     score: np.ndarray
+    evidence: np.ndarray  # sum of the scores of the track's detections
     attributes: np.ndarray
+    birth_source: np.ndarray  # code of the source whose detection started the track
+    birth_index: np.ndarray  # that detection's row in its message
     next_id: int
     source_latest_us: dict[str, int] = field(default_factory=dict)  # newest stamp per source so far
 
@@ -223,7 +234,10 @@ class _Tracks:
             ever_full=np.zeros(0, bool),
             class_prob=np.zeros((0, N_CLASSES)),
             score=np.zeros(0),
+            evidence=np.zeros(0),
             attributes=np.zeros((0, n_attributes)),
+            birth_source=np.zeros(0, np.int64),
+            birth_index=np.zeros(0, np.int64),
             next_id=0,
         )
 
@@ -244,6 +258,17 @@ class _Tracks:
         return np.column_stack([self.x[:, 0:3], self.size, self.x[:, 3]])
 
 
+@dataclass(frozen=True, slots=True)
+class _CameraEvidence:
+    """2D camera detections queued with the detection messages (class evidence only)."""
+
+    stamp_us: int
+    boxes: np.ndarray  # (M, 4) image boxes
+    classes: np.ndarray  # (M,) ObjectClass values
+    camera_from_frame: np.ndarray  # (4, 4)
+    intrinsics: np.ndarray  # (3, 3)
+
+
 _ARRAY_FIELDS = tuple(f.name for f in fields(_Tracks) if f.name not in ("next_id", "source_latest_us"))
 
 
@@ -255,12 +280,15 @@ class AutoTrack:
         self._ct = _class_table(self.config)
         self._n_attr = n_attributes
         self._t = _Tracks.empty(n_attributes)
-        self._queue: list[tuple[tuple[int, str], DetectedBoxes]] = []
+        self._queue: list[tuple[tuple[int, int, str], DetectedBoxes | _CameraEvidence]] = []
         self._states: list[_Tracks] = []  # state after each queued message
         self._base = self._t.copy()  # state before the first queued message
         self.late_beyond_window = 0
         self.rollbacks = 0
         self.refused_births = 0
+        self._source_codes: dict[str, int] = {}
+        # Not part of the rolled-back state: which ids have been published is a fact replays don't undo.
+        self.published_ids = PublishedIds()
 
     def __len__(self) -> int:
         return int(self._t.ids.shape[0])
@@ -276,25 +304,78 @@ class AutoTrack:
             raise MessageError(
                 f"DetectedBoxes.attributes: expected {self._n_attr} columns, got {msg.attributes.shape[1]}"
             )
-        key = (int(msg.stamp), msg.source)
+        self._enqueue((int(msg.stamp), 0, msg.source), msg)
+
+    def _enqueue(self, key: tuple[int, int, str], item: DetectedBoxes | _CameraEvidence) -> int:
+        """Apply ``item`` in capture order (rolling back and replaying if it is late); returns its result."""
         if not self._queue or key >= self._queue[-1][0]:
-            self._step(msg)
-            self._queue.append((key, msg))
+            result = self._apply(item)
+            self._queue.append((key, item))
             self._states.append(self._t.copy())
         else:
             self.rollbacks += 1
+            before = self._published_snapshot()
             pos = bisect.bisect_right([k for k, _ in self._queue], key)
             if pos == 0:
                 self.late_beyond_window += int(
                     self._queue[0][0][0] - key[0] > self.config.rollback_window_s / _US
                 )
             self._t = (self._states[pos - 1] if pos > 0 else self._base).copy()
-            self._queue.insert(pos, (key, msg))
+            self._queue.insert(pos, (key, item))
             del self._states[pos:]
-            for _, m in self._queue[pos:]:
-                self._step(m)
+            result = 0
+            for i, (_, m) in enumerate(self._queue[pos:]):
+                r = self._apply(m)
+                result = r if i == 0 else result
                 self._states.append(self._t.copy())
+            keys, xy, vxy, expires = before
+            self.published_ids.retire(
+                keys, xy, vxy, self._queue[-1][0][0], expires, set(self._keys(np.nonzero(self._t.full)[0]))
+            )
         self._trim()
+        self._assign_public_ids()
+        return result
+
+    def _apply(self, item: DetectedBoxes | _CameraEvidence) -> int:
+        if isinstance(item, _CameraEvidence):
+            return self._camera_step(item)
+        self._step(item)
+        return 0
+
+    # ----------------------------------------------------------------- published ids
+    def _source_code(self, source: str) -> int:
+        return self._source_codes.setdefault(source, len(self._source_codes))
+
+    def _keys(self, rows: np.ndarray) -> list[tuple[int, int, int]]:
+        t = self._t
+        return list(
+            zip(
+                t.first_det_us[rows].tolist(),
+                t.birth_source[rows].tolist(),
+                t.birth_index[rows].tolist(),
+                strict=True,
+            )
+        )
+
+    def _published_snapshot(self) -> tuple[list[tuple[int, int, int]], np.ndarray, np.ndarray, np.ndarray]:
+        """Keys, positions, velocities and id expiry times of the published tracks (before a replay).
+
+        A track a replay retracts keeps its id reserved for its class's ``t_prune_s`` after it was last
+        published (the tracker's current stamp): as long as it could have coasted had it stayed.
+        """
+        t = self._t
+        sel = np.nonzero(t.full)[0]
+        cls = np.argmax(t.class_prob[sel], axis=1)
+        expires = t.stamp_us[sel] + np.round(self._params("t_prune_s", cls) / _US).astype(np.int64)
+        return self._keys(sel), t.x[sel, 0:2], t.x[sel, 4:6], expires
+
+    def _assign_public_ids(self) -> None:
+        t = self._t
+        sel = np.nonzero(t.full)[0]
+        cls = np.argmax(t.class_prob[sel], axis=1)
+        self.published_ids.assign(
+            self._keys(sel), t.x[sel, 0:2], self._params("gate_m", cls), self._queue[-1][0][0]
+        )
 
     def _trim(self) -> None:
         newest = self._queue[-1][0][0]
@@ -306,6 +387,12 @@ class AutoTrack:
             self._base = self._states[cut - 1]
             del self._queue[:cut]
             del self._states[:cut]
+        if len(self.published_ids) > 2 * self._t.ids.size + 64:
+            # Ids of hypotheses gone from the current state and the oldest one a replay can restore.
+            keep = set(self._keys(np.arange(self._t.ids.size)))
+            keep.update(zip(self._base.first_det_us.tolist(), self._base.birth_source.tolist(),
+                            self._base.birth_index.tolist(), strict=True))  # fmt: skip
+            self.published_ids.forget_except(keep)
 
     # ----------------------------------------------------------------- one message
     def _params(self, name: str, cls: np.ndarray) -> np.ndarray:
@@ -362,6 +449,7 @@ class AutoTrack:
         t.size[ti] += cfg.size_gain * (b[:, 3:6] - t.size[ti])
         t.class_prob[ti] = hmm_update(t.class_prob[ti], cls, cfg.hmm.lidar_accuracy, cfg.hmm.switch_prob)
         t.score[ti] = msg.score[di]
+        t.evidence[ti] += msg.score[di]
         t.attributes[ti] = msg.attributes[di]
         t.last_det_us[ti] = int(msg.stamp)
 
@@ -406,7 +494,10 @@ class AutoTrack:
             ever_full=np.zeros(n, bool),
             class_prob=initial_prob(cls, cfg.hmm.lidar_accuracy),
             score=msg.score[di].astype(np.float64),
+            evidence=msg.score[di].astype(np.float64),
             attributes=msg.attributes[di].copy(),
+            birth_source=np.full(n, self._source_code(msg.source), np.int64),
+            birth_index=di.astype(np.int64),
             next_id=0,
         )
         t.append(new)
@@ -421,7 +512,10 @@ class AutoTrack:
         since = (horizon - t.last_det_us) * _US
         detected_now = t.last_det_us == now
         span = (t.last_det_us - t.first_det_us) * _US
-        promote = detected_now & (t.ever_full | (span >= self._params("t_birth_s", cls) - 1e-9))
+        born = (span >= self._params("t_birth_s", cls) - 1e-9) & (
+            t.evidence >= self._params("birth_min_evidence", cls)
+        )
+        promote = detected_now & (t.ever_full | born)
         t.full |= promote
         t.ever_full |= promote
         t.full &= since <= self._params("t_expire_s", cls) + 1e-9
@@ -436,29 +530,47 @@ class AutoTrack:
         camera_class: np.ndarray,
         camera_from_frame: np.ndarray,
         intrinsics: np.ndarray,
+        *,
+        source: str = "camera",
     ) -> int:
         """Update track classes (only) from 2D camera detections matched by projection; returns matches.
 
+        The evidence joins the capture-ordered queue like a detection message, so a later rollback replays
+        it at its stamp instead of losing it, and a late camera frame rolls back like a late LiDAR one.
         Tracks are predicted to ``stamp`` for the projection only; their states are left unchanged.
+
+        Raises:
+            MessageError: not one class per camera box.
         """
-        camera_class = np.asarray(camera_class, dtype=np.int64)
-        if camera_class.shape[0] != np.asarray(camera_boxes).shape[0]:
+        camera_class = np.array(camera_class, dtype=np.int64)
+        camera_boxes = np.array(camera_boxes, dtype=np.float64)
+        if camera_class.shape[0] != camera_boxes.shape[0]:
             raise MessageError(
-                f"camera_class: expected one class per camera box ({np.asarray(camera_boxes).shape[0]}), "
+                f"camera_class: expected one class per camera box ({camera_boxes.shape[0]}), "
                 f"got {camera_class.shape[0]}"
             )
-        boxes = self._predicted_boxes(int(stamp))
+        ev = _CameraEvidence(
+            stamp_us=int(stamp),
+            boxes=camera_boxes,
+            classes=camera_class,
+            camera_from_frame=np.array(camera_from_frame, dtype=np.float64),
+            intrinsics=np.array(intrinsics, dtype=np.float64),
+        )
+        # Evidence sorts after the detection messages of its stamp: it labels tracks, it never starts one.
+        return self._enqueue((int(stamp), 1, source), ev)
+
+    def _camera_step(self, ev: _CameraEvidence) -> int:
         ti, ci = match_camera_detections(
-            boxes,
-            np.asarray(camera_boxes, np.float64),
-            camera_from_frame,
-            intrinsics,
+            self._predicted_boxes(ev.stamp_us),
+            ev.boxes,
+            ev.camera_from_frame,
+            ev.intrinsics,
             self.config.hmm.min_camera_iou,
         )
         if ti.size:
             self._t.class_prob[ti] = hmm_update(
                 self._t.class_prob[ti],
-                camera_class[ci],
+                ev.classes[ci],
                 self.config.hmm.camera_accuracy,
                 self.config.hmm.switch_prob,
             )
@@ -500,7 +612,7 @@ class AutoTrack:
         assert table.shape[1] == len(TRACK_BOX_COLUMNS) and len(BOX3D_COLUMNS) == 7
         return TrackedBoxes(
             stamp=stamp,
-            ids=t.ids[sel],
+            ids=self.published_ids.ids_of(self._keys(sel)),
             table=table.reshape(-1, len(TRACK_BOX_COLUMNS)),
             class_id=cls,
             class_prob=t.class_prob[sel],
