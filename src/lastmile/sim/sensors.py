@@ -149,6 +149,11 @@ class SensorSuite:
             self._seq += 1
             heapq.heappush(self._pending, _Pending(int(out.stamp) + latency, self._seq, out))
 
+    def push(self, frame: SensorFrame, latency_us: int) -> None:
+        """Queue a frame captured by a sensor model outside the suite (delivered after its latency,
+        through the same fault injection)."""
+        self._push(frame, latency_us)
+
     def push_stop_call(self, now_us: int, stop_id: str, source: str) -> None:
         """A stop button or seat button press, carried over V2I / the vehicle bus."""
         self._push(
