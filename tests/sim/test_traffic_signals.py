@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,7 +16,7 @@ from lastmile.core.vehicle import VehicleGeometry
 from lastmile.hdmap.loader import load_campus_map
 from lastmile.hdmap.routing import campus_shuttle_loop, route_polyline
 from lastmile.sim.camera import CameraScene, default_cameras
-from lastmile.sim.scenario import Scenario
+from lastmile.sim.scenario import Scenario, load_scenario, scenario_to_toml
 from lastmile.sim.simulation import Simulation
 from lastmile.sim.traffic_light_camera import TrafficLightDetectorModel, scaled_confusion
 from lastmile.sim.traffic_signals import SignalConfig, SignalController
@@ -165,3 +166,13 @@ def test_the_simulation_delivers_light_frames_after_their_latency() -> None:
     for tick, frame in got:
         assert frame.camera_id == "front" and tick * 10_000 >= int(frame.stamp) + latency
     assert any(len(f.states) for _, f in got)
+
+
+def test_scenario_files_carry_the_signal_table(tmp_path: Path) -> None:
+    scenario = Scenario(name="fr", traffic_signals=SignalConfig(mode="flashing_red", flash_on_fraction=0.55))
+    path = tmp_path / "fr.toml"
+    path.write_text(scenario_to_toml(scenario))
+    assert load_scenario(path) == scenario
+    path.write_text('name = "x"\n[traffic_signals]\nmode = "blinking"\n')
+    with pytest.raises(ConfigError, match="blinking"):
+        load_scenario(path)

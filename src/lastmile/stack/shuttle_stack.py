@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 
 from lastmile.control.lateral import LateralConfig, make_lateral_controller
 from lastmile.control.longitudinal import LongitudinalConfig, WatonobusLongitudinalController, stopping_gap_m
+from lastmile.core.camera_model import PinholeCamera
 from lastmile.core.errors import MessageError
 from lastmile.core.geometry import SE2, FloatArray
 from lastmile.core.objects import TrackedObjects, empty_tracks
@@ -31,6 +32,7 @@ from lastmile.core.sensor_frames import (
     WheelOdometryFrame,
 )
 from lastmile.core.stamp import Stamp
+from lastmile.core.traffic_light_messages import TrafficLightDetections
 from lastmile.core.vehicle import VehicleGeometry
 from lastmile.core.vehicle_messages import (
     ActuatorCommand,
@@ -59,6 +61,7 @@ from lastmile.stack.hmi import HmiComposer
 from lastmile.stack.profiler import ModuleProfiler
 from lastmile.stack.v2i import AnticipationConfig, CrossingAnticipation
 from lastmile.tracking.radar_tracker import RadarObjectTracker, RadarTrackerConfig
+from lastmile.tracking.traffic_lights import TrafficLightTracker, TrafficLightTrackerConfig
 
 DEFAULT_SENSORS = default_sensor_specs(radar_keys=("front", "rear"))
 """The simulator's sensor suite as the reliability monitor watches it (radars by their sensor ids)."""
@@ -75,6 +78,9 @@ class StackConfig:
         radar_mounts: base_from_sensor pose of each radar by sensor id.
         serve_all_stops: timetable mode (serve every stop) instead of on request.
         v2i: anticipation of crossings reported occupied by infrastructure cameras (``stack.v2i``).
+        light_cameras: calibration of the cameras whose traffic-light detections the stack receives
+            (none: the stack cannot see signals, and treats every mapped one it reaches as red).
+        traffic_lights: the traffic-light tracker's parameters.
     """
 
     tick_us: int = 10_000
@@ -91,6 +97,8 @@ class StackConfig:
     tracker: RadarTrackerConfig = field(default_factory=RadarTrackerConfig)
     reliability: ReliabilityConfig = field(default_factory=lambda: ReliabilityConfig(sensors=DEFAULT_SENSORS))
     v2i: AnticipationConfig = field(default_factory=AnticipationConfig)
+    light_cameras: tuple[PinholeCamera, ...] = ()
+    traffic_lights: TrafficLightTrackerConfig = field(default_factory=TrafficLightTrackerConfig)
 
 
 MODULE_PERIODS_US = {
@@ -134,6 +142,11 @@ class ShuttleStack:
         zero_slip_m = geometry.wheelbase_m / 2.0 if geometry.all_wheel_steer else 0.0
         self.ekf = PoseEkf(dataclasses.replace(config.ekf, zero_slip_offset_m=zero_slip_m))
         self.tracker = RadarObjectTracker(config.tracker)
+        self.light_tracker = (
+            TrafficLightTracker(layers.hdmap.traffic_lights, config.light_cameras, config.traffic_lights)
+            if layers.hdmap.traffic_lights and config.light_cameras
+            else None
+        )
         self.mission = MissionManager(
             stop_order=tuple(rs.stop.id for rs in layers.stops), serve_all=config.serve_all_stops
         )
@@ -289,6 +302,10 @@ class ShuttleStack:
             self.mission.on_call(frame)
         elif isinstance(frame, CrossingPresenceFrame):
             self.v2i.on_frame(frame)
+        elif isinstance(frame, TrafficLightDetections) and self.light_tracker is not None:
+            est = self.ekf.estimate(frame.stamp)
+            if est.valid:
+                self.light_tracker.update(frame, est.map_from_base)
 
     def _decide(self, now: Stamp) -> None:
         est = self.ekf.estimate(now)
@@ -310,6 +327,7 @@ class ShuttleStack:
                 person_in_doorway=self._person_in_doorway,
                 trajectory=self._trajectory,
                 safety=self._directive,
+                traffic_lights=self.light_tracker.states() if self.light_tracker is not None else None,
             )
         )
         self._anticipate(now, f.s_m, est.speed_mps)
