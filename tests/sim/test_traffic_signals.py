@@ -15,8 +15,9 @@ from lastmile.core.traffic_light_messages import LightState, TrafficLightDetecti
 from lastmile.core.vehicle import VehicleGeometry
 from lastmile.hdmap.loader import load_campus_map
 from lastmile.hdmap.routing import campus_shuttle_loop, route_polyline
+from lastmile.sim.agents import PathCar
 from lastmile.sim.camera import CameraScene, default_cameras
-from lastmile.sim.scenario import Scenario, load_scenario, scenario_to_toml
+from lastmile.sim.scenario import RingCar, Scenario, load_scenario, scenario_to_toml
 from lastmile.sim.simulation import Simulation
 from lastmile.sim.traffic_light_camera import TrafficLightDetectorModel, scaled_confusion
 from lastmile.sim.traffic_signals import SignalConfig, SignalController
@@ -176,3 +177,33 @@ def test_scenario_files_carry_the_signal_table(tmp_path: Path) -> None:
     path.write_text('name = "x"\n[traffic_signals]\nmode = "blinking"\n')
     with pytest.raises(ConfigError, match="blinking"):
         load_scenario(path)
+
+
+@pytest.mark.parametrize("mode", ["cycle", "flashing_red"])
+def test_ring_cars_stop_at_the_signal_and_go_when_allowed(mode: str) -> None:
+    hdmap = load_campus_map()
+    route = route_polyline(hdmap, campus_shuttle_loop(hdmap), closed=True)
+    # Red for the first 20 s in "cycle" mode; the car starts 70 m before the line at 5 m/s.
+    signals = SignalConfig(mode=mode, green_s=30.0, yellow_s=3.5, red_s=20.0, offset_s=33.5)
+    scenario = Scenario(
+        name="cars",
+        minutes=0.5,
+        ring_cars=(RingCar(direction="ccw", start_s_m=770.0),),
+        traffic_signals=signals,
+    )
+    sim = Simulation(scenario, hdmap, route, VehicleGeometry(), 10_000)
+    car = next(a for a in sim.world.agents if isinstance(a, PathCar))
+    (line,) = car.signal_lines
+    front = []
+    stood = []
+    for tick in range(2600):
+        sim.advance_world(tick)
+        front.append(car.s_m + car.length_m / 2.0 - line.s_m)
+        if -4.0 < front[-1] < 0.0 and car.speed_mps < 0.2:  # a stop, as the judge counts one
+            stood.append(tick / 100.0)
+    assert stood, "the car never stood at the stop line"
+    crossed = next(k / 100.0 for k, f in enumerate(front) if f > 0.0)
+    if mode == "cycle":
+        assert 20.0 <= crossed < 25.0  # went on green, not before
+    else:
+        assert crossed >= min(stood) + 1.0  # stood a second, then went

@@ -63,6 +63,9 @@ class Simulation:
         self.sensors = SensorSuite(self.world, scenario.seed, tick_us, faults=self.faults)
         self.signals = SignalController(scenario.traffic_signals, tuple(s.id for s in hdmap.signals))
         self.light_cameras = TrafficLightCameraRig(self.world, self.signals, scenario.seed, tick_us)
+        for agent in agents:
+            if isinstance(agent, PathCar):
+                agent.obey_signals(self.signals, hdmap)
         self.passengers = PassengerModel(
             hdmap.stops, scenario.passengers, component_rng(scenario.seed, "passengers"), geometry.seats
         )
