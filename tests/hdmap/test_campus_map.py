@@ -32,7 +32,7 @@ def test_lanelet2_loads_it_without_errors_and_its_routing_graph_is_valid() -> No
     subtypes = collections.Counter(ll.attributes["subtype"] for ll in lmap.laneletLayer)
     assert subtypes["crosswalk"] == 3 and subtypes["road"] >= 40
     rules_by_kind = collections.Counter(r.attributes["subtype"] for r in lmap.regulatoryElementLayer)
-    assert rules_by_kind == {"all_way_stop": 1}
+    assert rules_by_kind == {"all_way_stop": 1, "traffic_light": 2}
 
 
 def test_ring_is_about_two_kilometres_one_lane_each_way() -> None:

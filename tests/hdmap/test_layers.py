@@ -31,7 +31,7 @@ def test_records_hold_lane_curb_speed_and_road_type() -> None:
         assert abs(rs.s_end_m - rs.s_start_m - lay.BAY_PLATFORM_M) < 0.5
         assert abs(layers.curb_right_at(mid) - (-1.75 - lay.BAY_DEPTH_M)) < 0.01
         assert layers.road_type[layers.record_index(mid)] == BUS_BAY
-    (line,) = layers.stop_lines
+    (line,) = [rl for rl in layers.stop_lines if rl.stop_line.signal_id is None]
     assert line.all_way_stop_id is not None
     x, y, _ = layers.centerline.point_at(line.s_m)
     assert math.hypot(x - (lay.T_X_M - lay.T_HALF_M), y + 1.75) < 0.01

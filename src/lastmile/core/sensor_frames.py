@@ -14,6 +14,7 @@ import numpy as np
 from lastmile.core.arrays import frozen_array
 from lastmile.core.errors import MessageError
 from lastmile.core.stamp import Stamp
+from lastmile.core.traffic_light_messages import TrafficLightDetections
 
 
 def _check_finite(name: str, **values: float) -> None:
@@ -236,5 +237,6 @@ SensorFrame = (
     | CrossingPresenceFrame
     | LidarSweep
     | CameraDetections
+    | TrafficLightDetections
 )
 """Everything the simulator (or a real vehicle) may hand to the stack."""

@@ -20,11 +20,13 @@ from lastmile.core.polyline import Polyline
 from lastmile.core.route_obstacles import RouteObstacle, route_obstacles
 from lastmile.core.safety_messages import FailSafeLevel, SafetyDirective
 from lastmile.core.stamp import Stamp
+from lastmile.core.traffic_light_messages import TrafficLightStates
 from lastmile.core.vehicle import VehicleGeometry
 from lastmile.core.vehicle_messages import BehaviourDecision, BehaviourState, Trajectory
 from lastmile.decision.mission import MissionManager
 from lastmile.decision.pullover_spot import SpotRequest, choose_spot
 from lastmile.decision.right_of_way import ArrivalOrder, EntryLine
+from lastmile.decision.traffic_light_rule import TrafficLightRule, TrafficLightRuleConfig
 from lastmile.hdmap.layers import SLayerDatabase
 
 
@@ -83,6 +85,7 @@ class DecisionConfig:
     transition_m: float = 32.0
     merge_room_m: float = 4.0
     spot_scan_m: float = 40.0
+    traffic_lights: TrafficLightRuleConfig = field(default_factory=TrafficLightRuleConfig)
 
 
 @dataclass(slots=True)
@@ -99,6 +102,7 @@ class DecisionInput:
     person_in_doorway: bool
     trajectory: Trajectory | None
     safety: SafetyDirective | None = None
+    traffic_lights: TrafficLightStates | None = None
 
 
 @dataclass(slots=True)
@@ -136,6 +140,7 @@ class BehaviourStateMachine:
 
     def __post_init__(self) -> None:
         self._route: Polyline = self.layers.centerline
+        self.lights = TrafficLightRule(self.layers, self.config.traffic_lights)
         self._boxes: dict[int, np.ndarray] = {}
         for aws in self.layers.hdmap.all_way_stops:
             self._boxes[aws.id] = np.asarray(aws.conflict_polygon, dtype=float)
@@ -162,6 +167,10 @@ class BehaviourStateMachine:
 
         constraints += self._in_path(obstacles, inp, front_s)
         constraints += self._crosswalks(inp.tracks, front_s, inp.speed_mps)
+        light_stop, light_why = self.lights.step(t_s, front_s, inp.speed_mps, inp.traffic_lights, self._ahead)
+        if light_stop is not None:
+            # Never an emergency stop for a light: a late red is braked for as hard as allowed, no harder.
+            constraints.append(_Constraint(light_stop, light_why, emergency_ok=False))
         speed_cap = self._obey_safety(inp.safety, t_s, constraints, speed_cap)
 
         if self.state == BehaviourState.EMERGENCY_STOP:

@@ -92,6 +92,7 @@ def build_campus_map() -> Any:
     ring_out, ring_in = _ring(b)
     _intersection(b, ring_out, ring_in)
     _parking(b)
+    _signal(b, ring_out, ring_in)
     for cw in lay.CROSSWALKS:
         _crosswalk(b, cw)
     for spec in lay.BUILDINGS:
@@ -108,6 +109,7 @@ def build_campus_map() -> Any:
 
 def _cuts() -> list[float]:
     cuts = {0.0, lay.T_S0_M, lay.T_S1_M, lay.PARK_S0_M, lay.PARK_S1_M}
+    cuts |= {lay.SIGNAL_CCW_STOP_S_M, lay.SIGNAL_CW_STOP_S_M}  # stop lines sit at lanelet ends
     half = lay.BAY_TAPER_M + lay.BAY_PLATFORM_M / 2
     for stop in lay.STOPS:
         cuts |= {stop.centre_s_m - half, stop.centre_s_m + half}
@@ -198,6 +200,73 @@ def _intersection(b: _Builder, ring_out: dict[float, Any], ring_in: dict[float, 
     for lanelet, _, _ in lines:
         lanelet.addRegulatoryElement(rule)
     b.map.add(rule)
+
+
+def _signal(b: _Builder, ring_out: dict[float, Any], ring_in: dict[float, Any]) -> None:
+    """The signalised crossing at C2: a Lanelet2 ``traffic_light`` rule per direction.
+
+    Each rule refers to its two heads (``traffic_light`` line strings drawn across the bottom of the
+    housing, ``height`` the housing's height) and its stop line; each head's bulbs are a ``light_bulbs``
+    line string (Autoware's convention: points tagged ``color``, the head's id in ``traffic_light_id``).
+    """
+    cuts = _cuts()
+    directions = [  # (entry lanelet, stop-line s, head s, lane side: -1 outer (right of ring), +1 inner)
+        (ring_out[cuts[cuts.index(lay.SIGNAL_CCW_STOP_S_M) - 1]], lay.SIGNAL_CCW_STOP_S_M, -1.0),
+        (ring_in[lay.SIGNAL_CW_STOP_S_M], lay.SIGNAL_CW_STOP_S_M, 1.0),
+    ]
+    cw = next(c for c in lay.CROSSWALKS if c.id == lay.SIGNAL_CROSSWALK)
+    for lanelet, stop_s, side in directions:
+        # Traffic in this lane drives along +s (outer) or -s (inner); heads stand past the crossing.
+        sign_s = 1.0 if side < 0 else -1.0
+        x, y, h = RING.pose(stop_s)
+        nx, ny = -math.sin(h), math.cos(h)  # left normal of the ring
+        stop_line = b.line([(x, y), (x + side * LW * nx, y + side * LW * ny)], "stop_line")
+        head_s = cw.centre_s_m + sign_s * (cw.width_m / 2 + lay.SIGNAL_HEAD_PAST_M)
+        hx, hy, hh = RING.pose(head_s)
+        hnx, hny = -math.sin(hh), math.cos(hh)
+        heading = hh if side < 0 else hh + math.pi  # the controlled traffic's heading
+        heads: list[Any] = []
+        for d, z in (
+            (side * LW / 2, lay.SIGNAL_OVERHEAD_Z_M),
+            (side * (LW + lay.SIGNAL_POLE_D_M), lay.SIGNAL_POLE_Z_M),
+        ):
+            cx, cy = hx + d * hnx, hy + d * hny
+            # Across the housing, left to right as the approaching driver sees it.
+            ux, uy = math.sin(heading), -math.cos(heading)
+            half = lay.SIGNAL_HEAD_W_M / 2
+            pts = [
+                b.point(cx - half * ux, cy - half * uy, z),
+                b.point(cx + half * ux, cy + half * uy, z),
+            ]
+            head = ll2.LineString3d(
+                b.new_id(),
+                pts,
+                ll2.AttributeMap(
+                    {
+                        "type": "traffic_light",
+                        "subtype": "red_yellow_green",
+                        "height": f"{lay.SIGNAL_HEAD_H_M:g}",
+                    }
+                ),
+            )
+            b.map.add(head)
+            bulbs = [  # red on top, a bulb every third of the housing
+                b.point(cx, cy, z + lay.SIGNAL_HEAD_H_M * (5 - 2 * k) / 6, color=colour)
+                for k, colour in enumerate(("red", "yellow", "green"))
+            ]
+            b.map.add(
+                ll2.LineString3d(
+                    b.new_id(),
+                    bulbs,
+                    ll2.AttributeMap({"type": "light_bulbs", "traffic_light_id": str(head.id)}),
+                )
+            )
+            heads.append(head)
+        rule = ll2.TrafficLight(
+            b.new_id(), ll2.AttributeMap({"name": f"{cw.id} pedestrian signal"}), heads, stop_line
+        )
+        lanelet.addRegulatoryElement(rule)
+        b.map.add(rule)
 
 
 def _parking(b: _Builder) -> None:

@@ -136,6 +136,17 @@ CROSSWALKS = (
     CrosswalkSpec("C2", RING.s_of_y_right(140.0)),
     CrosswalkSpec("C3", RING.s_of_x_top(300.0)),
 )
+# The signalised crossing: crosswalk C2 gets a pedestrian signal (a "pelican" crossing). Each direction has
+# a stop line SIGNAL_STOP_GAP_M before the crossing and two three-bulb heads just past it: one over the
+# lane (bottom SIGNAL_OVERHEAD_Z_M) and one on a kerb pole (bottom SIGNAL_POLE_Z_M).
+SIGNAL_CROSSWALK = "C2"
+SIGNAL_STOP_GAP_M, SIGNAL_HEAD_PAST_M = 3.0, 2.0
+SIGNAL_OVERHEAD_Z_M, SIGNAL_POLE_Z_M, SIGNAL_POLE_D_M = 5.0, 2.6, 1.2
+SIGNAL_HEAD_W_M, SIGNAL_HEAD_H_M = 0.35, 1.0
+_SIGNAL_CW = next(c for c in CROSSWALKS if c.id == SIGNAL_CROSSWALK)
+# Ring s of the shuttle's (ccw, outer lane) stop line and of the oncoming (cw, inner lane) one.
+SIGNAL_CCW_STOP_S_M = _SIGNAL_CW.centre_s_m - _SIGNAL_CW.width_m / 2 - SIGNAL_STOP_GAP_M
+SIGNAL_CW_STOP_S_M = _SIGNAL_CW.centre_s_m + _SIGNAL_CW.width_m / 2 + SIGNAL_STOP_GAP_M
 T_S0_M, T_S1_M = RING.s_of_x_bottom(T_X_M - T_HALF_M), RING.s_of_x_bottom(T_X_M + T_HALF_M)
 PARK_S0_M, PARK_S1_M = RING.s_of_x_top(PARK_X_M + PARK_HALF_M), RING.s_of_x_top(PARK_X_M - PARK_HALF_M)
 BUILDINGS = (

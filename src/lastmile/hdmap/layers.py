@@ -131,6 +131,11 @@ class SLayerDatabase:
     def curb_right_at(self, s_m: float) -> float:
         return float(self.curb_right_d_m[self.record_index(s_m)])
 
+    @property
+    def signal_stop_lines(self) -> tuple[RouteStopLine, ...]:
+        """Stop lines on the route controlled by a traffic signal (``stop_line.signal_id``), in s order."""
+        return tuple(rl for rl in self.stop_lines if rl.stop_line.signal_id is not None)
+
     def landmarks_near(self, s_m: float) -> tuple[Landmark, ...]:
         """Landmarks a sensor could see from the record at ``s_m``, nearest first."""
         i = self.record_index(s_m)

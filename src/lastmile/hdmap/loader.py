@@ -23,6 +23,7 @@ from scipy.spatial import ConvexHull
 from lastmile.core.errors import MapError
 from lastmile.core.geometry import FloatArray
 from lastmile.core.polyline import Polyline
+from lastmile.core.traffic_light_messages import MapTrafficLight
 from lastmile.hdmap import campus_layout
 from lastmile.hdmap.model import (
     AllWayStop,
@@ -33,10 +34,12 @@ from lastmile.hdmap.model import (
     LaneletInfo,
     MapArea,
     StopLine,
+    TrafficSignal,
 )
 
 CAMPUS_OSM = Path(__file__).with_name("data") / "campus.osm"
 BUS_STOP_TAG = "lastmile:bus_stop"
+DEFAULT_HEAD_HEIGHT_M = 1.0  # a three-bulb head, for maps whose traffic_light line strings carry no height
 
 
 def load_map(path: str | Path, origin_lat_deg: float, origin_lon_deg: float, name: str = "") -> HDMap:
@@ -130,6 +133,7 @@ def _convert(lmap: Any, name: str) -> HDMap:
             for ls in sorted(lmap.lineStringLayer, key=lambda ls: ls.id)
             if _type(ls).startswith("curbstone") and (line := _polyline(ls)) is not None
         ),
+        signals=_signals(lmap, stop_lines),
         areas=tuple(
             MapArea(
                 id=a.id,
@@ -219,9 +223,14 @@ def _regulatory(
             if line is None or line.id in lines:
                 continue
             aws_id = rule.id if isinstance(rule, ll2.AllWayStop) else None
+            signal_id = rule.id if isinstance(rule, ll2.TrafficLight) else None
             xy = _xy(line)
             lines[line.id] = StopLine(
-                id=line.id, line=xy[[0, -1]], lanelet_id=lanelet.id, all_way_stop_id=aws_id
+                id=line.id,
+                line=xy[[0, -1]],
+                lanelet_id=lanelet.id,
+                all_way_stop_id=aws_id,
+                signal_id=signal_id,
             )
     for rule in sorted(lmap.regulatoryElementLayer, key=lambda r: r.id):
         if not isinstance(rule, ll2.AllWayStop):
@@ -241,6 +250,85 @@ def _regulatory(
             )
         )
     return tuple(lines.values()), tuple(stops)
+
+
+def _signals(lmap: Any, stop_lines: tuple[StopLine, ...]) -> tuple[TrafficSignal, ...]:
+    """Traffic-light rules with their heads and bulbs (Autoware ``light_bulbs`` tagged by head id).
+
+    A head's lenses face the traffic it controls: of the two normals of its line string, the one
+    towards its stop line.
+
+    Raises:
+        MapError: a rule without a stop line or heads, or a head with a ``height`` that is not positive
+            (a head without the tag is taken as DEFAULT_HEAD_HEIGHT_M high, Lanelet2 leaves it optional).
+    """
+    bulbs: dict[int, list[tuple[float, float, float, str]]] = {}
+    for ls in lmap.lineStringLayer:
+        if _attr(ls.attributes, "type", "") == "light_bulbs" and "traffic_light_id" in ls.attributes:
+            owner = int(str(ls.attributes["traffic_light_id"]))
+            bulbs.setdefault(owner, []).extend((p.x, p.y, p.z, _attr(p.attributes, "color", "")) for p in ls)
+    by_id = {sl.id: sl for sl in stop_lines}
+    out = []
+    for rule in sorted(lmap.regulatoryElementLayer, key=lambda r: r.id):
+        if not isinstance(rule, ll2.TrafficLight):
+            continue
+        heads_ls = [h for h in rule.trafficLights if isinstance(h, ll2.LineString3d | ll2.ConstLineString3d)]
+        if rule.stopLine is None or not heads_ls:
+            raise MapError(
+                f"traffic light {rule.id}: expected a stop line and at least one head, got stop line "
+                f"{rule.stopLine is not None} and {len(heads_ls)} heads"
+            )
+        line = by_id.get(rule.stopLine.id)
+        if line is None:
+            continue  # the rule controls no lanelet the map kept: nothing on the road obeys it
+        mid = line.line.mean(axis=0)
+        heads: list[MapTrafficLight] = []
+        bxyz: list[tuple[float, float, float]] = []
+        bcol: list[str] = []
+        bhead: list[str] = []
+        for ls in heads_ls:
+            height = float(_attr(ls.attributes, "height", f"{DEFAULT_HEAD_HEIGHT_M:g}"))
+            if not height > 0:
+                raise MapError(f"traffic light head {ls.id}: expected a positive height, got {height}")
+            xy = _xy(ls)
+            centre = xy.mean(axis=0)
+            along = xy[-1] - xy[0]
+            normal = np.array([-along[1], along[0]])
+            if float(normal @ (mid - centre)) < 0:
+                normal = -normal
+            head_id = str(ls.id)
+            heads.append(
+                MapTrafficLight(
+                    light_id=head_id,
+                    x_m=float(centre[0]),
+                    y_m=float(centre[1]),
+                    z_m=float(ls[0].z) + height / 2,
+                    facing_rad=math.atan2(normal[1], normal[0]),
+                    width_m=float(np.hypot(*along)),
+                    height_m=height,
+                    signal_id=rule.id,
+                    stop_line_id=line.id,
+                    stop_x_m=float(mid[0]),
+                    stop_y_m=float(mid[1]),
+                )
+            )
+            for x, y, z, colour in bulbs.get(ls.id, []):
+                bxyz.append((x, y, z))
+                bcol.append(colour)
+                bhead.append(head_id)
+        out.append(
+            TrafficSignal(
+                id=rule.id,
+                name=_attr(rule.attributes, "name", ""),
+                stop_line_id=line.id,
+                lanelet_id=line.lanelet_id,
+                heads=tuple(heads),
+                bulb_xyz_m=np.array(bxyz, dtype=float).reshape(-1, 3),
+                bulb_colours=tuple(bcol),
+                bulb_head_ids=tuple(bhead),
+            )
+        )
+    return tuple(out)
 
 
 def _stop_line_of(rule: Any, lanelet: Any) -> Any | None:

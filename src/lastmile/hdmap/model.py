@@ -15,6 +15,7 @@ import numpy as np
 from lastmile.core.errors import MapError
 from lastmile.core.geometry import FloatArray, point_in_polygon
 from lastmile.core.polyline import Polyline
+from lastmile.core.traffic_light_messages import MapTrafficLight
 from lastmile.hdmap.drivable import DrivableRaster
 
 
@@ -71,12 +72,37 @@ class Crosswalk:
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class StopLine:
-    """A stop line at the end of ``lanelet_id``; ``line`` is (2, 2)."""
+    """A stop line at the end of ``lanelet_id``; ``line`` is (2, 2).
+
+    ``signal_id`` is the traffic signal that controls it (None: not signalised).
+    """
 
     id: int
     line: FloatArray
     lanelet_id: int
     all_way_stop_id: int | None = None
+    signal_id: int | None = None
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class TrafficSignal:
+    """A Lanelet2 ``traffic_light`` regulatory element: its heads, its stop line, the lanelet it controls.
+
+    Attributes:
+        heads: the signal heads (map frame; ``z_m`` is the housing centre above the road), all showing
+            the same state; ``signal_id``/``stop_line_id`` of each name this signal and its line.
+        bulb_xyz_m: (K, 3) float64 bulb centres of all heads (map frame, z above the road).
+        bulb_colours: (K,) "red" / "yellow" / "green", and ``bulb_head_ids`` (K,) the head of each bulb.
+    """
+
+    id: int
+    name: str
+    stop_line_id: int
+    lanelet_id: int
+    heads: tuple[MapTrafficLight, ...]
+    bulb_xyz_m: FloatArray
+    bulb_colours: tuple[str, ...]
+    bulb_head_ids: tuple[str, ...]
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -128,6 +154,7 @@ class HDMap:
     landmarks: tuple[Landmark, ...] = ()
     curbs: tuple[Polyline, ...] = ()
     areas: tuple[MapArea, ...] = ()
+    signals: tuple[TrafficSignal, ...] = ()
     _polygons: dict[int, tuple[FloatArray, FloatArray, FloatArray]] = field(default_factory=dict, repr=False)
 
     def __post_init__(self) -> None:
@@ -185,6 +212,21 @@ class HDMap:
             lid = self.lanelet_at(float(pts[i, 0]), float(pts[i, 1]))
             out[i] = lid is not None and self.lanelets[lid].subtype in DRIVABLE_SUBTYPES
         return out
+
+    @property
+    def traffic_lights(self) -> tuple[MapTrafficLight, ...]:
+        """Every signal head of every signal, in signal order (what a traffic-light tracker expects)."""
+        return tuple(head for sig in self.signals for head in sig.heads)
+
+    def signal(self, signal_id: int) -> TrafficSignal:
+        """The signal with ``signal_id``; raises MapError when the map has none."""
+        for sig in self.signals:
+            if sig.id == signal_id:
+                return sig
+        raise MapError(
+            f"HDMap {self.name!r}: expected a traffic signal among {[s.id for s in self.signals]}, "
+            f"got {signal_id}"
+        )
 
     def polygon_of(self, lanelet_id: int) -> FloatArray:
         return self._polygons[lanelet_id][0]

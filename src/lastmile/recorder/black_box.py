@@ -37,6 +37,7 @@ from lastmile.core.sensor_frames import (
     StopCallFrame,
     WheelOdometryFrame,
 )
+from lastmile.core.traffic_light_messages import TrafficLightDetections
 from lastmile.core.vehicle_messages import StackOutput
 from lastmile.recorder import foxglove_schemas as fx
 from lastmile.recorder import mcap_codec
@@ -98,6 +99,8 @@ def sensor_topic(frame: SensorFrame) -> str:
         return f"/sensors/radar/{frame.sensor_id}"
     if isinstance(frame, CameraDetections):
         return f"/sensors/camera/{frame.camera_id}"
+    if isinstance(frame, TrafficLightDetections):
+        return f"/sensors/traffic_lights/{frame.camera_id}"
     names = {
         GnssInsFrame: "/sensors/gnss",
         ImuFrame: "/sensors/imu",

@@ -23,7 +23,14 @@ from typing import Any
 
 import numpy as np
 
-from lastmile.core import geometry, objects, safety_messages, sensor_frames, vehicle_messages
+from lastmile.core import (
+    geometry,
+    objects,
+    safety_messages,
+    sensor_frames,
+    traffic_light_messages,
+    vehicle_messages,
+)
 from lastmile.core.errors import LastmileError
 from lastmile.core.object_class import ObjectClass
 from lastmile.core.stamp import Stamp
@@ -37,7 +44,14 @@ class RecordingError(LastmileError):
 def _registry() -> tuple[dict[str, type], dict[str, type[Enum]]]:
     classes: dict[str, type] = {}
     enums: dict[str, type[Enum]] = {"ObjectClass": ObjectClass}
-    for module in (geometry, objects, safety_messages, sensor_frames, vehicle_messages):
+    for module in (
+        geometry,
+        objects,
+        safety_messages,
+        sensor_frames,
+        traffic_light_messages,
+        vehicle_messages,
+    ):
         for name, value in vars(module).items():
             if not isinstance(value, type) or value.__module__ != module.__name__:
                 continue

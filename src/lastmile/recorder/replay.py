@@ -37,6 +37,7 @@ _SENSOR_TYPES = (
     "StopCallFrame",
     "LidarSweep",
     "CameraDetections",
+    "TrafficLightDetections",
 )
 
 

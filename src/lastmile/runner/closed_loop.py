@@ -86,6 +86,7 @@ def build_closed_loop(
             tick_us=TICK_US,
             lateral_controller=scenario.lateral_controller,
             radar_mounts=sim.radar_mounts,
+            light_cameras=sim.light_cameras.cameras,
             serve_all_stops=scenario.serve_all_stops,
             decision=decision,
             perception_mode=perception_mode,

@@ -31,6 +31,7 @@ from lastmile.core.sensor_frames import (
     WheelOdometryFrame,
 )
 from lastmile.core.stamp import Stamp
+from lastmile.core.traffic_light_messages import TrafficLightDetections
 from lastmile.core.vehicle_messages import LocalizationEstimate
 from lastmile.hdmap.model import HDMap
 
@@ -250,6 +251,8 @@ def sensor_key(frame: SensorFrame) -> str | None:
         return f"lidar_{frame.sensor_id}"
     if isinstance(frame, CameraDetections):
         return f"camera_{frame.camera_id}"
+    if isinstance(frame, TrafficLightDetections):
+        return f"traffic_lights.{frame.camera_id}"
     if isinstance(frame, GnssInsFrame):
         return "gnss"
     if isinstance(frame, ImuFrame):

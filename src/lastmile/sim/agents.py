@@ -14,6 +14,9 @@ import numpy as np
 
 from lastmile.core.object_class import ObjectClass
 from lastmile.core.polyline import Polyline
+from lastmile.core.traffic_light_messages import LightState
+from lastmile.hdmap.model import HDMap
+from lastmile.sim.traffic_signals import SignalController
 
 if TYPE_CHECKING:
     from lastmile.sim.world import World
@@ -64,6 +67,14 @@ class StopLineOnPath:
 
 
 @dataclass(slots=True, kw_only=True)
+class SignalLineOnPath:
+    """A traffic signal's stop line as seen along a car's path."""
+
+    s_m: float
+    signal_id: int
+
+
+@dataclass(slots=True, kw_only=True)
 class PathCar(Agent):
     """A car following a lanelet path with the intelligent driver model (IDM).
 
@@ -83,6 +94,65 @@ class PathCar(Agent):
     comfort_decel_mps2: float = 2.0
     min_gap_m: float = 2.5
     time_headway_s: float = 1.5
+    signals: SignalController | None = None
+    signal_lines: list[SignalLineOnPath] = field(default_factory=list)
+    _signal_choice: tuple[int, str] | None = None  # (signal, "stop"/"go") once decided on a yellow
+    _signal_stood_since_s: float | None = None
+    _signal_cleared: int | None = None
+
+    def obey_signals(self, signals: SignalController, hdmap: HDMap) -> None:
+        """Stop at the signals on this car's path as a law-abiding driver does (see ``_signal_gap``)."""
+        self.signals = signals
+        self.signal_lines = []
+        for sl in hdmap.stop_lines:
+            if sl.signal_id is None:
+                continue
+            mid = np.asarray(sl.line, dtype=float).mean(axis=0)
+            f = self.path.project(float(mid[0]), float(mid[1]))
+            lanelet = hdmap.lanelets[sl.lanelet_id].centerline
+            heading = lanelet.heading_at(lanelet.length_m - 0.1)
+            if abs(f.d_m) < 2.0 and math.cos(self.path.heading_at(f.s_m) - heading) > 0.7:
+                self.signal_lines.append(SignalLineOnPath(s_m=f.s_m, signal_id=sl.signal_id))
+
+    def _signal_gap(self, t_s: float, gap_m: float, lead_mps: float) -> tuple[float, float]:
+        """The gap to the next signal's stop line when the car must stop there: red, a yellow it can
+        stop for comfortably, or a flashing red / dark signal (stop, then go after 1 s)."""
+        if self.signals is None or not self.signal_lines:
+            return gap_m, lead_mps
+        best: tuple[float, SignalLineOnPath] | None = None
+        for line in self.signal_lines:
+            to_line = line.s_m - self.s_m - self.length_m / 2.0
+            if self.path.closed:
+                to_line = (to_line + 1.0) % self.path.length_m - 1.0
+            if -1.0 < to_line < 60.0 and (best is None or to_line < best[0]):
+                best = (to_line, line)
+        if best is None:
+            self._signal_choice, self._signal_stood_since_s, self._signal_cleared = None, None, None
+            return gap_m, lead_mps
+        to_line, line = best
+        state = self.signals.state(line.signal_id, t_s)
+        stop = False
+        if self.signals.config.mode in ("flashing_red", "dark"):
+            if self._signal_cleared != line.signal_id:
+                stop = True
+                if to_line < 1.5 and self.speed_mps < 0.2:
+                    if self._signal_stood_since_s is None:
+                        self._signal_stood_since_s = t_s
+                    if t_s - self._signal_stood_since_s >= 1.0:
+                        self._signal_cleared, stop = line.signal_id, False
+        elif state is LightState.RED:
+            stop = self._signal_choice != (line.signal_id, "go")  # entered on yellow: committed
+        elif state is LightState.YELLOW:
+            if self._signal_choice is None or self._signal_choice[0] != line.signal_id:
+                can = self.speed_mps**2 / (2.0 * max(to_line, 0.1)) <= self.comfort_decel_mps2
+                self._signal_choice = (line.signal_id, "stop" if can else "go")
+            stop = self._signal_choice[1] == "stop"
+        else:
+            self._signal_choice = None
+        line_gap = to_line + self.min_gap_m - 0.3
+        if stop and line_gap < gap_m:
+            return line_gap, 0.0
+        return gap_m, lead_mps
 
     def step(self, world: World, dt_s: float) -> None:
         gap_m, lead_speed_mps = world.leader_on_path(self, horizon_m=50.0)
@@ -107,6 +177,7 @@ class PathCar(Agent):
                 if line_gap < gap_m:
                     gap_m, lead_speed_mps = line_gap, 0.0
             break
+        gap_m, lead_speed_mps = self._signal_gap(world.t_s, gap_m, lead_speed_mps)
         accel = idm_accel_mps2(
             self.speed_mps,
             self.desired_speed_mps * world.path_speed_factor(self),

@@ -15,6 +15,7 @@ from lastmile.core.object_class import ObjectClass
 from lastmile.core.polyline import Polyline
 from lastmile.sim.arbiter import EGO_ID
 from lastmile.sim.passengers import PassengerModel, StopVisit
+from lastmile.sim.traffic_signals import SignalController
 from lastmile.sim.world import World
 
 Event = tuple[float, str, dict[str, object]]
@@ -51,6 +52,7 @@ class Judge:
     passengers: PassengerModel
     service_route: Polyline
     config: JudgeConfig = field(default_factory=JudgeConfig)
+    signals: SignalController | None = None
     events: list[Event] = field(default_factory=list)
     _colliding: set[int] = field(default_factory=set)
     _line_state: dict[int, _LineState] = field(default_factory=dict)
@@ -87,6 +89,7 @@ class Judge:
     def step(self) -> None:
         self._collisions()
         self._stop_lines()
+        self._signal_lines()
         self._crosswalks()
         self._speed()
         self._drivable()
@@ -123,6 +126,45 @@ class Judge:
                         ego_speed_mps=round(s.speed_mps, 3),
                     )
         self._colliding = now_touching
+
+    # --- traffic signals -----------------------------------------------------------------------
+    def _signal_lines(self) -> None:
+        """Crossing a signal's stop line while it shows red is a violation; flashing red is a stop sign
+        (legal after a full stop within 4 m of the line). Each crossing is logged with the state shown."""
+        if self.signals is None:
+            return
+        w = self.world
+        signal_of = {sl.id: sl.signal_id for sl in w.hdmap.stop_lines if sl.signal_id is not None}
+        speed = w.ego.state.speed_mps
+        for line in w.stop_lines:
+            sig = signal_of.get(line.id)
+            if sig is None:
+                continue
+            along = w.ego_stop_line_distance(line)
+            st = self._line_state.setdefault(line.id, _LineState())
+            if along is None:
+                st.stopped, st.last_along_m = False, None
+                continue
+            if -1.0 <= along <= 4.0 and speed < self.config.stop_speed_mps:
+                st.stopped = True
+            if st.last_along_m is not None and st.last_along_m > 0.0 >= along:
+                shown = self.signals.state(sig, w.t_s).name.lower()
+                flashing_stop_ok = self.signals.stop_then_go() and st.stopped
+                if self.signals.must_stop(sig, w.t_s) and not flashing_stop_ok:
+                    self.emit(
+                        "rule_violation",
+                        rule="red_light",
+                        detail=f"ran signal {sig} at stop line {line.id} ({shown})",
+                    )
+                self.emit(
+                    "signal_entry",
+                    stop_line_id=line.id,
+                    signal_id=sig,
+                    shown=shown,
+                    stopped_before=st.stopped,
+                )
+                st.stopped = False
+            st.last_along_m = along
 
     # --- stop lines and right of way -------------------------------------------------------------
     def _stop_lines(self) -> None:

@@ -14,6 +14,7 @@ from lastmile.core.errors import ConfigError
 from lastmile.core.vehicle_messages import BehaviourState
 from lastmile.sim.faults import FaultSpec
 from lastmile.sim.passengers import PassengerConfig
+from lastmile.sim.traffic_signals import SignalConfig
 from lastmile.sim.weather import parse_weather
 
 
@@ -132,6 +133,8 @@ class Scenario:
     """...and the shuttle moves at least this fast (an e-stop at standstill proves little)."""
     estop_release_s: float = 8.0
     """How long after standstill the operator releases the e-stop (and confirms the cause is gone)."""
+    traffic_signals: SignalConfig = field(default_factory=SignalConfig)
+    """Timing and mode (cycle, flashing red / yellow, dark) of the map's traffic signals."""
 
     def __post_init__(self) -> None:
         check_range("scenario.minutes", self.minutes, 0.01, 24 * 60.0)

@@ -141,7 +141,8 @@ class SensorSuite:
         self.person_in_doorway = False
 
     def push(self, frame: SensorFrame, latency_us: int) -> None:
-        """Queue ``frame`` for delivery ``latency_us`` after its stamp (through the fault injector)."""
+        """Queue ``frame`` for delivery ``latency_us`` after its stamp, through the fault injector
+        (also frames captured by sensor models outside the suite: the raw rig, light cameras)."""
         if self.faults is None:
             delivered = [(frame, latency_us)]
         else:

@@ -28,6 +28,8 @@ from lastmile.sim.passengers import PassengerModel
 from lastmile.sim.raw_sensors import RawSensorRig
 from lastmile.sim.scenario import Scenario
 from lastmile.sim.sensors import RCS_DBSM, SensorSuite
+from lastmile.sim.traffic_light_camera import TrafficLightCameraRig
+from lastmile.sim.traffic_signals import SignalController
 from lastmile.sim.vehicle_model import ActuatorDynamics, KinematicBicycle, VehicleState
 from lastmile.sim.weather import parse_weather
 from lastmile.sim.world import World
@@ -67,10 +69,15 @@ class Simulation:
             if raw_sensors
             else None
         )
+        self.signals = SignalController(scenario.traffic_signals, tuple(s.id for s in hdmap.signals))
+        self.light_cameras = TrafficLightCameraRig(self.world, self.signals, scenario.seed, tick_us)
+        for agent in agents:
+            if isinstance(agent, PathCar):
+                agent.obey_signals(self.signals, hdmap)
         self.passengers = PassengerModel(
             hdmap.stops, scenario.passengers, component_rng(scenario.seed, "passengers"), geometry.seats
         )
-        self.judge = Judge(self.world, self.passengers, service_route)
+        self.judge = Judge(self.world, self.passengers, service_route, signals=self.signals)
         self.operator = OperatorModel(self.judge)
         self._pending_side_cars = sorted(
             ((c.spawn_t_s, c) for c in scenario.side_road_cars), key=lambda item: item[0]
@@ -119,6 +126,8 @@ class Simulation:
             # Raw frames share the suite's delivery queue (latency, faults) with every other sensor.
             for frame, latency_us in self.raw_sensors.sample(tick):
                 self.sensors.push(frame, latency_us)
+        for frame, latency_us in self.light_cameras.sample(tick):
+            self.sensors.push(frame, latency_us)
         return self.sensors.deliver(tick * self.tick_us)
 
     def apply_command(self, command: ActuatorCommand | None) -> None:

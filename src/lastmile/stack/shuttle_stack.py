@@ -40,6 +40,7 @@ from lastmile.core.sensor_frames import (
     WheelOdometryFrame,
 )
 from lastmile.core.stamp import Stamp
+from lastmile.core.traffic_light_messages import TrafficLightDetections
 from lastmile.core.vehicle import VehicleGeometry
 from lastmile.core.vehicle_messages import (
     ActuatorCommand,
@@ -69,6 +70,7 @@ from lastmile.stack.profiler import ModuleProfiler
 from lastmile.stack.raw_perception import RawPerception, RawPerceptionConfig
 from lastmile.stack.v2i import AnticipationConfig, CrossingAnticipation
 from lastmile.tracking.radar_tracker import RadarObjectTracker, RadarTrackerConfig
+from lastmile.tracking.traffic_lights import TrafficLightTracker, TrafficLightTrackerConfig
 
 PERCEPTION_MODES = ("lidar_camera_radar", "radar_tracking")
 """What the stack perceives through: raw LiDAR + camera + radar, or the radars' object lists alone."""
@@ -92,6 +94,9 @@ class StackConfig:
         lidar_mounts: (4, 4) base_from_sensor of each LiDAR by sensor id (raw perception).
         cameras: the cameras' calibration (raw perception).
         raw_perception: the raw-sensor chain's parameters.
+        light_cameras: calibration of the cameras whose traffic-light detections the stack receives
+            (none: the stack cannot see signals, and treats every mapped one it reaches as red).
+        traffic_lights: the traffic-light tracker's parameters.
     """
 
     tick_us: int = 10_000
@@ -112,6 +117,8 @@ class StackConfig:
     lidar_mounts: dict[str, np.ndarray] = field(default_factory=dict)
     cameras: tuple[PinholeCamera, ...] = ()
     raw_perception: RawPerceptionConfig = field(default_factory=RawPerceptionConfig)
+    light_cameras: tuple[PinholeCamera, ...] = ()
+    traffic_lights: TrafficLightTrackerConfig = field(default_factory=TrafficLightTrackerConfig)
 
     def __post_init__(self) -> None:
         if self.perception_mode not in PERCEPTION_MODES:
@@ -172,6 +179,11 @@ class ShuttleStack:
                 config.raw_perception, layers, config.lidar_mounts, config.cameras, config.radar_mounts
             )
             if config.perception_mode == "lidar_camera_radar"
+            else None
+        )
+        self.light_tracker = (
+            TrafficLightTracker(layers.hdmap.traffic_lights, config.light_cameras, config.traffic_lights)
+            if layers.hdmap.traffic_lights and config.light_cameras
             else None
         )
         self.mission = MissionManager(
@@ -340,6 +352,10 @@ class ShuttleStack:
             self.mission.on_call(frame)
         elif isinstance(frame, CrossingPresenceFrame):
             self.v2i.on_frame(frame)
+        elif isinstance(frame, TrafficLightDetections) and self.light_tracker is not None:
+            est = self.ekf.estimate(frame.stamp)
+            if est.valid:
+                self.light_tracker.update(frame, est.map_from_base)
 
     def _decide(self, now: Stamp) -> None:
         est = self.ekf.estimate(now)
@@ -361,6 +377,7 @@ class ShuttleStack:
                 person_in_doorway=self._person_in_doorway,
                 trajectory=self._trajectory,
                 safety=self._directive,
+                traffic_lights=self.light_tracker.states() if self.light_tracker is not None else None,
             )
         )
         self._anticipate(now, f.s_m, est.speed_mps)

@@ -1,0 +1,184 @@
+"""Traffic-light rule: where to stop for the signals on the route, from the traffic-light tracker's states.
+
+At each signalised stop line ahead (within ``approach_m``) the heads of its signal are read from
+:class:`~lastmile.core.traffic_light_messages.TrafficLightStates` and combined conservatively (red over
+yellow over green). Then:
+
+- red: stop at the line;
+- yellow: stop if the shuttle can with comfortable braking (v^2 / 2d <= ``comfort_decel_mps2``), else go
+  on; the choice is kept until the light changes, so a stop once begun is finished, and a go is never
+  turned into a late hard stop;
+- green, or flashing yellow (proceed with caution): go;
+- flashing red: a stop sign: stop at the line, stand ``full_stop_s``, then go;
+- no established track of any of the signal's heads, or all of them unknown/off, within
+  ``unknown_as_red_m`` of the line: treat as red (the map says a signal is there; not seeing it is no
+  licence to drive through).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from lastmile.core.errors import ConfigError
+from lastmile.core.traffic_light_messages import LightState, TrafficLightStates
+from lastmile.hdmap.layers import RouteStopLine, SLayerDatabase
+
+# What the rule concluded for a signal: the state it acts on.
+RED, YELLOW, GREEN, FLASHING_RED, FLASHING_YELLOW, UNKNOWN = (
+    "red",
+    "yellow",
+    "green",
+    "flashing red",
+    "flashing yellow",
+    "unknown",
+)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class TrafficLightRuleConfig:
+    """Parameters of :class:`TrafficLightRule`.
+
+    Attributes:
+        approach_m: signal stop lines closer than this (front bumper to line) are acted on.
+        unknown_as_red_m: within this distance of the line a signal nobody sees counts as red.
+        comfort_decel_mps2: the deceleration the shuttle may use to stop on yellow (standing
+            passengers: well below a car's 3 m/s^2).
+        full_stop_s: how long the shuttle stands at a flashing red before it goes.
+        stop_before_line_m: where the front bumper stops, this far before the line.
+    """
+
+    approach_m: float = 60.0
+    unknown_as_red_m: float = 40.0
+    comfort_decel_mps2: float = 2.0
+    full_stop_s: float = 1.0
+    stop_before_line_m: float = 0.5
+
+    def __post_init__(self) -> None:
+        if not 0 < self.unknown_as_red_m <= self.approach_m:
+            raise ConfigError(
+                "TrafficLightRuleConfig: expected 0 < unknown_as_red_m <= approach_m, got "
+                f"{self.unknown_as_red_m}, {self.approach_m}"
+            )
+        if self.comfort_decel_mps2 <= 0 or self.full_stop_s < 0 or self.stop_before_line_m < 0:
+            raise ConfigError(
+                "TrafficLightRuleConfig: expected comfort_decel_mps2 > 0, full_stop_s >= 0, "
+                f"stop_before_line_m >= 0, got {self.comfort_decel_mps2}, {self.full_stop_s}, "
+                f"{self.stop_before_line_m}"
+            )
+
+
+@dataclass(slots=True)
+class _Approach:
+    """What the rule keeps about the line it is approaching."""
+
+    yellow_choice: str = ""  # "stop" or "go" once decided on a yellow
+    stopped_since_s: float | None = None
+    cleared: bool = False  # flashing red: full stop done
+
+
+@dataclass
+class TrafficLightRule:
+    """Stop points for the signals of a route; ``step`` runs every decision cycle."""
+
+    layers: SLayerDatabase
+    config: TrafficLightRuleConfig = field(default_factory=TrafficLightRuleConfig)
+    last_seen: str = ""
+    _heads: dict[int, frozenset[str]] = field(default_factory=dict)
+    _approach: dict[int, _Approach] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        for rl in self.layers.signal_stop_lines:
+            sig = rl.stop_line.signal_id
+            assert sig is not None  # signal_stop_lines holds only signalised lines
+            self._heads[rl.stop_line.id] = frozenset(h.light_id for h in self.layers.hdmap.signal(sig).heads)
+
+    def step(
+        self,
+        t_s: float,
+        front_s_m: float,
+        speed_mps: float,
+        lights: TrafficLightStates | None,
+        ahead: Callable[[float, float], float],
+    ) -> tuple[float | None, str]:
+        """(front-bumper stop s or None, why) for the nearest signalised line ahead.
+
+        Args:
+            t_s: decision time (s).
+            front_s_m: route s of the front bumper.
+            speed_mps: the shuttle's speed.
+            lights: the tracker's latest states (None: no tracker output, every signal is unknown).
+            ahead: route distance from the front to an s (wrapping on a loop), as the FSM measures it.
+        """
+        c = self.config
+        best: tuple[float, RouteStopLine] | None = None
+        for rl in self.layers.signal_stop_lines:
+            d = ahead(rl.s_m, front_s_m)
+            if -c.stop_before_line_m < d < c.approach_m and (best is None or d < best[0]):
+                best = (d, rl)
+        # Forget lines no longer being approached, so the next pass starts afresh.
+        active = best[1].stop_line.id if best is not None else None
+        for line_id in [k for k in self._approach if k != active]:
+            del self._approach[line_id]
+        if best is None:
+            self.last_seen = ""
+            return None, ""
+        dist, rl = best
+        seen = self.signal_state(rl.stop_line.id, lights)
+        self.last_seen = seen
+        st = self._approach.setdefault(rl.stop_line.id, _Approach())
+        stop_s = rl.s_m - c.stop_before_line_m
+        gap = dist - c.stop_before_line_m
+        if seen in (GREEN, FLASHING_YELLOW):
+            st.yellow_choice = ""
+            return None, f"signal {seen}: go"
+        if seen == UNKNOWN:
+            if dist > c.unknown_as_red_m:
+                return None, ""
+            return stop_s, "signal expected but unknown: treat as red"
+        if seen == RED:
+            need = speed_mps**2 / (2.0 * max(gap, 0.05))
+            if st.yellow_choice == "go" and need > c.comfort_decel_mps2:
+                return None, "signal turned red after the yellow go: committed"
+            return stop_s, "signal red"
+        if seen == YELLOW:
+            if not st.yellow_choice:
+                need = speed_mps**2 / (2.0 * max(gap, 0.05))
+                st.yellow_choice = "stop" if need <= c.comfort_decel_mps2 else "go"
+            if st.yellow_choice == "go":
+                return None, "signal yellow: too close to stop comfortably, go"
+            return stop_s, "signal yellow: stop"
+        # Flashing red: a stop sign.
+        if st.cleared:
+            return None, "signal flashing red: stopped, go"
+        if gap < 3.0 and speed_mps < 0.1:
+            if st.stopped_since_s is None:
+                st.stopped_since_s = t_s
+            if t_s - st.stopped_since_s >= c.full_stop_s:
+                st.cleared = True
+                return None, "signal flashing red: stopped, go"
+        else:
+            st.stopped_since_s = None
+        return stop_s, "signal flashing red: stop"
+
+    def signal_state(self, stop_line_id: int, lights: TrafficLightStates | None) -> str:
+        """The state the rule acts on for the signal of ``stop_line_id`` (see the module docstring)."""
+        heads = self._heads.get(stop_line_id, frozenset())
+        if lights is None or not heads:
+            return UNKNOWN
+        seen: set[str] = set()
+        for i, light_id in enumerate(lights.light_ids):
+            if light_id not in heads:
+                continue
+            state, flashing = LightState(int(lights.states[i])), bool(lights.flashing[i])
+            if flashing and state is LightState.RED:
+                seen.add(FLASHING_RED)
+            elif flashing and state is LightState.YELLOW:
+                seen.add(FLASHING_YELLOW)
+            elif state is not LightState.OFF:
+                seen.add({LightState.RED: RED, LightState.YELLOW: YELLOW, LightState.GREEN: GREEN}[state])
+        # Heads of one signal that disagree: act on the most restrictive.
+        for verdict in (FLASHING_RED, RED, YELLOW, FLASHING_YELLOW, GREEN):
+            if verdict in seen:
+                return verdict
+        return UNKNOWN
