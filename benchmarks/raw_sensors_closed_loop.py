@@ -99,7 +99,7 @@ def main() -> None:
             f"{ratio:.2f}",
             f"{float(r['realtime_factor_cpu']) / TARGET_RTF:.2f}",  # type: ignore[arg-type]
         )
-    Console().print(table)
+    Console(width=200).print(table)  # wide: the columns are read side by side
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps({"target_rtf": TARGET_RTF, "rows": rows}, indent=2))
 
