@@ -148,3 +148,12 @@ def test_sweep_cli_rejects_two_sources_in_one_line(tmp_path):
     assert "expected exactly one of --suite, --generate, --scenarios" in result.output
     result = CliRunner().invoke(app, ["sweep", "--suite", "nope", "--out", str(tmp_path)])
     assert result.exit_code == 2 and "expected one of ['iso22737']" in result.output
+
+
+def test_an_unknown_perception_mode_is_one_line_and_exit_2(tmp_path):
+    for command in (["run", "--minutes", "0.1"], ["sweep", "--suite", "iso22737"]):
+        result = CliRunner().invoke(app, [*command, "--perception", "oracle", "--out", str(tmp_path)])
+        assert result.exit_code == 2
+        assert "--perception: expected one of ['lidar', 'radar'], got 'oracle'" in result.output
+        assert len(result.output.strip().splitlines()) == 1
+    assert not any(tmp_path.iterdir())  # nothing was run or written
