@@ -169,10 +169,10 @@ def describe_clusters(
     kept = np.flatnonzero(keep)
     if len(kept) == 0:
         return _empty(D)
-    sel = keep[lab]
+    # One gather of the kept points in cluster order (not a selection, then a reordering).
+    sel = np.flatnonzero(keep[lab])
+    sel = sel[np.argsort(lab[sel], kind="stable")]
     ps, ls, ins = p[sel], lab[sel], inten[sel]
-    order = np.argsort(ls, kind="stable")
-    ps, ls, ins = ps[order], ls[order], ins[order]
     row = np.searchsorted(kept, ls)  # cluster row of each point
     cnt = count[kept]
     starts = np.concatenate([[0], np.cumsum(cnt)[:-1]])

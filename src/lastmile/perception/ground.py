@@ -148,7 +148,9 @@ class AdaptiveGridGroundSegmenter:
         tol = cfg.threshold_m(r)
         ring = np.searchsorted(np.asarray(cfg.ring_edges_m), r, side="right") - 1
         # Points grouped by ring once, instead of one full scan of the cloud per ring.
-        by_ring = np.argsort(ring, kind="stable")
+        # A stable sort of small integers is a radix sort in NumPy (several times faster than on int64).
+        small = np.int8 if len(cfg.ring_edges_m) <= 127 else np.int64
+        by_ring = np.argsort(ring.astype(small), kind="stable")
         ring_start = np.searchsorted(ring[by_ring], np.arange(len(cfg.sectors_per_ring) + 1))
         # Prior planes of the previous ring per sector (a, b, c); the first ring's prior is z = 0.
         prev_planes = np.zeros((1, 2, 3))

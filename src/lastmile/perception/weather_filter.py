@@ -156,7 +156,10 @@ def azimuth_step_from_times(t_offset_us: npt.ArrayLike) -> float:
     times is one column and the sweep spans one period: step = 2 pi * gap / period. Returns 0 for
     a sweep whose times do not show columns (fewer than two distinct times).
     """
-    t = np.unique(np.asarray(t_offset_us, dtype=np.float64))
+    t = np.asarray(t_offset_us)
+    # Distinct values of float32 times (a sweep's column) sorted in float32, then widened: the
+    # same values as sorting the widened times, at about half the cost.
+    t = np.unique(t if t.dtype == np.float32 else t.astype(np.float64)).astype(np.float64)
     if len(t) < 2:
         return 0.0
     gap = float(np.median(np.diff(t)))
