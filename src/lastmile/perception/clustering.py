@@ -17,7 +17,7 @@ import math
 
 import numpy as np
 import numpy.typing as npt
-from scipy.sparse import coo_matrix
+from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
 
 from lastmile.core.errors import MessageError
@@ -136,7 +136,9 @@ def euclidean_cluster_labels(xyz_m: npt.ArrayLike, eps_m: float) -> IntArray:
 
 
 def _components(n: int, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    graph = coo_matrix((np.ones(len(a), dtype=np.int8), (a, b)), shape=(n, n))
+    # CSR with float64 weights is what connected_components works on: built so, it is not
+    # converted again (about half the cost of an int8 COO graph).
+    graph = csr_matrix((np.ones(len(a)), (a, b)), shape=(n, n))
     _, comp = connected_components(graph, directed=False)
     return comp.astype(np.int64)
 
