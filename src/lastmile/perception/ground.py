@@ -151,7 +151,7 @@ class AdaptiveGridGroundSegmenter:
         # stable sort of small integers is a radix sort in NumPy (several times faster than int64).
         # Points grouped by ring once, instead of one full scan of the cloud per ring.
         if len(cfg.ring_edges_m) <= 127:
-            ring = np.full(n, -1, dtype=np.int8)
+            ring: np.ndarray = np.full(n, -1, dtype=np.int8)
             for edge in cfg.ring_edges_m:
                 ring += r >= edge
         else:
