@@ -112,3 +112,47 @@ def test_merge_applies_each_extrinsic_and_tags_the_sensor():
         merge_sweeps(sweeps, {"front": ext["front"]})
     with pytest.raises(MessageError, match="distinct sensor ids"):
         merge_sweeps([sweeps[0], sweeps[0]], ext)
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    speed=st.floats(0.0, 8.0),
+    yaw_rate=st.floats(-0.5, 0.5),
+    bin_us=st.sampled_from([1, 100, 500, 2000]),
+    empty=st.integers(-1, 2),
+)
+def test_merge_with_poses_equals_each_sweep_deskewed_on_its_own_bit_for_bit(speed, yaw_rate, bin_us, empty):
+    # merge_sweeps queries the poses once for every sweep; the points must be exactly those of
+    # one deskew_points call per sweep (an empty sweep included).
+    rng = np.random.default_rng(int(speed * 1000) + bin_us)
+    traj = _trajectory(speed, yaw_rate)
+    ext = {
+        "front": se3_matrix(3.9, 0.0, 2.1, 0.0, 0.02, 0.0),
+        "left": se3_matrix(1.0, 1.1, 1.9, 0.0, 0.0, math.pi / 2),
+        "right": se3_matrix(1.0, -1.1, 1.9, 0.0, 0.0, -math.pi / 2),
+    }
+    sweeps = []
+    for k, sid in enumerate(ext):
+        n = 0 if k == empty else 500
+        pts = np.c_[
+            rng.uniform(-30, 30, (n, 3)),
+            rng.uniform(0, 255, n),
+            rng.integers(0, 32, n),
+            rng.uniform(0, 99_999, n),
+        ].astype(np.float32)
+        sweeps.append(LidarSweep(stamp=Stamp(10_000 * k), sensor_id=sid, points=pts))
+    m = merge_sweeps(sweeps, ext, traj, time_bin_us=bin_us)
+    ref = int(m.stamp)
+    parts = [
+        deskew_points(
+            s.points[:, :3],
+            int(s.stamp) + s.points[:, 5].astype(np.int64),
+            traj,
+            ext[s.sensor_id],
+            ref,
+            bin_us,
+        )
+        for s in sweeps
+    ]
+    assert m.compensated and np.array_equal(m.points[:, :3], np.concatenate(parts))
+    assert m.points[:, 5].tolist() == [k for k, s in enumerate(sweeps) for _ in range(len(s.points))]

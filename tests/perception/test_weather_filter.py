@@ -99,3 +99,37 @@ def test_a_thin_object_seen_by_a_coarse_unit_survives_with_that_units_step() -> 
     assert not dror_keep_mask(flake, azimuth_step_rad=np.full(len(flake), step))[-1]
     with pytest.raises(MessageError, match="azimuth_step_rad"):
         dror_keep_mask(xyz, azimuth_step_rad=np.ones(2))
+
+
+def _dror_whole_pool_tree(p: np.ndarray, cfg: DrorConfig) -> np.ndarray:
+    """The plain definition: every tested point queried in one KD-tree of all points in reach."""
+    from scipy.spatial import cKDTree
+
+    rng = np.hypot(p[:, 0], p[:, 1])
+    radius = np.maximum(cfg.min_radius_m, cfg.multiplier * rng * cfg.azimuth_step_rad)
+    test = np.flatnonzero(rng <= cfg.max_range_m)
+    keep = np.ones(len(p), dtype=bool)
+    if len(test):
+        r_max = float(radius[test].max())
+        pool = np.flatnonzero(rng <= cfg.max_range_m + r_max)
+        dist, _ = cKDTree(p[pool]).query(p[test], k=cfg.min_neighbours + 1, distance_upper_bound=r_max)
+        keep[test] = dist[:, -1] <= radius[test]
+    return keep
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    seed=st.integers(0, 10_000),
+    n=st.integers(1, 400),
+    spread=st.floats(0.5, 30.0),
+    k=st.integers(1, 4),
+)
+def test_the_tree_on_points_near_tested_ones_gives_the_whole_pool_answer(seed, n, spread, k) -> None:
+    # Clumps (dense, mostly kept) and scattered points (sparse, mostly removed), some beyond max range.
+    rng = np.random.default_rng(seed)
+    centres = rng.uniform(-spread, spread, (max(1, n // 20), 3))
+    p = centres[rng.integers(0, len(centres), n)] + rng.normal(0, 0.1, (n, 3))
+    p[: n // 3] = rng.uniform(-spread, spread, (n // 3, 3))
+    cfg = DrorConfig(min_neighbours=k, max_range_m=0.7 * spread)
+    expected = _dror_whole_pool_tree(p, cfg)
+    assert np.array_equal(dror_keep_mask(p, cfg), expected)

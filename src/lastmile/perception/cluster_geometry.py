@@ -169,10 +169,10 @@ def describe_clusters(
     kept = np.flatnonzero(keep)
     if len(kept) == 0:
         return _empty(D)
-    sel = keep[lab]
+    # One gather of the kept points in cluster order (not a selection, then a reordering).
+    sel = np.flatnonzero(keep[lab])
+    sel = sel[np.argsort(lab[sel], kind="stable")]
     ps, ls, ins = p[sel], lab[sel], inten[sel]
-    order = np.argsort(ls, kind="stable")
-    ps, ls, ins = ps[order], ls[order], ins[order]
     row = np.searchsorted(kept, ls)  # cluster row of each point
     cnt = count[kept]
     starts = np.concatenate([[0], np.cumsum(cnt)[:-1]])
@@ -292,12 +292,14 @@ def _support(xy: np.ndarray, row: np.ndarray, starts: np.ndarray, D: int) -> np.
     # dimension of 2), and the arithmetic per element is the same.
     x, y = np.ascontiguousarray(xy[:, 0]), np.ascontiguousarray(xy[:, 1])
     counts = np.diff(np.append(starts, len(xy)))
-    index = np.arange(len(xy))
     out = np.empty((len(starts), D), dtype=np.int64)
     for j in range(D):
         proj = x * cos[j] + y * sin[j]
         best = np.repeat(np.maximum.reduceat(proj, starts), counts)
-        out[:, j] = np.minimum.reduceat(np.where(proj >= best, index, len(xy)), starts)
+        # Every cluster has a point at its maximum: the first one at or after its start is its
+        # first in the cluster (a search over the few maxima, not a reduction over all points).
+        at_max = np.flatnonzero(proj >= best)
+        out[:, j] = at_max[np.searchsorted(at_max, starts)]
     return out
 
 

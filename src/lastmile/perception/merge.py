@@ -18,7 +18,7 @@ from lastmile.core.arrays import frozen_array
 from lastmile.core.errors import MessageError
 from lastmile.core.sensor_frames import LIDAR_COLUMNS, LidarSweep
 from lastmile.core.stamp import Stamp
-from lastmile.perception.motion_compensation import PoseTrajectory, deskew_points
+from lastmile.perception.motion_compensation import PoseTrajectory, _apply_bin_transforms, _time_bins
 
 MERGED_COLUMNS = ("x_m", "y_m", "z_m", "intensity", "ring", "sensor_index")
 """Columns of :attr:`MergedCloud.points`."""
@@ -102,19 +102,35 @@ def merge_sweeps(
     ref = int(ref_stamp) if ref_stamp is not None else max(sweep_end_us(s) for s in sweeps)
     total = sum(len(s.points) for s in sweeps)
     out = np.empty((total, len(MERGED_COLUMNS)), dtype=np.float32)
-    row = 0
-    for k, sweep in enumerate(sweeps):
-        pts = sweep.points
-        n = len(pts)
+    if trajectory is not None and time_bin_us <= 0:
+        raise MessageError(f"merge_sweeps.time_bin_us: expected > 0, got {time_bin_us}")
+    extrinsics, binned = [], []
+    for sweep in sweeps:
         B = np.asarray(base_from_sensor[sweep.sensor_id], dtype=np.float64)
         if B.shape != (4, 4) or not np.isfinite(B).all():
             raise MessageError(
                 f"merge_sweeps: expected a finite (4, 4) extrinsic for {sweep.sensor_id!r}, got {B.shape}"
             )
-        if trajectory is not None:
-            t = int(sweep.stamp) + pts[:, _T].astype(np.int64)
-            out[row : row + n, :3] = deskew_points(pts[:, :3], t, trajectory, B, ref, time_bin_us)
-        else:
+        extrinsics.append(B)
+        if trajectory is not None and len(sweep.points):
+            binned.append(_time_bins(int(sweep.stamp) + sweep.points[:, _T].astype(np.int64), time_bin_us))
+    if binned and trajectory is not None:
+        # One pose query for every sweep's bins and the reference (the same per-time poses as
+        # one query per sweep: the interpolation is element-wise), then per-sweep transforms
+        # exactly as deskew_points forms them.
+        M = trajectory.matrices_at(np.concatenate([c for _, c in binned] + [np.array([float(ref)])]))
+        ref_from_map = np.linalg.inv(M[-1])
+    row, b0, j = 0, 0, 0
+    for k, sweep in enumerate(sweeps):
+        pts = sweep.points
+        n = len(pts)
+        B = extrinsics[k]
+        if trajectory is not None and n:
+            bins, centres = binned[j]
+            T = ref_from_map @ M[b0 : b0 + len(centres)] @ B  # (n_bins, 4, 4): base(ref) <- sensor(t_bin)
+            out[row : row + n, :3] = _apply_bin_transforms(pts[:, :3], bins, T)
+            b0, j = b0 + len(centres), j + 1
+        elif trajectory is None:
             Bf = B.astype(np.float32)
             for i in range(3):
                 out[row : row + n, i] = (

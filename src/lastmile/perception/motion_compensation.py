@@ -184,13 +184,23 @@ def deskew_points(
         raise MessageError(f"deskew_points.base_from_sensor: expected (4, 4), got {B.shape}")
     if len(p) == 0:
         return np.zeros((0, 3), dtype=np.float32)
+    bins, centres = _time_bins(t, time_bin_us)
+    M = trajectory.matrices_at(np.append(centres, ref_us))
+    # (n_bins, 4, 4): base(ref) <- sensor(t_bin)
+    return _apply_bin_transforms(p, bins, np.linalg.inv(M[-1]) @ M[:-1] @ B)
+
+
+def _time_bins(t: np.ndarray, time_bin_us: int) -> tuple[np.ndarray, np.ndarray]:
+    """(N,) time-bin index of each (non-empty) time and the (n_bins,) bin centres, microseconds."""
     t_lo = int(t.min())
     bins = (t - t_lo) // time_bin_us
     n_bins = int(bins.max()) + 1
-    centres = t_lo + (np.arange(n_bins) + 0.5) * time_bin_us
-    M = trajectory.matrices_at(np.append(centres, ref_us))
-    ref_from_map = np.linalg.inv(M[-1])
-    T = ref_from_map @ M[:-1] @ B  # (n_bins, 4, 4): base(ref) <- sensor(t_bin)
+    return bins, t_lo + (np.arange(n_bins) + 0.5) * time_bin_us
+
+
+def _apply_bin_transforms(p: np.ndarray, bins: np.ndarray, T: np.ndarray) -> npt.NDArray[np.float32]:
+    """(N, 3) float32 ``T[bins] @ p`` for (N, 3) float32 points and (n_bins, 4, 4) transforms."""
+    n_bins = len(T)
     # Written-out products on gathered rows: faster than einsum or matmul with an inner size of 3.
     # Per-entry 1-D gathers on contiguous columns: cheaper than one (N, 12) row gather with strided
     # reads, and the same float32 arithmetic.

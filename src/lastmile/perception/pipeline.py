@@ -191,13 +191,13 @@ class LidarPipeline:
         noise = np.zeros(len(xyz), dtype=bool)
         if cfg.weather_filter and len(ng):
             sweep_of = {s.sensor_id: s for s in sweeps}
-            sensor_xy = _sensor_xy(cloud, base_from_sensor)
-            scan = cloud.points[ng, 5].astype(np.int64) * 1000 + cloud.points[ng, 4].astype(np.int64)
+            sensor = cloud.points[ng, 5].astype(np.int64)  # only the points DROR sees
+            sensor_xy = _sensor_xy(cloud, base_from_sensor)[sensor]
+            scan = sensor * 1000 + cloud.points[ng, 4].astype(np.int64)
             steps = np.array(
                 [azimuth_step_from_times(sweep_of[sid].points[:, 5]) for sid in cloud.sensor_ids]
             )
-            az_step = steps[cloud.points[ng, 5].astype(np.int64)]
-            keep = dror_keep_mask(xyz[ng], cfg.dror, sensor_xy[ng], scan, az_step)
+            keep = dror_keep_mask(xyz[ng], cfg.dror, sensor_xy, scan, steps[sensor])
             noise[ng[~keep]] = True
             ng = ng[keep]
         t4 = time.perf_counter()
@@ -243,6 +243,5 @@ class LidarPipeline:
 
 
 def _sensor_xy(cloud: MergedCloud, base_from_sensor: Mapping[str, npt.ArrayLike]) -> np.ndarray:
-    """(N, 2) horizontal position of the LiDAR that measured each point (DROR ranges from it)."""
-    origins = np.array([np.asarray(base_from_sensor[s], dtype=np.float64)[:2, 3] for s in cloud.sensor_ids])
-    return origins[cloud.points[:, 5].astype(np.int64)]
+    """(S, 2) horizontal position of each LiDAR of the cloud, by sensor index (DROR ranges from it)."""
+    return np.array([np.asarray(base_from_sensor[s], dtype=np.float64)[:2, 3] for s in cloud.sensor_ids])

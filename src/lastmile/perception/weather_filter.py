@@ -7,7 +7,8 @@ A point with fewer than ``min_neighbours`` other points inside its radius is rem
 
 Exact shortcut: a point whose neighbours along its own scan line (same sensor and ring, nearest in
 azimuth) already give it ``min_neighbours`` points inside its radius surely passes and skips the
-KD-tree query; only the rest (ends of ring segments, sparse points: where snow lives) are queried.
+KD-tree query; only the rest (ends of ring segments, sparse points: where snow lives) are queried,
+in a tree of only the points in the horizontal grid cells around them (also exact).
 """
 
 from __future__ import annotations
@@ -108,7 +109,7 @@ def dror_keep_mask(
         return keep
     # Only points that can lie within a tested point's radius enter the tree.
     r_max = float(radius[test].max())
-    pool = np.flatnonzero(rng <= cfg.max_range_m + r_max)
+    pool = _near_tested(p, np.flatnonzero(rng <= cfg.max_range_m + r_max), test, r_max)
     # Leaves of 64: the build dominates (tens of thousands of points for about a thousand queries)
     # and bigger leaves build faster without slowing the few queries measurably.
     tree = cKDTree(p[pool], leafsize=64, balanced_tree=False, compact_nodes=False)
@@ -118,6 +119,36 @@ def dror_keep_mask(
     return keep
 
 
+def _near_tested(p: np.ndarray, pool: np.ndarray, test: np.ndarray, r_max: float) -> np.ndarray:
+    """The ``pool`` points in the 3 x 3 x 3 grid cells (side >= ``r_max``) around a tested point.
+
+    Every pool point within ``r_max`` of a tested point is among them, so the k nearest
+    neighbours within ``r_max`` found in a tree of these are those of a tree of the whole pool (the
+    same points at the same distances: the result is bit-identical). The tested points are about a
+    thousand (the ends of scan-line segments) while the pool is tens of thousands: building the
+    tree on the pool points near them is most of DROR's saving.
+    """
+    # A hair over r_max: a neighbour within r_max never lands two cells away despite rounding.
+    side = r_max * (1.0 + 1e-6)
+    # Column by column: (N, 3) axis-0 reductions are several times slower in NumPy.
+    cell = []
+    for i in range(3):
+        c = p[pool, i]
+        cell.append(np.floor((c - float(c.min())) / side).astype(np.int64) + 1)  # +1: room for -1
+    dims = [int(c.max()) + 2 for c in cell]
+    if int(np.prod(dims)) > 16 * len(pool) + 65_536:
+        return pool  # a sparse pool spread far (a long max_range_m): the grid would cost more than it saves
+    key = (cell[0] * dims[1] + cell[1]) * dims[2] + cell[2]
+    # Tested points are pool points: their cells are rows of ``cell``, and 0 <= cell +- 1 < dims.
+    tkey = np.unique(key[np.searchsorted(pool, test)])
+    near = np.zeros(int(np.prod(dims)), dtype=bool)
+    for ox in (-1, 0, 1):
+        for oy in (-1, 0, 1):
+            for oz in (-1, 0, 1):
+                near[tkey + (ox * dims[1] + oy) * dims[2] + oz] = True
+    return pool[near[key]]
+
+
 def azimuth_step_from_times(t_offset_us: npt.ArrayLike) -> float:
     """A spinning LiDAR's horizontal resolution from one sweep's per-point firing times.
 
@@ -125,7 +156,10 @@ def azimuth_step_from_times(t_offset_us: npt.ArrayLike) -> float:
     times is one column and the sweep spans one period: step = 2 pi * gap / period. Returns 0 for
     a sweep whose times do not show columns (fewer than two distinct times).
     """
-    t = np.unique(np.asarray(t_offset_us, dtype=np.float64))
+    t = np.asarray(t_offset_us)
+    # Distinct values of float32 times (a sweep's column) sorted in float32, then widened: the
+    # same values as sorting the widened times, at about half the cost.
+    t = np.unique(t if t.dtype == np.float32 else t.astype(np.float64)).astype(np.float64)
     if len(t) < 2:
         return 0.0
     gap = float(np.median(np.diff(t)))
