@@ -13,7 +13,8 @@ the lane under snow beside every curb (on top of the 0.6 m bank).
 
 What the pipeline gets is what the stack would have: the three sweeps, the LiDAR mounts, INS
 frames (GnssInsFrame as delivered, sigma 2 cm) for de-skewing and for placing the HD map (road
-region mask and the right-hand curb ahead) in the base frame. Ground truth (agents, true pose,
+region mask, the right-hand curb ahead, and every mapped curb line within 45 m for the pipeline's
+snow-surface test; ``--no-snow-surface`` leaves those out) in the base frame. Ground truth (agents, true pose,
 per-point labels) is used only for scoring.
 
 Metrics per weather (scoring rules in ``tests/perception/quality_scoring.py``):
