@@ -13,7 +13,8 @@ the lane under snow beside every curb (on top of the 0.6 m bank).
 
 What the pipeline gets is what the stack would have: the three sweeps, the LiDAR mounts, INS
 frames (GnssInsFrame as delivered, sigma 2 cm) for de-skewing and for placing the HD map (road
-region mask and the right-hand curb ahead) in the base frame. Ground truth (agents, true pose,
+region mask, the right-hand curb ahead, and every mapped curb line within 45 m for the pipeline's
+snow-surface test; ``--no-snow-surface`` leaves those out) in the base frame. Ground truth (agents, true pose,
 per-point labels) is used only for scoring.
 
 Metrics per weather (scoring rules in ``tests/perception/quality_scoring.py``):
@@ -182,6 +183,28 @@ def curb_ahead(hdmap: HDMap, pose: SE2, side: str) -> np.ndarray | None:
     return None if best is None else best[1]
 
 
+_DENSE_CURBS: dict[int, list[np.ndarray]] = {}
+
+
+def curb_lines_near(hdmap: HDMap, pose: SE2, reach_m: float = 45.0) -> list[np.ndarray]:
+    """Every mapped curb line (any side) within ``reach_m`` of the vehicle, as (M, 2) map-frame
+    polylines (vertices every 2 m): what the stack reads from its map for the snow-surface test."""
+    dense = _DENSE_CURBS.get(id(hdmap))
+    if dense is None:
+        dense = [c.sub(0.0, c.length_m, 2.0) for c in hdmap.curbs]
+        _DENSE_CURBS[id(hdmap)] = dense
+    out = []
+    for xy in dense:
+        near = np.hypot(xy[:, 0] - pose.x_m, xy[:, 1] - pose.y_m) <= reach_m
+        # Contiguous runs of near vertices, each grown by one vertex so the cut segments stay whole.
+        edges = np.flatnonzero(np.diff(np.r_[0, near.astype(np.int8), 0]))
+        for a, b in zip(edges[::2], edges[1::2], strict=True):
+            run = xy[max(a - 1, 0) : min(b + 1, len(xy))]
+            if len(run) >= 2:
+                out.append(run)
+    return out
+
+
 # --- scoring of one frame ---------------------------------------------------------------------------------
 def _clear_of_ego(agent: Agent, world: World, clearance_m: float = 1.0) -> bool:
     cx, cy = world.ego_centre()
@@ -316,7 +339,11 @@ def evaluate_frame(
     curb_map = curb_ahead(hdmap, est_pose, "right")
     curb_base = est_pose.inverse().apply_points(curb_map) if curb_map is not None else None
     c0, w0 = time.process_time(), time.perf_counter()
-    res = pipe.process(sweeps, ext, traj, road.mask_for(est_pose), curb_base)
+    to_base = est_pose.inverse()
+    lines = None
+    if args.snow_surface:  # every mapped curb near the bus, for the snow-surface test
+        lines = [to_base.apply_points(xy) for xy in curb_lines_near(hdmap, est_pose)]
+    res = pipe.process(sweeps, ext, traj, road.mask_for(est_pose), curb_base, lines)
     cpu_ms, wall_ms = (time.process_time() - c0) * 1e3, (time.perf_counter() - w0) * 1e3
 
     label_all = np.concatenate([t.label for t in truths])  # type: ignore[attr-defined]
@@ -553,6 +580,12 @@ def main() -> None:
     parser.add_argument("--snow-cover-m", type=float, default=0.5, help="lane under snow beside curbs (snow)")
     parser.add_argument(
         "--extra-spacing-m", type=float, default=25.0, help="standing pedestrians/geese spacing"
+    )
+    parser.add_argument(
+        "--no-snow-surface",
+        dest="snow_surface",
+        action="store_false",
+        help="do not give the pipeline the map's curb lines (no snow-surface test: the old figures)",
     )
     parser.add_argument(
         "--json", type=Path, default=ROOT / "benchmarks" / "results" / "perception_quality.json"

@@ -1,8 +1,9 @@
 """The LiDAR-only detection chain of WATonoBus on a multi-LiDAR rig, with per-stage timing.
 
 compensation + merge -> crop (region of interest, ego body) -> ground -> weather noise filter ->
-clustering -> cluster geometry -> curbs (boundary + obstacle reassignment). The stage times are
-measured with ``time.perf_counter`` for reporting only; no result depends on them.
+curbs (boundary + obstacle reassignment) -> clustering -> cluster geometry -> snow surface (low, bright
+clusters on any mapped curb line are snow lying there, not objects; only with the map's curb lines).
+The stage times are measured with ``time.perf_counter`` for reporting only; no result depends on them.
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from lastmile.perception.himmelsbach import HimmelsbachConfig
 from lastmile.perception.merge import MergedCloud, merge_sweeps
 from lastmile.perception.motion_compensation import PoseTrajectory
 from lastmile.perception.road_region import RoadMask
+from lastmile.perception.snow_surface import SnowSurfaceConfig, drop_clusters, snow_surface_clusters
 from lastmile.perception.weather_filter import DrorConfig, azimuth_step_from_times, dror_keep_mask
 
 
@@ -61,6 +63,7 @@ class LidarPipelineConfig:
     ground: registry name of the ground segmenter ("adaptive_grid" or "himmelsbach").
     cluster_eps_m: Euclidean clustering link length (DBSCAN eps with min_samples = 1).
     weather_filter: run DROR after ground removal (off only for ablations).
+    snow_surface: the snow-surface test of clusters (applied when curb lines are given).
     time_bin_us: de-skew time-bin width.
     """
 
@@ -73,6 +76,7 @@ class LidarPipelineConfig:
     cluster_eps_m: float = 0.5
     geometry: ClusterGeometryConfig = field(default_factory=ClusterGeometryConfig)
     curb: CurbConfig = field(default_factory=CurbConfig)
+    snow_surface: SnowSurfaceConfig = field(default_factory=SnowSurfaceConfig)
     time_bin_us: int = 500
 
     def __post_init__(self) -> None:
@@ -105,6 +109,8 @@ class LidarPipelineResult:
         curb_obstacle: (N,) bool points the curb step reassigned as obstacles.
         curb_surface: (N,) bool non-ground points the curb step found to be the curb, sidewalk
             edge or snow bank on the curb side of the boundary (not clustered).
+        snow_surface: (N,) bool points of clusters found to be snow lying along a mapped curb
+            (:mod:`lastmile.perception.snow_surface`; not in ``clusters``, labels kept).
         stage_ms: wall time per stage, milliseconds (reporting only).
     """
 
@@ -118,6 +124,7 @@ class LidarPipelineResult:
     curb_obstacle: np.ndarray
     stage_ms: dict[str, float]
     curb_surface: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    snow_surface: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
 
     def detected_objects(self, min_confidence: float = 0.0) -> DetectedObjects:
         """Clusters as :class:`DetectedObjects` in the base frame, class UNKNOWN, velocity 0."""
@@ -152,6 +159,7 @@ class LidarPipeline:
         trajectory: PoseTrajectory | None = None,
         road_mask: RoadMask | None = None,
         map_curb_xy_m: npt.ArrayLike | None = None,
+        curb_lines_xy_m: Sequence[npt.ArrayLike] | None = None,
     ) -> LidarPipelineResult:
         """One rig frame.
 
@@ -161,6 +169,8 @@ class LidarPipeline:
             trajectory: INS poses covering the sweeps (None: no de-skew, e.g. a parked bus).
             road_mask: HD-map road region for the adaptive grid (None: all road).
             map_curb_xy_m: (M, 2) the map's right curb in the base frame (None: no curb step).
+            curb_lines_xy_m: every mapped curb line near the vehicle, each (M, 2) in the base frame,
+                any side (None: no snow-surface test; low bright clusters stay objects).
         """
         cfg = self.config
         ms: dict[str, float] = {}
@@ -227,7 +237,15 @@ class LidarPipeline:
         clusters = describe_clusters(xyz[has], cloud.points[has, 3], labels[has], cfg.geometry)
         t7 = time.perf_counter()
         ms["cluster_geometry"] = (t7 - t6) * 1e3
-        ms["total"] = (t7 - t0) * 1e3
+        snow_surface = np.zeros(len(xyz), dtype=bool)
+        if curb_lines_xy_m is not None:
+            snow = snow_surface_clusters(clusters, curb_lines_xy_m, cfg.snow_surface)
+            if snow.any():
+                snow_surface = np.isin(labels, clusters.labels[snow])
+                clusters = drop_clusters(clusters, snow)
+        t8 = time.perf_counter()
+        ms["snow_surface"] = (t8 - t7) * 1e3
+        ms["total"] = (t8 - t0) * 1e3
         return LidarPipelineResult(
             cloud=cloud,
             source_index=source_index,
@@ -239,6 +257,7 @@ class LidarPipeline:
             curb_obstacle=curb_obstacle,
             stage_ms=ms,
             curb_surface=curb_surface,
+            snow_surface=snow_surface,
         )
 
 

@@ -1,0 +1,137 @@
+"""Snow lying along a curb, told from objects by height profile, reflectivity and the map's curbs.
+
+Ploughed snow lies on the lane edge beside every curb, up to curb height (~0.15 m) and sloping down
+to the road. Where the curb stage models that curb (the shuttle's right one) its snow is boundary
+surface and never reaches the clustering; the curb across the road is not modelled (its boundary,
+seen from the far lane, is poor: a second curb call made the false objects worse), so the snow
+lying along it stands out of the road plane and clusters like a low object.
+
+Three properties of such a cluster, none of which an object on the road has all of:
+
+- **low and flat**: its top is at most ``max_top_m`` above the road and its points span at most
+  ``max_span_m`` in height (a goose is 0.4 m tall, a pedestrian 1.75 m);
+- **bright**: fresh snow reflects ~0.8 of a 905 nm beam against 0.1 for asphalt and 0.2-0.3 for
+  cars, clothing and feathers; at the grazing incidence of a ground return it still returns more
+  than a goose does head-on (aUToronto 6.2.2 uses intensity after clustering, as here);
+- **on a curb line**: its centre lies within ``max_curb_distance_m`` of one of the HD map's curbs
+  (snow cover plus bank is ~1.1 m wide; the map may be off by up to 0.3 m).
+
+A cluster with all three is snow surface: dropped from the objects, its points reported. Nothing is
+learned; the thresholds are physical (heights, reflectivities, widths) and listed below.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+from scipy.spatial import cKDTree
+
+from lastmile.core.errors import ConfigError, MessageError
+from lastmile.perception.cluster_geometry import ClusterSet
+
+FloatArray = npt.NDArray[np.float64]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SnowSurfaceConfig:
+    """Attributes:
+    max_top_m: a snow-surface cluster's top (base frame, road at z = 0) is below this: curb height
+        0.15 m plus range noise and a rough bank rim; a goose's top is at 0.4 m.
+    max_span_m: ...and its points span at most this in height (the bank itself is <= 0.15 m).
+    min_mean_intensity: ...and its mean intensity (0..255) is at least this. Intensity follows
+        reflectivity x (0.3 + 0.7 cos incidence): snow (0.8) returns 60-80 at the grazing incidence
+        of a flat surface a few metres to the side (40-50 beyond 15 m in falling snow); a goose
+        (0.2) returns at most ~51 even head-on, so 52 never takes a goose. Cars (0.3) and
+        pedestrians (0.25) can return more, but are neither low nor flat.
+    max_curb_distance_m: ...and its centre lies this close to a mapped curb line (ploughed snow
+        lies within 1.1 m of the curb: 0.5 m of lane cover plus the 0.6 m bank; plus margin).
+    sample_step_m: spacing at which the curb polylines are sampled for the distance test.
+    """
+
+    max_top_m: float = 0.3
+    max_span_m: float = 0.15
+    min_mean_intensity: float = 52.0
+    max_curb_distance_m: float = 1.2
+    sample_step_m: float = 0.1
+
+    def __post_init__(self) -> None:
+        for name in ("max_top_m", "max_span_m", "min_mean_intensity", "max_curb_distance_m", "sample_step_m"):
+            v = getattr(self, name)
+            if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
+                raise ConfigError(f"SnowSurfaceConfig.{name}: expected a positive number, got {v!r}")
+        if self.min_mean_intensity > 255:
+            raise ConfigError(
+                f"SnowSurfaceConfig.min_mean_intensity: expected <= 255 (0..255 scale), got "
+                f"{self.min_mean_intensity}"
+            )
+
+
+def curb_distance_m(
+    curb_lines_xy_m: Sequence[npt.ArrayLike], xy_m: npt.ArrayLike, step_m: float
+) -> FloatArray:
+    """(N,) distance from (N, 2) points to the nearest of the curb polylines (inf without curbs).
+
+    Raises:
+        MessageError: a curb line that is not a finite (M >= 2, 2) polyline.
+    """
+    samples: list[FloatArray] = []
+    for i, line in enumerate(curb_lines_xy_m):
+        P = np.asarray(line, dtype=np.float64)
+        if P.ndim != 2 or P.shape[1] != 2 or len(P) < 2 or not np.isfinite(P).all():
+            raise MessageError(
+                f"curb_lines_xy_m[{i}]: expected a finite (M >= 2, 2) polyline, got shape {P.shape}"
+            )
+        seg = np.diff(P, axis=0)
+        n = np.maximum(np.ceil(np.hypot(seg[:, 0], seg[:, 1]) / step_m).astype(np.int64), 1)
+        t = np.concatenate([np.arange(k) / k for k in n])
+        start = np.repeat(np.arange(len(seg)), n)
+        samples.append(P[start] + t[:, None] * seg[start])
+        samples.append(P[-1:])
+    q = np.asarray(xy_m, dtype=np.float64).reshape(-1, 2)
+    if not samples or len(q) == 0:
+        return np.full(len(q), np.inf)
+    d, _ = cKDTree(np.vstack(samples)).query(q, k=1)
+    return np.asarray(d, dtype=np.float64)
+
+
+def snow_surface_clusters(
+    clusters: ClusterSet, curb_lines_xy_m: Sequence[npt.ArrayLike], config: SnowSurfaceConfig | None = None
+) -> np.ndarray:
+    """(K,) bool: clusters that are snow lying along a curb (low, flat, bright, on a curb line).
+
+    Args:
+        clusters: the pipeline's clusters (base frame).
+        curb_lines_xy_m: the HD map's curb lines near the vehicle, each (M, 2) in the base frame
+            (any side, any direction).
+        config: thresholds.
+    """
+    cfg = config or SnowSurfaceConfig()
+    if len(clusters) == 0 or len(curb_lines_xy_m) == 0:
+        return np.zeros(len(clusters), dtype=bool)
+    top = clusters.col("z_max_m")
+    span = top - clusters.col("z_min_m")
+    bright = clusters.col("mean_intensity") >= cfg.min_mean_intensity
+    shape = (top <= cfg.max_top_m) & (span <= cfg.max_span_m) & bright
+    out = np.zeros(len(clusters), dtype=bool)
+    if shape.any():
+        xy = np.c_[clusters.col("x_m"), clusters.col("y_m")][shape]
+        near = curb_distance_m(curb_lines_xy_m, xy, cfg.sample_step_m) <= cfg.max_curb_distance_m
+        out[np.flatnonzero(shape)[near]] = True
+    return out
+
+
+def drop_clusters(clusters: ClusterSet, drop: npt.ArrayLike) -> ClusterSet:
+    """The cluster set without the rows where ``drop`` is True."""
+    keep = ~np.asarray(drop, dtype=bool)
+    if keep.shape != (len(clusters),):
+        raise MessageError(f"drop_clusters: expected a ({len(clusters)},) mask, got {keep.shape}")
+    return ClusterSet(
+        table=clusters.table[keep],
+        hull_xy=clusters.hull_xy[keep],
+        hull_new=clusters.hull_new[keep],
+        labels=clusters.labels[keep],
+    )
