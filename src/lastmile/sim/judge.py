@@ -6,6 +6,7 @@ Nothing here reaches the stack; its verdicts go to the run log as events.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -16,7 +17,7 @@ from lastmile.core.polyline import Polyline
 from lastmile.sim.arbiter import EGO_ID
 from lastmile.sim.passengers import PassengerModel, StopVisit
 from lastmile.sim.traffic_signals import SignalController
-from lastmile.sim.world import World
+from lastmile.sim.world import StopLineTruth, World
 
 Event = tuple[float, str, dict[str, object]]
 
@@ -135,19 +136,12 @@ class Judge:
             return
         w = self.world
         signal_of = {sl.id: sl.signal_id for sl in w.hdmap.stop_lines if sl.signal_id is not None}
-        speed = w.ego.state.speed_mps
-        for line in w.stop_lines:
-            sig = signal_of.get(line.id)
-            if sig is None:
-                continue
-            along = w.ego_stop_line_distance(line)
-            st = self._line_state.setdefault(line.id, _LineState())
-            if along is None:
-                st.stopped, st.last_along_m = False, None
-                continue
-            if -1.0 <= along <= 4.0 and speed < self.config.stop_speed_mps:
+        signalled = [line for line in w.stop_lines if line.id in signal_of]
+        for line, st, standing, crossed in self._line_passages(signalled):
+            sig = signal_of[line.id]
+            if standing:
                 st.stopped = True
-            if st.last_along_m is not None and st.last_along_m > 0.0 >= along:
+            if crossed:
                 shown = self.signals.state(sig, w.t_s).name.lower()
                 flashing_stop_ok = self.signals.stop_then_go() and st.stopped
                 if self.signals.must_stop(sig, w.t_s) and not flashing_stop_ok:
@@ -164,25 +158,36 @@ class Judge:
                     stopped_before=st.stopped,
                 )
                 st.stopped = False
-            st.last_along_m = along
 
-    # --- stop lines and right of way -------------------------------------------------------------
-    def _stop_lines(self) -> None:
+    def _line_passages(
+        self, lines: list[StopLineTruth]
+    ) -> Iterator[tuple[StopLineTruth, _LineState, bool, bool]]:
+        """For each stop line the shuttle is approaching: (line, its state, standing at it now, crossed it
+        this tick). The caller decides what standing means (arrival, a full stop); the distance is
+        remembered for the next tick once the caller is done with the line."""
         w = self.world
         speed = w.ego.state.speed_mps
-        for line in w.stop_lines:
-            if line.all_way_stop_id is None:
-                continue
+        for line in lines:
             along = w.ego_stop_line_distance(line)
             st = self._line_state.setdefault(line.id, _LineState())
             if along is None:
                 st.stopped, st.last_along_m = False, None
                 continue
-            if -1.0 <= along <= 4.0 and speed < self.config.stop_speed_mps:
+            standing = -1.0 <= along <= 4.0 and speed < self.config.stop_speed_mps
+            crossed = st.last_along_m is not None and st.last_along_m > 0.0 >= along
+            yield line, st, standing, crossed
+            st.last_along_m = along
+
+    # --- stop lines and right of way -------------------------------------------------------------
+    def _stop_lines(self) -> None:
+        w = self.world
+        all_way = [line for line in w.stop_lines if line.all_way_stop_id is not None]
+        for line, st, standing, crossed in self._line_passages(all_way):
+            if standing:
                 if not st.stopped:
                     w.arbiter.arrive(EGO_ID, line.id, w.t_s)
                 st.stopped = True
-            if st.last_along_m is not None and st.last_along_m > 0.0 >= along:
+            if crossed:
                 if not st.stopped:
                     self.emit("rule_violation", rule="stop_line", detail=f"ran stop line {line.id}")
                 owed = w.arbiter.earlier_than(EGO_ID) if EGO_ID in w.arbiter.queue else list(w.arbiter.queue)
@@ -199,7 +204,6 @@ class Judge:
                     )
                 w.arbiter.enter(EGO_ID)
                 st.stopped = False
-            st.last_along_m = along
 
     def _crosswalks(self) -> None:
         w = self.world
