@@ -8,15 +8,15 @@ is the curb; anything taller (a goose is 0.4 m) or off the curb line stays an ob
 
 from __future__ import annotations
 
-import itertools
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
 from scipy.spatial import cKDTree
 
-from lastmile.core.errors import ConfigError
+from lastmile.core.errors import ConfigError, MessageError
 from lastmile.hdmap.model import HDMap
 
 FloatArray = npt.NDArray[np.float64]
@@ -44,20 +44,33 @@ class CurbReturnConfig:
                 raise ConfigError(f"CurbReturnConfig.{name}: expected a positive number, got {v}")
 
 
+def sample_polylines(lines: Sequence[npt.ArrayLike], step_m: float, what: str) -> FloatArray:
+    """(K, 2) points every ``step_m`` or closer along each polyline, every vertex included.
+
+    Raises:
+        MessageError: a line that is not a finite (M >= 2, 2) polyline (``what[i]`` names it).
+    """
+    samples: list[FloatArray] = []
+    for i, line in enumerate(lines):
+        P = np.asarray(line, dtype=np.float64)
+        if P.ndim != 2 or P.shape[1] != 2 or len(P) < 2 or not np.isfinite(P).all():
+            raise MessageError(f"{what}[{i}]: expected a finite (M >= 2, 2) polyline, got shape {P.shape}")
+        seg = np.diff(P, axis=0)
+        n = np.maximum(np.ceil(np.hypot(seg[:, 0], seg[:, 1]) / step_m).astype(np.int64), 1)
+        t = np.concatenate([np.arange(k) / k for k in n])
+        start = np.repeat(np.arange(len(seg)), n)
+        samples.append(P[start] + t[:, None] * seg[start])
+        samples.append(P[-1:])
+    return np.vstack(samples) if samples else np.zeros((0, 2))
+
+
 class MapCurbIndex:
     """Every curb line of the map, sampled densely, in a KD-tree (map frame)."""
 
     def __init__(self, hdmap: HDMap, config: CurbReturnConfig | None = None) -> None:
         self.config = config or CurbReturnConfig()
-        step = self.config.sample_step_m
-        samples: list[FloatArray] = []
-        for curb in hdmap.curbs:
-            xy = np.asarray(curb.xy_m, dtype=np.float64)
-            for a, b in itertools.pairwise(xy):
-                n = max(2, math.ceil(float(np.hypot(*(b - a))) / step) + 1)
-                t = np.linspace(0.0, 1.0, n)[:, None]
-                samples.append((1 - t) * a + t * b)
-        self._tree = cKDTree(np.vstack(samples)) if samples else None
+        samples = sample_polylines([c.xy_m for c in hdmap.curbs], self.config.sample_step_m, "hdmap.curbs")
+        self._tree = cKDTree(samples) if len(samples) else None
 
     def distance_m(self, xy_map_m: npt.ArrayLike) -> FloatArray:
         """(N,) distance from (N, 2) map-frame points to the nearest curb line (inf without curbs)."""

@@ -32,6 +32,7 @@ from scipy.spatial import cKDTree
 
 from lastmile.core.errors import ConfigError, MessageError
 from lastmile.perception.cluster_geometry import ClusterSet
+from lastmile.perception.map_curbs import sample_polylines
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -78,23 +79,11 @@ def curb_distance_m(
     Raises:
         MessageError: a curb line that is not a finite (M >= 2, 2) polyline.
     """
-    samples: list[FloatArray] = []
-    for i, line in enumerate(curb_lines_xy_m):
-        P = np.asarray(line, dtype=np.float64)
-        if P.ndim != 2 or P.shape[1] != 2 or len(P) < 2 or not np.isfinite(P).all():
-            raise MessageError(
-                f"curb_lines_xy_m[{i}]: expected a finite (M >= 2, 2) polyline, got shape {P.shape}"
-            )
-        seg = np.diff(P, axis=0)
-        n = np.maximum(np.ceil(np.hypot(seg[:, 0], seg[:, 1]) / step_m).astype(np.int64), 1)
-        t = np.concatenate([np.arange(k) / k for k in n])
-        start = np.repeat(np.arange(len(seg)), n)
-        samples.append(P[start] + t[:, None] * seg[start])
-        samples.append(P[-1:])
+    samples = sample_polylines(curb_lines_xy_m, step_m, "curb_lines_xy_m")
     q = np.asarray(xy_m, dtype=np.float64).reshape(-1, 2)
-    if not samples or len(q) == 0:
+    if len(samples) == 0 or len(q) == 0:
         return np.full(len(q), np.inf)
-    d, _ = cKDTree(np.vstack(samples)).query(q, k=1)
+    d, _ = cKDTree(samples).query(q, k=1)
     return np.asarray(d, dtype=np.float64)
 
 
