@@ -186,7 +186,7 @@ class LidarPipeline:
         source_index = np.flatnonzero(roi & ~ego)
         cloud = MergedCloud(
             stamp=merged.stamp,
-            points=pts[source_index],
+            points=np.take(pts, source_index, axis=0),  # take: ~4x faster than [] on rows
             sensor_ids=merged.sensor_ids,
             compensated=merged.compensated,
         )
@@ -207,7 +207,7 @@ class LidarPipeline:
             steps = np.array(
                 [azimuth_step_from_times(sweep_of[sid].points[:, 5]) for sid in cloud.sensor_ids]
             )
-            keep = dror_keep_mask(xyz[ng], cfg.dror, sensor_xy, scan, steps[sensor])
+            keep = dror_keep_mask(np.take(xyz, ng, axis=0), cfg.dror, sensor_xy, scan, steps[sensor])
             noise[ng[~keep]] = True
             ng = ng[keep]
         t4 = time.perf_counter()
@@ -225,7 +225,7 @@ class LidarPipeline:
         ms["curbs"] = (t5 - t4) * 1e3
         labels = np.full(len(xyz), -1, dtype=np.int64)
         objects = ng[~curb_surface[ng]]
-        labels[objects] = euclidean_cluster_labels(xyz[objects], cfg.cluster_eps_m)
+        labels[objects] = euclidean_cluster_labels(np.take(xyz, objects, axis=0), cfg.cluster_eps_m)
         # Reassigned points the ground step had taken become obstacle points of their own.
         newly = np.flatnonzero(curb_obstacle & (labels < 0) & ~noise)
         if len(newly):
@@ -234,7 +234,10 @@ class LidarPipeline:
         t6 = time.perf_counter()
         ms["clustering"] = (t6 - t5) * 1e3
         has = labels >= 0
-        clusters = describe_clusters(xyz[has], cloud.points[has, 3], labels[has], cfg.geometry)
+        has_idx = np.flatnonzero(has)
+        clusters = describe_clusters(
+            np.take(xyz, has_idx, axis=0), cloud.points[has_idx, 3], labels[has_idx], cfg.geometry
+        )
         t7 = time.perf_counter()
         ms["cluster_geometry"] = (t7 - t6) * 1e3
         snow_surface = np.zeros(len(xyz), dtype=bool)
