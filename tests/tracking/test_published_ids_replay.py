@@ -12,6 +12,7 @@ import numpy as np
 from lastmile.core.boxes3d import DetectedBoxes
 from lastmile.core.stamp import Stamp
 from lastmile.tracking.autotrack import AutoTrack
+from tests.tracking import sim_id_switches, sim_scene
 from tests.tracking.test_autotrack import _msg
 
 CAR_XY = (10.0, 0.0)
@@ -68,3 +69,20 @@ def test_a_track_published_from_incomplete_data_hands_its_id_to_the_successor_af
     assert len(shuffled_ids) > len(ordered_ids)
     end = Stamp(1_000_000)
     np.testing.assert_array_equal(ordered.tracks(end).table, shuffled.tracks(end).table)
+
+
+def test_the_benchmarks_switch_explanation_accounts_for_every_switch_of_both_runs() -> None:
+    rec = sim_scene.record(seed=1, seconds=10.0, weather="rain")
+    runs = []
+    for order in ("ordered", "shuffled"):
+        obs = sim_id_switches.IdObserver()
+        res = sim_scene.feed(rec, sim_scene.deliveries(rec, order, 1), rollback=True, observer=obs)
+        # The explanation sees the switches the score counts, each with the hypotheses on both sides.
+        sw = sim_id_switches.switches(rec, res, obs)
+        assert len(sw) == sim_scene.score(rec, res).id_switches > 0
+        assert all(s.before_id != s.after_id for s in sw)
+        runs.append((res, obs, len(sw)))
+    (o, o_obs, n_o), (s, s_obs, n_s) = runs
+    causes, ordered_only = sim_id_switches.explain(rec, o, o_obs, s, s_obs)
+    assert set(causes) <= set(sim_id_switches.CAUSES)
+    assert sum(causes.values()) - ordered_only == n_s - n_o
