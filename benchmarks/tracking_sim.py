@@ -19,6 +19,10 @@ Sensor sets: ``radar`` (the four radars) and ``radar+lidar`` (plus the three sim
 ``perception.LidarPipeline`` on ``RawSensorRig`` frames, clusters as a fifth source of class UNKNOWN;
 fusion happens in the tracker). Static clusters (poles, walls, hedges) are tracked too and count as
 false tracks, since the ground truth lists agents only.
+
+A third table explains the shuffled runs' ID switches that the ordered runs do not have (each paired
+with an ordered switch of the same object within 1 s, or else given a cause) from the track hypotheses
+and the published-id hand-overs recorded by ``tests/tracking/sim_id_switches.py``.
 """
 
 from __future__ import annotations
