@@ -293,7 +293,7 @@ class AutoTrack:
     def _horizon(self, now: int) -> int:
         """Oldest of the live sources' newest stamps: undetected time is counted up to here."""
         timeout = now - self.config.source_timeout_s / _US
-        return min(v for v in self._t.source_latest_us.values() if v >= timeout or v == now)
+        return min((v for v in self._t.source_latest_us.values() if v >= timeout or v == now), default=now)
 
     def _update_matched(self, ti: np.ndarray, di: np.ndarray, msg: DetectedBoxes) -> None:
         cfg = self.config
