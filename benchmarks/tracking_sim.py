@@ -19,6 +19,10 @@ Sensor sets: ``radar`` (the four radars) and ``radar+lidar`` (plus the three sim
 ``perception.LidarPipeline`` on ``RawSensorRig`` frames, clusters as a fifth source of class UNKNOWN;
 fusion happens in the tracker). Static clusters (poles, walls, hedges) are tracked too and count as
 false tracks, since the ground truth lists agents only.
+
+A third table explains the shuffled runs' ID switches that the ordered runs do not have (each paired
+with an ordered switch of the same object within 1 s, or else given a cause) from the track hypotheses
+and the published-id hand-overs recorded by ``tests/tracking/sim_id_switches.py``.
 """
 
 from __future__ import annotations
@@ -28,6 +32,7 @@ import json
 import os
 import statistics
 import sys
+from collections import Counter
 from pathlib import Path
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
@@ -40,7 +45,7 @@ from rich.table import Table
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # the simulated scene lives beside the tests that use it
 
-from tests.tracking import sim_scene  # noqa: E402
+from tests.tracking import sim_id_switches, sim_scene  # noqa: E402
 
 WEATHERS = ("clear", "rain", "snow", "fog")
 MODES = (("ordered", True), ("shuffled", True), ("shuffled", False))
@@ -58,11 +63,29 @@ def run(seconds: float, seeds: list[int], lidar: bool) -> tuple[dict, dict[str, 
         out[weather] = {}
         per_mode: dict[str, list] = {_label(o, r): [] for o, r in MODES}
         identical: list[bool] = []
+        extra: Counter[str] = Counter()
+        not_in_shuffled = 0
         for seed in seeds:
             rec = sim_scene.record(seed, seconds, weather, lidar=lidar)
+            observers: dict[str, sim_id_switches.IdObserver] = {}
             for order, rollback in MODES:
-                res = sim_scene.feed(rec, sim_scene.deliveries(rec, order, seed), rollback=rollback)
+                obs = sim_id_switches.IdObserver() if rollback else None
+                if obs is not None:
+                    observers[order] = obs
+                res = sim_scene.feed(
+                    rec, sim_scene.deliveries(rec, order, seed), rollback=rollback, observer=obs
+                )
                 per_mode[_label(order, rollback)].append((sim_scene.score(rec, res), res))
+            # Each ID switch of the shuffled run that the ordered run does not have, by cause.
+            causes, avoided = sim_id_switches.explain(
+                rec,
+                per_mode["ordered"][-1][1],
+                observers["ordered"],
+                per_mode["shuffled"][-1][1],
+                observers["shuffled"],
+            )
+            extra.update(causes)
+            not_in_shuffled += avoided
             # Once every frame is in, rollback must leave exactly the state in-order delivery leaves.
             a, b = (per_mode[_label(o, True)][-1][1].final for o in ("ordered", "shuffled"))
             assert a is not None and b is not None
@@ -90,6 +113,11 @@ def run(seconds: float, seeds: list[int], lidar: bool) -> tuple[dict, dict[str, 
                 "ids_inherited": sum(r.inherited for r in results),
                 "tracker_cpu_s": sum(r.seconds for r in results),
             }
+        out[weather]["extra_switches"] = {
+            "causes": {c: extra[c] for c in sim_id_switches.CAUSES},
+            "total": sum(extra.values()),
+            "ordered_switches_not_in_shuffled": not_in_shuffled,
+        }
         same[weather] = all(identical)
     return out, same
 
@@ -132,6 +160,8 @@ def main() -> None:
     for sensors, by_weather in report.items():
         for weather, modes in by_weather.items():
             for label, m in modes.items():
+                if label == "extra_switches":
+                    continue
                 table.add_row(
                     sensors,
                     weather,
@@ -184,6 +214,25 @@ def main() -> None:
                 "identical" if identical[sensors][weather] else "DIFFERENT",
             )
     console.print(ratios)
+    causes = Table(
+        title="ID switches of shuffled runs that ordered runs do not have (paired per object within "
+        f"{sim_id_switches.PAIR_WINDOW_US / 1e6:.0f} s), by cause"
+    )
+    for col in ("sensors", "weather", "extra", "ordered-only", *sim_id_switches.CAUSES):
+        causes.add_column(col, justify="right")
+    for sensors, by_weather in report.items():
+        for weather, modes in by_weather.items():
+            x = modes["extra_switches"]
+            causes.add_row(
+                sensors,
+                weather,
+                str(x["total"]),
+                str(x["ordered_switches_not_in_shuffled"]),
+                *(str(x["causes"][c]) for c in sim_id_switches.CAUSES),
+            )
+    console.print(causes)
+    for name, text in sim_id_switches.CAUSES.items():
+        console.print(f"  {name}: {text}")
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(
         json.dumps(

@@ -17,7 +17,9 @@ happens in the tracker: LiDAR boxes carry shape, radar boxes the Doppler velocit
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -276,21 +278,32 @@ class FeedResult:
     inherited: int = 0
 
 
+class FeedObserver(Protocol):
+    """Looks inside a fed tracker (benchmark instrumentation, e.g. ``sim_id_switches.IdObserver``)."""
+
+    def attach(self, tracker: AutoTrack) -> None: ...
+
+    def published(self, now_us: int, tracker: AutoTrack) -> None: ...
+
+
 def feed(
     rec: Recording,
     delivered: list[tuple[int, DetectedBoxes]],
     *,
     rollback: bool,
     config: AutoTrackConfig | None = None,
+    observer: FeedObserver | None = None,
 ) -> FeedResult:
     """Feed the tracker in delivery order; every 100 ms, score what it publishes for ``now``.
 
     ``rollback=False`` is the baseline a tracker without a message queue has: a message older than the
-    newest one processed is dropped.
+    newest one processed is dropped. ``observer`` is told of the tracker and of every scored instant.
     """
     import time
 
     tracker = AutoTrack(config)
+    if observer is not None:
+        observer.attach(tracker)
     newest = -1
     fed = dropped = 0
     k = 0
@@ -310,6 +323,8 @@ def feed(
         if now in rec.truth:
             tr = tracker.tracks(Stamp(now))
             published[now] = (tr.ids.copy(), tr.table[:, 0:2].copy())
+            if observer is not None:
+                observer.published(now, tracker)
     seconds = time.process_time() - t0
     for _, msg in delivered[k:]:  # the frames still in flight at the end
         if rollback or int(msg.stamp) >= newest:
@@ -342,11 +357,8 @@ class Score:
         return {f: getattr(self, f) for f in self.__slots__}  # type: ignore[attr-defined]
 
 
-def score(rec: Recording, result: FeedResult) -> Score:
-    """Match tracks to objects each query (Hungarian on distance, 3 m gate); count ID switches."""
-    last: dict[int, int] = {}
-    switches = matches = misses = false_tracks = 0
-    errors: list[np.ndarray] = []
+def matched(rec: Recording, result: FeedResult) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
+    """Per scored instant: (stamp, truth rows, track rows) matched (Hungarian on distance, 3 m gate)."""
     for stamp, (tids, txy) in sorted(result.published.items()):
         gids, gxy = rec.truth[stamp]
         if gids.size and tids.size:
@@ -356,6 +368,17 @@ def score(rec: Recording, result: FeedResult) -> Score:
             gi, ti = gi[ok], ti[ok]
         else:
             gi = ti = np.zeros(0, np.int64)
+        yield stamp, gi, ti
+
+
+def score(rec: Recording, result: FeedResult) -> Score:
+    """Match tracks to objects each query (Hungarian on distance, 3 m gate); count ID switches."""
+    last: dict[int, int] = {}
+    switches = matches = misses = false_tracks = 0
+    errors: list[np.ndarray] = []
+    for stamp, gi, ti in matched(rec, result):
+        tids, txy = result.published[stamp]
+        gids, gxy = rec.truth[stamp]
         for g, t in zip(gi, ti, strict=True):
             gid, tid = int(gids[g]), int(tids[t])
             if gid in last and last[gid] != tid:

@@ -223,13 +223,16 @@ class AutoTrack:
     def _published_snapshot(self) -> tuple[list[tuple[int, int, int]], np.ndarray, np.ndarray, np.ndarray]:
         """Keys, positions, velocities and id expiry times of the published tracks (before a replay).
 
-        A track a replay retracts keeps its id reserved for its class's ``t_prune_s`` after it was last
-        published (the tracker's current stamp): as long as it could have coasted had it stayed.
+        A track a replay retracts keeps its id reserved for as long as it could have coasted had it
+        stayed: its class's ``t_prune_s`` after it was last published (the tracker's current stamp),
+        plus the lag of the oldest source behind that stamp, since undetected time is only counted up to
+        that source's newest stamp (see :meth:`_horizon`).
         """
         t = self._t
         sel = np.nonzero(t.full)[0]
         cls = np.argmax(t.class_prob[sel], axis=1)
-        expires = t.stamp_us[sel] + np.round(self._params("t_prune_s", cls) / _US).astype(np.int64)
+        lag = t.stamp_us[sel] - self._horizon(int(t.stamp_us[sel].max())) if sel.size else 0
+        expires = t.stamp_us[sel] + lag + np.round(self._params("t_prune_s", cls) / _US).astype(np.int64)
         return self._keys(sel), t.x[sel, 0:2], t.x[sel, 4:6], expires
 
     def _assign_public_ids(self) -> None:
@@ -285,9 +288,12 @@ class AutoTrack:
         born = unmatched & (msg.score >= self._params("birth_min_score", det_cls))
         self._birth(np.nonzero(born)[0], msg)
         t.source_latest_us[msg.source] = max(now, t.source_latest_us.get(msg.source, now))
-        timeout = now - cfg.source_timeout_s / _US
-        horizon = min(v for v in t.source_latest_us.values() if v >= timeout or v == now)
-        self._lifecycle(now, horizon)
+        self._lifecycle(now, self._horizon(now))
+
+    def _horizon(self, now: int) -> int:
+        """Oldest of the live sources' newest stamps: undetected time is counted up to here."""
+        timeout = now - self.config.source_timeout_s / _US
+        return min((v for v in self._t.source_latest_us.values() if v >= timeout or v == now), default=now)
 
     def _update_matched(self, ti: np.ndarray, di: np.ndarray, msg: DetectedBoxes) -> None:
         cfg = self.config

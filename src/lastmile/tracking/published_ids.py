@@ -18,8 +18,10 @@ never shows (measured in ``benchmarks/tracking_sim.py``). This module keeps the 
 - its public id is given once, when it is first published (full), and kept while it lives;
 - a published track that a *replay* removes from the output (deleted or no longer full) is retired
   with its public id, position and velocity; for as long as it could have coasted had it stayed
-  (``t_prune_s`` after it was last published), a newly published track within its class's
-  association gate of the retired one's predicted position takes that id (Hungarian on distance).
+  (``t_prune_s`` after it was last published, plus the lag of the slowest source behind that stamp:
+  the live tracker counts undetected time only up to the oldest of the sources' newest stamps), a
+  newly published track within its class's association gate of the retired one's predicted position
+  takes that id (Hungarian on distance).
   If the retired track itself is published again first (it was only demoted), it keeps its id.
 
 Only replays retire ids, so with in-order delivery nothing is inherited and ids are the tracks' own.
