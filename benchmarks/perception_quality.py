@@ -14,8 +14,8 @@ the lane under snow beside every curb (on top of the 0.6 m bank).
 What the pipeline gets is what the stack would have: the three sweeps, the LiDAR mounts, INS
 frames (GnssInsFrame as delivered, sigma 2 cm) for de-skewing and for placing the HD map (road
 region mask, the right-hand curb ahead, and every mapped curb line within 45 m for the pipeline's
-snow-surface test; ``--no-snow-surface`` leaves those out) in the base frame. Ground truth (agents, true pose,
-per-point labels) is used only for scoring.
+curb-side stage, as the stack does; ``--no-snow-surface`` leaves those out) in the base frame.
+Ground truth (agents, true pose, per-point labels) is used only for scoring.
 
 Metrics per weather (scoring rules in ``tests/perception/quality_scoring.py``):
 - recall within 30 m (object centre from the base origin, the rear axle) of cars, pedestrians
@@ -575,7 +575,8 @@ def main() -> None:
         "--no-snow-surface",
         dest="snow_surface",
         action="store_false",
-        help="do not give the pipeline the map's curb lines (no snow-surface test: the old figures)",
+        help="do not give the pipeline the map's curb lines (no curb-side stage: curb faces and "
+        "snow along curbs stay objects)",
     )
     parser.add_argument(
         "--json", type=Path, default=ROOT / "benchmarks" / "results" / "perception_quality.json"
