@@ -21,7 +21,7 @@ def ring_spacing_from_points(points: npt.ArrayLike, sample_every: int = 8) -> fl
     Args:
         points: (N, >= 5) sweep points in the sensor frame (``x y z intensity ring ...``), the
             unit mounted level.
-        sample_every: every k-th point is used (each ring's elevation is the median of its points).
+        sample_every: every k-th point is used (each ring's elevation is the mean of its points).
 
     Returns:
         The median elevation step between consecutive rings that returned, 0 with fewer than two.
@@ -32,10 +32,14 @@ def ring_spacing_from_points(points: npt.ArrayLike, sample_every: int = 8) -> fl
     x, y, z = (p[:, i].astype(np.float64) for i in range(3))
     ring = p[:, 4].astype(np.int64)
     elev = np.arctan2(z, np.hypot(x, y))
-    rings = np.unique(ring)
+    if ring.min() < 0:
+        return 0.0
+    # Every return of a ring lies on that beam's cone: its mean elevation is the beam's.
+    count = np.bincount(ring)
+    rings = np.flatnonzero(count)
     if len(rings) < 2:
         return 0.0
-    per_ring = np.array([np.median(elev[ring == r]) for r in rings])
+    per_ring = np.bincount(ring, weights=elev)[rings] / count[rings]
     # Per ring number step: rings that returned nothing in a sweep leave a gap of several.
     step = np.diff(np.sort(per_ring)) / np.maximum(np.diff(rings), 1)
     return float(np.median(np.abs(step)))
