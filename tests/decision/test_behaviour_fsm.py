@@ -1,16 +1,20 @@
 """The decision FSM on a straight test road: pull-over, onboarding, merging, crosswalk, emergency."""
 
+import dataclasses
+
 import numpy as np
 
 from lastmile.core.geometry import SE2
 from lastmile.core.object_class import ObjectClass
 from lastmile.core.objects import TRACK_COLUMNS, TrackedObjects, empty_tracks
+from lastmile.core.predictions import PREDICTION_MODES
 from lastmile.core.sensor_frames import StopCallFrame
 from lastmile.core.stamp import Stamp
 from lastmile.core.vehicle import VehicleGeometry
 from lastmile.core.vehicle_messages import BehaviourState
 from lastmile.decision.behaviour_fsm import BehaviourStateMachine, DecisionInput
 from lastmile.decision.mission import MissionManager
+from lastmile.tracking.prediction import MapAwarePredictor, PredictionConfig
 
 G = VehicleGeometry()
 
@@ -134,3 +138,23 @@ def test_distant_goose_in_lane_is_a_normal_stop_not_an_emergency(straight_layers
     d = fsm.step(_inp(0.0, 50.0, v=5.5, tracks=goose))
     assert d.state == BehaviourState.NORMAL_DRIVING
     assert d.risk_track_id == 4 and d.stop_at_s_m < 90.0
+
+
+def test_a_slow_pedestrian_the_map_sends_to_the_crosswalk_is_yielded_to(straight_layers):
+    # Dawdling towards the crossing at 0.3 m/s from 10 m beside the road: at that pace the constant-
+    # velocity path stays short of the kerb zone, but someone making for a crossing speeds up to cross.
+    dawdler = _tracks([(3, 100.0, 10.0, 0.0, -0.3, ObjectClass.PEDESTRIAN)])
+    d = _fsm(straight_layers).step(_inp(0.0, 70.0, v=5.5, tracks=dawdler))
+    assert d.stop_at_s_m is None  # constant velocity alone does not reach the zone
+    paths = MapAwarePredictor(straight_layers.hdmap, PredictionConfig(horizon_s=6.0)).predict_objects(dawdler)
+    assert PREDICTION_MODES[int(paths.mode[0])] == "to_crosswalk"
+    with_paths = dataclasses.replace(_inp(0.0, 70.0, v=5.5, tracks=dawdler), predictions=paths)
+    d = _fsm(straight_layers).step(with_paths)
+    assert d.stop_at_s_m is not None and d.stop_at_s_m <= 98.0
+    # Walking away from the road, the map does not send them to the crossing: no stop.
+    leaving = _tracks([(3, 100.0, 10.0, 0.0, 0.3, ObjectClass.PEDESTRIAN)])
+    paths = MapAwarePredictor(straight_layers.hdmap, PredictionConfig(horizon_s=6.0)).predict_objects(leaving)
+    d = _fsm(straight_layers).step(
+        dataclasses.replace(_inp(0.0, 70.0, v=5.5, tracks=leaving), predictions=paths)
+    )
+    assert d.stop_at_s_m is None

@@ -124,13 +124,25 @@ def _dror_whole_pool_tree(p: np.ndarray, cfg: DrorConfig) -> np.ndarray:
     spread=st.floats(0.5, 30.0),
     k=st.integers(1, 4),
 )
-def test_the_tree_on_points_near_tested_ones_gives_the_whole_pool_answer(seed, n, spread, k) -> None:
+def test_the_grid_neighbour_count_gives_the_whole_pool_tree_answer(seed, n, spread, k) -> None:
     # Clumps (dense, mostly kept) and scattered points (sparse, mostly removed), some beyond max range.
     rng = np.random.default_rng(seed)
     centres = rng.uniform(-spread, spread, (max(1, n // 20), 3))
     p = centres[rng.integers(0, len(centres), n)] + rng.normal(0, 0.1, (n, 3))
     p[: n // 3] = rng.uniform(-spread, spread, (n // 3, 3))
     cfg = DrorConfig(min_neighbours=k, max_range_m=0.7 * spread)
+    expected = _dror_whole_pool_tree(p, cfg)
+    assert np.array_equal(dror_keep_mask(p, cfg), expected)
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 10_000), n=st.integers(2, 300), k=st.integers(1, 4))
+def test_neighbours_at_exactly_the_radius_count_as_in_the_tree(seed, n, k) -> None:
+    # Points on a 0.5 m lattice and a 0.5 m radius floor: many neighbours lie exactly at the radius
+    # (and at r_max), where a different distance formula or comparison would change the mask.
+    rng = np.random.default_rng(seed)
+    p = rng.integers(-8, 9, (n, 3)) * 0.5
+    cfg = DrorConfig(min_neighbours=k, min_radius_m=0.5, multiplier=1e-3, max_range_m=3.0)
     expected = _dror_whole_pool_tree(p, cfg)
     assert np.array_equal(dror_keep_mask(p, cfg), expected)
 

@@ -145,3 +145,17 @@ def test_snow_bank_wider_than_the_stored_band_is_refused() -> None:
 
     with pytest.raises(ConfigError, match="snow_bank_width_m"):
         replace(lidar_weather("snow"), snow_bank_width_m=5.0)
+
+
+def test_a_sweep_with_no_returns_still_gets_its_precipitation_echoes() -> None:
+    # Fog so dense that no surface return comes back (a unit in a whiteout): the echoes are the sweep.
+    weather = replace(
+        lidar_weather("snow"), extinction_per_m=50.0, snow_bank_width_m=0.0, snow_cover_lane_m=0.0
+    )
+    sim = LidarSimulator(flat_scene([]), RIG, weather, 0, GEOM)
+    sweep, truth = sim.sweep_with_truth(
+        RIG[0].sensor_id, Stamp(0), EgoTrack.constant(0, 0.0, 0.0, 0.0), DynamicObjects.empty(), 0
+    )
+    assert truth is not None and len(truth.label) > 0
+    assert np.all(truth.label == PointLabel.WEATHER_NOISE)
+    assert np.all(np.diff(sweep.points[:, 5]) >= 0)  # still in firing order

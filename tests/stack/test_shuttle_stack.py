@@ -1,7 +1,9 @@
 """The wired stack driving the vehicle model on the straight test road, from sensor frames only."""
 
 import numpy as np
+import pytest
 
+from lastmile.core.errors import ConfigError
 from lastmile.core.geometry import SE2
 from lastmile.core.sensor_frames import (
     DoorSensorFrame,
@@ -17,6 +19,7 @@ from lastmile.core.vehicle_messages import BehaviourState
 from lastmile.safety.reliability_monitor import ReliabilityConfig, SensorSpec
 from lastmile.sim.vehicle_model import ActuatorDynamics, KinematicBicycle, VehicleState
 from lastmile.stack.shuttle_stack import ShuttleStack, StackConfig
+from lastmile.tracking.prediction import PredictionConfig
 
 G = VehicleGeometry()
 FRONT = SE2(G.front_from_rear_axle_m, 0.0, 0.0)
@@ -115,3 +118,8 @@ def test_a_stop_call_makes_the_stack_pull_over_into_the_bay_and_open_the_door(st
     gap = (y - G.width_m / 2) - (-4.75)
     assert 0.0 < gap <= 0.3
     assert abs(yaw) < 0.02
+
+
+def test_a_prediction_horizon_shorter_than_the_crosswalk_look_ahead_is_refused() -> None:
+    with pytest.raises(ConfigError, match=r"prediction.horizon_s: expected at least .*\(6.0 s\), got 4.0 s"):
+        StackConfig(prediction=PredictionConfig(horizon_s=4.0))

@@ -17,6 +17,7 @@ from lastmile.core.geometry import SE2, point_in_polygon
 from lastmile.core.object_class import ObjectClass
 from lastmile.core.objects import TrackedObjects
 from lastmile.core.polyline import Polyline
+from lastmile.core.predictions import PREDICTION_MODES, PredictedPaths
 from lastmile.core.route_obstacles import RouteObstacle, route_obstacles
 from lastmile.core.safety_messages import FailSafeLevel, SafetyDirective
 from lastmile.core.stamp import Stamp
@@ -53,7 +54,8 @@ class DecisionConfig:
         crosswalk_lookahead_s: a pedestrian or cyclist whose constant-velocity path reaches that zone
             before the shuttle has cleared the crosswalk (at most this far ahead) counts as well: at
             20 km/h the shuttle needs about 10 m to stop comfortably, and someone walking to the kerb
-            covers 5 m in that time.
+            covers 5 m in that time. So does a map-aware predicted path (``DecisionInput.predictions``,
+            mode ``to_crosswalk``) that reaches the zone within the same time.
         merge_room_m: room kept free ahead of a stopped shuttle's front so it can pull out around a
             car parked further along the bay (with min_gap_m + 0.5 beyond it). 4 m, not 5: every
             metre given here is taken from the swing in, and with a car at the end of S1's 24 m
@@ -103,6 +105,8 @@ class DecisionInput:
     trajectory: Trajectory | None
     safety: SafetyDirective | None = None
     traffic_lights: TrafficLightStates | None = None
+    predictions: PredictedPaths | None = None
+    """Map-aware predicted paths of ``tracks`` (tracking's prediction), when the stack computes them."""
 
 
 @dataclass(slots=True)
@@ -166,7 +170,7 @@ class BehaviourStateMachine:
         reason = "cruise"
 
         constraints += self._in_path(obstacles, inp, front_s)
-        constraints += self._crosswalks(inp.tracks, front_s, inp.speed_mps)
+        constraints += self._crosswalks(inp.tracks, front_s, inp.speed_mps, inp.predictions)
         light_stop, light_why = self.lights.step(t_s, front_s, inp.speed_mps, inp.traffic_lights, self._ahead)
         if light_stop is not None:
             # Never an emergency stop for a light: a late red is braked for as hard as allowed, no harder.
@@ -247,7 +251,13 @@ class BehaviourStateMachine:
             out.append(_Constraint(effective - c.min_gap_m, o.cls.name.lower(), o.track_id))
         return out
 
-    def _crosswalks(self, tracks: TrackedObjects, front_s: float, speed_mps: float) -> list[_Constraint]:
+    def _crosswalks(
+        self,
+        tracks: TrackedObjects,
+        front_s: float,
+        speed_mps: float,
+        predictions: PredictedPaths | None = None,
+    ) -> list[_Constraint]:
         """Yield at a crosswalk while a pedestrian or cyclist is on it, stepping onto it, or walking
         towards it fast enough to get there before the shuttle has cleared it."""
         out: list[_Constraint] = []
@@ -266,13 +276,27 @@ class BehaviourStateMachine:
                 cls = ObjectClass(int(row[7]))
                 if not (cls.vulnerable or cls == ObjectClass.UNKNOWN):
                     continue
-                if any(
-                    _near_polygon(row[0] + row[2] * t, row[1] + row[3] * t, poly, c.crosswalk_margin_m)
-                    for t in steps_s
-                ):
+                ahead_xy = [(row[0] + row[2] * t, row[1] + row[3] * t) for t in steps_s]
+                # Either future counts: the heading now, or the map's guess that the person is making
+                # for this crossing (who may turn towards it, or hurry up to cross).
+                ahead_xy += self._to_crosswalk(predictions, int(tid), horizon_s)
+                if any(_near_polygon(x, y, poly, c.crosswalk_margin_m) for x, y in ahead_xy):
                     out.append(_Constraint(rc.s_start_m - 1.0, "crosswalk", int(tid), emergency_ok=False))
                     break
         return out
+
+    @staticmethod
+    def _to_crosswalk(
+        predictions: PredictedPaths | None, track_id: int, horizon_s: float
+    ) -> list[tuple[float, float]]:
+        """Predicted positions within ``horizon_s`` of a track that the prediction sends to a crossing."""
+        if predictions is None:
+            return []
+        rows = np.flatnonzero(predictions.ids == track_id)
+        if len(rows) == 0 or PREDICTION_MODES[int(predictions.mode[rows[0]])] != "to_crosswalk":
+            return []
+        within = predictions.times_s <= horizon_s + 1e-9
+        return [(float(x), float(y)) for x, y in predictions.xy_m[rows[0], within]]
 
     # --- states ---------------------------------------------------------------------------------
     def _intersection(

@@ -26,6 +26,14 @@ import numpy as np
 import numpy.typing as npt
 
 from lastmile.core.errors import ConfigError, MessageError
+from lastmile.perception.cluster_geometry_kernel import (
+    box_extents,
+    calipers_pick,
+    cluster_sums,
+    gather_by_cluster,
+    hull_support,
+    refine_pick,
+)
 
 CLUSTER_COLUMNS = (
     "x_m",
@@ -164,11 +172,9 @@ def describe_clusters(
     if lab.min() < 0:
         raise MessageError(f"describe_clusters: expected labels >= 0, got {lab.min()}")
     n_cl = int(lab.max()) + 1
-    count = np.bincount(lab, minlength=n_cl)
-    cx = np.bincount(lab, weights=p[:, 0], minlength=n_cl) / np.maximum(count, 1)
-    cy = np.bincount(lab, weights=p[:, 1], minlength=n_cl) / np.maximum(count, 1)
-    zmin = np.full(n_cl, np.inf)
-    np.minimum.at(zmin, lab, p[:, 2])
+    count, sum_x, sum_y, zmin = cluster_sums(p, lab, n_cl)
+    cx = sum_x / np.maximum(count, 1)
+    cy = sum_y / np.maximum(count, 1)
     size: np.ndarray = count
     if point_weight is not None:
         wt = np.asarray(point_weight, dtype=np.float64).reshape(-1)
@@ -185,40 +191,20 @@ def describe_clusters(
     kept = np.flatnonzero(keep)
     if len(kept) == 0:
         return _empty(D)
-    # One gather of the kept points in cluster order (not a selection, then a reordering).
-    sel = np.flatnonzero(keep[lab])
-    sel = sel[np.argsort(lab[sel], kind="stable")]
-    ps, ls, ins = p[sel], lab[sel], inten[sel]
-    row = np.searchsorted(kept, ls)  # cluster row of each point
+    # One pass gathers the kept points in cluster order (compiled counting sort).
+    row_of_label = np.full(n_cl, -1, dtype=np.int64)
+    row_of_label[kept] = np.arange(len(kept))
     cnt = count[kept]
-    starts = np.concatenate([[0], np.cumsum(cnt)[:-1]])
-    z0 = np.minimum.reduceat(ps[:, 2], starts)
-    z1 = np.maximum.reduceat(ps[:, 2], starts)
+    x, y, ins, starts, z0, z1 = gather_by_cluster(p, inten, lab, row_of_label, cnt)
+    # NumPy's segment sum (pairwise within long clusters), as before: the same mean to the bit.
     mean_i = np.add.reduceat(ins, starts) / cnt
 
     # Akl-Toussaint: points strictly inside the polygon of a few support points cannot be hull
     # vertices. A 4-gon then an 8-gon leave the 32-direction pass a few percent of the points.
-    xy = ps[:, :2]
-    cand = np.arange(len(xy))
-    for n_dir in (4, 8):
-        c_row = row[cand]
-        c_starts = np.searchsorted(c_row, np.arange(len(kept)))
-        poly = xy[cand[_support(xy[cand], c_row, c_starts, n_dir)]]  # (K, n_dir, 2)
-        edge = np.roll(poly, -1, axis=1) - poly
-        qx, qy = xy[cand, 0], xy[cand, 1]
-        # One edge at a time, per-cluster values spread with np.repeat (points are grouped by
-        # cluster): far cheaper than gathering (n, n_dir, 2) blocks; the arithmetic is unchanged.
-        c_cnt = np.diff(np.append(c_starts, len(cand)))
-        inside = np.ones(len(cand), dtype=bool)
-        for j in range(n_dir):
-            ex, ey = np.repeat(edge[:, j, 0], c_cnt), np.repeat(edge[:, j, 1], c_cnt)
-            vx, vy = np.repeat(poly[:, j, 0], c_cnt), np.repeat(poly[:, j, 1], c_cnt)
-            inside &= ex * (qy - vy) - ey * (qx - vx) > 0
-        cand = cand[~inside]
-    c_row = row[cand]
-    c_starts = np.searchsorted(c_row, np.arange(len(kept)))  # every cluster keeps its support points
-    hull_idx = cand[_support(xy[cand], c_row, c_starts, D)]
-    hull_xy = xy[hull_idx]  # (K, D, 2), counter-clockwise by construction
+    # The per-cluster loops run compiled (cluster_geometry_kernel); sines and cosines come from
+    # NumPy so every value is the one the array version computed.
+    hull_idx, is_cand = hull_support(x, y, starts, cnt, (_directions(4), _directions(8)), *_directions(D))
+    hull_xy = np.stack([x[hull_idx], y[hull_idx]], axis=-1)  # (K, D, 2), counter-clockwise by construction
     hull_new = np.ones(hull_idx.shape, dtype=bool)
     hull_new[:, 1:] = hull_idx[:, 1:] != hull_idx[:, :-1]
     hull_new[:, 0] = hull_idx[:, 0] != hull_idx[:, -1]
@@ -226,22 +212,13 @@ def describe_clusters(
     # Rotating calipers on the polygon: each edge direction (mod 90 deg) is a candidate axis.
     edges = np.roll(hull_xy, -1, axis=1) - hull_xy
     theta = np.arctan2(edges[..., 1], edges[..., 0]) % (math.pi / 2)  # (K, D)
-    c, s = np.cos(theta), np.sin(theta)
-    hx, hy = hull_xy[..., 0][:, None, :], hull_xy[..., 1][:, None, :]  # (K, 1, D)
-    uu = c[..., None] * hx + s[..., None] * hy  # (K, E, D)
-    vv = -s[..., None] * hx + c[..., None] * hy
-    du = uu.max(axis=2) - uu.min(axis=2)
-    dv = vv.max(axis=2) - vv.min(axis=2)
-    k = np.argmin(du * dv, axis=1)
+    k = calipers_pick(hull_xy[..., 0], hull_xy[..., 1], np.cos(theta), np.sin(theta))
     r = np.arange(len(kept))
-    best = _refine_orientation(theta[r, k], xy[cand], c_row, c_starts, math.pi / D)
+    best = _refine_orientation(theta[r, k], x, y, is_cand, starts, cnt, math.pi / D)
     ck, sk = np.cos(best), np.sin(best)
     # Extents along the chosen axes from every point, so the box holds the whole cluster even
     # where the direction-sampled hull missed a vertex.
-    pu = ck[row] * xy[:, 0] + sk[row] * xy[:, 1]
-    pv = -sk[row] * xy[:, 0] + ck[row] * xy[:, 1]
-    u0, u1 = np.minimum.reduceat(pu, starts), np.maximum.reduceat(pu, starts)
-    v0, v1 = np.minimum.reduceat(pv, starts), np.maximum.reduceat(pv, starts)
+    u0, u1, v0, v1 = box_extents(x, y, starts, cnt, ck, sk).T
     um, vm = (u0 + u1) / 2, (v0 + v1) / 2
     bx, by = um * ck - vm * sk, um * sk + vm * ck
     L, W, yaw = u1 - u0, v1 - v0, best
@@ -273,50 +250,34 @@ def describe_clusters(
 
 
 def _refine_orientation(
-    theta: np.ndarray, q: np.ndarray, q_row: np.ndarray, q_starts: np.ndarray, span_rad: float
+    theta: np.ndarray,
+    x: np.ndarray,
+    y: np.ndarray,
+    is_cand: np.ndarray,
+    starts: np.ndarray,
+    counts: np.ndarray,
+    span_rad: float,
 ) -> np.ndarray:
     """(K,) rectangle orientations refined within +-``span_rad`` of ``theta`` on the hull candidates.
 
     The optimum has a side on a true hull edge, whose direction the direction-sampled polygon knows
     only to within its angular spacing, so the box can come out several per cent too large. The
-    candidates ``q`` hold every true hull vertex, so their extents along any axis are the cluster's:
-    two passes of 17 angles each pin the orientation to 1/64 of the spacing.
+    candidates (``is_cand``) hold every true hull vertex, so their extents along any axis are the
+    cluster's: two passes of 17 angles each pin the orientation to 1/64 of the spacing.
     """
     best = theta
     r = np.arange(len(theta))
     for _ in range(2):
         ang = best[:, None] + np.linspace(-span_rad, span_rad, 17)[None, :]  # (K, 17)
-        ca, sa = np.cos(ang)[q_row], np.sin(ang)[q_row]  # (n, 17)
-        u = ca * q[:, 0:1] + sa * q[:, 1:2]
-        v = -sa * q[:, 0:1] + ca * q[:, 1:2]
-        du = np.maximum.reduceat(u, q_starts) - np.minimum.reduceat(u, q_starts)
-        dv = np.maximum.reduceat(v, q_starts) - np.minimum.reduceat(v, q_starts)
-        best = ang[r, np.argmin(du * dv, axis=1)]
+        best = ang[r, refine_pick(x, y, is_cand, starts, counts, np.cos(ang), np.sin(ang))]
         span_rad /= 8.0
     return best
 
 
-def _support(xy: np.ndarray, row: np.ndarray, starts: np.ndarray, D: int) -> np.ndarray:
-    """(K, D) index of each cluster's first point farthest along each of D directions (CCW order).
-
-    ``xy`` is sorted by cluster row; ``starts`` are the first index of each (non-empty) cluster.
-    """
+def _directions(D: int) -> tuple[np.ndarray, np.ndarray]:
+    """Cosines and sines of D evenly spaced directions, counter-clockwise from +x."""
     ang = np.arange(D) * (2 * math.pi / D)
-    cos, sin = np.cos(ang), np.sin(ang)
-    # One direction at a time on contiguous columns: 1-D products and segment reductions are far
-    # cheaper than (N, D) blocks reduced along axis 0 (NumPy's matmul is slow for an inner
-    # dimension of 2), and the arithmetic per element is the same.
-    x, y = np.ascontiguousarray(xy[:, 0]), np.ascontiguousarray(xy[:, 1])
-    counts = np.diff(np.append(starts, len(xy)))
-    out = np.empty((len(starts), D), dtype=np.int64)
-    for j in range(D):
-        proj = x * cos[j] + y * sin[j]
-        best = np.repeat(np.maximum.reduceat(proj, starts), counts)
-        # Every cluster has a point at its maximum: the first one at or after its start is its
-        # first in the cluster (a search over the few maxima, not a reduction over all points).
-        at_max = np.flatnonzero(proj >= best)
-        out[:, j] = at_max[np.searchsorted(at_max, starts)]
-    return out
+    return np.cos(ang), np.sin(ang)
 
 
 def _empty(D: int) -> ClusterSet:

@@ -16,6 +16,7 @@ import numpy as np
 import numpy.typing as npt
 
 from lastmile.core.errors import ConfigError
+from lastmile.perception.ground_kernel import plane_residuals, weighted_sums
 from lastmile.perception.himmelsbach import HimmelsbachConfig, HimmelsbachGroundSegmenter
 from lastmile.perception.road_region import RoadMask
 
@@ -188,9 +189,10 @@ class AdaptiveGridGroundSegmenter:
             planes = prior.reshape(-1, 3).copy()
             px, py, pz = x[idx], y[idx], z[idx]
             window = tol[idx]
+            low = np.zeros(0)
             for it in range(cfg.iterations + 1):
-                # Column gathers: cheaper than gathering (n, 3) rows; the same arithmetic.
-                res = pz - (planes[:, 0][region] + planes[:, 1][region] * px + planes[:, 2][region] * py)
+                # Compiled passes (ground_kernel): the same arithmetic as array expressions.
+                res = plane_residuals(px, py, pz, region, planes)
                 if it == cfg.iterations:
                     break
                 if it == 0:
@@ -198,17 +200,13 @@ class AdaptiveGridGroundSegmenter:
                     # minimum: the foot of a curb face or one deep noise return would win that).
                     sane = (res >= -cfg.max_below_m) & (res <= cfg.seed_window_m)
                     low = _low_quantile(res[sane], region[sane], 2 * n_sec, cfg)
-                    rel = res - low[region]
-                    use = sane & (rel >= -cfg.seed_band_m) & (rel <= cfg.seed_band_m)
-                    w = np.where(use, 1.0, 0.0)
-                else:
-                    use = np.abs(res) <= window
-                    # Tukey weights: points near the surface count most, snow and object feet least.
-                    w = np.where(use, (1.0 - (res / window) ** 2) ** 2, 0.0)
-                u = np.flatnonzero(use)  # only weighted points enter the sums
-                planes = _fit_planes(
-                    px[u], py[u], pz[u], w[u], region[u], 2 * n_sec, prior.reshape(-1, 3), cfg
-                )
+                # Weight 1 for the seeds, then Tukey weights: points near the surface count most,
+                # snow and object feet least. Only weighted points enter the sums.
+                sums = weighted_sums(
+                    px, py, pz, res, region, 2 * n_sec, it == 0, low, window,
+                    cfg.max_below_m, cfg.seed_window_m, cfg.seed_band_m,
+                )  # fmt: skip
+                planes = _fit_planes(sums, prior.reshape(-1, 3), cfg)
             # Tolerance per region: the range-dependent one, tightened where the fit is smooth.
             inlier = np.abs(res) <= window
             n_in = np.bincount(region[inlier], minlength=2 * n_sec)
@@ -233,24 +231,10 @@ def _low_quantile(res: np.ndarray, region: np.ndarray, n_regions: int, cfg: Adap
     return (k + 0.5) * _HIST_BIN_M - cfg.max_below_m
 
 
-def _fit_planes(
-    x: np.ndarray,
-    y: np.ndarray,
-    z: np.ndarray,
-    w: np.ndarray,
-    region: np.ndarray,
-    n_regions: int,
-    prior: np.ndarray,
-    cfg: AdaptiveGridConfig,
-) -> np.ndarray:
-    """Weighted least-squares planes per region, regularised toward the prior; rejects bad fits."""
-
-    def s(v: np.ndarray) -> np.ndarray:
-        return np.bincount(region, weights=v, minlength=n_regions)
-
-    wx, wy = w * x, w * y
-    sw, sx, sy, sz = s(w), s(wx), s(wy), s(w * z)
-    sxx, sxy, syy, sxz, syz = s(wx * x), s(wx * y), s(wy * y), s(wx * z), s(wy * z)
+def _fit_planes(sums: np.ndarray, prior: np.ndarray, cfg: AdaptiveGridConfig) -> np.ndarray:
+    """Weighted least-squares planes per region from their sums (``ground_kernel.weighted_sums``),
+    regularised toward the prior; rejects bad fits."""
+    sw, sx, sy, sz, sxx, sxy, syy, sxz, syz, count = sums.T
     A = np.stack(
         [np.stack([sw, sx, sy], -1), np.stack([sx, sxx, sxy], -1), np.stack([sy, sxy, syy], -1)], axis=1
     )
@@ -259,7 +243,6 @@ def _fit_planes(
     A = A + lam * np.eye(3)[None]
     b = b + lam * prior
     sol = np.linalg.solve(A, b[..., None])[..., 0]
-    count = np.bincount(region, weights=(w > 0).astype(np.float64), minlength=n_regions)
     ok = (count >= cfg.min_fit_points) & (np.hypot(sol[:, 1], sol[:, 2]) <= cfg.max_slope)
     ok &= np.isfinite(sol).all(axis=1)
     # The step from the prior, measured where the fitted points are (not at the sensor, where a

@@ -18,7 +18,11 @@ from lastmile.core.arrays import frozen_array
 from lastmile.core.errors import MessageError
 from lastmile.core.sensor_frames import LIDAR_COLUMNS, LidarSweep
 from lastmile.core.stamp import Stamp
-from lastmile.perception.motion_compensation import PoseTrajectory, _apply_bin_transforms, _time_bins
+from lastmile.perception.motion_compensation import (
+    PoseTrajectory,
+    _apply_bin_transforms,
+    _sweep_time_bins,
+)
 
 MERGED_COLUMNS = ("x_m", "y_m", "z_m", "intensity", "ring", "sensor_index")
 """Columns of :attr:`MergedCloud.points`."""
@@ -113,7 +117,7 @@ def merge_sweeps(
             )
         extrinsics.append(B)
         if trajectory is not None and len(sweep.points):
-            binned.append(_time_bins(int(sweep.stamp) + sweep.points[:, _T].astype(np.int64), time_bin_us))
+            binned.append(_sweep_time_bins(int(sweep.stamp), sweep.points[:, _T], time_bin_us))
     if binned and trajectory is not None:
         # One pose query for every sweep's bins and the reference (the same per-time poses as
         # one query per sweep: the interpolation is element-wise), then per-sweep transforms

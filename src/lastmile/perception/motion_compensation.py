@@ -19,6 +19,7 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from lastmile.core.errors import MessageError
 from lastmile.core.sensor_frames import GnssInsFrame
+from lastmile.perception.deskew_kernel import bin_transforms, time_bins
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -198,17 +199,17 @@ def _time_bins(t: np.ndarray, time_bin_us: int) -> tuple[np.ndarray, np.ndarray]
     return bins, t_lo + (np.arange(n_bins) + 0.5) * time_bin_us
 
 
+def _sweep_time_bins(
+    stamp_us: int, t_offset_us: np.ndarray, time_bin_us: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_time_bins` of a sweep's capture times ``stamp_us + int(t_offset_us)`` (compiled)."""
+    bins, t_lo, n_bins = time_bins(stamp_us, t_offset_us, time_bin_us)
+    return bins, t_lo + (np.arange(n_bins) + 0.5) * time_bin_us
+
+
 def _apply_bin_transforms(p: np.ndarray, bins: np.ndarray, T: np.ndarray) -> npt.NDArray[np.float32]:
     """(N, 3) float32 ``T[bins] @ p`` for (N, 3) float32 points and (n_bins, 4, 4) transforms."""
     n_bins = len(T)
-    # Written-out products on gathered rows: faster than einsum or matmul with an inner size of 3.
-    # Per-entry 1-D gathers on contiguous columns: cheaper than one (N, 12) row gather with strided
-    # reads, and the same float32 arithmetic.
     Tc = np.ascontiguousarray(T[:, :3, :].reshape(n_bins, 12).astype(np.float32).T)  # (12, n_bins)
-    x, y, z = (np.ascontiguousarray(p[:, i]) for i in range(3))
-    out = np.empty_like(p)
-    for i in range(3):
-        out[:, i] = (
-            Tc[4 * i][bins] * x + Tc[4 * i + 1][bins] * y + Tc[4 * i + 2][bins] * z + Tc[4 * i + 3][bins]
-        )
+    out: npt.NDArray[np.float32] = bin_transforms(p, bins, Tc)  # compiled: deskew_kernel
     return out

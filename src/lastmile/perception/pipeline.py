@@ -191,7 +191,7 @@ class LidarPipeline:
         source_index = np.flatnonzero(roi & ~ego)
         cloud = MergedCloud(
             stamp=merged.stamp,
-            points=pts[source_index],
+            points=np.take(pts, source_index, axis=0),  # take: ~4x faster than [] on rows
             sensor_ids=merged.sensor_ids,
             compensated=merged.compensated,
         )
@@ -214,7 +214,12 @@ class LidarPipeline:
             ring = cloud.points[ng, 4].astype(np.int64)
             scan = sensor * 1000 + ring
             keep = dror_keep_mask(
-                xyz[ng], cfg.dror, sensor_xy, scan, steps[sensor], scan_grid=np.c_[sensor, ring]
+                np.take(xyz, ng, axis=0),
+                cfg.dror,
+                sensor_xy,
+                scan,
+                steps[sensor],
+                scan_grid=np.c_[sensor, ring],
             )
             noise[ng[~keep]] = True
             ng = ng[keep]
@@ -233,7 +238,7 @@ class LidarPipeline:
         ms["curbs"] = (t5 - t4) * 1e3
         labels = np.full(len(xyz), -1, dtype=np.int64)
         objects = ng[~curb_surface[ng]]
-        labels[objects] = euclidean_cluster_labels(xyz[objects], cfg.cluster_eps_m)
+        labels[objects] = euclidean_cluster_labels(np.take(xyz, objects, axis=0), cfg.cluster_eps_m)
         # Reassigned points the ground step had taken become obstacle points of their own.
         newly = np.flatnonzero(curb_obstacle & (labels < 0) & ~noise)
         if len(newly):
@@ -242,12 +247,15 @@ class LidarPipeline:
         t6 = time.perf_counter()
         ms["clustering"] = (t6 - t5) * 1e3
         has = labels >= 0
+        has_idx = np.flatnonzero(has)
         weight = None
         if cfg.weight_by_unit_density:
             spacing = [ring_spacing_from_points(sweep_of[sid].points) for sid in cloud.sensor_ids]
             weight = return_weights(np.maximum(steps, cfg.dror.azimuth_step_rad), spacing)
-            weight = weight[cloud.points[has, 5].astype(np.int64)]
-        clusters = describe_clusters(xyz[has], cloud.points[has, 3], labels[has], cfg.geometry, weight)
+            weight = weight[cloud.points[has_idx, 5].astype(np.int64)]
+        clusters = describe_clusters(
+            np.take(xyz, has_idx, axis=0), cloud.points[has_idx, 3], labels[has_idx], cfg.geometry, weight
+        )
         t7 = time.perf_counter()
         ms["cluster_geometry"] = (t7 - t6) * 1e3
         snow_surface = np.zeros(len(xyz), dtype=bool)

@@ -5,10 +5,11 @@ returns many neighbours. A fixed search radius would delete sparse far objects, 
 with range as the beam spacing does: ``radius = max(min_radius_m, multiplier * range * azimuth_step)``.
 A point with fewer than ``min_neighbours`` other points inside its radius is removed.
 
-Exact shortcut: a point whose neighbours along its own scan line (same sensor and ring, nearest in
-azimuth) already give it ``min_neighbours`` points inside its radius surely passes and skips the
-KD-tree query; only the rest (ends of ring segments, sparse points: where snow lives) are queried,
-in a tree of only the points in the horizontal grid cells around them (also exact).
+Exact shortcut: a point whose neighbours along its own scan line (same sensor and ring, next in
+firing order = azimuth order) already give it ``min_neighbours`` points inside its radius surely
+passes and skips the neighbour search; only the rest (ends of ring segments, sparse points: where
+snow lives) are searched, in a bucket grid of side ``r_max`` (compiled kernels in
+:mod:`lastmile.perception.dror_kernel`; the mask equals a KD-tree query's bit for bit).
 
 Scan pattern: the radius follows the horizontal column spacing, but a LiDAR's rings are often much
 farther apart (a 16-ring blind-spot unit: 3.3 deg against 0.4 deg columns), so an object seen by
@@ -31,9 +32,9 @@ from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
-from scipy.spatial import cKDTree
 
 from lastmile.core.errors import ConfigError, MessageError
+from lastmile.perception.dror_kernel import enough_neighbours, scan_line_sure
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -90,9 +91,9 @@ def dror_keep_mask(
         sensor_xy_m: (N, 2) horizontal position of the LiDAR that measured each point (ranges are
             measured from it); None measures from the origin.
         scan_key: (N,) int, e.g. ``sensor_index * 1000 + ring``: points sharing a key lie on one
-            scan line. When given, a point with ``min_neighbours`` scan-line neighbours (the
-            nearest in azimuth on each side) inside its radius is kept without a KD-tree query;
-            the result is the same, only faster.
+            scan line, listed in firing order. When given, a point with ``min_neighbours``
+            scan-line neighbours (the next ones in that order on each side) inside its radius is
+            kept without a neighbour search; the result is the same, only faster.
         azimuth_step_rad: (N,) horizontal resolution of the LiDAR that measured each point
             (:func:`azimuth_step_from_times`); a coarser unit gets a proportionally wider radius,
             or a blind-spot unit's sparser columns would lose thin objects with the snow. None:
@@ -126,23 +127,19 @@ def dror_keep_mask(
     radius = np.maximum(cfg.min_radius_m, cfg.multiplier * rng * step)
     candidate = rng <= cfg.max_range_m
     sure = np.zeros(n, dtype=bool)
+    cols = [np.ascontiguousarray(p[:, i]) for i in range(3)]  # the compiled kernels read columns
     if scan_key is not None:
         key = np.asarray(scan_key).reshape(-1)
         if key.shape != (n,):
             raise MessageError(f"dror_keep_mask.scan_key: expected ({n},), got {key.shape}")
-        sure = _scan_line_sure(p, key, np.arctan2(dy, dx), radius, cfg.min_neighbours)
+        sure = scan_line_sure(*cols, key.astype(np.int64), radius, cfg.min_neighbours)
     test = np.flatnonzero(candidate & ~sure)
     if len(test) == 0:
         return keep
-    # Only points that can lie within a tested point's radius enter the tree.
+    # Only points that can lie within a tested point's radius are candidate neighbours.
     r_max = float(radius[test].max())
-    pool = _near_tested(p, np.flatnonzero(rng <= cfg.max_range_m + r_max), test, r_max)
-    # Leaves of 64: the build dominates (tens of thousands of points for about a thousand queries)
-    # and bigger leaves build faster without slowing the few queries measurably.
-    tree = cKDTree(p[pool], leafsize=64, balanced_tree=False, compact_nodes=False)
-    # The k-th nearest other point (k = min_neighbours; the point itself is the nearest) decides.
-    dist, _ = tree.query(p[test], k=cfg.min_neighbours + 1, distance_upper_bound=r_max)
-    keep[test] = dist[:, -1] <= radius[test]
+    pool = np.flatnonzero(rng <= cfg.max_range_m + r_max)
+    keep[test] = enough_neighbours(*cols, pool, test, radius, r_max, cfg.min_neighbours)
     if scan_grid is not None and cfg.ring_reach > 0:
         grid = np.asarray(scan_grid)
         if grid.shape != (n, 2) or not np.issubdtype(grid.dtype, np.integer):
@@ -217,36 +214,6 @@ def _scan_neighbours(
     return np.bincount(who[near], minlength=len(query))
 
 
-def _near_tested(p: np.ndarray, pool: np.ndarray, test: np.ndarray, r_max: float) -> np.ndarray:
-    """The ``pool`` points in the 3 x 3 x 3 grid cells (side >= ``r_max``) around a tested point.
-
-    Every pool point within ``r_max`` of a tested point is among them, so the k nearest
-    neighbours within ``r_max`` found in a tree of these are those of a tree of the whole pool (the
-    same points at the same distances: the result is bit-identical). The tested points are about a
-    thousand (the ends of scan-line segments) while the pool is tens of thousands: building the
-    tree on the pool points near them is most of DROR's saving.
-    """
-    # A hair over r_max: a neighbour within r_max never lands two cells away despite rounding.
-    side = r_max * (1.0 + 1e-6)
-    # Column by column: (N, 3) axis-0 reductions are several times slower in NumPy.
-    cell = []
-    for i in range(3):
-        c = p[pool, i]
-        cell.append(np.floor((c - float(c.min())) / side).astype(np.int64) + 1)  # +1: room for -1
-    dims = [int(c.max()) + 2 for c in cell]
-    if int(np.prod(dims)) > 16 * len(pool) + 65_536:
-        return pool  # a sparse pool spread far (a long max_range_m): the grid would cost more than it saves
-    key = (cell[0] * dims[1] + cell[1]) * dims[2] + cell[2]
-    # Tested points are pool points: their cells are rows of ``cell``, and 0 <= cell +- 1 < dims.
-    tkey = np.unique(key[np.searchsorted(pool, test)])
-    near = np.zeros(int(np.prod(dims)), dtype=bool)
-    for ox in (-1, 0, 1):
-        for oy in (-1, 0, 1):
-            for oz in (-1, 0, 1):
-                near[tkey + (ox * dims[1] + oy) * dims[2] + oz] = True
-    return pool[near[key]]
-
-
 def azimuth_step_from_times(t_offset_us: npt.ArrayLike) -> float:
     """A spinning LiDAR's horizontal resolution from one sweep's per-point firing times.
 
@@ -263,24 +230,3 @@ def azimuth_step_from_times(t_offset_us: npt.ArrayLike) -> float:
     gap = float(np.median(np.diff(t)))
     period = float(t[-1] - t[0]) + gap
     return 2.0 * math.pi * gap / period
-
-
-def _scan_line_sure(
-    p: np.ndarray, key: np.ndarray, azimuth: np.ndarray, radius: np.ndarray, k: int
-) -> np.ndarray:
-    """Points with at least ``k`` of their ``k`` azimuth neighbours on each side within radius."""
-    # One float sort key (scan line, then azimuth in [0, 2 pi) < 10): far cheaper than lexsort.
-    order = np.argsort(key.astype(np.float64) * 10.0 + (azimuth + np.pi))
-    xs, ys, zs = p[order, 0], p[order, 1], p[order, 2]
-    ks, rs = key[order], radius[order]
-    count = np.zeros(len(p), dtype=np.int64)
-    for off in range(1, k + 1):
-        same = ks[off:] == ks[:-off]
-        # Column by column: the same sum in the same order as (d * d).sum(axis=1), much cheaper.
-        dx, dy, dz = xs[off:] - xs[:-off], ys[off:] - ys[:-off], zs[off:] - zs[:-off]
-        near = same & (dx * dx + dy * dy + dz * dz <= np.minimum(rs[off:], rs[:-off]) ** 2)
-        count[off:] += near  # neighbour behind
-        count[:-off] += near  # neighbour ahead
-    sure = np.zeros(len(p), dtype=bool)
-    sure[order] = count >= k
-    return sure

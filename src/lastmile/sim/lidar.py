@@ -196,8 +196,14 @@ class LidarSimulator:
             ray, first = np.unique(ray, return_index=True)
             e_rng, e_int = e_rng[first], e_int[first]
             pos = np.searchsorted(idx, ray)
-            exists = (pos < len(idx)) & (idx[np.minimum(pos, len(idx) - 1)] == ray)
-            nearer = ~exists | (e_rng < noisy[np.minimum(pos, len(idx) - 1)])
+            # A sweep with no returns (a blinded or sky-facing unit) still gets its echoes: every ray is new.
+            last = np.minimum(pos, max(len(idx) - 1, 0))
+            if len(idx):
+                exists = (pos < len(idx)) & (idx[last] == ray)
+                nearer = ~exists | (e_rng < noisy[last])
+            else:
+                exists = np.zeros(len(ray), dtype=bool)
+                nearer = np.ones(len(ray), dtype=bool)
             ray, e_rng, e_int, pos, exists = (
                 ray[nearer],
                 e_rng[nearer],

@@ -25,6 +25,7 @@ from lastmile.core.errors import ConfigError, MessageError
 from lastmile.core.geometry import SE2, FloatArray
 from lastmile.core.objects import TrackedObjects, empty_tracks
 from lastmile.core.polyline import Polyline
+from lastmile.core.predictions import PredictedPaths
 from lastmile.core.route_obstacles import route_obstacles
 from lastmile.core.safety_messages import FailSafeLevel, SafetyDirective
 from lastmile.core.sensor_frames import (
@@ -69,6 +70,7 @@ from lastmile.stack.hmi import HmiComposer
 from lastmile.stack.profiler import ModuleProfiler
 from lastmile.stack.raw_perception import RawPerception, RawPerceptionConfig
 from lastmile.stack.v2i import AnticipationConfig, CrossingAnticipation
+from lastmile.tracking.prediction import MapAwarePredictor, PredictionConfig
 from lastmile.tracking.radar_tracker import RadarObjectTracker, RadarTrackerConfig
 from lastmile.tracking.traffic_lights import TrafficLightTracker, TrafficLightTrackerConfig
 
@@ -97,6 +99,8 @@ class StackConfig:
         light_cameras: calibration of the cameras whose traffic-light detections the stack receives
             (none: the stack cannot see signals, and treats every mapped one it reaches as red).
         traffic_lights: the traffic-light tracker's parameters.
+        prediction: map-aware prediction of the tracks (Snow Lion's constant velocity, lanes and
+            crosswalks), handed to decision; its horizon must cover the decision's crosswalk look-ahead.
     """
 
     tick_us: int = 10_000
@@ -119,8 +123,14 @@ class StackConfig:
     raw_perception: RawPerceptionConfig = field(default_factory=RawPerceptionConfig)
     light_cameras: tuple[PinholeCamera, ...] = ()
     traffic_lights: TrafficLightTrackerConfig = field(default_factory=TrafficLightTrackerConfig)
+    prediction: PredictionConfig = field(default_factory=lambda: PredictionConfig(horizon_s=6.0))
 
     def __post_init__(self) -> None:
+        if self.prediction.horizon_s + 1e-9 < self.decision.crosswalk_lookahead_s:
+            raise ConfigError(
+                f"StackConfig.prediction.horizon_s: expected at least the decision's crosswalk look-ahead "
+                f"({self.decision.crosswalk_lookahead_s} s), got {self.prediction.horizon_s} s"
+            )
         if self.perception_mode not in PERCEPTION_MODES:
             raise ConfigError(
                 f"StackConfig.perception_mode: expected one of {PERCEPTION_MODES}, "
@@ -186,6 +196,8 @@ class ShuttleStack:
             if layers.hdmap.traffic_lights and config.light_cameras
             else None
         )
+        self.predictor = MapAwarePredictor(layers.hdmap, config.prediction)
+        self._predictions: PredictedPaths | None = None
         self.mission = MissionManager(
             stop_order=tuple(rs.stop.id for rs in layers.stops), serve_all=config.serve_all_stops
         )
@@ -261,6 +273,9 @@ class ShuttleStack:
                 tracks = self._guarded("tracking", now, source, now)
                 if isinstance(tracks, TrackedObjects):
                     self._tracks = tracks
+            with p.measure("prediction"):
+                paths = self._guarded("tracking", now, self.predictor.predict_objects, self._tracks)
+                self._predictions = paths if isinstance(paths, PredictedPaths) else None
             with p.measure("decision"):
                 self._guarded("decision", now, self._decide, now)
             with p.measure("planning"):
@@ -378,6 +393,7 @@ class ShuttleStack:
                 trajectory=self._trajectory,
                 safety=self._directive,
                 traffic_lights=self.light_tracker.states() if self.light_tracker is not None else None,
+                predictions=self._predictions,
             )
         )
         self._anticipate(now, f.s_m, est.speed_mps)

@@ -32,7 +32,9 @@ from lastmile.core.boxes3d import TrackedBoxes
 from lastmile.core.errors import ConfigError
 from lastmile.core.geometry import point_in_polygon
 from lastmile.core.object_class import ObjectClass
+from lastmile.core.objects import TRACK_COLUMNS, TrackedObjects
 from lastmile.core.predictions import PREDICTION_MODES, PredictedPaths
+from lastmile.core.stamp import Stamp
 from lastmile.hdmap.model import DRIVABLE_SUBTYPES, HDMap
 
 _CV, _LANE, _CROSS = (PREDICTION_MODES.index(m) for m in PREDICTION_MODES)
@@ -92,16 +94,26 @@ def _cv_std(pos_std: np.ndarray, t: np.ndarray, cfg: PredictionConfig) -> np.nda
 
 def predict_constant_velocity(tracks: TrackedBoxes, config: PredictionConfig | None = None) -> PredictedPaths:
     """Constant-velocity paths for every track."""
-    cfg = config or PredictionConfig()
+    t = tracks.table
+    return _cv_paths(tracks.stamp, tracks.ids, t[:, 0:2], t[:, 7:9], t[:, 10], config or PredictionConfig())
+
+
+def _cv_paths(
+    stamp: Stamp,
+    ids: np.ndarray,
+    xy_m: np.ndarray,
+    v_mps: np.ndarray,
+    pos_std_m: np.ndarray,
+    cfg: PredictionConfig,
+) -> PredictedPaths:
     t = cfg.times()
-    xy = tracks.table[:, None, 0:2] + tracks.table[:, None, 7:9] * t[None, :, None]
     return PredictedPaths(
-        stamp=tracks.stamp,
-        ids=tracks.ids,
+        stamp=stamp,
+        ids=ids,
         times_s=t,
-        xy_m=xy,
-        std_m=_cv_std(tracks.table[:, 10], t, cfg),
-        mode=np.full(len(tracks), _CV),
+        xy_m=xy_m[:, None, :] + v_mps[:, None, :] * t[None, :, None],
+        std_m=_cv_std(pos_std_m, t, cfg),
+        mode=np.full(len(ids), _CV),
     )
 
 
@@ -119,16 +131,41 @@ class MapAwarePredictor:
 
     def predict(self, tracks: TrackedBoxes) -> PredictedPaths:
         """One path per track (see the module docstring for the rules)."""
+        t = tracks.table
+        return self._predict(tracks.stamp, tracks.ids, t[:, 0:2], t[:, 7:9], tracks.class_id, t[:, 10])
+
+    def predict_objects(self, tracks: TrackedObjects) -> PredictedPaths:
+        """The same for the stack's published tracks (:class:`TrackedObjects`, columns by name)."""
+        t = tracks.table
+        col = TRACK_COLUMNS.index
+        return self._predict(
+            tracks.stamp,
+            tracks.ids,
+            t[:, [col("x_m"), col("y_m")]],
+            t[:, [col("vx_mps"), col("vy_mps")]],
+            t[:, col("class_id")].astype(np.int64),
+            t[:, col("pos_std_m")],
+        )
+
+    def _predict(
+        self,
+        stamp: Stamp,
+        ids: np.ndarray,
+        xy_m: np.ndarray,
+        v_mps: np.ndarray,
+        class_id: np.ndarray,
+        pos_std_m: np.ndarray,
+    ) -> PredictedPaths:
         cfg = self.config
-        base = predict_constant_velocity(tracks, cfg)
+        base = _cv_paths(stamp, ids, xy_m, v_mps, pos_std_m, cfg)
         t = base.times_s
         xy = base.xy_m.copy()
         std = base.std_m.copy()
         mode = base.mode.copy()
-        for i in range(len(tracks)):
-            x, y = float(tracks.table[i, 0]), float(tracks.table[i, 1])
-            vx, vy = float(tracks.table[i, 7]), float(tracks.table[i, 8])
-            cls = int(tracks.class_id[i])
+        for i in range(len(ids)):
+            x, y = float(xy_m[i, 0]), float(xy_m[i, 1])
+            vx, vy = float(v_mps[i, 0]), float(v_mps[i, 1])
+            cls = int(class_id[i])
             path = None
             if cls == ObjectClass.CAR:
                 path = self._lane_path(x, y, vx, vy, t)
@@ -142,7 +179,7 @@ class MapAwarePredictor:
                     mode[i] = _CROSS
             if path is not None:
                 xy[i] = path
-        return PredictedPaths(stamp=tracks.stamp, ids=tracks.ids, times_s=t, xy_m=xy, std_m=std, mode=mode)
+        return PredictedPaths(stamp=stamp, ids=ids, times_s=t, xy_m=xy, std_m=std, mode=mode)
 
     def _lane_path(self, x: float, y: float, vx: float, vy: float, t: np.ndarray) -> np.ndarray | None:
         cfg = self.config

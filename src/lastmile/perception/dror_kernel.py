@@ -1,0 +1,169 @@
+"""Compiled fixed-radius neighbour test of DROR on a bucket grid (Numba).
+
+Each tested point needs ``k`` other points within its own radius. The candidate neighbours are
+bucketed in a grid of side ``r_max`` (a hair more), so all points within ``r_max`` of a tested
+point lie in the 3 x 3 x 3 cells around its own, and the count stops as soon as it reaches ``k``.
+The distance is the one a SciPy ``cKDTree.query(..., distance_upper_bound=r_max)`` returns (squared
+differences summed x, y, z in that order, then the square root; neighbours at ``r_max`` or
+beyond excluded), so the mask equals that of the k-th-nearest-neighbour query bit for bit.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+# A grid with more cells than this many per pooled point (plus a constant) is sorted instead of
+# counted into buckets: a sparse pool spread far would make the bucket array larger than it saves.
+_CELLS_PER_POINT = 16
+_CELLS_SPARE = 65_536
+
+
+@njit(cache=True, nogil=True)
+def enough_neighbours(
+    x: np.ndarray,
+    y: np.ndarray,
+    z: np.ndarray,
+    pool: np.ndarray,
+    test: np.ndarray,
+    radius: np.ndarray,
+    r_max: float,
+    k: int,
+) -> np.ndarray:
+    """(T,) bool: whether ``test[t]`` has at least ``k`` pool points other than itself within
+    ``radius[test[t]]``.
+
+    Args:
+        x, y, z: (N,) float64 coordinates (m).
+        pool: (P,) int64 indices of the points that may be neighbours; every tested point is one.
+        test: (T,) int64 indices of the tested points.
+        radius: (N,) float64 radius of every point (m), at most ``r_max`` for tested points.
+        r_max: largest radius of a tested point (m).
+        k: neighbours needed.
+    """
+    n_pool = pool.shape[0]
+    side = r_max * (1.0 + 1e-6)  # a neighbour within r_max never lands two cells away despite rounding
+    lo0, lo1, lo2 = np.inf, np.inf, np.inf
+    for j in pool:
+        lo0 = min(lo0, x[j])
+        lo1 = min(lo1, y[j])
+        lo2 = min(lo2, z[j])
+    cx = np.empty(n_pool, np.int64)
+    cy = np.empty(n_pool, np.int64)
+    cz = np.empty(n_pool, np.int64)
+    for q in range(n_pool):
+        j = pool[q]
+        # +1: room for the -1 neighbour offset
+        cx[q] = np.int64(np.floor((x[j] - lo0) / side)) + 1
+        cy[q] = np.int64(np.floor((y[j] - lo1) / side)) + 1
+        cz[q] = np.int64(np.floor((z[j] - lo2) / side)) + 1
+    ny = cy.max() + 2
+    nz = cz.max() + 2
+    n_keys = (cx.max() + 2) * ny * nz
+    key = (cx * ny + cy) * nz + cz
+    # Pool points grouped by cell (coordinates copied in that order): ``first[c]`` .. ``first[c + 1]``
+    # when bucketed; for a grid too large for buckets, the sorted keys are searched instead.
+    bucketed = n_keys <= _CELLS_PER_POINT * n_pool + _CELLS_SPARE
+    if bucketed:
+        first = np.zeros(n_keys + 1, np.int64)
+        for q in range(n_pool):
+            first[key[q] + 1] += 1
+        for c in range(n_keys):
+            first[c + 1] += first[c]
+        fill = first[:-1].copy()
+        order = np.empty(n_pool, np.int64)
+        for q in range(n_pool):
+            order[fill[key[q]]] = q
+            fill[key[q]] += 1
+        skey = np.empty(0, np.int64)
+    else:
+        first = np.empty(0, np.int64)
+        order = np.argsort(key)
+        skey = key[order]
+    px = np.empty(n_pool)
+    py = np.empty(n_pool)
+    pz = np.empty(n_pool)
+    for q in range(n_pool):
+        j = pool[order[q]]
+        px[q], py[q], pz[q] = x[j], y[j], z[j]
+    r_max2 = r_max * r_max
+    out = np.zeros(test.shape[0], np.bool_)
+    for t in range(test.shape[0]):
+        i = test[t]
+        xi, yi, zi, ri = x[i], y[i], z[i], radius[i]
+        ix = np.int64(np.floor((xi - lo0) / side)) + 1
+        iy = np.int64(np.floor((yi - lo1) / side)) + 1
+        iz = np.int64(np.floor((zi - lo2) / side)) + 1
+        count = 0  # the point itself is counted too (distance 0), so k others make k + 1
+        for ox in range(-1, 2):
+            for oy in range(-1, 2):
+                c0 = ((ix + ox) * ny + iy + oy) * nz + iz - 1
+                if bucketed:
+                    q0, q1 = first[c0], first[c0 + 3]  # the three cells along z are one run
+                else:
+                    q0 = np.searchsorted(skey, c0)
+                    q1 = np.searchsorted(skey, c0 + 3)
+                for q in range(q0, q1):
+                    dx = xi - px[q]
+                    dy = yi - py[q]
+                    dz = zi - pz[q]
+                    d2 = dx * dx + dy * dy + dz * dz
+                    if d2 < r_max2 and np.sqrt(d2) <= ri:
+                        count += 1
+                if count > k:
+                    break
+            if count > k:
+                break
+        out[t] = count > k
+    return out
+
+
+@njit(cache=True, nogil=True)
+def scan_line_sure(
+    x: np.ndarray, y: np.ndarray, z: np.ndarray, key: np.ndarray, radius: np.ndarray, k: int
+) -> np.ndarray:
+    """(N,) bool: points with at least ``k`` of their ``k`` scan-line neighbours on each side within
+    radius (the smaller radius of the two points), which DROR therefore keeps.
+
+    Neighbours are taken in the given order within each scan line (``key``): a sweep lists a
+    ring's returns in firing order, which is azimuth order, so they are the adjacent columns.
+    Any order gives a sufficient test (the neighbours counted are real points within the radius);
+    a shuffled cloud only leaves more points to :func:`enough_neighbours`.
+    """
+    n = x.shape[0]
+    sure = np.zeros(n, np.bool_)
+    if n == 0:
+        return sure
+    k_lo, k_hi = key.min(), key.max()
+    span = k_hi - k_lo + 1
+    # Stable grouping by scan line: counting sort over the key range when it is small (rings of a
+    # few sensors), a stable sort otherwise.
+    if span <= 4 * n + _CELLS_SPARE:
+        first = np.zeros(span + 1, np.int64)
+        for i in range(n):
+            first[key[i] - k_lo + 1] += 1
+        for c in range(span):
+            first[c + 1] += first[c]
+        order = np.empty(n, np.int64)
+        for i in range(n):
+            c = key[i] - k_lo
+            order[first[c]] = i
+            first[c] += 1
+    else:
+        order = np.argsort(key, kind="mergesort")
+    count = np.zeros(n, np.int64)
+    for off in range(1, k + 1):
+        for q in range(off, n):
+            a, b = order[q - off], order[q]
+            if key[a] != key[b]:
+                continue
+            dx = x[b] - x[a]
+            dy = y[b] - y[a]
+            dz = z[b] - z[a]
+            r = min(radius[a], radius[b])
+            if dx * dx + dy * dy + dz * dz <= r * r:
+                count[a] += 1
+                count[b] += 1
+    for i in range(n):
+        sure[i] = count[i] >= k
+    return sure

@@ -1,0 +1,129 @@
+"""The compiled (Numba) kernels give the array expressions' results bit for bit."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from lastmile.perception.cluster_geometry_kernel import box_extents, cluster_sums, hull_support
+from lastmile.perception.deskew_kernel import bin_transforms, time_bins
+from lastmile.perception.ground_kernel import plane_residuals, weighted_sums
+
+
+def _clusters(seed: int, n: int, k: int) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    lab = np.sort(rng.integers(0, k, n))
+    xy = rng.normal(0, 1, (n, 2)) * rng.uniform(0.1, 3, (k, 2))[lab] + rng.uniform(-30, 30, (k, 2))[lab]
+    # Repeated coordinates: ties for the farthest point along a direction (the first must win).
+    xy[::7] = np.round(xy[::7], 1)
+    return xy, lab
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 10_000), n=st.integers(1, 400), k=st.integers(1, 12))
+def test_support_points_are_the_first_points_farthest_along_each_direction(seed, n, k) -> None:
+    xy, lab = _clusters(seed, n, k)
+    _, starts, counts = np.unique(lab, return_index=True, return_counts=True)
+    x, y = np.ascontiguousarray(xy[:, 0]), np.ascontiguousarray(xy[:, 1])
+
+    def directions(d: int) -> tuple[np.ndarray, np.ndarray]:
+        ang = np.arange(d) * (2 * math.pi / d)
+        return np.cos(ang), np.sin(ang)
+
+    cos, sin = directions(32)
+    hull, is_cand = hull_support(x, y, starts, counts, (directions(4), directions(8)), cos, sin)
+    for row, (s0, c) in enumerate(zip(starts, counts, strict=True)):
+        proj = x[s0 : s0 + c, None] * cos + y[s0 : s0 + c, None] * sin  # (c, 32)
+        assert np.array_equal(hull[row], s0 + np.argmax(proj, axis=0))
+        assert is_cand[hull[row]].all()
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 10_000), n=st.integers(1, 300), k=st.integers(1, 8))
+def test_cluster_sums_and_extents_equal_bincount_and_reductions(seed, n, k) -> None:
+    xy, lab = _clusters(seed, n, k)
+    p = np.c_[xy, np.random.default_rng(seed).normal(0, 1, n)]
+    count, sx, sy, zmin = cluster_sums(p, lab, k)
+    assert np.array_equal(count, np.bincount(lab, minlength=k))
+    assert np.array_equal(sx, np.bincount(lab, weights=p[:, 0], minlength=k))
+    assert np.array_equal(sy, np.bincount(lab, weights=p[:, 1], minlength=k))
+    zref = np.full(k, np.inf)
+    np.minimum.at(zref, lab, p[:, 2])
+    assert np.array_equal(zmin, zref)
+    _, starts, counts = np.unique(lab, return_index=True, return_counts=True)
+    ang = np.random.default_rng(seed).uniform(0, math.pi, len(starts))
+    ck, sk = np.cos(ang), np.sin(ang)
+    x, y = np.ascontiguousarray(p[:, 0]), np.ascontiguousarray(p[:, 1])
+    row = np.repeat(np.arange(len(starts)), counts)
+    pu = ck[row] * x + sk[row] * y
+    pv = -sk[row] * x + ck[row] * y
+    ref = np.stack(
+        [
+            np.minimum.reduceat(pu, starts),
+            np.maximum.reduceat(pu, starts),
+            np.minimum.reduceat(pv, starts),
+            np.maximum.reduceat(pv, starts),
+        ],
+        axis=1,
+    )
+    assert np.array_equal(box_extents(x, y, starts, counts, ck, sk), ref)
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    seed=st.integers(0, 10_000), n=st.integers(1, 500), regions=st.integers(1, 16), seed_pass=st.booleans()
+)
+def test_plane_fit_sums_equal_bincount_of_the_weighted_points(seed, n, regions, seed_pass) -> None:
+    rng = np.random.default_rng(seed)
+    x, y = rng.uniform(-20, 20, n), rng.uniform(-20, 20, n)
+    z = rng.normal(0, 0.3, n)
+    region = rng.integers(0, regions, n)
+    planes = rng.normal(0, 0.05, (regions, 3))
+    res = plane_residuals(x, y, z, region, planes)
+    assert np.array_equal(
+        res, z - (planes[:, 0][region] + planes[:, 1][region] * x + planes[:, 2][region] * y)
+    )
+    window = np.minimum(0.12 + 0.004 * np.hypot(x, y), 0.35)
+    low = rng.normal(0, 0.1, regions)
+    if seed_pass:
+        sane = (res >= -1.0) & (res <= 1.0)
+        rel = res - low[region]
+        use = sane & (rel >= -0.15) & (rel <= 0.15)
+        w = np.where(use, 1.0, 0.0)
+    else:
+        use = np.abs(res) <= window
+        w = np.where(use, (1.0 - (res / window) ** 2) ** 2, 0.0)
+    u = np.flatnonzero(use)
+    xu, yu, zu, wu, ru = x[u], y[u], z[u], w[u], region[u]
+
+    def s(v: np.ndarray) -> np.ndarray:
+        return np.bincount(ru, weights=v, minlength=regions)
+
+    wx, wy = wu * xu, wu * yu
+    ref = np.stack(
+        [s(wu), s(wx), s(wy), s(wu * zu), s(wx * xu), s(wx * yu), s(wy * yu), s(wx * zu), s(wy * zu)],
+        axis=1,
+    )
+    ref = np.c_[ref, s((wu > 0).astype(np.float64))]
+    got = weighted_sums(x, y, z, res, region, regions, seed_pass, low, window, 1.0, 1.0, 0.15)
+    assert np.array_equal(got, ref)
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 10_000), n=st.integers(1, 500), bin_us=st.integers(1, 2000))
+def test_deskew_bins_and_transforms_equal_the_float32_array_expressions(seed, n, bin_us) -> None:
+    rng = np.random.default_rng(seed)
+    t_off = rng.uniform(-5_000, 100_000, n).astype(np.float32)
+    stamp = int(rng.integers(0, 10**12))
+    bins, t_lo, n_bins = time_bins(stamp, t_off, bin_us)
+    t = stamp + t_off.astype(np.int64)
+    assert t_lo == t.min() and np.array_equal(bins, (t - t.min()) // bin_us) and n_bins == bins.max() + 1
+    p = rng.normal(0, 20, (n, 3)).astype(np.float32)
+    Tc = rng.normal(0, 1, (12, n_bins)).astype(np.float32)
+    out = bin_transforms(p, bins, Tc)
+    for i in range(3):
+        ref = Tc[4 * i][bins] * p[:, 0] + Tc[4 * i + 1][bins] * p[:, 1] + Tc[4 * i + 2][bins] * p[:, 2]
+        assert np.array_equal(out[:, i], ref + Tc[4 * i + 3][bins])
