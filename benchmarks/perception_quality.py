@@ -14,8 +14,8 @@ the lane under snow beside every curb (on top of the 0.6 m bank).
 What the pipeline gets is what the stack would have: the three sweeps, the LiDAR mounts, INS
 frames (GnssInsFrame as delivered, sigma 2 cm) for de-skewing and for placing the HD map (road
 region mask, the right-hand curb ahead, and every mapped curb line within 45 m for the pipeline's
-snow-surface test; ``--no-snow-surface`` leaves those out) in the base frame. Ground truth (agents, true pose,
-per-point labels) is used only for scoring.
+curb-side stage, as the stack does; ``--no-snow-surface`` leaves those out) in the base frame.
+Ground truth (agents, true pose, per-point labels) is used only for scoring.
 
 Metrics per weather (scoring rules in ``tests/perception/quality_scoring.py``):
 - recall within 30 m (object centre from the base origin, the rear axle) of cars, pedestrians
@@ -65,6 +65,7 @@ from lastmile.core.sensor_frames import GnssInsFrame, LidarSweep  # noqa: E402
 from lastmile.core.stamp import Stamp  # noqa: E402
 from lastmile.hdmap.model import HDMap  # noqa: E402
 from lastmile.perception.curbs import frenet_of_points  # noqa: E402
+from lastmile.perception.map_curbs import MapCurbIndex  # noqa: E402
 from lastmile.perception.motion_compensation import PoseTrajectory, se3_matrix  # noqa: E402
 from lastmile.perception.pipeline import LidarPipeline, LidarPipelineResult  # noqa: E402
 from lastmile.perception.road_region import MapRoadRegion  # noqa: E402
@@ -183,26 +184,16 @@ def curb_ahead(hdmap: HDMap, pose: SE2, side: str) -> np.ndarray | None:
     return None if best is None else best[1]
 
 
-_DENSE_CURBS: dict[int, list[np.ndarray]] = {}
+_CURB_INDEX: dict[int, MapCurbIndex] = {}
 
 
 def curb_lines_near(hdmap: HDMap, pose: SE2, reach_m: float = 45.0) -> list[np.ndarray]:
-    """Every mapped curb line (any side) within ``reach_m`` of the vehicle, as (M, 2) map-frame
-    polylines (vertices every 2 m): what the stack reads from its map for the snow-surface test."""
-    dense = _DENSE_CURBS.get(id(hdmap))
-    if dense is None:
-        dense = [c.sub(0.0, c.length_m, 2.0) for c in hdmap.curbs]
-        _DENSE_CURBS[id(hdmap)] = dense
-    out = []
-    for xy in dense:
-        near = np.hypot(xy[:, 0] - pose.x_m, xy[:, 1] - pose.y_m) <= reach_m
-        # Contiguous runs of near vertices, each grown by one vertex so the cut segments stay whole.
-        edges = np.flatnonzero(np.diff(np.r_[0, near.astype(np.int8), 0]))
-        for a, b in zip(edges[::2], edges[1::2], strict=True):
-            run = xy[max(a - 1, 0) : min(b + 1, len(xy))]
-            if len(run) >= 2:
-                out.append(run)
-    return out
+    """Every mapped curb line (any side) within ``reach_m`` of the vehicle, base frame: what the
+    stack gives the pipeline's curb-side stage (``MapCurbIndex.lines_near``, the same code)."""
+    index = _CURB_INDEX.get(id(hdmap))
+    if index is None:
+        index = _CURB_INDEX[id(hdmap)] = MapCurbIndex(hdmap)
+    return index.lines_near(pose, reach_m)
 
 
 # --- scoring of one frame ---------------------------------------------------------------------------------
@@ -339,10 +330,9 @@ def evaluate_frame(
     curb_map = curb_ahead(hdmap, est_pose, "right")
     curb_base = est_pose.inverse().apply_points(curb_map) if curb_map is not None else None
     c0, w0 = time.process_time(), time.perf_counter()
-    to_base = est_pose.inverse()
     lines = None
-    if args.snow_surface:  # every mapped curb near the bus, for the snow-surface test
-        lines = [to_base.apply_points(xy) for xy in curb_lines_near(hdmap, est_pose)]
+    if args.snow_surface:  # every mapped curb near the bus, for the curb-side stage
+        lines = curb_lines_near(hdmap, est_pose)
     res = pipe.process(sweeps, ext, traj, road.mask_for(est_pose), curb_base, lines)
     cpu_ms, wall_ms = (time.process_time() - c0) * 1e3, (time.perf_counter() - w0) * 1e3
 
@@ -585,7 +575,8 @@ def main() -> None:
         "--no-snow-surface",
         dest="snow_surface",
         action="store_false",
-        help="do not give the pipeline the map's curb lines (no snow-surface test: the old figures)",
+        help="do not give the pipeline the map's curb lines (no curb-side stage: curb faces and "
+        "snow along curbs stay objects)",
     )
     parser.add_argument(
         "--json", type=Path, default=ROOT / "benchmarks" / "results" / "perception_quality.json"

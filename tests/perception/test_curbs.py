@@ -149,3 +149,24 @@ def test_slices_whose_edge_lies_in_an_unseen_stretch_do_not_vote_when_others_see
     assert est.valid
     assert np.all(np.abs(est.offset_m - 0.8) <= 0.1)
     assert np.isnan(est.detected_offset_m).sum() == 0  # the ambiguous slices still report their edge
+
+
+@pytest.mark.parametrize("seen_to_m", [1.5, 0.87])
+def test_a_snow_ramp_is_followed_to_the_bare_road_from_its_upper_part_and_past_its_shallow_toe(seen_to_m):
+    # Dense hand-made slices of the simulator's bank along a map curb at y = 0 (road at y > 0):
+    # 0.15 m flat over 0.5 m of lane, then a 0.6 m ramp down to the bare road at 1.1 m. Either the
+    # whole ramp and the road are seen, or (beside the bus, under a side unit's lowest beam) the
+    # ramp only while it still stands 6 cm up (its upper part, inside the raised chain) and the
+    # road from 1.3 m on. The ramp's last 12 cm of width lie within toe_m (3 cm) of the road.
+    pts = []
+    for k in range(30):
+        x = k + 0.5 + np.linspace(-0.4, 0.4, 5)
+        for y in np.arange(-1.45, 4.0, 0.05):
+            if seen_to_m < y < 1.3:
+                continue
+            z = 0.15 * (1.0 - np.clip((y - 0.5) / 0.6, 0.0, 1.0)) if y > 0 else 0.15
+            pts.append(np.c_[x, np.full_like(x, y), np.full_like(x, z)])
+    xyz = np.vstack(pts)
+    est = detect_curb(xyz, np.array([[0.0, 0.0], [40.0, 0.0]]))
+    assert est.valid
+    assert np.all(np.abs(est.offset_m - 1.1) <= 0.06)

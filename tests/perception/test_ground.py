@@ -110,3 +110,26 @@ def test_a_cell_that_sees_only_a_car_side_keeps_the_prior_plane_and_the_car_stay
     # Without the step limit the cell fits its plane through the car (the failure this guards).
     loose = AdaptiveGridGroundSegmenter(AdaptiveGridConfig(max_step_m=5.0)).segment(np.vstack([road, car]))
     assert loose[4000:].all()
+
+
+def test_a_grazed_goose_body_on_a_smooth_road_is_not_ground_but_road_texture_is() -> None:
+    # A smooth paved road (1 cm noise) and one ring grazing a goose's body 0.10-0.13 m up at 9.8 m:
+    # within the range-dependent tolerance (0.16 m there), but 10 sigma off the fitted surface.
+    rng = np.random.default_rng(4)
+    xy = rng.uniform(-25.0, 25.0, (40_000, 2))
+    road = np.c_[xy, rng.normal(0.0, 0.01, len(xy))]
+    t = np.linspace(-0.15, 0.15, 12)
+    goose = np.c_[9.3 + t, 3.0 - t, 0.115 + 0.015 * np.cos(t * 10.0)]
+    rut = np.c_[-9.3 + t, 3.0 - t, np.full(12, 0.06)]  # a 6 cm ridge of the road's own surface
+    xyz = np.vstack([road, goose, rut])
+    ground = AdaptiveGridGroundSegmenter().segment(xyz)
+    assert not ground[len(road) : len(road) + 12].any()
+    assert ground[-12:].all()
+    assert ground[: len(road)].mean() > 0.999
+    # Without the smooth-surface rule the range-dependent tolerance calls the goose ground.
+    loose = AdaptiveGridGroundSegmenter(AdaptiveGridConfig(smooth_floor_m=1.0)).segment(xyz)
+    assert loose[len(road) : len(road) + 12].all()
+    # A rough surface (4 cm noise) keeps its range-dependent tolerance: 4 sigma is above it.
+    rough = np.c_[xy, rng.normal(0.0, 0.04, len(xy))]
+    g2 = AdaptiveGridGroundSegmenter().segment(rough)
+    assert g2.mean() > 0.995

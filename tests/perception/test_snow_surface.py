@@ -1,4 +1,5 @@
-"""Snow lying along a curb is told from objects: low, flat, bright and on a mapped curb line."""
+"""Curb-side surface is told from objects: a curb face (low, on a curb line), snow along a curb (low,
+flat, bright, beside one)."""
 
 from __future__ import annotations
 
@@ -44,16 +45,18 @@ def test_low_flat_bright_cluster_on_a_curb_line_is_snow_and_objects_are_not():
             (5.0, 3.2, 0.14, 0.17, 72.0),  # snow on the lane edge, 0.3 m from the left curb
             (5.0, 0.0, 0.14, 0.17, 72.0),  # the same, 3.5 m from any curb: not snow lying at a curb
             (8.0, 2.9, 0.02, 0.40, 45.0),  # a goose at the curb: 0.4 m tall
-            (9.0, 3.0, 0.15, 0.20, 45.0),  # a goose's back grazed by one beam: low and flat but dim
             (12.0, 3.0, 0.10, 1.70, 60.0),  # a pedestrian stepping off the kerb
+            (9.0, 3.3, 0.00, 0.16, 30.0),  # the curb face and sidewalk edge: low, dim, on the line
+            (14.0, -2.5, 0.10, 0.20, 35.0),  # low, flat and dim 1.0 m off the right curb: an object
+            (16.0, -2.5, 0.10, 0.20, 70.0),  # ...and bright there: snow reaching 1.0 m into the lane
         ]
     )
     snow = snow_surface_clusters(cl, [LEFT_CURB, RIGHT_CURB])
-    assert snow.tolist() == [True, False, False, False, False]
+    assert snow.tolist() == [True, False, False, False, True, False, True]
     assert not snow_surface_clusters(cl, []).any()  # no map curbs: nothing is called snow
     kept = drop_clusters(cl, snow)
     assert len(kept) == 4 and kept.table.shape[1] == len(CLUSTER_COLUMNS)
-    assert kept.labels.tolist() == cl.labels[1:].tolist()
+    assert kept.labels.tolist() == cl.labels[[1, 2, 3, 5]].tolist()
     assert kept.hull_xy.shape[0] == kept.hull_new.shape[0] == 4
 
 
@@ -131,5 +134,10 @@ def test_pipeline_drops_snow_along_the_left_curb_given_the_map_curbs_and_keeps_t
     for res in (old, new):
         x, y = res.clusters.col("x_m"), res.clusters.col("y_m")
         assert np.any((np.abs(x - 8.3) < 0.6) & (np.abs(y - 3.05) < 0.5))
-    # Everything that is not snow is unchanged.
-    assert len(old.clusters) - len(new.clusters) == int(on_snow(old).sum())
+    # Besides the snow, only the curb faces go: low clusters on a mapped curb line.
+    gone = ~np.isin(old.clusters.labels, new.clusters.labels)
+    assert gone[on_snow(old)].all()
+    face = gone & ~on_snow(old)
+    xy = np.c_[old.clusters.col("x_m"), old.clusters.col("y_m")][face]
+    assert (old.clusters.col("z_max_m")[face] <= 0.3).all()
+    assert (curb_distance_m([LEFT_CURB, RIGHT_CURB], xy, 0.1) <= 0.9).all()

@@ -145,3 +145,82 @@ def test_neighbours_at_exactly_the_radius_count_as_in_the_tree(seed, n, k) -> No
     cfg = DrorConfig(min_neighbours=k, min_radius_m=0.5, multiplier=1e-3, max_range_m=3.0)
     expected = _dror_whole_pool_tree(p, cfg)
     assert np.array_equal(dror_keep_mask(p, cfg), expected)
+
+
+def _coarse_unit_row(azimuth_rad: float, columns: int) -> tuple[np.ndarray, np.ndarray]:
+    """A car's end 9 m from a blind-spot unit (rings 3.33 deg apart, 0.4 deg columns, 0.9 m up):
+    ``columns`` columns of one vertical face, 6 rings each, and their (N, 2) ``sensor, ring``."""
+    step = np.radians(0.4)
+    elev = np.radians(np.linspace(-40.0, 10.0, 16))[6:12]  # the rings that meet a car at 9 m
+    az = azimuth_rad + step * (np.arange(columns) - (columns - 1) / 2)
+    A, R = np.meshgrid(az, np.arange(6, 12), indexing="ij")
+    E = elev[R - 6]
+    h = 9.0  # a vertical face: the same horizontal range on every ring
+    xyz = np.c_[h * np.cos(A).ravel(), h * np.sin(A).ravel(), 0.9 + h * np.tan(E).ravel()]
+    return xyz, np.c_[np.zeros(A.size, dtype=np.int64), R.ravel()]
+
+
+@pytest.mark.parametrize("azimuth_rad", [0.3, np.pi - 0.002, -np.pi + 0.001])
+def test_a_vertical_row_seen_by_a_coarse_unit_survives_with_its_rings_as_neighbours(azimuth_rad) -> None:
+    # Two columns 6 cm apart, rings 0.5 m apart: inside the radius (0.31 m) each point has one
+    # neighbour, the other column's point of its ring; the radius test removes the whole car end.
+    # On the scan grid the ring above and below are its neighbours too. Behind the unit the
+    # azimuth window wraps across +-pi.
+    xyz, grid = _coarse_unit_row(azimuth_rad, 2)
+    steps = np.full(len(xyz), np.radians(0.4))
+    assert not dror_keep_mask(xyz, azimuth_step_rad=steps).any()
+    keep = dror_keep_mask(xyz, azimuth_step_rad=steps, scan_grid=grid)
+    assert keep.all()
+    off = dror_keep_mask(xyz, DrorConfig(ring_reach=0), azimuth_step_rad=steps, scan_grid=grid)
+    assert not off.any()
+
+
+def test_scan_neighbours_at_another_range_do_not_keep_a_flake() -> None:
+    # A flake 3 m out in front of the car end, on one of its rings and columns: its scan
+    # neighbours are the car's returns 6 m farther; it has no neighbour at its own range.
+    xyz, grid = _coarse_unit_row(0.3, 2)
+    flake = np.array([[3.0 * np.cos(0.3), 3.0 * np.sin(0.3), 0.9 + 3.0 * np.tan(np.radians(-20.0))]])
+    p = np.vstack([xyz, flake])
+    g = np.vstack([grid, [[0, 6]]])
+    keep = dror_keep_mask(p, azimuth_step_rad=np.full(len(p), np.radians(0.4)), scan_grid=g)
+    assert keep[:-1].all() and not keep[-1]
+    # Three returns at the flake's range just above and below it (outside its 0.1 m radius) are
+    # its scan neighbours when they are this LiDAR's next rings, not when another LiDAR saw them.
+    row = flake + np.array([[0.0, 0.0, -0.2], [0.0, 0.0, 0.2], [0.0, 0.02, 0.2]])  # the next column
+    q = np.vstack([p, row])
+    steps = np.full(len(q), np.radians(0.4))
+    same = np.vstack([g, [[0, 5], [0, 7], [0, 7]]])
+    other = np.vstack([g, [[1, 5], [1, 7], [1, 7]]])
+    assert not dror_keep_mask(q, azimuth_step_rad=steps)[len(p) - 1]
+    assert dror_keep_mask(q, azimuth_step_rad=steps, scan_grid=same)[len(p) - 1]
+    assert not dror_keep_mask(q, azimuth_step_rad=steps, scan_grid=other)[len(p) - 1]
+    with pytest.raises(MessageError, match="scan_grid"):
+        dror_keep_mask(p, scan_grid=np.zeros((2, 2), dtype=np.int64))
+    with pytest.raises(ConfigError, match="ring_reach"):
+        DrorConfig(ring_reach=-1)
+
+
+def test_the_scan_pattern_test_keeps_flakes_out_on_a_whole_rig() -> None:
+    # Every unit of the rig in snow: the scan-pattern test keeps more object points and removes
+    # (almost) as many flakes as the radius test alone.
+    rng = np.random.default_rng(5)
+    scene = campus_scene(rng)
+    kept = {False: [], True: []}
+    gone = {False: [], True: []}
+    for i, lidar in enumerate(default_rig()):
+        sw, box = sweep(scene, lidar, 0, rng, snowflakes=300)
+        p = sw.points.astype(np.float64)
+        B = lidar.base_from_sensor
+        xyz = p[:, :3] @ B[:3, :3].T + B[:3, 3]
+        ng = ~make_ground_segmenter("adaptive_grid").segment(xyz)
+        sensor = np.tile([lidar.x_m, lidar.y_m], (int(ng.sum()), 1))
+        steps = np.full(int(ng.sum()), np.radians(lidar.azimuth_res_deg))
+        grid = np.c_[np.full(int(ng.sum()), i), p[ng, 4].astype(np.int64)]
+        for use in (False, True):
+            keep = dror_keep_mask(xyz[ng], DrorConfig(), sensor, None, steps, grid if use else None)
+            kept[use].append(keep[box[ng] >= 2])
+            gone[use].append(~keep[box[ng] == -2])
+    k0, k1 = np.concatenate(kept[False]), np.concatenate(kept[True])
+    g0, g1 = np.concatenate(gone[False]), np.concatenate(gone[True])
+    assert k1.mean() >= k0.mean() and (k1 >= k0).all()  # only ever adds points back
+    assert g1.mean() >= 0.9 and g0.mean() - g1.mean() <= 0.02

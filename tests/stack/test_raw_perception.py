@@ -9,11 +9,12 @@ import pytest
 
 from lastmile.core.boxes3d import DetectedBoxes
 from lastmile.core.errors import ConfigError, MessageError
+from lastmile.core.geometry import SE2
 from lastmile.core.object_class import ObjectClass
 from lastmile.core.sensor_frames import LidarSweep
 from lastmile.core.stamp import Stamp
 from lastmile.hdmap.drivable import DrivableRaster
-from lastmile.perception.map_curbs import MapCurbIndex
+from lastmile.perception.snow_surface import curb_distance_m
 from lastmile.runner.closed_loop import TICK_US, build_closed_loop
 from lastmile.sim.scenario import Scenario, StaticObstacle
 from lastmile.stack.raw_perception import RawPerception, RawPerceptionConfig
@@ -51,15 +52,22 @@ def test_the_stack_stops_for_a_box_it_only_sees_in_its_lidar_clusters() -> None:
     assert raw.stats.skipped_no_pose <= 1  # the first frame may precede the first fix
 
 
-def test_curb_faces_are_not_objects_but_a_goose_on_the_curb_line_is() -> None:
+def test_the_stack_gives_the_pipeline_the_map_curb_lines_and_curb_faces_are_not_objects() -> None:
     *_, raw = _obstacle_run()
     assert raw.stats.curb_returns > 0  # driving along a curbed road: its face shows in every frame
-    curbs = MapCurbIndex(raw.layers.hdmap)
-    on_curb = np.asarray(raw.layers.hdmap.curbs[0].xy_m[0], dtype=float)[None, :]
-    assert curbs.curb_returns(on_curb, [0.2]).tolist() == [True]
-    assert curbs.curb_returns(on_curb, [0.4]).tolist() == [False]  # goose-high: an object
-    far = np.array([[1e4, 1e4]])  # nowhere near a curb: low, but an object
-    assert curbs.curb_returns(far, [0.1]).tolist() == [False]
+    res = raw.last_result
+    assert res is not None and res.snow_surface.any()  # the stack gave the pipeline the curb lines
+    # The curb lines the stack passes run where the map's curbs are, in the cloud's base frame.
+    curb = np.asarray(raw.layers.hdmap.curbs[0].xy_m, dtype=float)
+    mid = curb[len(curb) // 2]
+    pose = SE2(float(mid[0]), float(mid[1]), 0.3)
+    lines = raw.curbs.lines_near(pose, 10.0)
+    assert lines and float(curb_distance_m(lines, np.zeros((1, 2)), 0.05)[0]) < 0.05
+    assert all(float(np.hypot(*line.T).min()) <= 10.0 + 2.0 for line in lines)  # one vertex beyond
+    assert raw.curbs.lines_near(SE2(1e4, 1e4, 0.0), 45.0) == []
+    # The dropped clusters are low and on a curb line (the rule itself: tests/perception).
+    lab = np.unique(res.labels[res.snow_surface])
+    assert len(lab) and (res.cloud.points[np.isin(res.labels, lab), 2] <= 0.35).all()
 
 
 def _perception() -> RawPerception:

@@ -145,6 +145,7 @@ def describe_clusters(
     intensity: npt.ArrayLike,
     labels: npt.ArrayLike,
     config: ClusterGeometryConfig | None = None,
+    point_weight: npt.ArrayLike | None = None,
 ) -> ClusterSet:
     """Geometry and kind of every cluster that passes the range-dependent size filter.
 
@@ -152,6 +153,9 @@ def describe_clusters(
         xyz_m: (N, 3) base-frame points.
         intensity: (N,) intensities (0..255).
         labels: (N,) int cluster labels 0..C-1 (from :func:`clustering.euclidean_cluster_labels`).
+        point_weight: (N,) how many of the densest unit's returns each point stands for
+            (:func:`scan_density.return_weights`); the size filter compares the weighted count with
+            ``min_points`` and the plain count with ``min_points_floor``. None: every point 1.
     """
     cfg = config or ClusterGeometryConfig()
     p = np.asarray(xyz_m, dtype=np.float64).reshape(-1, 3)
@@ -171,7 +175,19 @@ def describe_clusters(
     count, sum_x, sum_y, zmin = cluster_sums(p, lab, n_cl)
     cx = sum_x / np.maximum(count, 1)
     cy = sum_y / np.maximum(count, 1)
-    keep = (count > 0) & (count >= cfg.min_points(np.hypot(cx, cy))) & (zmin <= cfg.max_height_m)
+    size: np.ndarray = count
+    if point_weight is not None:
+        wt = np.asarray(point_weight, dtype=np.float64).reshape(-1)
+        if wt.shape != (len(p),) or not (np.isfinite(wt).all() and (wt >= 1.0).all()):
+            raise MessageError(
+                f"describe_clusters.point_weight: expected ({len(p)},) finite >= 1, got {wt.shape}"
+            )
+        size = np.bincount(lab, weights=wt, minlength=n_cl)
+    keep = (
+        (count >= cfg.min_points_floor)
+        & (size >= cfg.min_points(np.hypot(cx, cy)))
+        & (zmin <= cfg.max_height_m)
+    )
     kept = np.flatnonzero(keep)
     if len(kept) == 0:
         return _empty(D)

@@ -295,7 +295,18 @@ def detect_curb(
         # step has no ramp (its next bin is road) and keeps the boundary found above.
         start = occ[end]
         prev_h = float(low[k, start])
-        ramp = [start]
+        # The ramp may begin inside the raised chain: its upper part stands above step_min_m.
+        # Chain bins at the road-side end lower than the chain's top by more than toe_m are on
+        # the slope (a curb's face bin alone is one such bin: too few for a ramp line).
+        top = float(low[k, occ[: end + 1]].max())
+        tail = end
+        while (
+            tail > 0
+            and low[k, occ[tail - 1]] < top - cfg.toe_m
+            and low[k, occ[tail - 1]] >= low[k, occ[tail]]
+        ):
+            tail -= 1
+        ramp = [int(j) for j in occ[tail : end + 1]] if low[k, start] < top - cfg.toe_m else [start]
         cap = far_d[k, start] + cfg.max_toe_m
         road_from = math.inf  # the near edge of the first road-level bin beyond the chain
         for j in range(start + 1, min(n_bins, start + 1 + max_toe_bins)):
@@ -314,6 +325,10 @@ def detect_curb(
             x, y = far_d[k, ramp], low[k, ramp]
             slope = np.polyfit(x, y, 1)[0]
             if slope < -cfg.toe_m / cfg.max_toe_m:
+                # A bin called road level may still be up to toe_m above the road: on this slope
+                # the bare road can start up to toe_m / |slope| beyond it.
+                if math.isfinite(road_from):
+                    cap += cfg.toe_m / -slope
                 detected[k] = float(np.clip(x[-1] - y[-1] / slope, detected[k], max(cap, detected[k])))
         # Raised surface, nothing, then road: the edge lies somewhere in the unseen stretch (a
         # curb's face or a snow ramp a sparse ring skipped); such a slice votes only if too few

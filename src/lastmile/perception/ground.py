@@ -58,6 +58,14 @@ class AdaptiveGridConfig:
         prior_weight: regularisation pulling a cell's plane toward its prior (in squared-metre units
             of one point), so sparse cells cannot tilt wildly.
         iterations: refits with the shrinking window.
+        smooth_sigmas, smooth_floor_m: where a region's fitted surface is smooth, its tolerance
+            shrinks to ``max(smooth_floor_m, smooth_sigmas * rms)`` of the final fit's residuals
+            within the tolerance (never above the range-dependent one). The range-dependent
+            tolerance allows for the range noise, pitch error and beam divergence of a rough or
+            distant surface; on a smooth paved cell (residuals ~1 cm) it let a grazing ring's
+            returns off a goose's body 0.10-0.13 m up pass as ground. 4 sigma keeps the road's
+            own returns ground; the 0.10 m floor keeps road texture, ruts and a ring grazing a
+            bird's feet ground whatever the fit.
     """
 
     ring_edges_m: tuple[float, ...] = (0.0, 6.0, 12.0, 20.0, 30.0, 45.0, 65.0, 120.0)
@@ -74,6 +82,8 @@ class AdaptiveGridConfig:
     max_step_m: float = 0.5
     prior_weight: float = 4.0
     iterations: int = 2
+    smooth_sigmas: float = 4.0
+    smooth_floor_m: float = 0.10
 
     def __post_init__(self) -> None:
         e = self.ring_edges_m
@@ -94,6 +104,8 @@ class AdaptiveGridConfig:
             "max_below_m",
             "seed_band_m",
             "max_step_m",
+            "smooth_sigmas",
+            "smooth_floor_m",
         )
         for name in positive:
             v = getattr(self, name)
@@ -195,7 +207,12 @@ class AdaptiveGridGroundSegmenter:
                     cfg.max_below_m, cfg.seed_window_m, cfg.seed_band_m,
                 )  # fmt: skip
                 planes = _fit_planes(sums, prior.reshape(-1, 3), cfg)
-            ground[idx] = res <= tol[idx]
+            # Tolerance per region: the range-dependent one, tightened where the fit is smooth.
+            inlier = np.abs(res) <= window
+            n_in = np.bincount(region[inlier], minlength=2 * n_sec)
+            ss = np.bincount(region[inlier], weights=res[inlier] ** 2, minlength=2 * n_sec)
+            smooth = np.maximum(cfg.smooth_floor_m, cfg.smooth_sigmas * np.sqrt(ss / np.maximum(n_in, 1)))
+            ground[idx] = res <= np.minimum(window, smooth[region])
             prev_planes, prev_sectors = planes.reshape(n_sec, 2, 3), n_sec
         return ground
 

@@ -1,47 +1,25 @@
-"""The HD map's curb lines as a nearest-neighbour index, to tell curb returns from low obstacles.
+"""The HD map's curb lines near the vehicle, in its base frame: the prior of the curb-side stage.
 
-A curb face is a 0.10-0.20 m step: its returns clear the ground tolerance near the sensor and cluster
-like a low object lying along the kerb. Seen from a moving bus the visible stretch moves with it, so a
-tracker gives such a cluster the bus's own speed. A cluster that is low and lies on a mapped curb line
-is the curb; anything taller (a goose is 0.4 m) or off the curb line stays an object.
+The pipeline's curb-side stage (:mod:`lastmile.perception.snow_surface`) tells curb faces and snow
+lying along a curb from objects by where the map's curbs run; it needs every curb line near the
+bus (any side, not only the one the curb detector models) in the base frame of the cloud.
+:class:`MapCurbIndex` keeps each mapped curb as a polyline with vertices every
+``vertex_step_m`` and cuts out the stretches within reach of a pose.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
-from scipy.spatial import cKDTree
 
 from lastmile.core.errors import ConfigError, MessageError
+from lastmile.core.geometry import SE2
 from lastmile.hdmap.model import HDMap
 
 FloatArray = npt.NDArray[np.float64]
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class CurbReturnConfig:
-    """Attributes:
-    max_height_m: a cluster whose top is below this (base frame, road at z = 0) can be a curb
-        (curb 0.15 m plus a snow bank's rim and range noise).
-    max_distance_m: ...if its centre lies this close to a mapped curb line: the snow bank's 0.6 m
-        toe plus 0.3 m of map error (a ring grazing the bank toe 0.65 m from the curb gave a 2-point
-        cluster 15 m ahead in every sweep on a curve, which stopped the bus).
-    sample_step_m: spacing of the points the curb lines are sampled at.
-    """
-
-    max_height_m: float = 0.3
-    max_distance_m: float = 0.9
-    sample_step_m: float = 0.1
-
-    def __post_init__(self) -> None:
-        for name in ("max_height_m", "max_distance_m", "sample_step_m"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v > 0):
-                raise ConfigError(f"CurbReturnConfig.{name}: expected a positive number, got {v}")
 
 
 def sample_polylines(lines: Sequence[npt.ArrayLike], step_m: float, what: str) -> FloatArray:
@@ -65,23 +43,32 @@ def sample_polylines(lines: Sequence[npt.ArrayLike], step_m: float, what: str) -
 
 
 class MapCurbIndex:
-    """Every curb line of the map, sampled densely, in a KD-tree (map frame)."""
+    """Every curb line of the map with vertices every ``vertex_step_m`` (map frame).
 
-    def __init__(self, hdmap: HDMap, config: CurbReturnConfig | None = None) -> None:
-        self.config = config or CurbReturnConfig()
-        samples = sample_polylines([c.xy_m for c in hdmap.curbs], self.config.sample_step_m, "hdmap.curbs")
-        self._tree = cKDTree(samples) if len(samples) else None
+    Args:
+        hdmap: the map.
+        vertex_step_m: vertex spacing of the stored lines (the curb-side stage samples them
+            more finely itself; 2 m keeps a curve's shape within a few centimetres).
+    """
 
-    def distance_m(self, xy_map_m: npt.ArrayLike) -> FloatArray:
-        """(N,) distance from (N, 2) map-frame points to the nearest curb line (inf without curbs)."""
-        xy = np.asarray(xy_map_m, dtype=np.float64).reshape(-1, 2)
-        if self._tree is None or len(xy) == 0:
-            return np.full(len(xy), np.inf)
-        d, _ = self._tree.query(xy, k=1)
-        return np.asarray(d, dtype=np.float64)
+    def __init__(self, hdmap: HDMap, vertex_step_m: float = 2.0) -> None:
+        if not (math.isfinite(vertex_step_m) and vertex_step_m > 0):
+            raise ConfigError(f"MapCurbIndex.vertex_step_m: expected a positive number, got {vertex_step_m}")
+        self.lines: tuple[FloatArray, ...] = tuple(
+            np.asarray(c.sub(0.0, c.length_m, vertex_step_m), dtype=np.float64) for c in hdmap.curbs
+        )
 
-    def curb_returns(self, xy_map_m: npt.ArrayLike, z_max_m: npt.ArrayLike) -> np.ndarray:
-        """(N,) bool: clusters (centres in the map frame, tops in the base frame) that are curb returns."""
-        z = np.asarray(z_max_m, dtype=np.float64).reshape(-1)
-        near = self.distance_m(xy_map_m) <= self.config.max_distance_m
-        return near & (z < self.config.max_height_m)
+    def lines_near(self, map_from_base: SE2, reach_m: float = 45.0) -> list[FloatArray]:
+        """The stretches of every curb line with vertices within ``reach_m`` of the base origin,
+        each (M >= 2, 2) in the base frame (each stretch grown by one vertex at both ends, so the
+        segments crossing the reach stay whole)."""
+        to_base = map_from_base.inverse()
+        out: list[FloatArray] = []
+        for xy in self.lines:
+            near = np.hypot(xy[:, 0] - map_from_base.x_m, xy[:, 1] - map_from_base.y_m) <= reach_m
+            edges = np.flatnonzero(np.diff(np.r_[0, near.astype(np.int8), 0]))
+            for a, b in zip(edges[::2], edges[1::2], strict=True):
+                run = xy[max(a - 1, 0) : min(b + 1, len(xy))]
+                if len(run) >= 2:
+                    out.append(to_base.apply_points(run))
+        return out

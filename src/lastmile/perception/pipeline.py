@@ -28,6 +28,7 @@ from lastmile.perception.himmelsbach import HimmelsbachConfig
 from lastmile.perception.merge import MergedCloud, merge_sweeps
 from lastmile.perception.motion_compensation import PoseTrajectory
 from lastmile.perception.road_region import RoadMask
+from lastmile.perception.scan_density import return_weights, ring_spacing_from_points
 from lastmile.perception.snow_surface import SnowSurfaceConfig, drop_clusters, snow_surface_clusters
 from lastmile.perception.weather_filter import DrorConfig, azimuth_step_from_times, dror_keep_mask
 
@@ -64,6 +65,9 @@ class LidarPipelineConfig:
     cluster_eps_m: Euclidean clustering link length (DBSCAN eps with min_samples = 1).
     weather_filter: run DROR after ground removal (off only for ablations).
     snow_surface: the snow-surface test of clusters (applied when curb lines are given).
+    weight_by_unit_density: the cluster size filter counts each return by its LiDAR's angular
+        cell (column x ring spacing) relative to the densest unit's (:mod:`scan_density`), so a
+        sparse blind-spot unit's short row on a car end counts as the surface it covers.
     time_bin_us: de-skew time-bin width.
     """
 
@@ -77,6 +81,7 @@ class LidarPipelineConfig:
     geometry: ClusterGeometryConfig = field(default_factory=ClusterGeometryConfig)
     curb: CurbConfig = field(default_factory=CurbConfig)
     snow_surface: SnowSurfaceConfig = field(default_factory=SnowSurfaceConfig)
+    weight_by_unit_density: bool = True
     time_bin_us: int = 500
 
     def __post_init__(self) -> None:
@@ -199,15 +204,23 @@ class LidarPipeline:
         ms["ground"] = (t3 - t2) * 1e3
         ng = np.flatnonzero(~ground)
         noise = np.zeros(len(xyz), dtype=bool)
+        # Each unit's column spacing, read from its sweep's firing times (DROR's radius and the
+        # weight of its returns in the cluster size filter).
+        sweep_of = {s.sensor_id: s for s in sweeps}
+        steps = np.array([azimuth_step_from_times(sweep_of[sid].points[:, 5]) for sid in cloud.sensor_ids])
         if cfg.weather_filter and len(ng):
-            sweep_of = {s.sensor_id: s for s in sweeps}
             sensor = cloud.points[ng, 5].astype(np.int64)  # only the points DROR sees
             sensor_xy = _sensor_xy(cloud, base_from_sensor)[sensor]
-            scan = sensor * 1000 + cloud.points[ng, 4].astype(np.int64)
-            steps = np.array(
-                [azimuth_step_from_times(sweep_of[sid].points[:, 5]) for sid in cloud.sensor_ids]
+            ring = cloud.points[ng, 4].astype(np.int64)
+            scan = sensor * 1000 + ring
+            keep = dror_keep_mask(
+                np.take(xyz, ng, axis=0),
+                cfg.dror,
+                sensor_xy,
+                scan,
+                steps[sensor],
+                scan_grid=np.c_[sensor, ring],
             )
-            keep = dror_keep_mask(np.take(xyz, ng, axis=0), cfg.dror, sensor_xy, scan, steps[sensor])
             noise[ng[~keep]] = True
             ng = ng[keep]
         t4 = time.perf_counter()
@@ -235,8 +248,13 @@ class LidarPipeline:
         ms["clustering"] = (t6 - t5) * 1e3
         has = labels >= 0
         has_idx = np.flatnonzero(has)
+        weight = None
+        if cfg.weight_by_unit_density:
+            spacing = [ring_spacing_from_points(sweep_of[sid].points) for sid in cloud.sensor_ids]
+            weight = return_weights(np.maximum(steps, cfg.dror.azimuth_step_rad), spacing)
+            weight = weight[cloud.points[has_idx, 5].astype(np.int64)]
         clusters = describe_clusters(
-            np.take(xyz, has_idx, axis=0), cloud.points[has_idx, 3], labels[has_idx], cfg.geometry
+            np.take(xyz, has_idx, axis=0), cloud.points[has_idx, 3], labels[has_idx], cfg.geometry, weight
         )
         t7 = time.perf_counter()
         ms["cluster_geometry"] = (t7 - t6) * 1e3

@@ -1,22 +1,25 @@
-"""Snow lying along a curb, told from objects by height profile, reflectivity and the map's curbs.
+"""Curb-side surface told from objects by height profile, reflectivity and the map's curb lines.
 
-Ploughed snow lies on the lane edge beside every curb, up to curb height (~0.15 m) and sloping down
-to the road. Where the curb stage models that curb (the shuttle's right one) its snow is boundary
-surface and never reaches the clustering; the curb across the road is not modelled (its boundary,
-seen from the far lane, is poor: a second curb call made the false objects worse), so the snow
-lying along it stands out of the road plane and clusters like a low object.
+Two kinds of returns along every mapped curb stand out of the road plane and cluster like low
+objects, although they are the road's edge:
 
-Three properties of such a cluster, none of which an object on the road has all of:
+- **the curb face and sidewalk edge**: a 0.10-0.20 m step clears the ground tolerance near the
+  sensor; seen from a moving bus the visible stretch moves with it, so a tracker gives such a
+  cluster the bus's own speed. A cluster whose top is at most ``max_top_m`` and whose centre lies
+  within ``max_face_distance_m`` of a curb line is the curb (any intensity: a concrete face in
+  clear weather is as dim as a goose);
+- **snow lying along the curb**: ploughed snow covers the lane edge beside every curb, up to curb
+  height and sloping down to the road. Where the curb stage models that curb (the shuttle's right
+  one) its snow is boundary surface and never reaches the clustering; along the other curbs it
+  clusters like a low object, reaching farther from the curb line than a face does. A cluster is
+  such snow when all of: **low and flat** (top at most ``max_top_m``, points spanning at most
+  ``max_span_m`` in height: a goose is 0.4 m tall, a pedestrian 1.75 m); **bright** (fresh snow
+  reflects ~0.8 of a 905 nm beam against 0.1 for asphalt and 0.2-0.3 for cars, clothing and
+  feathers; at the grazing incidence of a ground return it still returns more than a goose does
+  head-on; aUToronto 6.2.2 uses intensity after clustering, as here); **on a curb line** (centre
+  within ``max_curb_distance_m``: snow cover plus bank is ~1.1 m wide).
 
-- **low and flat**: its top is at most ``max_top_m`` above the road and its points span at most
-  ``max_span_m`` in height (a goose is 0.4 m tall, a pedestrian 1.75 m);
-- **bright**: fresh snow reflects ~0.8 of a 905 nm beam against 0.1 for asphalt and 0.2-0.3 for
-  cars, clothing and feathers; at the grazing incidence of a ground return it still returns more
-  than a goose does head-on (aUToronto 6.2.2 uses intensity after clustering, as here);
-- **on a curb line**: its centre lies within ``max_curb_distance_m`` of one of the HD map's curbs
-  (snow cover plus bank is ~1.1 m wide; the map may be off by up to 0.3 m).
-
-A cluster with all three is snow surface: dropped from the objects, its points reported. Nothing is
+Clusters of either kind are dropped from the objects and their points reported. Nothing is
 learned; the thresholds are physical (heights, reflectivities, widths) and listed below.
 """
 
@@ -50,6 +53,11 @@ class SnowSurfaceConfig:
         pedestrians (0.25) can return more, but are neither low nor flat.
     max_curb_distance_m: ...and its centre lies this close to a mapped curb line (ploughed snow
         lies within 1.1 m of the curb: 0.5 m of lane cover plus the 0.6 m bank; plus margin).
+    max_face_distance_m: a cluster no higher than ``max_top_m`` whose centre lies this close to a
+        mapped curb line is the curb face or sidewalk edge, whatever its intensity or height span:
+        the snow bank's 0.6 m toe plus 0.3 m of map error (a ring grazing the bank toe 0.65 m from
+        the curb gave a 2-point cluster 15 m ahead in every sweep on a curve, which stopped the
+        bus).
     sample_step_m: spacing at which the curb polylines are sampled for the distance test.
     """
 
@@ -57,10 +65,18 @@ class SnowSurfaceConfig:
     max_span_m: float = 0.15
     min_mean_intensity: float = 52.0
     max_curb_distance_m: float = 1.2
+    max_face_distance_m: float = 0.9
     sample_step_m: float = 0.1
 
     def __post_init__(self) -> None:
-        for name in ("max_top_m", "max_span_m", "min_mean_intensity", "max_curb_distance_m", "sample_step_m"):
+        for name in (
+            "max_top_m",
+            "max_span_m",
+            "min_mean_intensity",
+            "max_curb_distance_m",
+            "max_face_distance_m",
+            "sample_step_m",
+        ):
             v = getattr(self, name)
             if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
                 raise ConfigError(f"SnowSurfaceConfig.{name}: expected a positive number, got {v!r}")
@@ -90,7 +106,8 @@ def curb_distance_m(
 def snow_surface_clusters(
     clusters: ClusterSet, curb_lines_xy_m: Sequence[npt.ArrayLike], config: SnowSurfaceConfig | None = None
 ) -> np.ndarray:
-    """(K,) bool: clusters that are snow lying along a curb (low, flat, bright, on a curb line).
+    """(K,) bool: clusters that are curb-side surface: a curb face or sidewalk edge (low, on a curb
+    line), or snow lying along a curb (low, flat, bright, beside a curb line).
 
     Args:
         clusters: the pipeline's clusters (base frame).
@@ -103,13 +120,16 @@ def snow_surface_clusters(
         return np.zeros(len(clusters), dtype=bool)
     top = clusters.col("z_max_m")
     span = top - clusters.col("z_min_m")
-    bright = clusters.col("mean_intensity") >= cfg.min_mean_intensity
-    shape = (top <= cfg.max_top_m) & (span <= cfg.max_span_m) & bright
+    low = top <= cfg.max_top_m
+    snow_like = low & (span <= cfg.max_span_m) & (clusters.col("mean_intensity") >= cfg.min_mean_intensity)
     out = np.zeros(len(clusters), dtype=bool)
-    if shape.any():
-        xy = np.c_[clusters.col("x_m"), clusters.col("y_m")][shape]
-        near = curb_distance_m(curb_lines_xy_m, xy, cfg.sample_step_m) <= cfg.max_curb_distance_m
-        out[np.flatnonzero(shape)[near]] = True
+    if low.any():
+        xy = np.c_[clusters.col("x_m"), clusters.col("y_m")][low]
+        dist = curb_distance_m(curb_lines_xy_m, xy, cfg.sample_step_m)
+        reach = np.where(
+            snow_like[low], max(cfg.max_curb_distance_m, cfg.max_face_distance_m), cfg.max_face_distance_m
+        )
+        out[np.flatnonzero(low)[dist <= reach]] = True
     return out
 
 

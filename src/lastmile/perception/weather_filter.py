@@ -10,6 +10,19 @@ firing order = azimuth order) already give it ``min_neighbours`` points inside i
 passes and skips the neighbour search; only the rest (ends of ring segments, sparse points: where
 snow lives) are searched, in a bucket grid of side ``r_max`` (compiled kernels in
 :mod:`lastmile.perception.dror_kernel`; the mask equals a KD-tree query's bit for bit).
+
+Scan pattern: the radius follows the horizontal column spacing, but a LiDAR's rings are often much
+farther apart (a 16-ring blind-spot unit: 3.3 deg against 0.4 deg columns), so an object seen by
+only one or two columns (a car's end glimpsed past the bus) is a vertical row of points one ring
+apart, each with fewer neighbours inside the radius than a flake among flakes. Given each point's
+LiDAR and ring (``scan_grid``), a point that fails is kept when the scan's own neighbourhood holds
+``scan_min_neighbours`` returns at its range: points of the same LiDAR on its ring or the
+``ring_reach`` rings either side, within the radius's angular width in azimuth (``multiplier``
+columns), whose horizontal range from the LiDAR differs from its own by at most its radius (and
+whose height one ring spacing per ring apart can reach). A flake's scan neighbours are the
+background behind it (a different range), so it still goes: precipitation echoes are scattered at
+random, and two more at the same range within a few columns and rings of one flake are rare (a few
+hundred echoes per sweep over 360 deg x 16-32 rings x ~10 m of range: ~1e-2 expected per flake).
 """
 
 from __future__ import annotations
@@ -44,14 +57,22 @@ class DrorConfig:
     min_radius_m: float = 0.1
     min_neighbours: int = 3
     max_range_m: float = 20.0
+    ring_reach: int = 2
+    scan_min_neighbours: int = 2
+    ring_spacing_rad: float = math.radians(3.4)
 
     def __post_init__(self) -> None:
-        for name in ("azimuth_step_rad", "multiplier", "min_radius_m", "max_range_m"):
+        for name in ("azimuth_step_rad", "multiplier", "min_radius_m", "max_range_m", "ring_spacing_rad"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise ConfigError(f"DrorConfig.{name}: expected a positive number, got {v}")
         if self.min_neighbours < 1:
             raise ConfigError(f"DrorConfig.min_neighbours: expected >= 1, got {self.min_neighbours}")
+        if self.ring_reach < 0 or self.scan_min_neighbours < 1:
+            raise ConfigError(
+                "DrorConfig: expected ring_reach >= 0 and scan_min_neighbours >= 1, got "
+                f"{self.ring_reach}, {self.scan_min_neighbours}"
+            )
 
 
 def dror_keep_mask(
@@ -60,6 +81,7 @@ def dror_keep_mask(
     sensor_xy_m: npt.ArrayLike | None = None,
     scan_key: npt.ArrayLike | None = None,
     azimuth_step_rad: npt.ArrayLike | None = None,
+    scan_grid: npt.ArrayLike | None = None,
 ) -> npt.NDArray[np.bool_]:
     """(N,) bool, True for points DROR keeps.
 
@@ -76,6 +98,11 @@ def dror_keep_mask(
             (:func:`azimuth_step_from_times`); a coarser unit gets a proportionally wider radius,
             or a blind-spot unit's sparser columns would lose thin objects with the snow. None:
             ``config.azimuth_step_rad`` for every point; given steps are floored at it.
+        scan_grid: (N, 2) int ``sensor, ring`` of each point, rings numbered in elevation order
+            (ring + 1 is the next beam up, as LiDAR drivers number them). When given, a point the
+            radius test removes is kept if its scan neighbourhood holds ``scan_min_neighbours`` points
+            at its range (module docstring; ``config.ring_reach``). Needs ``sensor_xy_m`` when the
+            LiDARs are not at the origin.
     """
     cfg = config or DrorConfig()
     p = np.asarray(xyz_m, dtype=np.float64).reshape(-1, 3)
@@ -113,7 +140,78 @@ def dror_keep_mask(
     r_max = float(radius[test].max())
     pool = np.flatnonzero(rng <= cfg.max_range_m + r_max)
     keep[test] = enough_neighbours(*cols, pool, test, radius, r_max, cfg.min_neighbours)
+    if scan_grid is not None and cfg.ring_reach > 0:
+        grid = np.asarray(scan_grid)
+        if grid.shape != (n, 2) or not np.issubdtype(grid.dtype, np.integer):
+            raise MessageError(
+                f"dror_keep_mask.scan_grid: expected ({n}, 2) int, got {grid.shape} {grid.dtype}"
+            )
+        failed = test[~keep[test]]
+        if len(failed):
+            width = radius / np.maximum(rng, 1e-9)  # the radius's angular width (multiplier columns)
+            count = _scan_neighbours(
+                grid,
+                np.arctan2(dy, dx),
+                rng,
+                p[:, 2],
+                radius,
+                width,
+                failed,
+                cfg.ring_reach,
+                cfg.ring_spacing_rad,
+            )
+            keep[failed] = count >= cfg.scan_min_neighbours
     return keep
+
+
+def _scan_neighbours(
+    grid: np.ndarray,
+    azimuth: np.ndarray,
+    rng: np.ndarray,
+    z: np.ndarray,
+    radius: np.ndarray,
+    width: np.ndarray,
+    query: np.ndarray,
+    ring_reach: int,
+    ring_spacing_rad: float,
+) -> np.ndarray:
+    """(Q,) for each ``query`` point: other points of its LiDAR within ``ring_reach`` rings, within
+    its angular ``width`` in azimuth (wrapping at +-pi), within its ``radius`` in range and at a
+    height one beam spacing per ring could reach."""
+    sensor = grid[:, 0].astype(np.int64)
+    ring = grid[:, 1].astype(np.int64)
+    n_rings = int(ring.max()) + 2 * ring_reach + 1
+    line = sensor * n_rings + ring  # rings of one sensor are consecutive line numbers
+    # Only the scan lines a query can reach are sorted: (line, azimuth) as one float key.
+    reach = np.unique((line[query][:, None] + np.arange(-ring_reach, ring_reach + 1)[None, :]).ravel())
+    pool = np.flatnonzero(np.isin(line, reach))
+    key = line[pool].astype(np.float64) * 10.0 + (azimuth[pool] + np.pi)
+    order = np.argsort(key)
+    pool, key = pool[order], key[order]
+    q_line = np.repeat(line[query], 2 * ring_reach + 1) + np.tile(
+        np.arange(-ring_reach, ring_reach + 1), len(query)
+    )
+    q_az = np.repeat(azimuth[query], 2 * ring_reach + 1) + np.pi
+    q_w = np.repeat(width[query], 2 * ring_reach + 1)
+    q_of = np.repeat(np.arange(len(query)), 2 * ring_reach + 1)
+    starts, stops, owners = [], [], []
+    for shift in (-2.0 * np.pi, 0.0, 2.0 * np.pi):  # azimuth windows across the +-pi seam
+        lo = np.clip(q_az - q_w + shift, 0.0, 2.0 * np.pi)
+        hi = np.clip(q_az + q_w + shift, 0.0, 2.0 * np.pi)
+        ok = hi > lo
+        base = q_line[ok].astype(np.float64) * 10.0
+        starts.append(np.searchsorted(key, base + lo[ok], side="left"))
+        stops.append(np.searchsorted(key, base + hi[ok], side="right"))
+        owners.append(q_of[ok])
+    start, stop, owner = np.concatenate(starts), np.concatenate(stops), np.concatenate(owners)
+    length = stop - start
+    who = np.repeat(owner, length)
+    cand = pool[np.repeat(start - np.cumsum(length) + length, length) + np.arange(int(length.sum()))]
+    me = query[who]
+    rings_apart = np.abs(ring[cand] - ring[me])
+    tall = rings_apart * rng[me] * math.tan(ring_spacing_rad) + radius[me]
+    near = (cand != me) & (np.abs(rng[cand] - rng[me]) <= radius[me]) & (np.abs(z[cand] - z[me]) <= tall)
+    return np.bincount(who[near], minlength=len(query))
 
 
 def azimuth_step_from_times(t_offset_us: npt.ArrayLike) -> float:

@@ -4,10 +4,11 @@ Per revolution of the LiDAR rig (one sweep of every unit, stamped alike):
 
 1. de-skew with the localization's own pose history (``PoseEkf.estimate`` at the sweep's times),
    merge, ground, weather filter, clustering and curbs (:class:`perception.LidarPipeline`), with the
-   HD map's road region and the map's right curb along the route as priors;
-2. clusters that are low and lie on a mapped curb line are the curb face, not objects
-   (:mod:`lastmile.perception.map_curbs`);
-   WATonoBus late fusion (:func:`perception.late_fusion.fuse_objects`): the newest radar frames,
+   HD map's road region, the map's right curb along the route and every mapped curb line within
+   ``curb_lines_reach_m`` as priors (the pipeline's curb-side stage: clusters that are low and lie
+   on a curb line are the curb face, low, flat, bright ones beside one snow lying along the curb,
+   not objects; :mod:`lastmile.perception.snow_surface`);
+2. WATonoBus late fusion (:func:`perception.late_fusion.fuse_objects`): the newest radar frames,
    brought to the cloud's instant through the pose history, give velocities; the newest camera boxes
    give classes;
 3. aUToTrack (:class:`tracking.autotrack.AutoTrack`) in the map frame, with radar Doppler where fused;
@@ -41,7 +42,7 @@ from lastmile.hdmap.layers import SLayerDatabase
 from lastmile.localization.ekf import LocalizationEstimate
 from lastmile.perception.camera_geometry import PinholeCamera
 from lastmile.perception.late_fusion import LateFusionConfig, fuse_objects
-from lastmile.perception.map_curbs import CurbReturnConfig, MapCurbIndex
+from lastmile.perception.map_curbs import MapCurbIndex
 from lastmile.perception.motion_compensation import PoseTrajectory
 from lastmile.perception.pipeline import LidarPipeline, LidarPipelineConfig, LidarPipelineResult
 from lastmile.perception.road_region import MapRoadRegion
@@ -70,20 +71,20 @@ class RawPerceptionConfig:
     """Attributes:
     pipeline: the LiDAR chain.
     fusion: radar and camera association.
-    curb_returns: which clusters are returns of a mapped curb face, not objects.
     tracker: aUToTrack.
     set_timeout_us: a rig frame missing a unit's sweep is processed this long after its first sweep.
     pose_step_us: spacing of the poses the de-skew interpolates.
     radar_max_age_us, camera_max_age_us: older radar frames / camera boxes are not fused.
     curb_behind_m, curb_ahead_m: stretch of the map's right curb (along the route) given as prior.
     curb_vertex_step_m: vertex spacing of that prior (the curb search costs O(points x vertices)).
+    curb_lines_reach_m: mapped curb lines (any side) within this of the shuttle are given to the
+        pipeline's curb-side stage (the LiDAR crop reaches 30 m to the side, 60 m ahead).
     scenery_speed_mps: an off-road, unclassified track slower than this is scenery (not published).
     scenery_min_age_s: ...once it is this old (a new track's velocity is not yet known).
     """
 
     pipeline: LidarPipelineConfig = field(default_factory=LidarPipelineConfig)
     fusion: LateFusionConfig = field(default_factory=LateFusionConfig)
-    curb_returns: CurbReturnConfig = field(default_factory=CurbReturnConfig)
     tracker: AutoTrackConfig = field(default_factory=stack_tracker_config)
     set_timeout_us: int = 60_000
     pose_step_us: int = 10_000
@@ -92,6 +93,7 @@ class RawPerceptionConfig:
     curb_behind_m: float = 5.0
     curb_ahead_m: float = 35.0
     curb_vertex_step_m: float = 2.5
+    curb_lines_reach_m: float = 45.0
     scenery_speed_mps: float = 0.5
     scenery_min_age_s: float = 0.5
 
@@ -103,7 +105,13 @@ class RawPerceptionConfig:
             raise ConfigError(
                 f"RawPerceptionConfig.curb_vertex_step_m: expected 0.1..10 m, got {self.curb_vertex_step_m}"
             )
-        for name in ("curb_behind_m", "curb_ahead_m", "scenery_speed_mps", "scenery_min_age_s"):
+        for name in (
+            "curb_behind_m",
+            "curb_ahead_m",
+            "scenery_speed_mps",
+            "scenery_min_age_s",
+            "curb_lines_reach_m",
+        ):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0.0):
                 raise ConfigError(f"RawPerceptionConfig.{name}: expected a finite value >= 0, got {v}")
@@ -156,7 +164,7 @@ class RawPerception:
         self.radar_mounts = dict(radar_mounts)
         self.pipeline = LidarPipeline(config.pipeline)
         self.road = MapRoadRegion(layers.hdmap)
-        self.curbs = MapCurbIndex(layers.hdmap, config.curb_returns)
+        self.curbs = MapCurbIndex(layers.hdmap)
         self.tracker = AutoTrack(config.tracker)
         self.stats = RawPerceptionStats()
         self.last_result: LidarPipelineResult | None = None
@@ -256,10 +264,12 @@ class RawPerception:
             trajectory,
             self.road.mask_for(map_from_base),
             self._map_curb_in_base(map_from_base, route_s_m),
+            self.curbs.lines_near(map_from_base, self.config.curb_lines_reach_m),
         )
         self.last_result = result
         self.stats.rig_frames += 1
         self.stats.clusters += len(result.clusters.table)
+        self.stats.curb_returns += len(np.unique(result.labels[result.snow_surface]))
         if result.curb is not None and result.curb.valid:
             self.stats.curb_valid += 1
             self.stats.curb_offsets_m.append(float(np.median(result.curb.offset_m)))
@@ -282,10 +292,8 @@ class RawPerception:
         fused = fuse_objects(
             ref, result.clusters, radar, mounts, self.cameras, cams, map_from_base, self.config.fusion
         )
-        curb = self.curbs.curb_returns(fused.objects.table[:, 0:2], fused.z_max_m)
-        self.stats.curb_returns += int(curb.sum())
-        o = fused.objects.table[~curb]
-        z_lo, z_hi = fused.z_min_m[~curb], fused.z_max_m[~curb]
+        o = fused.objects.table
+        z_lo, z_hi = fused.z_min_m, fused.z_max_m
         height = np.maximum(z_hi - z_lo, 0.1)
         boxes = np.column_stack([o[:, 0], o[:, 1], (z_lo + z_hi) / 2.0, o[:, 4], o[:, 5], height, o[:, 6]])
         self.tracker.update(
@@ -297,7 +305,7 @@ class RawPerception:
                 class_id=o[:, 7].astype(np.int64),
                 score=o[:, 8],
                 velocity_mps=o[:, 2:4],
-                has_velocity=fused.radar_matched[~curb],
+                has_velocity=fused.radar_matched,
                 attributes=np.zeros((len(o), 0)),
             )
         )
