@@ -60,7 +60,7 @@ DEFAULT_TRACK_SCORE = "mean"
 """The benchmark's track score (see the tracking README for how it was decided)."""
 CV_SCHEMES = {"2fold": two_folds, "loso": leave_one_out}
 """2fold: 0000-0005 and 0007-0020 (the scheme of the issue's first measurements); loso: leave one
-sequence out (ten folds, about five times the evaluation cost)."""
+sequence out (ten pools of nine sequences: about nine times the evaluation cost)."""
 REFERENCE = {  # the issue's AB3DMOT numbers on these ten sequences (standard evaluator, 3D IoU 0.25)
     "Car": {"samota": 0.8775, "mota": 0.7833, "id_switches": 0},
     "Pedestrian": {"samota": 0.5730, "mota": 0.5961, "id_switches": 1},
