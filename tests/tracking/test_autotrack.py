@@ -133,6 +133,35 @@ def test_doubtful_detections_are_published_only_once_their_summed_scores_reach_b
     assert len(default.tracks(Stamp(0))) == 1
 
 
+def test_track_score_reports_last_detection_summed_evidence_or_shrunk_mean() -> None:
+    scores = (2.0, 4.0, 0.5)
+
+    def published(mode: str) -> float:
+        tr = AutoTrack(replace(_config(t_birth_s=0.0), track_score=mode))
+        for k, s in enumerate(scores):
+            tr.update(_msg(0.1 * k, [(10.0, 0.0)], score=s))
+        out = tr.tracks(Stamp(200_000))
+        assert len(out) == 1
+        return float(out.score[0])
+
+    assert published("last") == 0.5
+    assert published("evidence") == pytest.approx(6.5)
+    assert published("mean") == pytest.approx(6.5 / 4.0)  # three detections and one at even odds
+    # Evidence ranks a long run of modest detections above a short burst of a high one, which "last"
+    # and a plain mean would not.
+    long_run = AutoTrack(replace(_config(t_birth_s=0.0), track_score="evidence"))
+    burst = AutoTrack(replace(_config(t_birth_s=0.0), track_score="evidence"))
+    for k in range(10):
+        long_run.update(_msg(0.1 * k, [(10.0, 0.0)], score=1.0))
+    burst.update(_msg(0.8, [(10.0, 0.0)], score=4.0))
+    burst.update(_msg(0.9, [(10.0, 0.0)], score=4.0))
+    assert long_run.tracks(Stamp(900_000)).score[0] > burst.tracks(Stamp(900_000)).score[0]
+    # The coasting penalty applies on top in every mode.
+    tr = AutoTrack(replace(_config(t_birth_s=0.0, t_expire_s=0.3, t_prune_s=0.5), track_score="evidence"))
+    tr.update(_msg(0.0, [(10.0, 0.0)], score=2.0))
+    assert tr.tracks(Stamp(200_000)).score[0] == pytest.approx(2.0 - 0.2 * 5.0)
+
+
 def test_radar_doppler_velocity_sets_the_track_velocity_at_once() -> None:
     tr = AutoTrack(_config(t_birth_s=0.0))
     tr.update(_msg(0.0, [(10.0, 0.0)], velocity=[(3.0, -1.0)]))
@@ -236,3 +265,5 @@ def test_bad_messages_and_configs_are_refused() -> None:
         ClassParams(t_expire_s=1.0, t_prune_s=0.5)
     with pytest.raises(ConfigError, match="missing"):
         AutoTrackConfig(classes={CAR: ClassParams()})
+    with pytest.raises(ConfigError, match=r"track_score.*'median'"):
+        AutoTrackConfig(track_score="median")

@@ -59,6 +59,8 @@ from lastmile.tracking.published_ids import PublishedIds
 __all__ = ["AutoTrack", "AutoTrackConfig", "ClassParams", "default_class_params"]
 
 _US = 1e-6
+SCORE_PRIOR_DETECTIONS = 1.0
+"""Weight, in detections, of the even-odds prior in the ``"mean"`` track score (fixed, not tuned)."""
 
 
 @dataclass(slots=True)
@@ -77,6 +79,7 @@ class _Tracks:
     class_prob: np.ndarray
     score: np.ndarray
     evidence: np.ndarray  # sum of the scores of the track's detections
+    n_detections: np.ndarray  # how many detections the track has had
     attributes: np.ndarray
     birth_source: np.ndarray  # code of the source whose detection started the track
     birth_index: np.ndarray  # that detection's row in its message
@@ -98,6 +101,7 @@ class _Tracks:
             class_prob=np.zeros((0, N_CLASSES)),
             score=np.zeros(0),
             evidence=np.zeros(0),
+            n_detections=np.zeros(0, np.int64),
             attributes=np.zeros((0, n_attributes)),
             birth_source=np.zeros(0, np.int64),
             birth_index=np.zeros(0, np.int64),
@@ -319,6 +323,7 @@ class AutoTrack:
         t.class_prob[ti] = hmm_update(t.class_prob[ti], cls, cfg.hmm.lidar_accuracy, cfg.hmm.switch_prob)
         t.score[ti] = msg.score[di]
         t.evidence[ti] += msg.score[di]
+        t.n_detections[ti] += 1
         t.attributes[ti] = msg.attributes[di]
         t.last_det_us[ti] = int(msg.stamp)
 
@@ -364,6 +369,7 @@ class AutoTrack:
             class_prob=initial_prob(cls, cfg.hmm.lidar_accuracy),
             score=msg.score[di].astype(np.float64),
             evidence=msg.score[di].astype(np.float64),
+            n_detections=np.ones(n, np.int64),
             attributes=msg.attributes[di].copy(),
             birth_source=np.full(n, self._source_code(msg.source), np.int64),
             birth_index=di.astype(np.int64),
@@ -454,6 +460,19 @@ class AutoTrack:
         )  # fmt: skip
         return np.column_stack([x[:, 0:3], t.size, x[:, 3]])
 
+    def _track_score(self, sel: np.ndarray) -> np.ndarray:
+        """Confidence of the tracks ``sel`` before the coasting penalty (``AutoTrackConfig.track_score``)."""
+        t = self._t
+        mode = self.config.track_score
+        if mode == "last":
+            return t.score[sel]
+        if mode == "evidence":
+            return t.evidence[sel]
+        # "mean": the detections' mean score shrunk towards the prior (log-odds 0, even odds) with the
+        # weight of SCORE_PRIOR_DETECTIONS detections, so a track of one or two detections cannot rank
+        # above a long run of the same scores.
+        return t.evidence[sel] / (t.n_detections[sel] + SCORE_PRIOR_DETECTIONS)
+
     def tracks(self, stamp: Stamp) -> TrackedBoxes:
         """Full tracks predicted to ``stamp`` (the tracker's state is not changed)."""
         t = self._t
@@ -485,7 +504,7 @@ class AutoTrack:
             table=table.reshape(-1, len(TRACK_BOX_COLUMNS)),
             class_id=cls,
             class_prob=t.class_prob[sel],
-            score=t.score[sel] - self.config.coast_score_penalty_per_s * np.maximum(since, 0.0),
+            score=self._track_score(sel) - self.config.coast_score_penalty_per_s * np.maximum(since, 0.0),
             updated=since == 0.0,
             attributes=t.attributes[sel],
         )

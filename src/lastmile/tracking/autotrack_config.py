@@ -99,6 +99,10 @@ def default_class_params() -> dict[int, ClassParams]:
     }
 
 
+TRACK_SCORES = ("last", "evidence", "mean")
+"""Choices of ``AutoTrackConfig.track_score``."""
+
+
 @dataclass(frozen=True, slots=True, kw_only=True)
 class AutoTrackConfig:
     """Tracker parameters (per-class ones in ``classes``, keyed by :class:`ObjectClass` value).
@@ -109,6 +113,10 @@ class AutoTrackConfig:
         hmm: class HMM.
         size_gain: weight of a new detection in the box size (exponential average), 0..1.
         radar_velocity_std_mps: noise of a radar Doppler velocity (over ground, per axis).
+        track_score: what a published track's ``score`` is (before the coasting penalty): ``"last"``, its
+            latest detection's score; ``"evidence"``, the sum of its detections' scores (read as
+            log-odds of existence, the accumulated evidence, as ``birth_min_evidence`` reads them);
+            ``"mean"``, their mean shrunk towards log-odds 0 by one prior detection.
         coast_score_penalty_per_s: a coasting full track's score drops by this per second undetected.
         rollback_window_s: how far back states are kept for replaying late messages.
         source_timeout_s: a source (sensor) silent for longer no longer holds back demotion and
@@ -121,6 +129,7 @@ class AutoTrackConfig:
     hmm: ClassHmmConfig = field(default_factory=ClassHmmConfig)
     size_gain: float = 0.3
     radar_velocity_std_mps: float = 0.3
+    track_score: str = "last"
     coast_score_penalty_per_s: float = 5.0
     rollback_window_s: float = 2.0
     source_timeout_s: float = 0.5
@@ -131,6 +140,10 @@ class AutoTrackConfig:
         if missing:
             raise ConfigError(
                 f"AutoTrackConfig.classes: expected an entry for every ObjectClass, missing {missing}"
+            )
+        if self.track_score not in TRACK_SCORES:
+            raise ConfigError(
+                f"AutoTrackConfig.track_score: expected one of {TRACK_SCORES}, got {self.track_score!r}"
             )
         if not 0.0 < self.size_gain <= 1.0:
             raise ConfigError(f"AutoTrackConfig.size_gain: expected in (0, 1], got {self.size_gain}")

@@ -1,0 +1,122 @@
+"""Cross-validation over KITTI sequences: every sequence tracked with parameters chosen without its labels.
+
+Given the results of several tracker candidates on every sequence, each fold's held-out sequences get,
+per class, the results of the candidate that scores best on the *other* sequences, pooled (one KITTI 3D
+MOT evaluation over all training sequences together, as the benchmark scores). The held-out labels are
+never read while choosing (``tests/tracking/test_kitti_cv.py`` changes them and gets the same choice).
+
+Ranking: sAMOTA first; ties broken by AMOTA, then MOTA (NaN, a class absent from the training
+sequences, ranks last). sAMOTA is clipped at 0 per recall point, so a training pool whose false
+positives outnumber its labelled objects scores 0 for every candidate; without the tie-break the choice
+there would be the grid's first candidate, i.e. arbitrary. AMOTA is the same sweep unclipped.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from lastmile.core.errors import ConfigError
+from lastmile.evaluation.kitti_io import KittiRows
+from lastmile.evaluation.kitti_mot import ClassResult, evaluate_class
+
+
+def selection_key(result: ClassResult) -> tuple[float, float, float]:
+    """Sort key of a candidate's pooled training score (larger is better; NaN ranks last)."""
+    return tuple(v if math.isfinite(v) else -math.inf for v in (result.samota, result.amota, result.mota))  # type: ignore[return-value]
+
+
+def two_folds(sequences: Sequence[str]) -> list[tuple[str, ...]]:
+    """The first half of ``sequences`` and the second half (the held-out sets of a 2-fold CV)."""
+    half = (len(sequences) + 1) // 2
+    return [tuple(sequences[:half]), tuple(sequences[half:])]
+
+
+def leave_one_out(sequences: Sequence[str]) -> list[tuple[str, ...]]:
+    """One held-out set per sequence."""
+    return [(s,) for s in sequences]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class CrossValidation:
+    """Held-out results and what was chosen.
+
+    Attributes:
+        held_out: per sequence, the rows of every class from the candidate chosen for its fold.
+        chosen: per fold (its held-out sequences joined by ","), per class, the chosen candidate's name.
+        training_scores: per fold, per class, per candidate, ``selection_key`` on the training pool.
+    """
+
+    held_out: dict[str, KittiRows]
+    chosen: dict[str, dict[str, str]]
+    training_scores: dict[str, dict[str, dict[str, tuple[float, float, float]]]]
+
+
+def _class_rows(rows: KittiRows, cls: str) -> KittiRows:
+    return rows.select(np.array([str(t) == cls for t in rows.obj_type], dtype=bool))
+
+
+def _concat(parts: list[KittiRows]) -> KittiRows:
+    if not parts:
+        return KittiRows.empty()
+    return KittiRows(**{f: np.concatenate([getattr(p, f) for p in parts]) for f in KittiRows.__slots__})
+
+
+def cross_validate(
+    runs: Mapping[str, Mapping[str, KittiRows]],
+    labels: Mapping[str, KittiRows],
+    folds: Sequence[Sequence[str]],
+    classes: Sequence[str],
+    n_frames: Mapping[str, int],
+) -> CrossValidation:
+    """Choose a candidate per fold and class on the other folds' labels; return the held-out results.
+
+    Args:
+        runs: per candidate name, per sequence, the tracker's results (all classes).
+        labels: per sequence, the labels.
+        folds: the held-out sets; together they must cover every labelled sequence exactly once.
+        classes: KITTI class names to choose for ("Car", "Pedestrian", "Cyclist").
+        n_frames: frames per sequence.
+
+    Raises:
+        ConfigError: no candidate, folds that do not partition the labelled sequences, or a candidate
+            missing a sequence.
+    """
+    if not runs:
+        raise ConfigError("cross_validate: expected at least one candidate, got none")
+    seqs = list(labels)
+    flat = [s for f in folds for s in f]
+    if sorted(flat) != sorted(seqs):
+        raise ConfigError(
+            "cross_validate: expected folds partitioning the sequences "
+            f"{sorted(seqs)}, got {list(map(list, folds))}"
+        )
+    for name, per_seq in runs.items():
+        missing = [s for s in seqs if s not in per_seq]
+        if missing:
+            raise ConfigError(f"cross_validate: candidate {name!r} has no results for sequences {missing}")
+    held: dict[str, list[KittiRows]] = {s: [] for s in seqs}
+    chosen: dict[str, dict[str, str]] = {}
+    scores: dict[str, dict[str, dict[str, tuple[float, float, float]]]] = {}
+    for test in folds:
+        train = [s for s in seqs if s not in test]
+        key = ",".join(test)
+        chosen[key], scores[key] = {}, {}
+        train_labels = {s: labels[s] for s in train}  # the only labels this fold reads
+        for cls in classes:
+            per_cand = {
+                name: selection_key(
+                    evaluate_class(train_labels, {s: r[s] for s in train}, cls, n_frames=dict(n_frames))
+                )
+                for name, r in runs.items()
+            }
+            best = max(per_cand, key=lambda n: per_cand[n])  # first of equals: the grid's order
+            chosen[key][cls], scores[key][cls] = best, per_cand
+            for s in test:
+                held[s].append(_class_rows(runs[best][s], cls))
+    return CrossValidation(
+        held_out={s: _concat(p) for s, p in held.items()}, chosen=chosen, training_scores=scores
+    )
