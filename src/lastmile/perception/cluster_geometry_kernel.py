@@ -13,6 +13,16 @@ import numpy as np
 from numba import njit
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _extend_box(
+    c: float, s: float, px: float, py: float, u0: float, u1: float, v0: float, v1: float
+) -> tuple[float, float, float, float]:
+    """The box ``u0 u1 v0 v1`` along axes u = (c, s), v = (-s, c) grown to take the point (px, py)."""
+    u = c * px + s * py
+    v = -s * px + c * py
+    return min(u0, u), max(u1, u), min(v0, v), max(v1, v)
+
+
 @njit(cache=True, nogil=True)
 def _support(
     x: np.ndarray,
@@ -114,11 +124,7 @@ def calipers_pick(hull_x: np.ndarray, hull_y: np.ndarray, c: np.ndarray, s: np.n
             ce, se = c[k, e], s[k, e]
             u0, u1, v0, v1 = np.inf, -np.inf, np.inf, -np.inf
             for d in range(D):
-                hx, hy = hull_x[k, d], hull_y[k, d]
-                u = ce * hx + se * hy
-                v = -se * hx + ce * hy
-                u0, u1 = min(u0, u), max(u1, u)
-                v0, v1 = min(v0, v), max(v1, v)
+                u0, u1, v0, v1 = _extend_box(ce, se, hull_x[k, d], hull_y[k, d], u0, u1, v0, v1)
             area = (u1 - u0) * (v1 - v0)
             if area < best:
                 best = area
@@ -155,10 +161,9 @@ def refine_pick(
                 continue
             px, py = x[i], y[i]
             for a in range(A):
-                u = ca[k, a] * px + sa[k, a] * py
-                v = -sa[k, a] * px + ca[k, a] * py
-                u0[a], u1[a] = min(u0[a], u), max(u1[a], u)
-                v0[a], v1[a] = min(v0[a], v), max(v1[a], v)
+                u0[a], u1[a], v0[a], v1[a] = _extend_box(
+                    ca[k, a], sa[k, a], px, py, u0[a], u1[a], v0[a], v1[a]
+                )
         best = np.inf
         arg = 0
         for a in range(A):
@@ -182,10 +187,7 @@ def box_extents(
         c, s = ck[k], sk[k]
         u0, u1, v0, v1 = np.inf, -np.inf, np.inf, -np.inf
         for i in range(starts[k], starts[k] + counts[k]):
-            u = c * x[i] + s * y[i]
-            v = -s * x[i] + c * y[i]
-            u0, u1 = min(u0, u), max(u1, u)
-            v0, v1 = min(v0, v), max(v1, v)
+            u0, u1, v0, v1 = _extend_box(c, s, x[i], y[i], u0, u1, v0, v1)
         out[k, 0], out[k, 1], out[k, 2], out[k, 3] = u0, u1, v0, v1
     return out
 
