@@ -262,6 +262,7 @@ class BehaviourStateMachine:
         towards it fast enough to get there before the shuttle has cleared it."""
         out: list[_Constraint] = []
         c = self.config
+        to_crossing = self._to_crosswalk(predictions)
         for rc in self.layers.crosswalks:
             ahead = self._ahead(rc.s_start_m, front_s)
             if ahead > 40.0 or (ahead < -0.5 and self._ahead(rc.s_end_m, front_s) < 0):
@@ -279,24 +280,26 @@ class BehaviourStateMachine:
                 ahead_xy = [(row[0] + row[2] * t, row[1] + row[3] * t) for t in steps_s]
                 # Either future counts: the heading now, or the map's guess that the person is making
                 # for this crossing (who may turn towards it, or hurry up to cross).
-                ahead_xy += self._to_crosswalk(predictions, int(tid), horizon_s)
+                path = to_crossing.get(int(tid))
+                if path is not None:
+                    ahead_xy += [(x, y) for t, x, y in path.tolist() if t <= horizon_s + 1e-9]
                 if any(_near_polygon(x, y, poly, c.crosswalk_margin_m) for x, y in ahead_xy):
                     out.append(_Constraint(rc.s_start_m - 1.0, "crosswalk", int(tid), emergency_ok=False))
                     break
         return out
 
     @staticmethod
-    def _to_crosswalk(
-        predictions: PredictedPaths | None, track_id: int, horizon_s: float
-    ) -> list[tuple[float, float]]:
-        """Predicted positions within ``horizon_s`` of a track that the prediction sends to a crossing."""
+    def _to_crosswalk(predictions: PredictedPaths | None) -> dict[int, np.ndarray]:
+        """Track id -> (T, 3) rows ``t x y`` of the paths the prediction sends to a crossing."""
         if predictions is None:
-            return []
-        rows = np.flatnonzero(predictions.ids == track_id)
-        if len(rows) == 0 or PREDICTION_MODES[int(predictions.mode[rows[0]])] != "to_crosswalk":
-            return []
-        within = predictions.times_s <= horizon_s + 1e-9
-        return [(float(x), float(y)) for x, y in predictions.xy_m[rows[0], within]]
+            return {}
+        cross = PREDICTION_MODES.index("to_crosswalk")
+        t = predictions.times_s[:, None]
+        return {
+            int(tid): np.hstack([t, xy])
+            for tid, mode, xy in zip(predictions.ids, predictions.mode, predictions.xy_m, strict=True)
+            if int(mode) == cross
+        }
 
     # --- states ---------------------------------------------------------------------------------
     def _intersection(
