@@ -10,7 +10,16 @@ import pytest
 
 from lastmile.core.errors import ConfigError, MessageError
 from lastmile.evaluation.kitti_io import KittiRows, read_detections, read_labels, write_results
-from lastmile.evaluation.kitti_mot import ProtocolConfig, _switches, _thresholds, evaluate_class
+from lastmile.evaluation.kitti_mot import (
+    ROW_FALSE,
+    ROW_MATCHED,
+    ROW_NOT_SCORED,
+    ProtocolConfig,
+    _switches,
+    _thresholds,
+    evaluate_class,
+    row_outcomes,
+)
 
 
 def _rows(entries: list[tuple], with_score: bool = True) -> KittiRows:
@@ -132,6 +141,36 @@ def test_dontcare_small_and_neighbour_class_outputs_are_ignored_not_false_positi
     r = evaluate_class({"s": gt}, {"s": res}, "Car")
     assert (r.fp, r.fn, r.n_gt) == (0, 0, 1)
     assert r.mota == 1.0
+
+
+def test_row_outcomes_say_which_rows_the_protocol_counts_as_true_false_or_not_at_all() -> None:
+    dc_box = (500.0, 100.0, 600.0, 200.0)
+    gt = _rows(
+        [
+            (0, 0, "Car", 0.0, 10.0, 0.0),
+            (0, -1, "DontCare", 0.0, 0.0, 0.0, 0.0, 0, dc_box),
+            (1, 0, "Car", 0.0, 10.0, 0.0),
+            (1, 3, "Van", 9.0, 30.0, 0.0),
+        ]
+    )
+    res = _rows(
+        [
+            (1, 1, "Car", 0.0, 10.0, 2.0),  # matched (rows need not be in frame order)
+            (1, 6, "Car", 9.0, 30.0, 2.0),  # on the van: a true positive the evaluator does not count missed
+            (0, 1, "Car", 0.0, 10.0, 2.0),  # matched
+            (0, 2, "Car", -9.0, 50.0, 2.0, 0, 0, (510.0, 110.0, 590.0, 190.0)),  # inside DontCare
+            (0, 3, "Car", 9.0, 40.0, 2.0),  # nothing there: a false positive
+            (0, 4, "Pedestrian", 0.0, 10.0, 2.0),  # another class
+            (1, 5, "Car", 0.0, 10.0, 2.0),  # the car's second track in frame 1: Hungarian leaves it false
+            (2, 1, "Car", 0.0, 10.0, 2.0),  # beyond n_frames
+        ]
+    )
+    out = row_outcomes(gt, res, "Car", n_frames=2)
+    m, f, n = ROW_MATCHED, ROW_FALSE, ROW_NOT_SCORED
+    np.testing.assert_array_equal(out, [m, m, m, n, f, n, f, n])
+    # The counts agree with the evaluator's at its no-threshold pass.
+    r = evaluate_class({"s": gt}, {"s": res}, "Car", n_frames={"s": 2})
+    assert (r.tp, r.fp) == (int(np.sum(out == m)), int(np.sum(out == f)))
 
 
 def test_truncated_and_occluded_ground_truth_is_not_a_miss() -> None:

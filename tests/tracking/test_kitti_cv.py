@@ -11,24 +11,13 @@ from lastmile.core.errors import ConfigError
 from lastmile.evaluation.kitti_io import KittiRows
 from lastmile.evaluation.kitti_mot import ClassResult
 from lastmile.runner.kitti_cv import cross_validate, leave_one_out, selection_key, two_folds
+from tests.tracking.kitti_car import car_rows
 
 FRAMES = 30
 
 
 def _car(x: float, track_id: int, score: float = 5.0) -> KittiRows:
-    """One car at lateral offset ``x`` m, 15 m ahead, in every frame."""
-    n = FRAMES
-    return KittiRows(
-        frame=np.arange(n, dtype=np.int64),
-        track_id=np.full(n, track_id, np.int64),
-        obj_type=np.full(n, "Car", dtype=object),
-        truncation=np.zeros(n),
-        occlusion=np.zeros(n, np.int64),
-        alpha_rad=np.zeros(n),
-        image_box=np.tile([100.0, 100.0, 200.0, 200.0], (n, 1)),
-        camera_box=np.tile([1.5, 1.6, 3.9, x, 1.7, 15.0, -np.pi / 2], (n, 1)),
-        score=np.full(n, score),
-    )
+    return car_rows(x, track_id, score, FRAMES)
 
 
 SEQS = ("a", "b", "c")

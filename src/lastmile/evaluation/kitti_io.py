@@ -14,6 +14,7 @@ as z-up boxes (:mod:`lastmile.core.box3d`).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -71,6 +72,13 @@ class KittiRows:
             camera_box=np.zeros((0, 7)),
             score=np.zeros(0),
         )
+
+    @staticmethod
+    def concat(parts: Sequence[KittiRows]) -> KittiRows:
+        """``parts``' rows one after the other (no parts: empty rows)."""
+        if not parts:
+            return KittiRows.empty()
+        return KittiRows(**{f: np.concatenate([getattr(p, f) for p in parts]) for f in KittiRows.__slots__})
 
     def boxes(self) -> np.ndarray:
         """The 3D boxes as z-up rows of :data:`lastmile.core.box3d.BOX3D_COLUMNS`."""

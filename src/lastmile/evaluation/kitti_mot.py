@@ -76,6 +76,7 @@ class _Sequence:
     row_score: np.ndarray  # (R,) the rows' scores as the reference holds them at the current pass
     track_rows: list[np.ndarray]  # rows of each track, in frame order
     valid: np.ndarray  # (R,) matched in some earlier pass (reference quirk, see module docstring)
+    source_rows: np.ndarray  # (R,) each row's index in the results it was prepared from
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -170,6 +171,7 @@ def _prepare(gt: KittiRows, res: KittiRows, cls: str, n_frames: int, cfg: Protoc
         row_score=res.score[r_sel].astype(np.float64),
         track_rows=track_rows,
         valid=np.zeros(len(r_sel), dtype=bool),
+        source_rows=r_sel,
     )
 
 
@@ -298,6 +300,42 @@ def _thresholds(scores: list[float], num_gt: int) -> tuple[list[float], list[flo
 
 def _mota(c: _Counts) -> float:
     return 1.0 - (c.fn + c.fp + c.id_switches) / c.n_gt if c.n_gt else math.nan
+
+
+ROW_MATCHED, ROW_FALSE, ROW_NOT_SCORED = 1, 0, -1
+"""Outcomes of :func:`row_outcomes`."""
+
+
+def row_outcomes(
+    gt: KittiRows,
+    results: KittiRows,
+    cls: str,
+    *,
+    n_frames: int,
+    config: ProtocolConfig | None = None,
+) -> np.ndarray:
+    """Per result row of one sequence, what the protocol makes of it with no score threshold.
+
+    ``ROW_MATCHED``: assigned to a labelled object (3D IoU >= min_overlap, Hungarian per frame, as the
+    sweep's first pass), the rows the protocol counts as true positives and takes its thresholds from;
+    this includes objects it does not count as missed either (the neighbour class, too occluded or
+    truncated). ``ROW_FALSE``: a counted false positive. ``ROW_NOT_SCORED``:
+    another class, a frame beyond ``n_frames``, or an unmatched row the protocol ignores (neighbour class,
+    too small, over a DontCare region). Used to calibrate scores on training sequences.
+    """
+    cfg = config or ProtocolConfig()
+    seq = _prepare(gt, results, cls.lower(), n_frames, cfg)
+    local = np.full(len(seq.source_rows), ROW_NOT_SCORED, np.int8)
+    everything = np.ones(len(seq.source_rows), dtype=bool)
+    for fr in seq.frames:
+        _, tc = _assign(fr, everything[fr.trk_rows], cfg.min_overlap)
+        matched = np.zeros(fr.trk_rows.shape[0], dtype=bool)
+        matched[tc] = True
+        unmatched = np.where(fr.trk_ignorable, ROW_NOT_SCORED, ROW_FALSE)
+        local[fr.trk_rows] = np.where(matched, ROW_MATCHED, unmatched)
+    out = np.full(len(results), ROW_NOT_SCORED, np.int8)
+    out[seq.source_rows] = local
+    return out
 
 
 def evaluate_class(

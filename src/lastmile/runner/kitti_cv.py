@@ -9,6 +9,11 @@ Ranking: sAMOTA first; ties broken by AMOTA, then MOTA (NaN, a class absent from
 sequences, ranks last). sAMOTA is clipped at 0 per recall point, so a training pool whose false
 positives outnumber its labelled objects scores 0 for every candidate; without the tie-break the choice
 there would be the grid's first candidate, i.e. arbitrary. AMOTA is the same sweep unclipped.
+
+With ``calibrate_scores``, each fold's held-out scores are the chosen candidate's track scores mapped to a
+probability of being a true positive by a Platt map fitted on the fold's training sequences
+(``runner.kitti_calibration``), so that folds tracked with different candidates are thresholded on one
+scale by the pooled sweep.
 """
 
 from __future__ import annotations
@@ -21,7 +26,8 @@ import numpy as np
 
 from lastmile.core.errors import ConfigError
 from lastmile.evaluation.kitti_io import KittiRows
-from lastmile.evaluation.kitti_mot import ClassResult, evaluate_class
+from lastmile.evaluation.kitti_mot import ClassResult, evaluate_class, row_outcomes
+from lastmile.runner.kitti_calibration import PlattMap, calibrate, fit_on_training
 
 
 def selection_key(result: ClassResult) -> tuple[float, float, float]:
@@ -48,21 +54,18 @@ class CrossValidation:
         held_out: per sequence, the rows of every class from the candidate chosen for its fold.
         chosen: per fold (its held-out sequences joined by ","), per class, the chosen candidate's name.
         training_scores: per fold, per class, per candidate, ``selection_key`` on the training pool.
+        calibration: per fold, per class, the Platt map applied to the held-out scores (empty without
+            ``calibrate_scores``).
     """
 
     held_out: dict[str, KittiRows]
     chosen: dict[str, dict[str, str]]
     training_scores: dict[str, dict[str, dict[str, tuple[float, float, float]]]]
+    calibration: dict[str, dict[str, PlattMap]]
 
 
 def _class_rows(rows: KittiRows, cls: str) -> KittiRows:
     return rows.select(np.array([str(t) == cls for t in rows.obj_type], dtype=bool))
-
-
-def _concat(parts: list[KittiRows]) -> KittiRows:
-    if not parts:
-        return KittiRows.empty()
-    return KittiRows(**{f: np.concatenate([getattr(p, f) for p in parts]) for f in KittiRows.__slots__})
 
 
 def cross_validate(
@@ -71,6 +74,8 @@ def cross_validate(
     folds: Sequence[Sequence[str]],
     classes: Sequence[str],
     n_frames: Mapping[str, int],
+    *,
+    calibrate_scores: bool = False,
 ) -> CrossValidation:
     """Choose a candidate per fold and class on the other folds' labels; return the held-out results.
 
@@ -80,6 +85,8 @@ def cross_validate(
         folds: the held-out sets; together they must cover every labelled sequence exactly once.
         classes: KITTI class names to choose for ("Car", "Pedestrian", "Cyclist").
         n_frames: frames per sequence.
+        calibrate_scores: map each fold's held-out scores through a Platt map fitted on its training
+            sequences (see the module docstring).
 
     Raises:
         ConfigError: no candidate, folds that do not partition the labelled sequences, or a candidate
@@ -101,10 +108,11 @@ def cross_validate(
     held: dict[str, list[KittiRows]] = {s: [] for s in seqs}
     chosen: dict[str, dict[str, str]] = {}
     scores: dict[str, dict[str, dict[str, tuple[float, float, float]]]] = {}
+    maps: dict[str, dict[str, PlattMap]] = {}
     for test in folds:
         train = [s for s in seqs if s not in test]
         key = ",".join(test)
-        chosen[key], scores[key] = {}, {}
+        chosen[key], scores[key], maps[key] = {}, {}, {}
         train_labels = {s: labels[s] for s in train}  # the only labels this fold reads
         for cls in classes:
             per_cand = {
@@ -115,8 +123,19 @@ def cross_validate(
             }
             best = max(per_cand, key=lambda n: per_cand[n])  # first of equals: the grid's order
             chosen[key][cls], scores[key][cls] = best, per_cand
+            out = {s: _class_rows(runs[best][s], cls) for s in test}
+            if calibrate_scores:
+                training = []
+                for s in train:
+                    rows = _class_rows(runs[best][s], cls)
+                    training.append((rows, row_outcomes(train_labels[s], rows, cls, n_frames=n_frames[s])))
+                maps[key][cls] = fit_on_training(training)
+                out = {s: calibrate(r, maps[key][cls]) for s, r in out.items()}
             for s in test:
-                held[s].append(_class_rows(runs[best][s], cls))
+                held[s].append(out[s])
     return CrossValidation(
-        held_out={s: _concat(p) for s, p in held.items()}, chosen=chosen, training_scores=scores
+        held_out={s: KittiRows.concat(p) for s, p in held.items()},
+        chosen=chosen,
+        training_scores=scores,
+        calibration=maps,
     )
