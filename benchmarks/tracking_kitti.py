@@ -1,7 +1,7 @@
 """aUToTrack on KITTI tracking (PointRCNN detections) against AB3DMOT: held-out scores and speed.
 
 Run: python benchmarks/tracking_kitti.py [--data ../shared/data/kitti_tracking] [--json out.json]
-         [--cv 2fold|loso] [--track-score all|last|evidence|mean] [--no-calibrate]
+         [--cv 2fold|loso] [--track-score all|last|evidence|mean] [--no-calibrate] [--workers N]
          [--ab3dmot DIR --ab3dmot-python PY [--reference-eval] [--rounding-draws N]]
 
 - Held-out scores: cross-validation over the ten sequences (``--cv``: 2-fold, 0000-0005 / 0007-0020,
@@ -128,6 +128,7 @@ def cross_validate(
     folds: list[tuple[str, ...]],
     track_score: str,
     calibrate_scores: bool,
+    workers: int,
     console: Console,
 ) -> CrossValidation:
     """Track every sequence with every candidate; held-out results per sequence (``runner.kitti_cv``)."""
@@ -138,8 +139,19 @@ def cross_validate(
         for name, cfg in grid.items():
             runs[name] = {s: track_sequence(data[s], cfg)[0] for s in SEQUENCES}
             bar.advance(task)
-    console.print(f"choosing among {len(grid)} candidates per fold and class (pooled training evaluations)")
-    cv = kitti_cross_validate(runs, labels, folds, CLASSES, n_frames, calibrate_scores=calibrate_scores)
+    with Progress(console=console, transient=True) as bar:
+        n_jobs = len(grid) * len(folds) * len(CLASSES)
+        task = bar.add_task(f"pooled training evaluations ({workers} processes)", total=n_jobs)
+        cv = kitti_cross_validate(
+            runs,
+            labels,
+            folds,
+            CLASSES,
+            n_frames,
+            calibrate_scores=calibrate_scores,
+            workers=workers,
+            on_evaluated=lambda: bar.advance(task),
+        )
     for fold, per_class in cv.chosen.items():
         for cls, best in per_class.items():
             key = cv.training_scores[fold][cls][best]
@@ -319,9 +331,13 @@ def main() -> None:
         help="also score both result sets this many times with scores moved by 1e-9 (rounding spread)",
     )
     parser.add_argument("--reference-eval", action="store_true", help="also score with AB3DMOT's evaluate.py")
+    parser.add_argument(
+        "--workers",
+        type=int,
+        default=os.cpu_count() or 1,
+        help="processes for the cross-validation's training evaluations (speed is measured on one core)",
+    )
     args = parser.parse_args()
-    if hasattr(os, "sched_setaffinity"):
-        os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
     console = Console(width=170)  # wide tables stay readable when piped to a file
     labels = {s: read_labels(args.data / "labels" / f"{s}.txt") for s in SEQUENCES}
     n_frames = {s: int(labels[s].frame.max()) + 1 for s in SEQUENCES}
@@ -334,8 +350,12 @@ def main() -> None:
         CV_SCHEMES[args.cv](SEQUENCES),
         args.track_score,
         not args.no_calibrate,
+        args.workers,
         console,
     )
+    # From here on one core, inherited by AB3DMOT's process: both trackers' speed is measured alike.
+    if hasattr(os, "sched_setaffinity"):
+        os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
     held, chosen = cv.held_out, cv.chosen
     work = Path(tempfile.mkdtemp(prefix="tracking_kitti_"))
     ours_dir = work / "ours"

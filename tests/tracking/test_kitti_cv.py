@@ -71,3 +71,25 @@ def test_folds_must_partition_the_sequences_and_candidates_must_cover_them() -> 
         cross_validate({"short": {"a": RUNS["on"]["a"]}}, LABELS, [("a", "b", "c")], ["Car"], N_FRAMES)
     with pytest.raises(ConfigError, match="at least one candidate"):
         cross_validate({}, LABELS, [("a", "b", "c")], ["Car"], N_FRAMES)
+
+
+def test_training_evaluations_in_worker_processes_choose_exactly_as_in_one() -> None:
+    one = cross_validate(RUNS, LABELS, leave_one_out(SEQS), ["Car"], N_FRAMES, calibrate_scores=True)
+    calls: list[int] = []
+    two = cross_validate(
+        RUNS,
+        LABELS,
+        leave_one_out(SEQS),
+        ["Car"],
+        N_FRAMES,
+        calibrate_scores=True,
+        workers=2,
+        on_evaluated=lambda: calls.append(1),
+    )
+    assert len(calls) == len(RUNS) * len(SEQS)
+    assert two.chosen == one.chosen and two.training_scores == one.training_scores
+    assert two.calibration == one.calibration
+    for s in SEQS:
+        np.testing.assert_array_equal(two.held_out[s].score, one.held_out[s].score)
+    with pytest.raises(ConfigError, match="workers >= 1"):
+        cross_validate(RUNS, LABELS, leave_one_out(SEQS), ["Car"], N_FRAMES, workers=0)

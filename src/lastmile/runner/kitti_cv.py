@@ -19,8 +19,11 @@ scale by the pooled sweep.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+import multiprocessing
+from collections.abc import Callable, Mapping, Sequence
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -28,11 +31,55 @@ from lastmile.core.errors import ConfigError
 from lastmile.evaluation.kitti_io import KittiRows
 from lastmile.evaluation.kitti_mot import ClassResult, evaluate_class, row_outcomes
 from lastmile.runner.kitti_calibration import PlattMap, calibrate, fit_on_training
+from lastmile.runner.sweep import _pin_blas
 
 
 def selection_key(result: ClassResult) -> tuple[float, float, float]:
     """Sort key of a candidate's pooled training score (larger is better; NaN ranks last)."""
     return tuple(v if math.isfinite(v) else -math.inf for v in (result.samota, result.amota, result.mota))  # type: ignore[return-value]
+
+
+_STATE: dict[str, Any] = {}
+"""The candidates' results, the labels and the frame counts, in this process or a worker (set once)."""
+
+
+def _share(
+    runs: Mapping[str, Mapping[str, KittiRows]], labels: Mapping[str, KittiRows], n_frames: Mapping[str, int]
+) -> None:
+    _STATE.update(runs=runs, labels=labels, n_frames=dict(n_frames))
+
+
+def _training_key(name: str, train: tuple[str, ...], cls: str) -> tuple[float, float, float]:
+    """``selection_key`` of candidate ``name`` on the pooled ``train`` sequences (reads ``_STATE``)."""
+    runs, labels = _STATE["runs"], _STATE["labels"]
+    result = evaluate_class(
+        {s: labels[s] for s in train}, {s: runs[name][s] for s in train}, cls, n_frames=_STATE["n_frames"]
+    )
+    return selection_key(result)
+
+
+def _training_keys(
+    jobs: list[tuple[str, tuple[str, ...], str]], workers: int, on_evaluated: Callable[[], None] | None
+) -> list[tuple[float, float, float]]:
+    """``_training_key`` of every job, in a pool of forked workers when ``workers`` > 1."""
+    if workers <= 1:
+        out = []
+        for job in jobs:
+            out.append(_training_key(*job))
+            if on_evaluated is not None:
+                on_evaluated()
+        return out
+    # Forked workers inherit _STATE: the candidates' rows (hundreds of MB for a large grid) are never
+    # pickled, only the job names and the three floats each returns.
+    ctx = multiprocessing.get_context("fork")
+    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_pin_blas) as pool:
+        futures = [pool.submit(_training_key, *job) for job in jobs]
+        keys = []
+        for f in futures:  # in submission order: the choice does not depend on completion order
+            keys.append(f.result())
+            if on_evaluated is not None:
+                on_evaluated()
+    return keys
 
 
 def two_folds(sequences: Sequence[str]) -> list[tuple[str, ...]]:
@@ -76,6 +123,8 @@ def cross_validate(
     n_frames: Mapping[str, int],
     *,
     calibrate_scores: bool = False,
+    workers: int = 1,
+    on_evaluated: Callable[[], None] | None = None,
 ) -> CrossValidation:
     """Choose a candidate per fold and class on the other folds' labels; return the held-out results.
 
@@ -87,6 +136,9 @@ def cross_validate(
         n_frames: frames per sequence.
         calibrate_scores: map each fold's held-out scores through a Platt map fitted on its training
             sequences (see the module docstring).
+        workers: processes for the pooled training evaluations (one per fold, class and candidate);
+            the choices do not depend on it.
+        on_evaluated: called after each training evaluation (a progress bar).
 
     Raises:
         ConfigError: no candidate, folds that do not partition the labelled sequences, or a candidate
@@ -105,6 +157,18 @@ def cross_validate(
         missing = [s for s in seqs if s not in per_seq]
         if missing:
             raise ConfigError(f"cross_validate: candidate {name!r} has no results for sequences {missing}")
+    if workers < 1:
+        raise ConfigError(f"cross_validate: expected workers >= 1, got {workers}")
+    _share(runs, labels, n_frames)
+    # Every (fold, class, candidate) training evaluation is independent: run them all, then choose.
+    index = [(",".join(test), cls, name) for test in folds for cls in classes for name in runs]
+    jobs = [
+        (name, tuple(s for s in seqs if s not in test), cls)
+        for test in folds
+        for cls in classes
+        for name in runs
+    ]
+    keys = dict(zip(index, _training_keys(jobs, workers, on_evaluated), strict=True))
     held: dict[str, list[KittiRows]] = {s: [] for s in seqs}
     chosen: dict[str, dict[str, str]] = {}
     scores: dict[str, dict[str, dict[str, tuple[float, float, float]]]] = {}
@@ -115,12 +179,7 @@ def cross_validate(
         chosen[key], scores[key], maps[key] = {}, {}, {}
         train_labels = {s: labels[s] for s in train}  # the only labels this fold reads
         for cls in classes:
-            per_cand = {
-                name: selection_key(
-                    evaluate_class(train_labels, {s: r[s] for s in train}, cls, n_frames=dict(n_frames))
-                )
-                for name, r in runs.items()
-            }
+            per_cand = {name: keys[(key, cls, name)] for name in runs}  # grid order
             best = max(per_cand, key=lambda n: per_cand[n])  # first of equals: the grid's order
             chosen[key][cls], scores[key][cls] = best, per_cand
             out = {s: _class_rows(runs[best][s], cls) for s in test}
