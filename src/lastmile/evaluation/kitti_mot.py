@@ -77,6 +77,12 @@ class _Sequence:
     track_rows: list[np.ndarray]  # rows of each track, in frame order
     valid: np.ndarray  # (R,) matched in some earlier pass (reference quirk, see module docstring)
     source_rows: np.ndarray  # (R,) each row's index in the results it was prepared from
+    # The frames' ground truth end to end (frame order), to count a pass with whole-sequence arrays.
+    gt_start: np.ndarray  # (n_frames,) offset of each frame's first labelled object
+    gt_ignore: np.ndarray  # (G,)
+    trk_ignorable: np.ndarray  # (R,) rows are in frame order, so frame k's rows are trk_rows of frame k
+    trajectories: list[tuple[np.ndarray, list[bool]]]  # per labelled track: its objects, their ignore flags
+    matchable: list[int]  # frames with at least one labelled object and one result row
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -164,6 +170,11 @@ def _prepare(gt: KittiRows, res: KittiRows, cls: str, n_frames: int, cfg: Protoc
                 trk_ignorable=ignorable,
             )
         )
+    gt_ids = np.concatenate([fr.gt_ids for fr in frames]) if frames else empty
+    gt_ignore = np.concatenate([fr.gt_ignore for fr in frames]) if frames else np.zeros(0, bool)
+    order = np.argsort(gt_ids, kind="stable")  # each labelled track's objects, in frame order
+    cuts = np.flatnonzero(np.diff(gt_ids[order])) + 1
+    trajectories = [(idx, gt_ignore[idx].tolist()) for idx in np.split(order, cuts) if idx.size]
     return _Sequence(
         frames=frames,
         trk_track_ids=ids,
@@ -172,6 +183,11 @@ def _prepare(gt: KittiRows, res: KittiRows, cls: str, n_frames: int, cfg: Protoc
         track_rows=track_rows,
         valid=np.zeros(len(r_sel), dtype=bool),
         source_rows=r_sel,
+        gt_start=np.cumsum([0] + [fr.gt_ids.shape[0] for fr in frames[:-1]]).astype(np.int64),
+        gt_ignore=gt_ignore,
+        trk_ignorable=np.concatenate([fr.trk_ignorable for fr in frames]) if frames else np.zeros(0, bool),
+        trajectories=trajectories,
+        matchable=[k for k, fr in enumerate(frames) if fr.iou.size],
     )
 
 
@@ -207,41 +223,39 @@ def _assign(fr: _Frame, active: np.ndarray, min_overlap: float) -> tuple[np.ndar
 
 
 def _run(seqs: list[_Sequence], threshold: float, cfg: ProtocolConfig) -> _Counts:
+    """One pass of the sweep: the reference's per-frame counts, summed with whole-sequence arrays.
+
+    Only the assignment is per frame. The sums are the reference's per-frame sums regrouped (integers),
+    the overlaps are added frame by frame in its order, and a row's ``valid`` flag depends only on its
+    own frame's match, so the counts are the reference's exactly.
+    """
     cnt = _Counts()
     for seq in seqs:
         _average_scores(seq, cfg.reference_score_rounding)
         keep = ~(seq.trk_mean_score < threshold)
-        trajectories: dict[int, list[int]] = {}
-        ignored: dict[int, list[bool]] = {}
-        for fr in seq.frames:
-            active = keep[fr.trk_rows]
-            gr, tc = _assign(fr, active, cfg.min_overlap)
-            matched_trk = np.zeros(active.shape[0], dtype=bool)
-            matched_trk[tc] = True
-            seq.valid[fr.trk_rows[tc]] = True
-            gt_tracker = np.full(fr.gt_ids.shape[0], -1, np.int64)
-            gt_tracker[gr] = fr.trk_ids[tc]
-            n_g = fr.gt_ids.shape[0]
-            n_t = int(active.sum())
-            tp_all = gr.shape[0]
-            matched_gt = gt_tracker >= 0
-            ignored_fn = int(np.sum(~matched_gt & fr.gt_ignore))
-            ignored_tp = int(np.sum(matched_gt & fr.gt_ignore))
-            ign_trk = active & fr.trk_ignorable & ~seq.valid[fr.trk_rows]
-            n_ign_trk = int(ign_trk.sum())
-            cnt.n_gt += n_g - ignored_fn - ignored_tp
-            cnt.tp += tp_all
-            cnt.fn += n_g - tp_all - ignored_fn
-            cnt.fp += n_t - tp_all - n_ign_trk
-            if tp_all:
+        tracker = np.full(seq.gt_ignore.shape[0], -1, np.int64)  # per labelled object: its track id
+        matched: list[np.ndarray] = []
+        for k in seq.matchable:
+            fr = seq.frames[k]
+            gr, tc = _assign(fr, keep[fr.trk_rows], cfg.min_overlap)
+            if tc.shape[0]:
+                tracker[seq.gt_start[k] + gr] = fr.trk_ids[tc]
+                matched.append(fr.trk_rows[tc])
                 cnt.total_overlap += float(fr.iou[gr, tc].sum())
-                cnt.scores.extend(seq.trk_mean_score[fr.trk_rows[tc]].tolist())
-            for k in range(n_g):
-                gid = int(fr.gt_ids[k])
-                trajectories.setdefault(gid, []).append(int(gt_tracker[k]))
-                ignored.setdefault(gid, []).append(bool(fr.gt_ignore[k]))
-        for gid, g in trajectories.items():
-            ids, frags = _switches(g, ignored[gid])
+        rows = np.concatenate(matched) if matched else np.zeros(0, np.int64)
+        seq.valid[rows] = True
+        is_matched = tracker >= 0
+        ignored_fn = int(np.count_nonzero(~is_matched & seq.gt_ignore))
+        ignored_tp = int(np.count_nonzero(is_matched & seq.gt_ignore))
+        n_g, tp = seq.gt_ignore.shape[0], rows.shape[0]
+        n_ign_trk = int(np.count_nonzero(keep & seq.trk_ignorable & ~seq.valid))
+        cnt.n_gt += n_g - ignored_fn - ignored_tp
+        cnt.tp += tp
+        cnt.fn += n_g - tp - ignored_fn
+        cnt.fp += int(np.count_nonzero(keep)) - tp - n_ign_trk
+        cnt.scores.extend(seq.trk_mean_score[rows].tolist())
+        for idx, ign in seq.trajectories:
+            ids, frags = _switches(tracker[idx].tolist(), ign)
             cnt.id_switches += ids
             cnt.fragments += frags
     return cnt
