@@ -121,19 +121,26 @@ def test_empty_frames_and_a_sequence_without_the_class() -> None:
     assert none.as_dict()["samota"] is None
 
 
+DONTCARE_BOX = (500.0, 100.0, 600.0, 200.0)
+INSIDE_DONTCARE = (510.0, 110.0, 590.0, 190.0)
+
+
+def _car_dontcare_and_van(van_frame: int) -> KittiRows:
+    """Labels: a car in frames 0 and ``van_frame``, a DontCare region in frame 0, a van in ``van_frame``."""
+    entries: list[tuple] = [
+        (0, 0, "Car", 0.0, 10.0, 0.0),
+        (0, -1, "DontCare", 0.0, 0.0, 0.0, 0.0, 0, DONTCARE_BOX),
+        (van_frame, 3, "Van", 9.0, 30.0, 0.0),
+    ]
+    return _rows(entries if van_frame == 0 else [*entries, (van_frame, 0, "Car", 0.0, 10.0, 0.0)])
+
+
 def test_dontcare_small_and_neighbour_class_outputs_are_ignored_not_false_positives() -> None:
-    dc_box = (500.0, 100.0, 600.0, 200.0)
-    gt = _rows(
-        [
-            (0, 0, "Car", 0.0, 10.0, 0.0),
-            (0, -1, "DontCare", 0.0, 0.0, 0.0, 0.0, 0, dc_box),
-            (0, 3, "Van", 9.0, 30.0, 0.0),
-        ]
-    )
+    gt = _car_dontcare_and_van(van_frame=0)
     res = _rows(
         [
             (0, 1, "Car", 0.0, 10.0, 2.0),
-            (0, 2, "Car", -9.0, 50.0, 2.0, 0, 0, (510.0, 110.0, 590.0, 190.0)),  # inside DontCare
+            (0, 2, "Car", -9.0, 50.0, 2.0, 0, 0, INSIDE_DONTCARE),
             (0, 4, "Car", 9.0, 60.0, 2.0, 0, 0, (100.0, 100.0, 200.0, 110.0)),  # 10 px high
             (0, 5, "Car", 9.0, 30.0, 2.0),  # on the van: ignored TP, not counted
         ]
@@ -144,21 +151,13 @@ def test_dontcare_small_and_neighbour_class_outputs_are_ignored_not_false_positi
 
 
 def test_row_outcomes_say_which_rows_the_protocol_counts_as_true_false_or_not_at_all() -> None:
-    dc_box = (500.0, 100.0, 600.0, 200.0)
-    gt = _rows(
-        [
-            (0, 0, "Car", 0.0, 10.0, 0.0),
-            (0, -1, "DontCare", 0.0, 0.0, 0.0, 0.0, 0, dc_box),
-            (1, 0, "Car", 0.0, 10.0, 0.0),
-            (1, 3, "Van", 9.0, 30.0, 0.0),
-        ]
-    )
+    gt = _car_dontcare_and_van(van_frame=1)
     res = _rows(
         [
             (1, 1, "Car", 0.0, 10.0, 2.0),  # matched (rows need not be in frame order)
             (1, 6, "Car", 9.0, 30.0, 2.0),  # on the van: a true positive the evaluator does not count missed
             (0, 1, "Car", 0.0, 10.0, 2.0),  # matched
-            (0, 2, "Car", -9.0, 50.0, 2.0, 0, 0, (510.0, 110.0, 590.0, 190.0)),  # inside DontCare
+            (0, 2, "Car", -9.0, 50.0, 2.0, 0, 0, INSIDE_DONTCARE),  # inside DontCare
             (0, 3, "Car", 9.0, 40.0, 2.0),  # nothing there: a false positive
             (0, 4, "Pedestrian", 0.0, 10.0, 2.0),  # another class
             (1, 5, "Car", 0.0, 10.0, 2.0),  # the car's second track in frame 1: Hungarian leaves it false
