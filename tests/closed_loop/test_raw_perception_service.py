@@ -7,7 +7,6 @@ The two 10-minute runs go to two worker processes at once (the suite's slowest i
 from __future__ import annotations
 
 import functools
-import os
 from concurrent.futures import ProcessPoolExecutor
 from typing import Any
 
@@ -16,15 +15,11 @@ import pytest
 from lastmile.evaluation.metrics import compute_metrics
 from lastmile.recorder.run_log import RunLog
 from lastmile.runner.closed_loop import DEFAULT_PERCEPTION_MODE, run_scenario
+from lastmile.runner.sweep import pin_blas_threads
 from lastmile.sim.scenario import default_service
 
 pytestmark = pytest.mark.closed_loop
 WEATHERS = ("clear", "snow")
-
-
-def _pin_blas() -> None:
-    for name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS"):
-        os.environ[name] = "1"
 
 
 def _one(weather: str) -> RunLog:
@@ -33,7 +28,7 @@ def _one(weather: str) -> RunLog:
 
 @functools.cache
 def _runs() -> dict[str, tuple[RunLog, dict[str, Any]]]:
-    with ProcessPoolExecutor(max_workers=2, initializer=_pin_blas) as pool:
+    with ProcessPoolExecutor(max_workers=2, initializer=pin_blas_threads) as pool:
         logs = dict(zip(WEATHERS, pool.map(_one, WEATHERS), strict=True))
     return {w: (log, compute_metrics(log)) for w, log in logs.items()}
 

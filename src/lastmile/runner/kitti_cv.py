@@ -31,7 +31,7 @@ from lastmile.core.errors import ConfigError
 from lastmile.evaluation.kitti_io import KittiRows
 from lastmile.evaluation.kitti_mot import ClassResult, evaluate_class, row_outcomes
 from lastmile.runner.kitti_calibration import PlattMap, calibrate, fit_on_training
-from lastmile.runner.sweep import _pin_blas
+from lastmile.runner.sweep import pin_blas_threads
 
 
 def selection_key(result: ClassResult) -> tuple[float, float, float]:
@@ -72,7 +72,7 @@ def _training_keys(
     # Forked workers inherit _STATE: the candidates' rows (hundreds of MB for a large grid) are never
     # pickled, only the job names and the three floats each returns.
     ctx = multiprocessing.get_context("fork")
-    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_pin_blas) as pool:
+    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=pin_blas_threads) as pool:
         futures = [pool.submit(_training_key, *job) for job in jobs]
         keys = []
         for f in futures:  # in submission order: the choice does not depend on completion order
@@ -159,7 +159,6 @@ def cross_validate(
             raise ConfigError(f"cross_validate: candidate {name!r} has no results for sequences {missing}")
     if workers < 1:
         raise ConfigError(f"cross_validate: expected workers >= 1, got {workers}")
-    _share(runs, labels, n_frames)
     # Every (fold, class, candidate) training evaluation is independent: run them all, then choose.
     index = [(",".join(test), cls, name) for test in folds for cls in classes for name in runs]
     jobs = [
@@ -168,7 +167,11 @@ def cross_validate(
         for cls in classes
         for name in runs
     ]
-    keys = dict(zip(index, _training_keys(jobs, workers, on_evaluated), strict=True))
+    _share(runs, labels, n_frames)
+    try:
+        keys = dict(zip(index, _training_keys(jobs, workers, on_evaluated), strict=True))
+    finally:
+        _STATE.clear()  # the candidates' rows are not kept alive past this call
     held: dict[str, list[KittiRows]] = {s: [] for s in seqs}
     chosen: dict[str, dict[str, str]] = {}
     scores: dict[str, dict[str, dict[str, tuple[float, float, float]]]] = {}

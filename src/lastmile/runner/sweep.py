@@ -331,7 +331,12 @@ def summarize(rows: list[dict[str, Any]]) -> dict[str, Any]:
     }
 
 
-def _pin_blas() -> None:
+def pin_blas_threads() -> None:
+    """Ask for one BLAS thread in this process (a process pool's initializer).
+
+    It sets the environment, so it holds for BLAS libraries loaded after it; a forked worker keeps its
+    parent's BLAS, which is why callers also set these variables before importing NumPy.
+    """
     # One BLAS thread per worker: the loop's small matrices only get slower when threads compete.
     for name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ[name] = "1"
@@ -342,7 +347,7 @@ def _run_local(
 ) -> list[dict[str, Any]]:
     workers = workers or os.cpu_count() or 1
     rows: list[dict[str, Any] | None] = [None] * len(jobs)
-    with ProcessPoolExecutor(max_workers=workers, initializer=_pin_blas) as pool:
+    with ProcessPoolExecutor(max_workers=workers, initializer=pin_blas_threads) as pool:
         futures = {pool.submit(run_case, *job): i for i, job in enumerate(jobs)}
         for done, future in enumerate(as_completed(futures), start=1):
             rows[futures[future]] = future.result()
