@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 
 from lastmile.core.errors import ConfigError
 from lastmile.evaluation import metrics as m
+from lastmile.evaluation import run_signals as rs
 from lastmile.recorder.run_log import RULES, STATE_NAMES
 
 from .synthetic import TICK_S, make_log
@@ -126,7 +127,7 @@ def test_hard_braking_counts_entries_into_episodes_with_hysteresis() -> None:
     accel = _braking_profile(release_hover=True)
     log = make_log(np.full(len(accel), 4.0), accel)
     assert m.compute_metrics(log)["hard_braking_events"] == 3
-    no_hysteresis = m.ComfortLimits(hard_braking_release_mps2=0.0)
+    no_hysteresis = rs.ComfortLimits(hard_braking_release_mps2=0.0)
     assert m.compute_metrics(log, no_hysteresis)["hard_braking_events"] == 12
     out = m.compute_metrics(log)
     assert out["km_per_hard_braking"] == pytest.approx(out["distance_m"] / 1000.0 / 3, abs=1e-6)
@@ -296,20 +297,20 @@ def test_bad_config_values_are_rejected() -> None:
     with pytest.raises(ConfigError, match=r"expected_distance_m: expected a finite number, got 'far'"):
         m.compute_metrics(make_log(np.ones(10), config={"expected_distance_m": "far"}))
     with pytest.raises(ConfigError, match="max_abs_jerk_mps3: expected a finite number > 0, got -1"):
-        m.ComfortLimits(max_abs_jerk_mps3=-1)
+        rs.ComfortLimits(max_abs_jerk_mps3=-1)
 
 
 def test_registry_refuses_a_duplicate_name() -> None:
     assert len(set(m.metric_names())) == len(m.metric_names())
     with pytest.raises(ConfigError, match="twice"):
         m.register_metric("distance_m")(lambda sig: m.MetricResult(0.0))
-    assert m.metric("distance_m")(m.RunSignals(make_log(np.ones(3)), m.ComfortLimits())).valid
+    assert m.metric("distance_m")(rs.RunSignals(make_log(np.ones(3)), rs.ComfortLimits())).valid
 
 
 @given(st.lists(st.booleans(), max_size=60))
 def test_true_runs_are_the_maximal_runs_of_the_mask(bits: list[bool]) -> None:
     mask = np.array(bits, dtype=bool)
-    runs = m.true_runs(mask)
+    runs = rs.true_runs(mask)
     rebuilt = np.zeros(len(mask), dtype=bool)
     for start, stop in runs:
         rebuilt[start:stop] = True

@@ -15,6 +15,7 @@ from matplotlib.patches import Patch
 
 from lastmile.core.errors import LastmileError
 from lastmile.evaluation import metrics as metrics_mod
+from lastmile.evaluation import run_signals
 from lastmile.recorder import run_log
 
 if TYPE_CHECKING:  # only for annotations: the report draws any object shaped like an HDMap
@@ -232,7 +233,7 @@ def _state_bands(ax: Any, t: np.ndarray, state: np.ndarray) -> list[Patch]:
         return patches
     ends = np.append(t[1:], t[-1])
     for code, name in enumerate(run_log.STATE_NAMES):
-        runs = metrics_mod.true_runs(state == code)
+        runs = run_signals.true_runs(state == code)
         if not runs:
             continue
         ranges = [(float(t[a]), float(ends[b - 1] - t[a])) for a, b in runs]
@@ -244,7 +245,7 @@ def _state_bands(ax: Any, t: np.ndarray, state: np.ndarray) -> list[Patch]:
     return patches
 
 
-def _plot_speed(log: run_log.RunLog, sig: metrics_mod.RunSignals, path: Path) -> None:
+def _plot_speed(log: run_log.RunLog, sig: run_signals.RunSignals, path: Path) -> None:
     fig = Figure(figsize=(11.0, 6.0), dpi=_DPI, layout="constrained")
     ax_v, ax_a = fig.subplots(2, 1, sharex=True)
     n = len(log)
@@ -283,7 +284,7 @@ def _plot_speed(log: run_log.RunLog, sig: metrics_mod.RunSignals, path: Path) ->
 
 
 # --- (c) comfort histograms -----------------------------------------------------------------------------
-def _plot_comfort(sig: metrics_mod.RunSignals, path: Path) -> None:
+def _plot_comfort(sig: run_signals.RunSignals, path: Path) -> None:
     fig = Figure(figsize=(10.0, 4.0), dpi=_DPI, layout="constrained")
     ax_a, ax_j = fig.subplots(1, 2)
     c = sig.comfort
@@ -377,7 +378,7 @@ def write_report(
     metrics: Mapping[str, object],
     run_dir: str | os.PathLike[str],
     hdmap: HDMap | None = None,
-    comfort: metrics_mod.ComfortLimits = metrics_mod.SHUTTLE_COMFORT,
+    comfort: run_signals.ComfortLimits = run_signals.SHUTTLE_COMFORT,
 ) -> Path:
     """Write ``report.md`` and its PNGs (map, speed/acceleration, comfort) into ``run_dir``.
 
@@ -399,7 +400,7 @@ def write_report(
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise ReportError(f"{out}: expected a writable run directory, got {exc}") from None
-    sig = metrics_mod.RunSignals(log, comfort)
+    sig = run_signals.RunSignals(log, comfort)
     timing_lines = _timing_table(log.timing)
     _plot_map(log, hdmap, out / MAP_PNG)
     _plot_speed(log, sig, out / SPEED_PNG)
