@@ -33,7 +33,8 @@ from lastmile.runner.closed_loop import TICK_US, build_closed_loop
 from lastmile.safety.failsafe import FailSafeArbiter, apply_safety_gate
 from lastmile.safety.hardware_watchdog import HardwareWatchdog
 from lastmile.safety.health_monitor import HealthMonitor, ModuleSpec
-from lastmile.safety.reliability_monitor import ReliabilityConfig, ReliabilityMonitor, SensorSpec
+from lastmile.safety.reliability_config import ReliabilityConfig, SensorSpec
+from lastmile.safety.reliability_monitor import ReliabilityMonitor
 from lastmile.safety.supervisor import SafetySupervisor
 from lastmile.sim.scenario import default_service
 

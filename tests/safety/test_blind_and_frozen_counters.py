@@ -9,7 +9,8 @@ from lastmile.core.safety_messages import FailSafeLevel, MalfunctionKind
 from lastmile.core.sensor_frames import GnssInsFrame, RadarFrame, WheelOdometryFrame
 from lastmile.core.stamp import Stamp
 from lastmile.localization.ekf import PoseEkf
-from lastmile.safety.reliability_monitor import ReliabilityConfig, ReliabilityMonitor, default_sensor_specs
+from lastmile.safety.reliability_config import ReliabilityConfig, default_sensor_specs
+from lastmile.safety.reliability_monitor import ReliabilityMonitor
 
 K, L = MalfunctionKind, FailSafeLevel
 

@@ -14,7 +14,8 @@ from lastmile.core.stamp import Stamp
 from lastmile.core.vehicle_messages import ActuatorCommand, Heartbeat, LocalizationEstimate
 from lastmile.safety.failsafe import FailSafeArbiter, apply_safety_gate
 from lastmile.safety.health_monitor import HealthMonitor, ModuleSpec
-from lastmile.safety.reliability_monitor import ReliabilityConfig, ReliabilityMonitor, SensorSpec
+from lastmile.safety.reliability_config import ReliabilityConfig, SensorSpec
+from lastmile.safety.reliability_monitor import ReliabilityMonitor
 from lastmile.safety.supervisor import SafetySupervisor
 
 TICK = 10_000

@@ -2,7 +2,8 @@ from lastmile.core.safety_messages import FailSafeLevel as L
 from lastmile.core.safety_messages import MalfunctionKind as K
 from lastmile.safety.failsafe import FailSafeArbiter
 from lastmile.safety.health_monitor import HealthMonitor
-from lastmile.safety.reliability_monitor import ReliabilityConfig, ReliabilityMonitor
+from lastmile.safety.reliability_config import ReliabilityConfig
+from lastmile.safety.reliability_monitor import ReliabilityMonitor
 from lastmile.safety.supervisor import RESET_GRACE_US, SafetySupervisor
 
 TICK_US = 10_000

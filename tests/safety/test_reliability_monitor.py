@@ -20,7 +20,8 @@ from lastmile.core.sensor_frames import GnssInsFrame, ImuFrame, LidarSweep, Rada
 from lastmile.core.stamp import Stamp
 from lastmile.core.vehicle_messages import LocalizationEstimate
 from lastmile.hdmap.model import HDMap
-from lastmile.safety.reliability_monitor import ReliabilityConfig, ReliabilityMonitor, SensorSpec
+from lastmile.safety.reliability_config import ReliabilityConfig, SensorSpec
+from lastmile.safety.reliability_monitor import ReliabilityMonitor
 
 K, L = MalfunctionKind, FailSafeLevel
 TICK = 10_000

@@ -16,7 +16,7 @@ from lastmile.core.sensor_frames import (
 from lastmile.core.stamp import Stamp
 from lastmile.core.vehicle import VehicleGeometry
 from lastmile.core.vehicle_messages import BehaviourState
-from lastmile.safety.reliability_monitor import ReliabilityConfig, SensorSpec
+from lastmile.safety.reliability_config import ReliabilityConfig, SensorSpec
 from lastmile.sim.vehicle_model import ActuatorDynamics, KinematicBicycle, VehicleState
 from lastmile.stack.shuttle_stack import ShuttleStack, StackConfig
 from lastmile.tracking.prediction import PredictionConfig

@@ -28,7 +28,7 @@ from lastmile.recorder.black_box import BlackBox, BlackBoxConfig
 from lastmile.recorder.run_log import STATE_NAMES, RunLog, RunLogWriter, RunMeta
 from lastmile.runner.operator_estop import EStopAction, OperatorEStop
 from lastmile.safety.hardware_watchdog import HardwareWatchdog
-from lastmile.safety.reliability_monitor import ReliabilityConfig, raw_sensor_specs
+from lastmile.safety.reliability_config import ReliabilityConfig, raw_sensor_specs
 from lastmile.sim.scenario import Scenario
 from lastmile.sim.simulation import Simulation
 from lastmile.stack.shuttle_stack import DEFAULT_SENSORS, PERCEPTION_MODES, ShuttleStack, StackConfig

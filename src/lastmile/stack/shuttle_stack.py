@@ -60,11 +60,8 @@ from lastmile.localization.ekf import PoseEkf, PoseEkfConfig
 from lastmile.planning.local_path import LocalPathConfig, LocalPathPlanner
 from lastmile.safety.failsafe import FailSafeArbiter, apply_safety_gate
 from lastmile.safety.health_monitor import HealthMonitor, ModuleSpec
-from lastmile.safety.reliability_monitor import (
-    ReliabilityConfig,
-    ReliabilityMonitor,
-    default_sensor_specs,
-)
+from lastmile.safety.reliability_config import ReliabilityConfig, default_sensor_specs
+from lastmile.safety.reliability_monitor import ReliabilityMonitor
 from lastmile.safety.supervisor import SafetySupervisor
 from lastmile.stack.hmi import HmiComposer
 from lastmile.stack.profiler import ModuleProfiler
