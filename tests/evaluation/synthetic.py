@@ -7,7 +7,8 @@ from typing import Any
 
 import numpy as np
 
-from lastmile.recorder.run_log import RunLog, RunLogWriter, RunMeta
+from lastmile.recorder.run_log import RunLog, RunMeta
+from lastmile.recorder.run_log_writer import RunLogWriter
 
 TICK_S = 0.02
 

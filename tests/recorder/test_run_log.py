@@ -18,9 +18,9 @@ from lastmile.recorder.run_log import (
     STATE_NAMES,
     RunLog,
     RunLogError,
-    RunLogWriter,
     RunMeta,
 )
+from lastmile.recorder.run_log_writer import RunLogWriter
 
 
 def _meta(**kw: object) -> RunMeta:

@@ -1,6 +1,6 @@
 """The run log: the ego trace, sparse agent positions and the referee's events of one closed-loop run.
 
-The runner fills a :class:`RunLogWriter` while the loop runs and calls :meth:`RunLogWriter.finish`; the
+The runner fills a ``run_log_writer.RunLogWriter`` while the loop runs and calls its ``finish``; the
 evaluation reads the resulting :class:`RunLog` (in memory or from a run directory via
 :meth:`RunLog.load`). The log holds only simulated quantities, so it is a pure function of the seed and the
 configuration; wall-clock figures live apart in ``timing`` and never enter the metrics.
@@ -49,14 +49,12 @@ import json
 import math
 import os
 import zipfile
-from array import array
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import numpy.typing as npt
 
 from lastmile.core.errors import LastmileError
 
@@ -138,7 +136,7 @@ def _numpy_default(value: Any) -> Any:
     raise TypeError(f"{type(value).__name__} {value!r} is not JSON-able")
 
 
-def _json_clean(value: Any, where: str) -> Any:
+def json_clean(value: Any, where: str) -> Any:
     """``value`` as it will read back from JSON (tuples become lists, NumPy scalars plain numbers)."""
     try:
         text = json.dumps(value, allow_nan=False, default=_numpy_default)
@@ -217,7 +215,7 @@ class RunMeta:
             object.__setattr__(self, name, float(value))
         if not isinstance(self.config, dict):
             raise RunLogError(f"RunMeta.config: expected a dict, got {type(self.config).__name__}")
-        object.__setattr__(self, "config", _json_clean(self.config, "RunMeta.config"))
+        object.__setattr__(self, "config", json_clean(self.config, "RunMeta.config"))
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -244,12 +242,13 @@ class RunEvent:
         return {"t_s": self.t_s, "kind": self.kind, "data": self.data}
 
 
-def _make_event(t_s: float, kind: str, data: Mapping[str, Any], where: str) -> RunEvent:
+def make_event(t_s: float, kind: str, data: Mapping[str, Any], where: str) -> RunEvent:
+    """A checked event: a finite time, a known kind's fields (``where`` names the caller in errors)."""
     if isinstance(t_s, bool) or not isinstance(t_s, int | float | np.floating | np.integer):
         raise RunLogError(f"{where}: expected a time in seconds, got {t_s!r}")
     if not math.isfinite(float(t_s)):
         raise RunLogError(f"{where}: expected a finite time, got {t_s!r}")
-    clean = _json_clean(dict(data), f"{where} ({kind})")
+    clean = json_clean(dict(data), f"{where} ({kind})")
     check_event(kind, clean, where)
     return RunEvent(t_s=float(t_s), kind=kind, data=clean)
 
@@ -359,7 +358,7 @@ class RunLog:
         if any(not isinstance(e, RunEvent) for e in events):
             raise RunLogError("RunLog.events: expected RunEvent items, got another type")
         object.__setattr__(self, "events", tuple(sorted(events, key=lambda e: e.t_s)))
-        object.__setattr__(self, "timing", _json_clean(dict(self.timing), "RunLog.timing"))
+        object.__setattr__(self, "timing", json_clean(dict(self.timing), "RunLog.timing"))
 
     def __len__(self) -> int:
         return len(self.ego)
@@ -461,7 +460,7 @@ class RunLog:
                 raise RunLogError(f"{where}: expected an object with t_s, kind, data, got {item!r}")
             if not isinstance(item["data"], dict):
                 raise RunLogError(f"{where}: expected data as an object, got {item['data']!r}")
-            events.append(_make_event(item["t_s"], item["kind"], item["data"], where))
+            events.append(make_event(item["t_s"], item["kind"], item["data"], where))
         ego = _load_npz(root / EGO_FILE, ("ego",))["ego"]
         agents_doc = _load_npz(root / AGENTS_FILE, ("t_s", "agent_id", "xy_m"))
         try:
@@ -503,120 +502,3 @@ def _load_npz(path: Path, keys: Sequence[str]) -> dict[str, np.ndarray]:
         raise RunLogError(f"{path}: expected an .npz array file, got no such file") from None
     except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
         raise RunLogError(f"{path}: expected an .npz array file, got unreadable content ({exc})") from None
-
-
-class RunLogWriter:
-    """Collects a run while the loop runs; cheap enough for 50 Hz rows over hours of simulated time.
-
-    Ego rows go into one flat ``array('d')`` (72 bytes a row, no per-row NumPy object); checks that
-    need the whole trace (finiteness, state codes) run once in :meth:`finish`.
-    """
-
-    def __init__(self, meta: RunMeta) -> None:
-        if not isinstance(meta, RunMeta):
-            raise RunLogError(f"RunLogWriter: expected a RunMeta, got {type(meta).__name__}")
-        self.meta = meta
-        self._ego = array("d")
-        self._last_t_s = -math.inf
-        self._agent_t: list[np.ndarray] = []
-        self._agent_ids: list[np.ndarray] = []
-        self._agent_xy: list[np.ndarray] = []
-        self._events: list[RunEvent] = []
-        self._timing: dict[str, Any] = {}
-        self._finished = False
-
-    @property
-    def rows(self) -> int:
-        return len(self._ego) // len(EGO_COLUMNS)
-
-    def _check_open(self) -> None:
-        if self._finished:
-            raise RunLogError("RunLogWriter: expected an open writer, got one that finish() already closed")
-
-    def add_ego_row(
-        self,
-        t_s: float,
-        x_m: float,
-        y_m: float,
-        yaw_rad: float,
-        speed_mps: float,
-        accel_mps2: float,
-        steer_front_rad: float,
-        state_code: int,
-        route_s_m: float,
-    ) -> None:
-        """Append one ego sample (units in the names; see the module docstring for conventions)."""
-        # One comparison per row catches a loop that repeats or rewinds time (NaN fails it too).
-        if not t_s > self._last_t_s or self._finished:
-            self._check_open()
-            raise RunLogError(f"RunLogWriter.add_ego_row: expected t_s > {self._last_t_s}, got {t_s!r}")
-        self._last_t_s = t_s
-        self._ego.extend(
-            (t_s, x_m, y_m, yaw_rad, speed_mps, accel_mps2, steer_front_rad, state_code, route_s_m)
-        )
-
-    def add_agent_rows(self, t_s: float, ids: Sequence[int] | npt.ArrayLike, xy: npt.ArrayLike) -> None:
-        """Append the positions of several agents at one time.
-
-        Args:
-            t_s: simulated time.
-            ids: (K,) integer agent ids.
-            xy: (K, 2) map positions in metres.
-        """
-        self._check_open()
-        id_arr = np.asarray(ids, dtype=np.int64).reshape(-1)
-        xy_arr = np.asarray(xy, dtype=np.float32)
-        if xy_arr.size == 0:
-            xy_arr = xy_arr.reshape(0, 2)
-        if xy_arr.ndim != 2 or xy_arr.shape != (len(id_arr), 2):
-            raise RunLogError(
-                f"RunLogWriter.add_agent_rows: expected xy of shape ({len(id_arr)}, 2), got {xy_arr.shape}"
-            )
-        if not (math.isfinite(t_s) and np.all(np.isfinite(xy_arr))):
-            raise RunLogError("RunLogWriter.add_agent_rows: expected finite t_s and xy, got NaN or inf")
-        self._agent_t.append(np.full(len(id_arr), float(t_s)))
-        self._agent_ids.append(id_arr)
-        self._agent_xy.append(xy_arr)
-
-    def add_event(self, t_s: float, kind: str, /, **data: Any) -> None:
-        """Append an event; known kinds (:data:`EVENT_SCHEMAS`) must carry their fields.
-
-        ``state_change`` has a field named ``from``: pass it as ``**{"from": ..., "to": ...}``.
-        """
-        self._check_open()
-        self._events.append(_make_event(t_s, kind, data, "RunLogWriter.add_event"))
-
-    def add_events(self, events: Iterable[tuple[float, str, Mapping[str, Any]]]) -> None:
-        """Append ``(t_s, kind, data)`` triples, the form the simulator's referee collects."""
-        self._check_open()
-        for t_s, kind, data in events:
-            self._events.append(_make_event(t_s, kind, data, "RunLogWriter.add_events"))
-
-    def set_timing(self, timing: Mapping[str, Any]) -> None:
-        """Wall-clock figures, e.g. ``{"modules": {name: {"p50_ms", "p95_ms", "max_ms", "calls"}},
-        "realtime_factor": float}``; shown in reports, never in metrics."""
-        self._check_open()
-        self._timing = _json_clean(dict(timing), "RunLogWriter.set_timing")
-
-    def finish(self) -> RunLog:
-        """Close the writer and return the checked, read-only :class:`RunLog`."""
-        self._check_open()
-        self._finished = True
-        ego = np.frombuffer(self._ego, dtype=np.float64).reshape(-1, len(EGO_COLUMNS)).copy()
-        if self._agent_t:
-            agents = RunAgents(
-                t_s=np.concatenate(self._agent_t),
-                agent_id=np.concatenate(self._agent_ids),
-                xy_m=np.concatenate(self._agent_xy),
-            )
-        else:
-            agents = RunAgents.empty()
-        if len(agents) > 1 and np.any(np.diff(agents.t_s) < 0.0):
-            raise RunLogError("RunLogWriter.finish: expected agent rows in time order, got times going back")
-        return RunLog(
-            meta=self.meta,
-            ego=ego,
-            events=tuple(self._events),
-            agents=agents,
-            timing=self._timing,
-        )

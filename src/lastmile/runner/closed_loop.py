@@ -25,7 +25,8 @@ from lastmile.hdmap.loader import load_campus_map
 from lastmile.hdmap.model import HDMap
 from lastmile.hdmap.routing import campus_shuttle_loop, route_polyline
 from lastmile.recorder.black_box import BlackBox, BlackBoxConfig
-from lastmile.recorder.run_log import STATE_NAMES, RunLog, RunLogWriter, RunMeta
+from lastmile.recorder.run_log import STATE_NAMES, RunLog, RunMeta
+from lastmile.recorder.run_log_writer import RunLogWriter
 from lastmile.runner.operator_estop import EStopAction, OperatorEStop
 from lastmile.safety.hardware_watchdog import HardwareWatchdog
 from lastmile.safety.reliability_config import ReliabilityConfig, raw_sensor_specs

@@ -55,7 +55,8 @@ from lastmile.evaluation.fleet_metrics import (
 from lastmile.fleet.vehicle_client import Assignment, VehicleClient
 from lastmile.hdmap.loader import load_campus_map
 from lastmile.hdmap.routing import campus_shuttle_loop, route_polyline
-from lastmile.recorder.run_log import RunLog, RunLogWriter, RunMeta
+from lastmile.recorder.run_log import RunLog, RunMeta
+from lastmile.recorder.run_log_writer import RunLogWriter
 from lastmile.runner.closed_loop import (
     TICK_US,
     build_closed_loop,
