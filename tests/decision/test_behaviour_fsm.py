@@ -12,7 +12,8 @@ from lastmile.core.sensor_frames import StopCallFrame
 from lastmile.core.stamp import Stamp
 from lastmile.core.vehicle import VehicleGeometry
 from lastmile.core.vehicle_messages import BehaviourState
-from lastmile.decision.behaviour_fsm import BehaviourStateMachine, DecisionInput
+from lastmile.decision.behaviour_fsm import BehaviourStateMachine
+from lastmile.decision.decision_config import DecisionInput
 from lastmile.decision.mission import MissionManager
 from lastmile.tracking.prediction import MapAwarePredictor, PredictionConfig
 

@@ -10,7 +10,8 @@ from lastmile.core.safety_messages import FailSafeLevel, MalfunctionKind, Malfun
 from lastmile.core.stamp import Stamp
 from lastmile.core.vehicle import VehicleGeometry
 from lastmile.core.vehicle_messages import BehaviourState
-from lastmile.decision.behaviour_fsm import BehaviourStateMachine, DecisionInput
+from lastmile.decision.behaviour_fsm import BehaviourStateMachine
+from lastmile.decision.decision_config import DecisionInput
 from lastmile.decision.mission import MissionManager
 from lastmile.hdmap.layers import SLayerDatabase
 from lastmile.safety.failsafe import FailSafeArbiter

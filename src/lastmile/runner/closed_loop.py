@@ -17,7 +17,7 @@ from lastmile.core.safety_messages import FailSafeLevel
 from lastmile.core.stamp import Stamp
 from lastmile.core.vehicle import VehicleGeometry
 from lastmile.core.vehicle_messages import BehaviourState, StackOutput
-from lastmile.decision.behaviour_fsm import DecisionConfig
+from lastmile.decision.decision_config import DecisionConfig
 from lastmile.evaluation.metrics import compute_metrics, write_metrics, write_timing
 from lastmile.evaluation.report import write_report
 from lastmile.hdmap.layers import SLayerDatabase

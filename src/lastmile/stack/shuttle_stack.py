@@ -53,7 +53,8 @@ from lastmile.core.vehicle_messages import (
     Trajectory,
     VehicleStatus,
 )
-from lastmile.decision.behaviour_fsm import BehaviourStateMachine, DecisionConfig, DecisionInput
+from lastmile.decision.behaviour_fsm import BehaviourStateMachine
+from lastmile.decision.decision_config import DecisionConfig, DecisionInput
 from lastmile.decision.mission import MissionManager
 from lastmile.hdmap.layers import SLayerDatabase
 from lastmile.localization.ekf import PoseEkf, PoseEkfConfig
