@@ -124,7 +124,8 @@ def _run_fleet(
             raise ConfigError(
                 "--fleet: expected no --scenario or --weather (the fleet world is its own), got one"
             )
-        from lastmile.runner.fleet_run import FleetConfig, run_fleet
+        from lastmile.runner.fleet_config import FleetConfig
+        from lastmile.runner.fleet_run import run_fleet
 
         config = FleetConfig(
             shuttles=fleet,

@@ -12,7 +12,8 @@ import pytest
 
 from lastmile.core.errors import ConfigError
 from lastmile.evaluation.fleet_metrics import RideRecord, VehicleRecord, compute_fleet_metrics
-from lastmile.runner.fleet_run import FleetConfig, poisson_demand, run_fleet
+from lastmile.runner.fleet_config import FleetConfig, poisson_demand
+from lastmile.runner.fleet_run import run_fleet
 
 
 def test_two_simulated_shuttles_serve_every_ride_through_the_real_server(tmp_path: Path) -> None:

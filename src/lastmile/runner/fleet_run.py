@@ -52,6 +52,7 @@ from lastmile.evaluation.fleet_metrics import (
     compute_fleet_metrics,
     write_fleet_report,
 )
+from lastmile.fleet.scheduling import CAPACITY_SEATS
 from lastmile.fleet.vehicle_client import Assignment, VehicleClient
 from lastmile.hdmap.loader import load_campus_map
 from lastmile.hdmap.routing import campus_shuttle_loop, route_polyline
@@ -63,6 +64,7 @@ from lastmile.runner.closed_loop import (
     evaluate_run,
     log_hmi_and_ego,
 )
+from lastmile.runner.fleet_config import Demand, FleetConfig, poisson_demand
 from lastmile.runner.fleet_server import ServerProcess
 from lastmile.safety.hardware_watchdog import HardwareWatchdog
 from lastmile.sim.agents import Agent
@@ -73,98 +75,12 @@ from lastmile.sim.sensors import RCS_DBSM
 from lastmile.sim.simulation import Simulation
 from lastmile.stack.shuttle_stack import ShuttleStack
 
-CAPACITY_SEATS = 6
 # N shuttles in one process: the radar object lists keep a fleet hour affordable on one core.
 FLEET_PERCEPTION_MODE = "radar_tracking"
 PROXY_ID_BASE = 9000  # road-user ids of the other shuttles in each shuttle's world
 PEDESTRIAN_PROXY_BASE = 9100  # and of the mirrored pedestrians
 
 ProgressCallback = Callable[[float, float], None]
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class FleetConfig:
-    """A fleet run.
-
-    Attributes:
-        shuttles: how many shuttles, >= 1; spaced evenly round the loop at the start.
-        minutes: longest simulated duration.
-        seed: the root seed; each shuttle's simulator and the demand model get their own stream.
-        demand_per_pair_per_h: Poisson rate of ride requests per ordered stop pair (riders per hour).
-        demand_minutes: riders arrive during the first this-many simulated minutes (None: all run).
-        until_served: end early once the demand window is over and every request has been dropped off.
-        sync_period_s: simulated seconds between exchanges with the server.
-        cruise_speed_mps: the shuttles' cruise speed (None: the stack's default, 20 km/h).
-        max_seats: each request asks for 1..max_seats seats (uniform).
-        pedestrian_mean_gap_s: pedestrians cross at every crosswalk on the loop, this many seconds
-            apart on average, in the world all shuttles share (None: no pedestrians).
-        cameras: a crossing camera (NUS) at every crosswalk on the loop reports presence through the
-            server to the shuttles.
-        camera_rate_hz: the cameras' capture rate (NUS: 5 Hz, and 1 Hz).
-        camera_keepalive_s: a camera posts a report when presence changes, and at least this often.
-    """
-
-    shuttles: int = 2
-    minutes: float = 10.0
-    seed: int = 0
-    demand_per_pair_per_h: float = 2.0
-    demand_minutes: float | None = None
-    until_served: bool = False
-    sync_period_s: float = 1.0
-    cruise_speed_mps: float | None = None
-    max_seats: int = 2
-    pedestrian_mean_gap_s: float | None = 40.0
-    cameras: bool = True
-    camera_rate_hz: float = 5.0
-    camera_keepalive_s: float = 1.0
-
-    def __post_init__(self) -> None:
-        if self.shuttles < 1:
-            raise ConfigError(f"fleet: expected at least 1 shuttle, got {self.shuttles}")
-        if not self.minutes > 0:
-            raise ConfigError(f"fleet minutes: expected > 0, got {self.minutes}")
-        if self.demand_per_pair_per_h < 0:
-            raise ConfigError(f"fleet demand_per_pair_per_h: expected >= 0, got {self.demand_per_pair_per_h}")
-        if not self.sync_period_s > 0 or round(self.sync_period_s * 1e6) % TICK_US:
-            raise ConfigError(
-                f"fleet sync_period_s: expected a positive multiple of {TICK_US / 1e6} s, "
-                f"got {self.sync_period_s}"
-            )
-        if self.pedestrian_mean_gap_s is not None and not self.pedestrian_mean_gap_s > 0:
-            raise ConfigError(
-                f"fleet pedestrian_mean_gap_s: expected > 0 or None, got {self.pedestrian_mean_gap_s}"
-            )
-        if not self.camera_keepalive_s > 0:
-            raise ConfigError(f"fleet camera_keepalive_s: expected > 0, got {self.camera_keepalive_s}")
-        if not 1 <= self.max_seats <= CAPACITY_SEATS:
-            raise ConfigError(f"fleet max_seats: expected 1..{CAPACITY_SEATS}, got {self.max_seats}")
-
-
-@dataclass(frozen=True, slots=True)
-class Demand:
-    """One rider: when they ask, from where to where, how many seats."""
-
-    t_s: float
-    origin: str
-    destination: str
-    seats: int
-
-
-def poisson_demand(
-    stop_ids: list[str], rate_per_pair_per_h: float, window_s: float, max_seats: int, rng: np.random.Generator
-) -> list[Demand]:
-    """Riders for every ordered stop pair as independent Poisson processes over ``[0, window_s)``."""
-    out: list[Demand] = []
-    rate_s = rate_per_pair_per_h / 3600.0
-    for o in stop_ids:
-        for d in stop_ids:
-            if o == d or rate_s <= 0:
-                continue
-            n = int(rng.poisson(rate_s * window_s))
-            times = np.sort(rng.uniform(0.0, window_s, size=n))
-            seats = rng.integers(1, max_seats + 1, size=n)
-            out.extend(Demand(float(t), o, d, int(k)) for t, k in zip(times, seats, strict=True))
-    return sorted(out, key=lambda r: (r.t_s, r.origin, r.destination))
 
 
 @dataclass
