@@ -73,7 +73,7 @@ class DecisionConfig:
     traffic_lights: TrafficLightRuleConfig = field(default_factory=TrafficLightRuleConfig)
 
 
-@dataclass(slots=True)
+@dataclass(frozen=True, slots=True)
 class DecisionInput:
     """What the decision module sees each planning cycle (all from the stack's own estimates)."""
 
