@@ -58,20 +58,15 @@ class ProtocolConfig:
 
 @dataclass(slots=True)
 class _Frame:
-    gt_ids: np.ndarray
-    gt_ignore: np.ndarray
-    gt_trunc: np.ndarray
     trk_rows: np.ndarray  # indices into the sequence's result rows
     trk_ids: np.ndarray
     iou: np.ndarray  # (n_gt, n_trk)
-    trk_ignorable: np.ndarray  # ignored if unmatched
     cache: dict[bytes, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
 
 
 @dataclass(slots=True)
 class _Sequence:
     frames: list[_Frame]
-    trk_track_ids: np.ndarray  # (R,) track id of each result row
     trk_mean_score: np.ndarray  # (R,) mean score of the row's track at the current pass
     row_score: np.ndarray  # (R,) the rows' scores as the reference holds them at the current pass
     track_rows: list[np.ndarray]  # rows of each track, in frame order
@@ -80,7 +75,7 @@ class _Sequence:
     # The frames' ground truth end to end (frame order), to count a pass with whole-sequence arrays.
     gt_start: np.ndarray  # (n_frames,) offset of each frame's first labelled object
     gt_ignore: np.ndarray  # (G,)
-    trk_ignorable: np.ndarray  # (R,) rows are in frame order, so frame k's rows are trk_rows of frame k
+    trk_ignorable: np.ndarray  # (R,) ignored if unmatched
     trajectories: list[tuple[np.ndarray, list[bool]]]  # per labelled track: its objects, their ignore flags
     matchable: list[int]  # frames with at least one labelled object and one result row
 
@@ -148,6 +143,9 @@ def _prepare(gt: KittiRows, res: KittiRows, cls: str, n_frames: int, cfg: Protoc
     dc_by_frame = {f: np.nonzero(g_dc & (gt.frame == f))[0] for f in np.unique(gt.frame[g_dc])}
     local = {f: np.nonzero(res.frame[r_sel] == f)[0] for f in np.unique(res.frame[r_sel])}
     empty = np.zeros(0, np.int64)
+    gt_parts: list[np.ndarray] = []
+    ignore_parts: list[np.ndarray] = []
+    ignorable_parts: list[np.ndarray] = []
     for f in range(n_frames):
         gi = g_by_frame.get(f, empty)
         ti = local.get(f, empty)
@@ -160,32 +158,27 @@ def _prepare(gt: KittiRows, res: KittiRows, cls: str, n_frames: int, cfg: Protoc
             frac = _area_fraction_inside(res.image_box[rows], gt.image_box[dci])
             ignorable |= np.any(frac > cfg.dontcare_overlap, axis=1)
         frames.append(
-            _Frame(
-                gt_ids=gt.track_id[gi],
-                gt_ignore=ignore,
-                gt_trunc=gt.truncation[gi],
-                trk_rows=ti,
-                trk_ids=res.track_id[rows],
-                iou=iou3d_matrix(g_boxes[gi], r_boxes[rows]),
-                trk_ignorable=ignorable,
-            )
+            _Frame(trk_rows=ti, trk_ids=res.track_id[rows], iou=iou3d_matrix(g_boxes[gi], r_boxes[rows]))
         )
-    gt_ids = np.concatenate([fr.gt_ids for fr in frames]) if frames else empty
-    gt_ignore = np.concatenate([fr.gt_ignore for fr in frames]) if frames else np.zeros(0, bool)
+        gt_parts.append(gi)
+        ignore_parts.append(ignore)
+        ignorable_parts.append(ignorable)
+    # Rows are in frame order, so the frames' rows end to end are the sequence's rows.
+    gt_ids = gt.track_id[np.concatenate(gt_parts)] if frames else empty
+    gt_ignore = np.concatenate(ignore_parts) if frames else np.zeros(0, bool)
     order = np.argsort(gt_ids, kind="stable")  # each labelled track's objects, in frame order
     cuts = np.flatnonzero(np.diff(gt_ids[order])) + 1
     trajectories = [(idx, gt_ignore[idx].tolist()) for idx in np.split(order, cuts) if idx.size]
     return _Sequence(
         frames=frames,
-        trk_track_ids=ids,
         trk_mean_score=np.zeros(len(r_sel)),
         row_score=res.score[r_sel].astype(np.float64),
         track_rows=track_rows,
         valid=np.zeros(len(r_sel), dtype=bool),
         source_rows=r_sel,
-        gt_start=np.cumsum([0] + [fr.gt_ids.shape[0] for fr in frames[:-1]]).astype(np.int64),
+        gt_start=np.cumsum([0] + [g.shape[0] for g in gt_parts[:-1]]).astype(np.int64),
         gt_ignore=gt_ignore,
-        trk_ignorable=np.concatenate([fr.trk_ignorable for fr in frames]) if frames else np.zeros(0, bool),
+        trk_ignorable=np.concatenate(ignorable_parts) if frames else np.zeros(0, bool),
         trajectories=trajectories,
         matchable=[k for k, fr in enumerate(frames) if fr.iou.size],
     )
@@ -345,7 +338,7 @@ def row_outcomes(
         _, tc = _assign(fr, everything[fr.trk_rows], cfg.min_overlap)
         matched = np.zeros(fr.trk_rows.shape[0], dtype=bool)
         matched[tc] = True
-        unmatched = np.where(fr.trk_ignorable, ROW_NOT_SCORED, ROW_FALSE)
+        unmatched = np.where(seq.trk_ignorable[fr.trk_rows], ROW_NOT_SCORED, ROW_FALSE)
         local[fr.trk_rows] = np.where(matched, ROW_MATCHED, unmatched)
     out = np.full(len(results), ROW_NOT_SCORED, np.int8)
     out[seq.source_rows] = local

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 import multiprocessing
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from typing import Any
@@ -62,24 +62,23 @@ def _training_keys(
     jobs: list[tuple[str, tuple[str, ...], str]], workers: int, on_evaluated: Callable[[], None] | None
 ) -> list[tuple[float, float, float]]:
     """``_training_key`` of every job, in a pool of forked workers when ``workers`` > 1."""
-    if workers <= 1:
-        out = []
-        for job in jobs:
-            out.append(_training_key(*job))
+
+    def collect(results: Iterable[tuple[float, float, float]]) -> list[tuple[float, float, float]]:
+        keys = []
+        for key in results:  # in submission order: the choice does not depend on completion order
+            keys.append(key)
             if on_evaluated is not None:
                 on_evaluated()
-        return out
+        return keys
+
+    if workers <= 1:
+        return collect(_training_key(*job) for job in jobs)
     # Forked workers inherit _STATE: the candidates' rows (hundreds of MB for a large grid) are never
     # pickled, only the job names and the three floats each returns.
     ctx = multiprocessing.get_context("fork")
     with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=pin_blas_threads) as pool:
         futures = [pool.submit(_training_key, *job) for job in jobs]
-        keys = []
-        for f in futures:  # in submission order: the choice does not depend on completion order
-            keys.append(f.result())
-            if on_evaluated is not None:
-                on_evaluated()
-    return keys
+        return collect(f.result() for f in futures)
 
 
 def two_folds(sequences: Sequence[str]) -> list[tuple[str, ...]]:
