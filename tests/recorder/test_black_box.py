@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import itertools
 import json
+from collections import deque
 from pathlib import Path
 
 import numpy as np
@@ -36,6 +37,25 @@ def test_window_keeps_exactly_the_last_30_s(tmp_path: Path) -> None:
     assert window[-1][0] == newest
     assert window[0][0] == newest - WINDOW_US + TICK_US  # (newest - 30 s, newest]
     assert len(window) == 3000
+    bb.close()
+
+
+def test_a_dump_interrupting_a_record_call_never_holds_more_than_the_window(tmp_path: Path) -> None:
+    # A SIGTERM handler runs between any two bytecodes of the loop, so it can dump while ``record`` is
+    # half done. The window as it stands right after the append (the only mutation a dump could see
+    # before the call returns) must already span less than 30 s.
+    bb = BlackBox(BlackBoxConfig(out_dir=tmp_path))
+    spans: list[int] = []
+
+    class Watched(deque):
+        def append(self, entry: tuple) -> None:
+            super().append(entry)
+            spans.append(self[-1][0] - self[0][0])
+
+    bb._window = Watched()
+    for tick in range(4000):
+        bb.record(tick * TICK_US, "/stack/command", _cmd(tick * TICK_US))
+    assert len(spans) == 4000 and max(spans) == WINDOW_US - TICK_US
     bb.close()
 
 

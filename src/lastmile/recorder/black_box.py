@@ -266,13 +266,15 @@ class BlackBox:
     def record(self, now_us: int, topic: str, message: Any) -> None:
         """Keep a reference to ``message`` (an immutable core message) under ``topic`` at ``now_us``."""
         entry = (now_us, topic, message)
-        self._window.append(entry)
+        window = self._window
         if now_us > self._newest_us:
+            # Trim before appending: a SIGTERM handler that dumps while this call is interrupted then
+            # sees the window of the previous tick, never the new entry beside the oldest expired one.
             self._newest_us = now_us
             horizon = now_us - self.config.window_us
-            window = self._window
-            while window[0][0] <= horizon:
+            while window and window[0][0] <= horizon:
                 window.popleft()
+        window.append(entry)
         if self.config.spool_chunk_us is not None:
             self._spool(entry)
 
