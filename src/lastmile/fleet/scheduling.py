@@ -150,10 +150,23 @@ class Planner:
         self.config = config or SchedulingConfig()
         self._memo: dict[str, tuple[list[Visit], float, int, list[float], list[int]]] = {}
 
+    def origin_s_m(self, vehicle_s_m: float) -> float:
+        """Where every distance ahead is measured from: the stop the vehicle is dwelling at, when it is
+        less than ``at_stop_tolerance_m`` past it (in its bay), else the vehicle's own position.
+
+        One origin for every stop matters: measured from the vehicle, the stop it dwells at would be
+        0 ahead now but a lap minus the overshoot ahead next time round, while plans add whole
+        stop-to-stop distances; a ride placed on that next pass then landed a visit out of order (found
+        by the property test of ``best_insertion``: a drop-off planned before its pick-up).
+        """
+        for stop in self.route.stops.values():
+            if self.route.ahead_m(stop.route_s_m, vehicle_s_m) < self.config.at_stop_tolerance_m:
+                return stop.route_s_m
+        return vehicle_s_m
+
     def first_ahead_m(self, vehicle_s_m: float, stop_id: str) -> float:
         """Distance to the next pass of ``stop_id``; 0 if the vehicle is at (or just past) it."""
-        d = self.route.ahead_m(vehicle_s_m, self.route.stops[stop_id].route_s_m)
-        return 0.0 if d > self.route.length_m - self.config.at_stop_tolerance_m else d
+        return self.route.ahead_m(self.origin_s_m(vehicle_s_m), self.route.stops[stop_id].route_s_m)
 
     def unrolled_m(self, plan: list[Visit], vehicle_s_m: float) -> list[float]:
         """Distance ahead of the vehicle to each visit, increasing along the plan."""
