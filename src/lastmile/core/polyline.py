@@ -180,8 +180,10 @@ class Polyline:
                 t = min(t, 1.0)
             elif i == last and last > 0:
                 t = max(t, 0.0)
-            px, py = ax + t * vx, ay + t * vy
-            d2 = (x_m - px) ** 2 + (y_m - py) ** 2
+            dx, dy = x_m - (ax + t * vx), y_m - (ay + t * vy)
+            # dx * dx, never dx ** 2: Python's float ** 2 is the C library's pow(), which misses the
+            # correctly rounded product by an ulp for some inputs, while NumPy squares by multiplying.
+            d2 = dx * dx + dy * dy
             if d2 < best_d2:
                 cross = vx * (y_m - ay) - vy * (x_m - ax)
                 best_d2 = d2
@@ -203,7 +205,8 @@ class Polyline:
             i = np.arange(lo, hi)
             t = np.where(i > 0, np.maximum(t, 0.0), t)
             t = np.where(i < last, np.minimum(t, 1.0), t)
-        d2 = (x_m - (ax + t * vx)) ** 2 + (y_m - (ay + t * vy)) ** 2
+        dx, dy = x_m - (ax + t * vx), y_m - (ay + t * vy)
+        d2 = dx * dx + dy * dy  # as the loop computes it (see there)
         k = int(np.argmin(d2))
         cross = float(vx[k]) * (y_m - float(ay[k])) - float(vy[k]) * (x_m - float(ax[k]))
         return FrenetPoint(
