@@ -16,6 +16,7 @@ from lastmile.core.sensor_frames import (
 from lastmile.core.stamp import Stamp
 from lastmile.core.vehicle import VehicleGeometry
 from lastmile.core.vehicle_messages import BehaviourState
+from lastmile.decision.decision_config import DecisionConfig
 from lastmile.safety.reliability_config import ReliabilityConfig, SensorSpec
 from lastmile.sim.vehicle_model import ActuatorDynamics, KinematicBicycle, VehicleState
 from lastmile.stack.shuttle_stack import ShuttleStack, StackConfig
@@ -123,3 +124,9 @@ def test_a_stop_call_makes_the_stack_pull_over_into_the_bay_and_open_the_door(st
 def test_a_prediction_horizon_shorter_than_the_crosswalk_look_ahead_is_refused() -> None:
     with pytest.raises(ConfigError, match=r"prediction.horizon_s: expected at least .*\(6.0 s\), got 4.0 s"):
         StackConfig(prediction=PredictionConfig(horizon_s=4.0))
+
+
+def test_a_prediction_horizon_shorter_than_the_vehicle_look_ahead_is_refused() -> None:
+    decision = DecisionConfig(vehicle_prediction_horizon_s=7.0)
+    with pytest.raises(ConfigError, match=r"vehicle_prediction_horizon_s \(7.0 s\), got 6.0 s"):
+        StackConfig(prediction=PredictionConfig(horizon_s=6.0), decision=decision)

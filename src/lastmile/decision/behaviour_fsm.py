@@ -27,6 +27,7 @@ from lastmile.decision.mission import MissionManager
 from lastmile.decision.pullover_spot import SpotRequest, choose_spot
 from lastmile.decision.right_of_way import ArrivalOrder, EntryLine
 from lastmile.decision.traffic_light_rule import TrafficLightRule
+from lastmile.decision.vehicle_cut_in import predicted_cut_ins
 from lastmile.hdmap.layers import SLayerDatabase
 
 
@@ -91,6 +92,7 @@ class BehaviourStateMachine:
         reason = "cruise"
 
         constraints += self._in_path(obstacles, inp, front_s)
+        constraints += self._cut_ins(obstacles, inp, front_s)
         constraints += self._crosswalks(inp.tracks, front_s, inp.speed_mps, inp.predictions)
         light_stop, light_why = self.lights.step(t_s, front_s, inp.speed_mps, inp.traffic_lights, self._ahead)
         if light_stop is not None:
@@ -170,6 +172,32 @@ class BehaviourStateMachine:
             # A lead moving along the route: stop where it would stop, eq. (2) applies to that point.
             effective = o.s_m - o.length_m / 2.0 + moving_away**2 / (2.0 * 3.0)
             out.append(_Constraint(effective - c.min_gap_m, o.cls.name.lower(), o.track_id))
+        return out
+
+    def _cut_ins(
+        self, obstacles: list[RouteObstacle], inp: DecisionInput, front_s: float
+    ) -> list[_Constraint]:
+        """Vehicles the lane-following prediction brings into the corridor ahead before the shuttle
+        passes (``vehicle_cut_in``): followed like a lead from where they enter. Never an emergency
+        stop on a prediction alone; once the car is in the corridor the in-path test takes over."""
+        c = self.config
+        traj = inp.trajectory
+        cut_ins = predicted_cut_ins(
+            obstacles,
+            inp.predictions,
+            self._route,
+            Polyline(traj.points[:, :2]) if traj is not None else None,
+            front_s,
+            inp.speed_mps,
+            self.geometry.width_m / 2.0 + c.corridor_margin_m,
+            horizon_s=c.vehicle_prediction_horizon_s,
+            pass_margin_s=c.cut_in_pass_margin_s,
+        )
+        out = []
+        for k in cut_ins:
+            moving_away = max(k.speed_along_mps, 0.0)
+            effective = k.entry_s_m - k.length_m / 2.0 + moving_away**2 / (2.0 * 3.0)
+            out.append(_Constraint(effective - c.min_gap_m, "cut-in", k.track_id, emergency_ok=False))
         return out
 
     def _crosswalks(

@@ -39,6 +39,12 @@ class DecisionConfig:
             20 km/h the shuttle needs about 10 m to stop comfortably, and someone walking to the kerb
             covers 5 m in that time. So does a map-aware predicted path (``DecisionInput.predictions``,
             mode ``to_crosswalk``) that reaches the zone within the same time.
+        vehicle_prediction_horizon_s: how far ahead a vehicle's lane-following predicted path
+            (``DecisionInput.predictions``) is searched for where it enters the corridor (a car
+            turning in from a side road); the shuttle then follows it from there
+            (``decision.vehicle_cut_in``). 4 s: the look-ahead the in-path test gives pedestrians.
+        cut_in_pass_margin_s: such a car is yielded to unless the shuttle's front would reach the
+            entry at least this long before the car.
         merge_room_m: room kept free ahead of a stopped shuttle's front so it can pull out around a
             car parked further along the bay (with min_gap_m + 0.5 beyond it). 4 m, not 5: every
             metre given here is taken from the swing in, and with a car at the end of S1's 24 m
@@ -67,6 +73,8 @@ class DecisionConfig:
     curb_gap_target_m: float = 0.2
     crosswalk_margin_m: float = 2.0
     crosswalk_lookahead_s: float = 6.0
+    vehicle_prediction_horizon_s: float = 4.0
+    cut_in_pass_margin_s: float = 2.0
     transition_m: float = 32.0
     merge_room_m: float = 4.0
     spot_scan_m: float = 40.0

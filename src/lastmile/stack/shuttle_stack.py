@@ -98,7 +98,8 @@ class StackConfig:
             (none: the stack cannot see signals, and treats every mapped one it reaches as red).
         traffic_lights: the traffic-light tracker's parameters.
         prediction: map-aware prediction of the tracks (Snow Lion's constant velocity, lanes and
-            crosswalks), handed to decision; its horizon must cover the decision's crosswalk look-ahead.
+            crosswalks), handed to decision; its horizon must cover the decision's crosswalk and
+            vehicle look-aheads.
     """
 
     tick_us: int = 10_000
@@ -124,11 +125,14 @@ class StackConfig:
     prediction: PredictionConfig = field(default_factory=lambda: PredictionConfig(horizon_s=6.0))
 
     def __post_init__(self) -> None:
-        if self.prediction.horizon_s + 1e-9 < self.decision.crosswalk_lookahead_s:
-            raise ConfigError(
-                f"StackConfig.prediction.horizon_s: expected at least the decision's crosswalk look-ahead "
-                f"({self.decision.crosswalk_lookahead_s} s), got {self.prediction.horizon_s} s"
-            )
+        # Decision reads the predicted paths this far ahead; shorter paths would silently shorten it.
+        for name in ("crosswalk_lookahead_s", "vehicle_prediction_horizon_s"):
+            need_s = getattr(self.decision, name)
+            if self.prediction.horizon_s + 1e-9 < need_s:
+                raise ConfigError(
+                    f"StackConfig.prediction.horizon_s: expected at least the decision's {name} "
+                    f"({need_s} s), got {self.prediction.horizon_s} s"
+                )
         if self.perception_mode not in PERCEPTION_MODES:
             raise ConfigError(
                 f"StackConfig.perception_mode: expected one of {PERCEPTION_MODES}, "

@@ -1,0 +1,145 @@
+"""Vehicles about to enter the shuttle's path, from tracking's lane-following prediction.
+
+The decision's in-path test sees a vehicle once it is inside the corridor swept along the planned
+path, and predicts nothing for vehicles (only pedestrians and cyclists get a constant-velocity look
+ahead there). A car turning in from a side road, or leaving a lanelet that joins the shuttle's, is
+then seen only as it arrives, often too close to stop comfortably. Tracking's map-aware prediction
+(``tracking.prediction``) already says where such a car goes: along its lanelet into the straightest
+successor, braking for a stop line on its way. Here each lane-following path is walked in time; where
+it first enters the corridor ahead of the shuttle's front, and the car gets there before the shuttle
+could pass (``pass_margin_s`` included), the car counts as a lead at that point, moving on along the
+route at its predicted speed there.
+
+Left to the other rules: a vehicle already in the corridor (the in-path test), one at or behind the
+shuttle's front (merging checks the rear), and paths the prediction stops at a stop line short of the
+corridor (a car waiting to turn in gets no constraint until it moves).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from lastmile.core.polyline import Polyline
+from lastmile.core.predictions import PREDICTION_MODES, PredictedPaths
+from lastmile.core.route_obstacles import RouteObstacle
+
+_LANE = PREDICTION_MODES.index("lane_following")
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class CutIn:
+    """Where a vehicle's predicted path enters the shuttle's corridor.
+
+    Attributes:
+        track_id: the vehicle's track.
+        entry_s_m: route position (same frame as the route's ``s``) of the first predicted centre
+            inside the corridor.
+        entry_t_s: when the prediction puts it there.
+        ahead_m: distance from the shuttle's front to the entry, along the route.
+        speed_along_mps: its predicted speed along the route after entering (negative: towards the
+            shuttle).
+        length_m: the vehicle's length.
+    """
+
+    track_id: int
+    entry_s_m: float
+    entry_t_s: float
+    ahead_m: float
+    speed_along_mps: float
+    length_m: float
+
+
+def predicted_cut_ins(
+    obstacles: list[RouteObstacle],
+    predictions: PredictedPaths | None,
+    route: Polyline,
+    path: Polyline | None,
+    front_s_m: float,
+    speed_mps: float,
+    half_width_m: float,
+    *,
+    horizon_s: float,
+    pass_margin_s: float,
+    lookahead_m: float = 70.0,
+) -> list[CutIn]:
+    """The vehicles whose lane-following path enters the corridor ahead before the shuttle passes.
+
+    Args:
+        obstacles: the tracks projected on the route (``route_obstacles``), for their current place.
+        predictions: tracking's predicted paths (None: no prediction, no cut-ins).
+        route: the route the obstacles were projected on.
+        path: the planned path, when there is one (its lateral offset from the route, in a pull-over
+            or a nudge, moves the corridor with it).
+        front_s_m: the shuttle's front on the route.
+        speed_mps: the shuttle's speed (at least 1 m/s is assumed, to time a shuttle that is stopped).
+        half_width_m: half the shuttle's width plus the corridor margin; the vehicle's own half width
+            is added per vehicle.
+        horizon_s: how far ahead in time the paths are used.
+        pass_margin_s: the car must reach the entry at least this long after the shuttle's front
+            would, or the shuttle yields to it.
+        lookahead_m: entries farther ahead than this along the route are ignored.
+    """
+    if predictions is None or len(predictions) == 0:
+        return []
+    by_id = {o.track_id: o for o in obstacles}
+    length = route.length_m
+    times = predictions.times_s.tolist()
+    out: list[CutIn] = []
+    rows = zip(predictions.ids.tolist(), predictions.mode.tolist(), predictions.xy_m, strict=True)
+    for tid, mode, xy in rows:
+        o = by_id.get(int(tid))
+        if int(mode) != _LANE or o is None or o.cls.vulnerable or o.ds_m <= 0.0:
+            continue
+        half = half_width_m + o.width_m / 2.0
+        if abs(_lateral(path, o.x_m, o.y_m, o.d_m)) < half:
+            continue  # already in the corridor: the in-path test's
+        hint = o.s_m
+        pts: list[list[float]] = xy.tolist()
+        entry: tuple[float, float, float, int] | None = None
+        for k, (t, (x, y)) in enumerate(zip(times, pts, strict=True)):
+            if t > horizon_s + 1e-9:
+                break
+            f = route.project(x, y, hint_s_m=hint, window_m=30.0)
+            hint = f.s_m
+            ahead = f.s_m - front_s_m
+            if route.closed:
+                ahead = (ahead + length / 2.0) % length - length / 2.0
+            if not 0.0 < ahead <= lookahead_m:
+                continue
+            if abs(_lateral(path, x, y, f.d_m)) >= half:
+                continue
+            if t >= ahead / max(speed_mps, 1.0) + pass_margin_s:
+                break  # the shuttle passes the entry first: the car comes in behind it
+            entry = (f.s_m, t, ahead, k)
+            break
+        if entry is None:
+            continue
+        s_m, t_s, ahead_m, k = entry
+        out.append(
+            CutIn(
+                track_id=int(tid),
+                entry_s_m=s_m,
+                entry_t_s=t_s,
+                ahead_m=ahead_m,
+                speed_along_mps=_speed_along(route, pts, times, k, s_m),
+                length_m=o.length_m,
+            )
+        )
+    return out
+
+
+def _lateral(path: Polyline | None, x_m: float, y_m: float, route_d_m: float) -> float:
+    """Offset of a point from the planned path (from the route when there is no path)."""
+    return path.project(x_m, y_m).d_m if path is not None else route_d_m
+
+
+def _speed_along(route: Polyline, pts: list[list[float]], times: list[float], k: int, s_m: float) -> float:
+    """Predicted speed along the route at sample ``k`` (finite difference with its neighbour)."""
+    j = k + 1 if k + 1 < len(times) else k - 1
+    if j < 0:
+        return 0.0
+    s_j = route.project(pts[j][0], pts[j][1], hint_s_m=s_m, window_m=30.0).s_m
+    ds = s_j - s_m
+    if route.closed:
+        ds = (ds + route.length_m / 2.0) % route.length_m - route.length_m / 2.0
+    return ds / (times[j] - times[k])  # times strictly increase (PredictedPaths.validate)
