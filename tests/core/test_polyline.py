@@ -81,3 +81,13 @@ def test_vectorised_projection_is_bit_identical_to_the_scalar_loop(vertices, clo
     vectorised = line._project_range(x_m, y_m, range(n))  # a long range takes the NumPy path
     scalar = line._project_range(x_m, y_m, list(range(n)))  # a list always takes the loop
     assert (vectorised.s_m, vectorised.d_m, vectorised.segment) == (scalar.s_m, scalar.d_m, scalar.segment)
+
+
+def test_ds_is_the_shorter_way_round_on_a_loop_and_the_difference_on_an_open_line():
+    assert SQUARE.closed and SQUARE.length_m == pytest.approx(40.0)
+    assert SQUARE.ds_m(38.0, 2.0) == pytest.approx(4.0)  # across the start, ahead
+    assert SQUARE.ds_m(2.0, 38.0) == pytest.approx(-4.0)  # across the start, behind
+    assert SQUARE.ds_m(5.0, 15.0) == pytest.approx(10.0)
+    assert SQUARE.ds_m(0.0, 20.0) == pytest.approx(-20.0)  # half a lap: [-L/2, L/2)
+    line = Polyline(np.array([[0.0, 0.0], [40.0, 0.0]]))
+    assert line.ds_m(38.0, 2.0) == pytest.approx(-36.0)

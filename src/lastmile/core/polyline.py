@@ -84,6 +84,14 @@ class Polyline:
     def length_m(self) -> float:
         return float(self.s_m[-1])
 
+    def ds_m(self, from_s_m: float, to_s_m: float) -> float:
+        """Arc length from ``from_s_m`` to ``to_s_m``: their difference on an open line; on a closed one
+        the shorter way round, in [-length / 2, length / 2) (ahead is positive)."""
+        if not self.closed:
+            return to_s_m - from_s_m
+        length = self.length_m
+        return (to_s_m - from_s_m + length / 2.0) % length - length / 2.0
+
     def _wrap_s(self, s_m: float) -> float:
         if self.closed:
             return s_m % self.length_m

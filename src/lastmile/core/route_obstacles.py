@@ -45,7 +45,6 @@ def route_obstacles(
 ) -> list[RouteObstacle]:
     """Tracks within ``horizon_m`` of the ego projected onto the (closed) route near the ego."""
     out: list[RouteObstacle] = []
-    length = route.length_m
     ex, ey, _ = route.point_at(ego_s_m)
     for tid, row in zip(tracks.ids.tolist(), tracks.table.tolist(), strict=True):
         x, y = row[_X], row[_Y]
@@ -55,7 +54,7 @@ def route_obstacles(
         f = route.project(x, y, hint_s_m=ego_s_m + dist, window_m=dist + 10.0)
         heading = route.heading_at(f.s_m)
         c, s = math.cos(heading), math.sin(heading)
-        ds = (f.s_m - ego_s_m + length / 2.0) % length - length / 2.0 if route.closed else f.s_m - ego_s_m
+        ds = route.ds_m(ego_s_m, f.s_m)
         out.append(
             RouteObstacle(
                 track_id=int(tid),

@@ -489,10 +489,7 @@ class BehaviourStateMachine:
         self.state = state
 
     def _ahead(self, s_m: float, front_s: float) -> float:
-        length = self._route.length_m
-        if not self._route.closed:
-            return s_m - front_s
-        return (s_m - front_s + length / 2.0) % length - length / 2.0
+        return self._route.ds_m(front_s, s_m)
 
     def _next_requested_stop(self, front_s: float) -> int | None:
         for i, rs in enumerate(self.layers.stops):

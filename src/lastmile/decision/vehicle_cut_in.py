@@ -82,7 +82,6 @@ def predicted_cut_ins(
     if predictions is None or len(predictions) == 0:
         return []
     by_id = {o.track_id: o for o in obstacles}
-    length = route.length_m
     times = predictions.times_s.tolist()
     out: list[CutIn] = []
     rows = zip(predictions.ids.tolist(), predictions.mode.tolist(), predictions.xy_m, strict=True)
@@ -101,9 +100,7 @@ def predicted_cut_ins(
                 break
             f = route.project(x, y, hint_s_m=hint, window_m=30.0)
             hint = f.s_m
-            ahead = f.s_m - front_s_m
-            if route.closed:
-                ahead = (ahead + length / 2.0) % length - length / 2.0
+            ahead = route.ds_m(front_s_m, f.s_m)
             if not 0.0 < ahead <= lookahead_m:
                 continue
             if abs(_lateral(path, x, y, f.d_m)) >= half:
@@ -139,7 +136,4 @@ def _speed_along(route: Polyline, pts: list[list[float]], times: list[float], k:
     if j < 0:
         return 0.0
     s_j = route.project(pts[j][0], pts[j][1], hint_s_m=s_m, window_m=30.0).s_m
-    ds = s_j - s_m
-    if route.closed:
-        ds = (ds + route.length_m / 2.0) % route.length_m - route.length_m / 2.0
-    return ds / (times[j] - times[k])  # times strictly increase (PredictedPaths.validate)
+    return route.ds_m(s_m, s_j) / (times[j] - times[k])  # times strictly increase (PredictedPaths.validate)

@@ -176,5 +176,4 @@ def _unwrap_near(s_m: float, reference_s_m: float, route: Polyline) -> float:
     """Express a loop's s in the same lap as ``reference_s_m`` (the planning grid is not wrapped)."""
     if not route.closed:
         return s_m
-    length = route.length_m
-    return reference_s_m + (s_m - reference_s_m + length / 2.0) % length - length / 2.0
+    return reference_s_m + route.ds_m(reference_s_m, s_m)

@@ -259,7 +259,7 @@ class Judge:
         s = w.ego.state
         f = self.service_route.project(s.x_m, s.y_m, hint_s_m=self._route_s, window_m=10.0)
         length = self.service_route.length_m
-        ds = (f.s_m - self._route_s + length / 2.0) % length - length / 2.0
+        ds = self.service_route.ds_m(self._route_s, f.s_m)
         if abs(f.d_m) < 8.0:
             self._route_s_total += ds
             self._route_s = f.s_m
