@@ -31,7 +31,7 @@ import asyncio
 import dataclasses
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -43,9 +43,7 @@ from lastmile.core.errors import ConfigError
 from lastmile.core.geometry import PreparedPolygon
 from lastmile.core.object_class import ObjectClass
 from lastmile.core.rng import component_rng
-from lastmile.core.sensor_frames import CrossingPresenceFrame, SensorFrame, StopCallFrame
 from lastmile.core.stamp import Stamp
-from lastmile.core.vehicle_messages import BehaviourState, StackOutput, VehicleStatus
 from lastmile.evaluation.fleet_metrics import (
     RideRecord,
     VehicleRecord,
@@ -54,30 +52,28 @@ from lastmile.evaluation.fleet_metrics import (
 )
 from lastmile.fleet.scheduling import CAPACITY_SEATS
 from lastmile.fleet.vehicle_client import Assignment, VehicleClient
-from lastmile.hdmap.loader import load_campus_map
-from lastmile.hdmap.routing import campus_shuttle_loop, route_polyline
 from lastmile.recorder.run_log import RunLog, RunMeta
 from lastmile.recorder.run_log_writer import RunLogWriter
 from lastmile.runner.closed_loop import (
     TICK_US,
     build_closed_loop,
     evaluate_run,
-    log_hmi_and_ego,
 )
 from lastmile.runner.fleet_config import Demand, FleetConfig, poisson_demand
 from lastmile.runner.fleet_server import ServerProcess
-from lastmile.safety.hardware_watchdog import HardwareWatchdog
+from lastmile.runner.fleet_shuttle import (
+    FleetShuttle,
+    place_proxy,
+    proxy_for,
+    shuttle_scenario,
+    step_shuttle,
+    take_presence,
+)
 from lastmile.sim.agents import Agent
 from lastmile.sim.infrastructure import CrossingCamera, CrossingCameraConfig
-from lastmile.sim.passengers import PassengerConfig
-from lastmile.sim.scenario import CrosswalkPedestrians, Scenario
-from lastmile.sim.sensors import RCS_DBSM
-from lastmile.sim.simulation import Simulation
-from lastmile.stack.shuttle_stack import ShuttleStack
 
 # N shuttles in one process: the radar object lists keep a fleet hour affordable on one core.
 FLEET_PERCEPTION_MODE = "radar_tracking"
-PROXY_ID_BASE = 9000  # road-user ids of the other shuttles in each shuttle's world
 PEDESTRIAN_PROXY_BASE = 9100  # and of the mirrored pedestrians
 
 ProgressCallback = Callable[[float, float], None]
@@ -92,68 +88,6 @@ class _Rider:
     vehicle_id: str = ""
     picked_up_s: float | None = None
     dropped_off_s: float | None = None
-
-
-@dataclass
-class _Shuttle:
-    """One shuttle: its simulator, its stack, its log and its link to the server."""
-
-    vid: str
-    sim: Simulation
-    stack: ShuttleStack
-    writer: RunLogWriter
-    client: VehicleClient
-    proxies: dict[int, Agent] = field(default_factory=dict)
-    watchdog: HardwareWatchdog = field(default_factory=HardwareWatchdog)
-    stack_alive: bool = True
-    status: VehicleStatus | None = None
-    last_state: BehaviourState | None = None
-    judge_seen: int = 0
-    served_stops: list[tuple[float, str]] = field(default_factory=list)
-    calls: list[str] = field(default_factory=list)
-    onboard: int = 0
-    max_onboard: int = 0
-    distance_m: float = 0.0
-    occupied_s: float = 0.0
-    seat_s: float = 0.0
-    stack_wall_s: float = 0.0
-    hmi: dict[str, str] = field(default_factory=dict)
-    frames: list[SensorFrame] = field(default_factory=list)
-    presence_seen: dict[str, int] = field(default_factory=dict)
-    pedestrian_proxies: list[tuple[Agent, Agent]] = field(default_factory=list)
-    anticipating: bool = False
-
-
-def _shuttle_scenario(config: FleetConfig, k: int, seed: int, start_s_m: float) -> Scenario:
-    # No stop-button riders: in a fleet run every rider comes through the server. Pedestrians live in
-    # shuttle 0's world; the other shuttles' worlds mirror them (one set of pedestrians for all).
-    walkers: tuple[CrosswalkPedestrians, ...] = ()
-    if k == 0 and config.pedestrian_mean_gap_s is not None:
-        walkers = tuple(
-            CrosswalkPedestrians(crosswalk=i, mean_gap_s=config.pedestrian_mean_gap_s)
-            for i in _loop_crosswalks()
-        )
-    return Scenario(
-        name=f"fleet_shuttle_{k}",
-        minutes=config.minutes,
-        seed=seed,
-        start_route_s_m=start_s_m,
-        passengers=PassengerConfig(arrivals_per_stop_per_min=0.0),
-        cruise_speed_mps=config.cruise_speed_mps,
-        crosswalk_pedestrians=walkers,
-    )
-
-
-def _loop_crosswalks() -> list[int]:
-    """Indices of the map's crosswalks the shuttle loop crosses (their centre within a lane of it)."""
-    hdmap = load_campus_map()
-    loop = route_polyline(hdmap, campus_shuttle_loop(hdmap), closed=True)
-    out = []
-    for i, cw in enumerate(hdmap.crosswalks):
-        cx, cy = np.asarray(cw.polygon, dtype=float).mean(axis=0)
-        if abs(loop.project(float(cx), float(cy)).d_m) < 4.0:
-            out.append(i)
-    return out
 
 
 @dataclass
@@ -187,13 +121,13 @@ async def _run(
     config: FleetConfig, out_dir: Path, server: ServerProcess, progress: ProgressCallback | None
 ) -> dict[str, Any]:
     seeds = np.random.SeedSequence(config.seed).spawn(config.shuttles + 1)
-    shuttles: list[_Shuttle] = []
+    shuttles: list[FleetShuttle] = []
     loop_length_m: float | None = None
     for k in range(config.shuttles):
         seed_k = int(seeds[k].generate_state(1)[0])
         # Start positions: evenly round the loop (loop length from the first shuttle's simulator).
         start = 0.0 if loop_length_m is None else k * loop_length_m / config.shuttles
-        scenario = _shuttle_scenario(config, k, seed_k, start)
+        scenario = shuttle_scenario(config, k, seed_k, start)
         hdmap, sim, stack = build_closed_loop(scenario, FLEET_PERCEPTION_MODE)
         loop_length_m = sim.service_route.length_m
         meta = RunMeta(
@@ -208,7 +142,7 @@ async def _run(
         )
         vid = f"sim-{k}"
         client = VehicleClient(server.url, vid, server.tokens["vehicle"])
-        shuttles.append(_Shuttle(vid=vid, sim=sim, stack=stack, writer=RunLogWriter(meta), client=client))
+        shuttles.append(FleetShuttle(vid=vid, sim=sim, stack=stack, writer=RunLogWriter(meta), client=client))
     stop_ids = [s.id for s in shuttles[0].sim.world.hdmap.stops]
     window_s = (config.demand_minutes if config.demand_minutes is not None else config.minutes) * 60.0
     demand = poisson_demand(
@@ -221,7 +155,7 @@ async def _run(
     for s in shuttles:
         for other in shuttles:
             if other is not s:
-                s.proxies[id(other)] = _proxy(s, other, len(s.proxies))
+                s.proxies[id(other)] = proxy_for(s, other, len(s.proxies))
                 s.sim.world.agents.append(s.proxies[id(other)])
 
     # One set of pedestrians: they walk in shuttle 0's world and are mirrored into the others'.
@@ -288,12 +222,12 @@ async def _run(
             for s in shuttles:
                 for other in shuttles:
                     if other is not s:
-                        _place(s.proxies[id(other)], other.sim)
+                        place_proxy(s.proxies[id(other)], other.sim)
                 for a, proxy in s.pedestrian_proxies:
                     proxy.x_m, proxy.y_m, proxy.yaw_rad = a.x_m, a.y_m, a.yaw_rad
                     proxy.speed_mps, proxy.active = a.speed_mps, a.active
             for s in shuttles:
-                _step(s, tick, now, t_s)
+                step_shuttle(s, tick, now, t_s)
                 s.distance_m += s.sim.world.ego.state.speed_mps * dt
                 if s.onboard > 0:
                     s.occupied_s += dt
@@ -302,7 +236,7 @@ async def _run(
                 # A report went out: let it reach every shuttle before simulated time moves on.
                 for s in shuttles:
                     await s.client.sync()
-                    _take_presence(s, now)
+                    take_presence(s, now)
             if tick % sync_ticks == 0:
                 for s in shuttles:
                     await _report_done(s, by_request)
@@ -420,90 +354,7 @@ def _expect(res: httpx.Response, code: int, what: str) -> None:
         )
 
 
-def _proxy(host: _Shuttle, other: _Shuttle, k: int) -> Agent:
-    g = other.sim.world.geometry
-    agent = Agent(
-        id=PROXY_ID_BASE + k,
-        cls=ObjectClass.CAR,
-        x_m=0.0,
-        y_m=0.0,
-        yaw_rad=0.0,
-        speed_mps=0.0,
-        length_m=g.length_m,
-        width_m=g.width_m,
-        rcs_dbsm=RCS_DBSM[ObjectClass.CAR],
-    )
-    _place(agent, other.sim)
-    return agent
-
-
-def _place(agent: Agent, sim: Simulation) -> None:
-    """Put the other shuttle where it truly is (footprint centre, heading, speed)."""
-    agent.x_m, agent.y_m = sim.world.ego_centre()
-    agent.yaw_rad = sim.world.ego.state.yaw_rad
-    agent.speed_mps = sim.world.ego.state.speed_mps
-
-
-def _step(s: _Shuttle, tick: int, now: Stamp, t_s: float) -> None:
-    """One base tick of one shuttle, in DESIGN.md's phase order (as ``closed_loop`` does)."""
-    sim, w = s.sim, s.writer
-    sim.advance_world(tick)
-    frames: list[SensorFrame] = list(sim.sensor_frames(tick))
-    # The plan's stops, as the vehicle's fleet link hands them to the stack.
-    frames.extend(StopCallFrame(stamp=now, stop_id=stop, source="dispatch") for stop in s.calls)
-    s.calls = []
-    frames.extend(s.frames)  # infrastructure reports relayed by the server
-    s.frames = []
-    out: StackOutput | None = None
-    if s.stack_alive:
-        t0 = time.perf_counter()
-        try:
-            out = s.stack.tick(now, frames)
-        except Exception as exc:
-            s.stack_alive = False
-            w.add_event(t_s, "stack_crash", error=f"{type(exc).__name__}: {exc}")
-        s.stack_wall_s += time.perf_counter() - t0
-    command = out.command if out is not None else None
-    brake = s.watchdog.observe(int(now), command)
-    if brake is not None:
-        command = brake
-    sim.apply_command(command)
-    sim.referee(out.takeover_request if out is not None else False)
-    if out is not None and out.status is not None:
-        s.status = out.status
-    state = out.decision.state if out is not None and out.decision is not None else None
-    if out is not None and state is not None and state != s.last_state:
-        w.add_event(
-            t_s,
-            "state_change",
-            **{
-                "from": s.last_state.value if s.last_state else "",
-                "to": state.value,
-                "reason": out.decision.reason if out.decision else "",
-            },
-        )
-        s.last_state = state
-    anticipating = out is not None and out.decision is not None and "infrastructure" in out.decision.reason
-    if anticipating != s.anticipating:
-        w.add_event(t_s, "v2i_anticipation", active=anticipating)
-        s.anticipating = anticipating
-    for msg in out.hmi if out is not None else ():
-        s.hmi[msg.screen] = msg.text
-        s.hmi["cue"], s.hmi["light"] = msg.cue, msg.light
-        if msg.screen == "front":  # the cue's sound comes with its front message
-            s.hmi["sound"] = msg.sound
-    log_hmi_and_ego(w, t_s, tick, out, sim, state)
-    events = sim.judge.events
-    if len(events) > s.judge_seen:
-        fresh = events[s.judge_seen :]
-        w.add_events(fresh)
-        s.judge_seen = len(events)
-        for ev_t, kind, data in fresh:
-            if kind == "stop_served":
-                s.served_stops.append((ev_t, str(data["stop_id"])))
-
-
-async def _report_done(s: _Shuttle, by_request: dict[str, _Rider]) -> None:
+async def _report_done(s: FleetShuttle, by_request: dict[str, _Rider]) -> None:
     """For each stop served since the last sync: the plan's next visit is done if it is at that stop
     (drop-offs first). A later visit at the same stop stays for its lap: the server placed it there to
     keep the seats on board within capacity."""
@@ -578,21 +429,3 @@ async def _cameras(
         cam.last_posted = (msg.captured_s, msg.pedestrians_present)
         posted = True
     return posted
-
-
-def _take_presence(s: _Shuttle, now: Stamp) -> None:
-    """Reports the shuttle's link received since the last look, as frames for its next stack tick."""
-    for node, msg in s.client.infrastructure.items():
-        captured_us = int(msg["captured_us"])
-        if captured_us <= s.presence_seen.get(node, -1):
-            continue
-        s.presence_seen[node] = captured_us
-        s.frames.append(
-            CrossingPresenceFrame(
-                stamp=Stamp(int(now) + TICK_US),
-                node_id=node,
-                crosswalk_id=int(msg["crosswalk"]),
-                pedestrians_present=bool(msg["present"]),
-                captured=Stamp(captured_us),
-            )
-        )
