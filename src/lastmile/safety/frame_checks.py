@@ -1,0 +1,115 @@
+"""What the reliability monitor checks in a single sensor frame: which stream it belongs to, whether
+it repeats its predecessor (a frozen driver), and whether its content is usable at all."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import fields
+
+import numpy as np
+
+from lastmile.core.errors import MessageError
+from lastmile.core.sensor_frames import (
+    CameraDetections,
+    CrossingPresenceFrame,
+    DoorSensorFrame,
+    GnssInsFrame,
+    ImuFrame,
+    LidarSweep,
+    RadarFrame,
+    SensorFrame,
+    StopCallFrame,
+    WheelOdometryFrame,
+)
+from lastmile.core.traffic_light_messages import TrafficLightDetections
+
+
+def sensor_key(frame: SensorFrame) -> str | None:
+    """The stream a frame belongs to (None for event-driven frames such as stop calls)."""
+    # Radars keep their bare ids (the suite's first streams); LiDARs and cameras are prefixed, since a
+    # front radar, a front LiDAR and a front camera are three streams.
+    if isinstance(frame, RadarFrame):
+        return frame.sensor_id
+    if isinstance(frame, LidarSweep):
+        return f"lidar_{frame.sensor_id}"
+    if isinstance(frame, CameraDetections):
+        return f"camera_{frame.camera_id}"
+    if isinstance(frame, TrafficLightDetections):
+        return f"traffic_lights.{frame.camera_id}"
+    if isinstance(frame, GnssInsFrame):
+        return "gnss"
+    if isinstance(frame, ImuFrame):
+        return "imu"
+    if isinstance(frame, WheelOdometryFrame):
+        return "odom"
+    if isinstance(frame, DoorSensorFrame):
+        return "door"
+    if isinstance(frame, StopCallFrame | CrossingPresenceFrame):
+        return None
+    raise MessageError(f"sensor_key: expected a SensorFrame, got {type(frame).__name__}")
+
+
+def payload_digest(frame: SensorFrame) -> tuple[object, ...] | None:
+    """Everything but the stamp, hashable; None when there is no content to compare (empty lists, or
+    odometry at standstill without an alive counter, which legitimately repeats; moving, wheel-speed
+    noise makes every frame differ, so a repeat there is a frozen driver). An alive counter or a
+    radar's cycle counter makes every healthy frame differ, standing still or not."""
+    if isinstance(frame, WheelOdometryFrame) and frame.cycle >= 0:
+        return (frame.cycle, frame.speed_mps, frame.steer_front_rad, frame.steer_rear_rad)
+    if isinstance(frame, WheelOdometryFrame) and frame.speed_mps < 0.1:
+        return None
+    if isinstance(frame, RadarFrame) and frame.cycle >= 0:
+        # The cycle counter advances with every healthy list, empty or not.
+        return (frame.cycle, hash(frame.objects.tobytes()))
+    parts: list[object] = []
+    for f in fields(frame):
+        if f.name == "stamp":
+            continue
+        value = getattr(frame, f.name)
+        if isinstance(value, np.ndarray):
+            if value.size == 0:
+                return None
+            parts.append(hash(value.tobytes()))
+        else:
+            parts.append(value)
+    return tuple(parts)
+
+
+PLAUSIBLE_SPEED_MPS = 15.0  # odometry or GNSS speed: a 20 km/h shuttle never reaches it
+PLAUSIBLE_YAW_RATE_RADPS = 2.0  # beyond what its steering allows at any speed
+PLAUSIBLE_ACCEL_MPS2 = 15.0
+PLAUSIBLE_RADAR_RANGE_M = 250.0  # beyond every automotive radar's reach
+PLAUSIBLE_RADAR_SPEED_MPS = 70.0  # over-ground speed of anything on a campus road
+
+
+def garbage_reason(frame: SensorFrame) -> str:
+    """Why a frame's content is unusable ('' if it is fine): invalid, non-finite or implausible."""
+    try:
+        frame.validate()
+    except MessageError as exc:
+        return str(exc)
+    for f in fields(frame):
+        value = getattr(frame, f.name)
+        if isinstance(value, float) and not math.isfinite(value):
+            return f"{type(frame).__name__}.{f.name} is {value}"
+    return _implausible(frame)
+
+
+def _implausible(frame: SensorFrame) -> str:
+    """Finite values a working sensor cannot report on this vehicle (a corrupt bus or a failing unit)."""
+    if isinstance(frame, WheelOdometryFrame) and not 0.0 <= frame.speed_mps <= PLAUSIBLE_SPEED_MPS:
+        return f"odometry speed {frame.speed_mps:.1f} m/s outside [0, {PLAUSIBLE_SPEED_MPS}]"
+    if isinstance(frame, GnssInsFrame) and abs(frame.speed_mps) > PLAUSIBLE_SPEED_MPS:
+        return f"GNSS speed {frame.speed_mps:.1f} m/s above {PLAUSIBLE_SPEED_MPS}"
+    if isinstance(frame, ImuFrame) and (
+        abs(frame.yaw_rate_radps) > PLAUSIBLE_YAW_RATE_RADPS
+        or max(abs(frame.accel_x_mps2), abs(frame.accel_y_mps2)) > PLAUSIBLE_ACCEL_MPS2
+    ):
+        return f"IMU yaw rate {frame.yaw_rate_radps:.2f} rad/s or acceleration beyond physical limits"
+    if isinstance(frame, RadarFrame) and len(frame.objects):
+        obj = frame.objects
+        far = float(np.hypot(obj[:, 0], obj[:, 1]).max())
+        fast = float(np.hypot(obj[:, 2], obj[:, 3]).max())
+        if far > PLAUSIBLE_RADAR_RANGE_M or fast > PLAUSIBLE_RADAR_SPEED_MPS:
+            return f"radar objects at {far:.0f} m or {fast:.0f} m/s: beyond the sensor's physics"
+    return ""
