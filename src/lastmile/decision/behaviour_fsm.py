@@ -13,15 +13,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from lastmile.core.geometry import SE2, point_in_polygon
-from lastmile.core.object_class import ObjectClass
+from lastmile.core.geometry import SE2
 from lastmile.core.objects import TrackedObjects
 from lastmile.core.polyline import Polyline
-from lastmile.core.predictions import PREDICTION_MODES, PredictedPaths
+from lastmile.core.predictions import PredictedPaths
 from lastmile.core.route_obstacles import RouteObstacle, route_obstacles
 from lastmile.core.safety_messages import FailSafeLevel, SafetyDirective
 from lastmile.core.vehicle import VehicleGeometry
 from lastmile.core.vehicle_messages import BehaviourDecision, BehaviourState
+from lastmile.decision.crosswalk_yield import crosswalk_yields
 from lastmile.decision.decision_config import DecisionConfig, DecisionInput
 from lastmile.decision.mission import MissionManager
 from lastmile.decision.pullover_spot import SpotRequest, choose_spot
@@ -207,48 +207,22 @@ class BehaviourStateMachine:
         speed_mps: float,
         predictions: PredictedPaths | None = None,
     ) -> list[_Constraint]:
-        """Yield at a crosswalk while a pedestrian or cyclist is on it, stepping onto it, or walking
-        towards it fast enough to get there before the shuttle has cleared it."""
-        out: list[_Constraint] = []
+        """Yield at a crosswalk to the people ``crosswalk_yield`` finds there or about to be."""
         c = self.config
-        to_crossing = self._to_crosswalk(predictions)
-        for rc in self.layers.crosswalks:
-            ahead = self._ahead(rc.s_start_m, front_s)
-            if ahead > 40.0 or (ahead < -0.5 and self._ahead(rc.s_end_m, front_s) < 0):
-                continue
-            if ahead < -0.5:
-                continue  # already on it: clear it rather than stop on it
-            poly = rc.crosswalk.polygon
-            to_clear_m = ahead + (rc.s_end_m - rc.s_start_m) + self.geometry.length_m
-            horizon_s = min(c.crosswalk_lookahead_s, to_clear_m / max(speed_mps, 1.0))
-            steps_s = np.arange(0.0, horizon_s + 1e-9, 0.5)
-            for tid, row in zip(tracks.ids.tolist(), tracks.table.tolist(), strict=True):
-                cls = ObjectClass(int(row[7]))
-                if not (cls.vulnerable or cls == ObjectClass.UNKNOWN):
-                    continue
-                ahead_xy = [(row[0] + row[2] * t, row[1] + row[3] * t) for t in steps_s]
-                # Either future counts: the heading now, or the map's guess that the person is making
-                # for this crossing (who may turn towards it, or hurry up to cross).
-                path = to_crossing.get(int(tid))
-                if path is not None:
-                    ahead_xy += [(x, y) for t, x, y in path.tolist() if t <= horizon_s + 1e-9]
-                if any(_near_polygon(x, y, poly, c.crosswalk_margin_m) for x, y in ahead_xy):
-                    out.append(_Constraint(rc.s_start_m - 1.0, "crosswalk", int(tid), emergency_ok=False))
-                    break
-        return out
-
-    @staticmethod
-    def _to_crosswalk(predictions: PredictedPaths | None) -> dict[int, np.ndarray]:
-        """Track id -> (T, 3) rows ``t x y`` of the paths the prediction sends to a crossing."""
-        if predictions is None:
-            return {}
-        cross = PREDICTION_MODES.index("to_crosswalk")
-        t = predictions.times_s[:, None]
-        return {
-            int(tid): np.hstack([t, xy])
-            for tid, mode, xy in zip(predictions.ids, predictions.mode, predictions.xy_m, strict=True)
-            if int(mode) == cross
-        }
+        return [
+            _Constraint(stop_s, "crosswalk", tid, emergency_ok=False)
+            for stop_s, tid in crosswalk_yields(
+                self.layers.crosswalks,
+                self._route,
+                tracks,
+                front_s,
+                speed_mps,
+                self.geometry.length_m,
+                predictions,
+                margin_m=c.crosswalk_margin_m,
+                lookahead_s=c.crosswalk_lookahead_s,
+            )
+        ]
 
     # --- states ---------------------------------------------------------------------------------
     def _intersection(
@@ -520,11 +494,3 @@ class BehaviourStateMachine:
     def spot_d_m(self, curb_d_m: float) -> float:
         """Route d of the shuttle's centre line when pulled over (curb gap target kept)."""
         return curb_d_m + self.config.curb_gap_target_m + self.geometry.width_m / 2.0
-
-
-def _near_polygon(x: float, y: float, poly: np.ndarray, margin_m: float) -> bool:
-    if point_in_polygon(x, y, poly):
-        return True
-    lo = poly.min(axis=0) - margin_m
-    hi = poly.max(axis=0) + margin_m
-    return bool(lo[0] <= x <= hi[0] and lo[1] <= y <= hi[1])
