@@ -44,8 +44,8 @@ class SensorSpec:
     """One watched sensor stream.
 
     Attributes:
-        key: stream key as :func:`lastmile.safety.frame_checks.sensor_key` names it ("gnss", "imu", "odom", "door", a radar, LiDAR or
-            camera id).
+        key: stream key as :func:`lastmile.safety.frame_checks.sensor_key` names it ("gnss", "imu",
+            "odom", "door", a radar, LiDAR or camera id).
         rate_hz: expected frame rate, > 0.
         max_latency_us: arrival minus capture stamp above this is a latency spike.
         frozen_after: this many identical payloads in a row mean a frozen driver (None: not checked, for
@@ -106,7 +106,8 @@ def default_sensor_specs(
 
 
 def raw_sensor_specs(lidar_ids: tuple[str, ...], camera_ids: tuple[str, ...]) -> tuple[SensorSpec, ...]:
-    """LiDAR and camera streams of the raw-sensor rig (10 Hz each), keyed as :func:`lastmile.safety.frame_checks.sensor_key` does.
+    """LiDAR and camera streams of the raw-sensor rig (10 Hz each), keyed as
+    :func:`lastmile.safety.frame_checks.sensor_key` does.
 
     A LiDAR never repeats a sweep point for point, so two equal ones are a frozen driver; one with
     fewer than 500 returns is blocked (a 16-channel unit gives thousands even in fog). A camera's box
