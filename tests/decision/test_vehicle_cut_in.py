@@ -118,3 +118,23 @@ def test_a_car_already_driving_along_when_it_enters_is_followed_at_its_speed(str
     entry_x = 100.0 + 6.0 * 1.5  # y = 2.0 at 1.5 s: inside 1.0 + 0.5 + 0.9 = 2.4 m
     assert d.risk_track_id == 7
     assert d.stop_at_s_m == pytest.approx(entry_x - 2.25 + 6.0**2 / 6.0 - 3.0, abs=1e-6)
+
+
+def _crossing(x_m: float, y0_m: float, v_mps: float = 6.0) -> np.ndarray:
+    """Straight north across the shuttle's lane at x_m (a car turning left across it)."""
+    return np.c_[np.full(len(TIMES_S), x_m), y0_m + v_mps * TIMES_S]
+
+
+def test_a_car_crossing_the_lane_is_waited_for_only_if_still_crossing_when_the_shuttle_arrives(
+    straight_layers,
+):
+    # From 4 m south of the lane at 6 m/s: in the corridor (|y| < 2.4 m) from 0.5 s to 1.0 s.
+    car = _tracks([(7, 130.0, -4.0, 0.0, 6.0, ObjectClass.CAR)])
+    paths = _paths(7, _crossing(130.0, -4.0))
+    # Front 46 m short at 5 m/s: it arrives at 9.2 s, long after the car has crossed (1.0 s + 2 s).
+    far = _inp(0.0, 130.0 - 46.0 - G.front_from_rear_axle_m, v=5.0, tracks=car)
+    assert _fsm(straight_layers).step(dataclasses.replace(far, predictions=paths)).stop_at_s_m is None
+    # Front 12 m short: it arrives at 2.4 s, within 2 s of the car leaving: wait for it to cross.
+    near = _inp(0.0, 130.0 - 12.0 - G.front_from_rear_axle_m, v=5.0, tracks=car)
+    d = _fsm(straight_layers).step(dataclasses.replace(near, predictions=paths))
+    assert d.risk_track_id == 7 and d.stop_at_s_m == pytest.approx(130.0 - 2.25 - 3.0, abs=1e-6)

@@ -44,7 +44,8 @@ class DecisionConfig:
             turning in from a side road); the shuttle then follows it from there
             (``decision.vehicle_cut_in``). 4 s: the look-ahead the in-path test gives pedestrians.
         cut_in_pass_margin_s: such a car is yielded to unless the shuttle's front would reach the
-            entry at least this long before the car.
+            entry at least this long before the car, or (a car crossing the lane) the car will have
+            left the corridor at least this long before the front gets there.
         merge_room_m: room kept free ahead of a stopped shuttle's front so it can pull out around a
             car parked further along the bay (with min_gap_m + 0.5 beyond it). 4 m, not 5: every
             metre given here is taken from the swing in, and with a car at the end of S1's 24 m

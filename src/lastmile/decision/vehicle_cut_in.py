@@ -8,7 +8,9 @@ then seen only as it arrives, often too close to stop comfortably. Tracking's ma
 successor, braking for a stop line on its way. Here each lane-following path is walked in time; where
 it first enters the corridor ahead of the shuttle's front, and the car gets there before the shuttle
 could pass (``pass_margin_s`` included), the car counts as a lead at that point, moving on along the
-route at its predicted speed there.
+route at its predicted speed there. Crossing traffic is the exception: a path that leaves the
+corridor again (a car turning left across the lane) is let through without a constraint when it will
+have left at least ``pass_margin_s`` before the shuttle's front gets to the crossing point.
 
 Left to the other rules: a vehicle already in the corridor (the in-path test), one at or behind the
 shuttle's front (merging checks the rear), and paths the prediction stops at a stop line short of the
@@ -17,6 +19,7 @@ corridor (a car waiting to turn in gets no constraint until it moves).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 from lastmile.core.polyline import Polyline
@@ -76,7 +79,8 @@ def predicted_cut_ins(
             is added per vehicle.
         horizon_s: how far ahead in time the paths are used.
         pass_margin_s: the car must reach the entry at least this long after the shuttle's front
-            would, or the shuttle yields to it.
+            would, or the shuttle yields to it; a crossing car must have left the corridor at least
+            this long before the front gets there, or the shuttle waits for it.
         lookahead_m: entries farther ahead than this along the route are ignored.
     """
     if predictions is None or len(predictions) == 0:
@@ -112,6 +116,9 @@ def predicted_cut_ins(
         if entry is None:
             continue
         s_m, t_s, ahead_m, k = entry
+        t_out = _exit_time(route, path, pts, times, k, s_m, half)
+        if ahead_m / max(speed_mps, 1.0) >= t_out + pass_margin_s:
+            continue  # crossing traffic: it will have left the corridor before the shuttle gets there
         out.append(
             CutIn(
                 track_id=int(tid),
@@ -123,6 +130,27 @@ def predicted_cut_ins(
             )
         )
     return out
+
+
+def _exit_time(
+    route: Polyline,
+    path: Polyline | None,
+    pts: list[list[float]],
+    times: list[float],
+    k: int,
+    s_m: float,
+    half_m: float,
+) -> float:
+    """When the path, inside the corridor at sample ``k``, is first outside it again (a car crossing
+    the lane); infinity if it stays in (a car turning into the lane) for the rest of the prediction."""
+    hint = s_m
+    for j in range(k + 1, len(times)):
+        x, y = pts[j]
+        f = route.project(x, y, hint_s_m=hint, window_m=30.0)
+        hint = f.s_m
+        if abs(_lateral(path, x, y, f.d_m)) >= half_m:
+            return times[j]
+    return math.inf
 
 
 def _lateral(path: Polyline | None, x_m: float, y_m: float, route_d_m: float) -> float:
