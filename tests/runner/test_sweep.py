@@ -81,6 +81,7 @@ def test_the_iso22737_suite_covers_the_plan():
         "pedestrian_crossing_clear_view",
         "pedestrian_behind_parked_vehicle",
         "cyclist_merging",
+        "car_turning_in",
     ):
         for weather in WEATHERS:
             for speed in SHUTTLE_SPEEDS_MPS:

@@ -30,6 +30,8 @@ SHUTTLE_SPEEDS_MPS = (20.0 / 3.6, 12.0 / 3.6)
 # Where on the loop the encounters happen: the straight between crosswalk C1 (route s 130) and the
 # all-way stop (s 330), far from stops and junctions.
 ENCOUNTER_S_M = 260.0
+CAR_TURNING_IN_SPAWN_S = {"20kph": 56.0, "12kph": 68.0}
+"""When the side-road car of ``car_turning_in`` appears, per shuttle speed."""
 
 GENERIC_CHECKS = ("no_stack_crash", "no_collision_at_fault", "no_takeover", "in_drivable_area")
 FAULT_CHECKS = ("no_stack_crash", "no_collision_at_fault", "in_drivable_area", "fault_answered")
@@ -147,6 +149,30 @@ def iso22737_suite(seed: int = 0) -> list[SuiteCase]:
                         side_road_cars=(
                             SideRoadCar(
                                 spawn_t_s=40.0, turn="right", kind="cyclist", speed_mps=4.5, start_m=60.0
+                            ),
+                        ),
+                    ),
+                    checks=(*GENERIC_CHECKS, "no_collision", "no_rule_violation"),
+                    group="hazard, clear view",
+                )
+            )
+            # A car turning right from the side road into the shuttle's lane just ahead of it. The
+            # spawn times put the turn in front of the shuttle at each speed (found by sweeping them:
+            # without decision's cut-in rule the shuttle hit the car at 20 km/h in all four weathers).
+            cases.append(
+                SuiteCase(
+                    name=f"car_turning_in_{tag}",
+                    scenario=dataclasses.replace(
+                        base,
+                        name=f"car_turning_in_{tag}",
+                        minutes=2.0,
+                        side_road_cars=(
+                            SideRoadCar(
+                                spawn_t_s=CAR_TURNING_IN_SPAWN_S[_speed_tag(speed)],
+                                turn="right",
+                                kind="car",
+                                speed_mps=6.0,
+                                start_m=60.0,
                             ),
                         ),
                     ),
