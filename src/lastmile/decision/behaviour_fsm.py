@@ -91,8 +91,10 @@ class BehaviourStateMachine:
         door = False
         reason = "cruise"
 
-        constraints += self._in_path(obstacles, inp, front_s)
-        constraints += self._cut_ins(obstacles, inp, front_s)
+        # The planned path, once per cycle: the corridor both obstacle checks sweep.
+        path = Polyline(inp.trajectory.points[:, :2]) if inp.trajectory is not None else None
+        constraints += self._in_path(obstacles, inp, front_s, path)
+        constraints += self._cut_ins(obstacles, inp, front_s, path)
         constraints += self._crosswalks(inp.tracks, front_s, inp.speed_mps, inp.predictions)
         light_stop, light_why = self.lights.step(t_s, front_s, inp.speed_mps, inp.traffic_lights, self._ahead)
         if light_stop is not None:
@@ -148,13 +150,11 @@ class BehaviourStateMachine:
 
     # --- shared checks ---------------------------------------------------------------------------
     def _in_path(
-        self, obstacles: list[RouteObstacle], inp: DecisionInput, front_s: float
+        self, obstacles: list[RouteObstacle], inp: DecisionInput, front_s: float, path: Polyline | None
     ) -> list[_Constraint]:
         """Obstacles in (or about to enter) the corridor swept along the planned path."""
         g, c = self.geometry, self.config
         out: list[_Constraint] = []
-        traj = inp.trajectory
-        path = Polyline(traj.points[:, :2]) if traj is not None else None
         for o in obstacles:
             if o.ds_m < -g.length_m or o.ds_m > 70.0:
                 continue
@@ -168,37 +168,37 @@ class BehaviourStateMachine:
                 continue
             if o.ds_m < -1.0 and o.v_s_mps > 0.0:
                 continue  # behind the front, moving with us: not ours to stop for
-            moving_away = max(o.v_s_mps, 0.0)
-            # A lead moving along the route: stop where it would stop, eq. (2) applies to that point.
-            effective = o.s_m - o.length_m / 2.0 + moving_away**2 / (2.0 * 3.0)
-            out.append(_Constraint(effective - c.min_gap_m, o.cls.name.lower(), o.track_id))
+            stop_s = _lead_stop_s_m(o.s_m, o.length_m, o.v_s_mps) - c.min_gap_m
+            out.append(_Constraint(stop_s, o.cls.name.lower(), o.track_id))
         return out
 
     def _cut_ins(
-        self, obstacles: list[RouteObstacle], inp: DecisionInput, front_s: float
+        self, obstacles: list[RouteObstacle], inp: DecisionInput, front_s: float, path: Polyline | None
     ) -> list[_Constraint]:
         """Vehicles the lane-following prediction brings into the corridor ahead before the shuttle
         passes (``vehicle_cut_in``): followed like a lead from where they enter. Never an emergency
         stop on a prediction alone; once the car is in the corridor the in-path test takes over."""
         c = self.config
-        traj = inp.trajectory
         cut_ins = predicted_cut_ins(
             obstacles,
             inp.predictions,
             self._route,
-            Polyline(traj.points[:, :2]) if traj is not None else None,
+            path,
             front_s,
             inp.speed_mps,
             self.geometry.width_m / 2.0 + c.corridor_margin_m,
             horizon_s=c.vehicle_prediction_horizon_s,
             pass_margin_s=c.cut_in_pass_margin_s,
         )
-        out = []
-        for k in cut_ins:
-            moving_away = max(k.speed_along_mps, 0.0)
-            effective = k.entry_s_m - k.length_m / 2.0 + moving_away**2 / (2.0 * 3.0)
-            out.append(_Constraint(effective - c.min_gap_m, "cut-in", k.track_id, emergency_ok=False))
-        return out
+        return [
+            _Constraint(
+                _lead_stop_s_m(k.entry_s_m, k.length_m, k.speed_along_mps) - c.min_gap_m,
+                "cut-in",
+                k.track_id,
+                emergency_ok=False,
+            )
+            for k in cut_ins
+        ]
 
     def _crosswalks(
         self,
@@ -494,3 +494,15 @@ class BehaviourStateMachine:
     def spot_d_m(self, curb_d_m: float) -> float:
         """Route d of the shuttle's centre line when pulled over (curb gap target kept)."""
         return curb_d_m + self.config.curb_gap_target_m + self.geometry.width_m / 2.0
+
+
+LEAD_DECEL_MPS2 = 3.0
+"""How hard a lead is assumed to brake when it stops (where its stop point is taken to be)."""
+
+
+def _lead_stop_s_m(s_m: float, length_m: float, speed_along_mps: float) -> float:
+    """Route s of the rear of a lead at ``s_m`` once it has stopped: a lead moving along the route
+    stops where it would stop, and eq. (2) applies to that point (one coming towards the shuttle, or
+    crossing, is taken as standing)."""
+    moving_away = max(speed_along_mps, 0.0)
+    return s_m - length_m / 2.0 + moving_away**2 / (2.0 * LEAD_DECEL_MPS2)

@@ -22,7 +22,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from lastmile.core.polyline import Polyline
+from lastmile.core.polyline import FrenetPoint, Polyline
 from lastmile.core.predictions import PREDICTION_MODES, PredictedPaths
 from lastmile.core.route_obstacles import RouteObstacle
 
@@ -96,72 +96,63 @@ def predicted_cut_ins(
         half = half_width_m + o.width_m / 2.0
         if abs(_lateral(path, o.x_m, o.y_m, o.d_m)) < half:
             continue  # already in the corridor: the in-path test's
-        hint = o.s_m
+        # Each predicted centre projected on the route once. The corridor test (a projection on the
+        # planned path, the costly part) runs on samples up to the entry, then on those after it: each
+        # sample at most once.
         pts: list[list[float]] = xy.tolist()
-        entry: tuple[float, float, float, int] | None = None
-        for k, (t, (x, y)) in enumerate(zip(times, pts, strict=True)):
+        frenet = _along_route(route, pts, o.s_m)
+        entry: tuple[float, float, int] | None = None
+        for k, (t, f) in enumerate(zip(times, frenet, strict=True)):
             if t > horizon_s + 1e-9:
                 break
-            f = route.project(x, y, hint_s_m=hint, window_m=30.0)
-            hint = f.s_m
             ahead = route.ds_m(front_s_m, f.s_m)
-            if not 0.0 < ahead <= lookahead_m:
-                continue
-            if abs(_lateral(path, x, y, f.d_m)) >= half:
+            if not 0.0 < ahead <= lookahead_m or not _inside(path, pts[k], f, half):
                 continue
             if t >= ahead / max(speed_mps, 1.0) + pass_margin_s:
                 break  # the shuttle passes the entry first: the car comes in behind it
-            entry = (f.s_m, t, ahead, k)
+            entry = (t, ahead, k)
             break
         if entry is None:
             continue
-        s_m, t_s, ahead_m, k = entry
-        t_out = _exit_time(route, path, pts, times, k, s_m, half)
+        t_s, ahead_m, k = entry
+        # Crossing traffic: when the path is first outside the corridor again (never: it turns in).
+        t_out = next(
+            (times[j] for j in range(k + 1, len(times)) if not _inside(path, pts[j], frenet[j], half)),
+            math.inf,
+        )
         if ahead_m / max(speed_mps, 1.0) >= t_out + pass_margin_s:
-            continue  # crossing traffic: it will have left the corridor before the shuttle gets there
+            continue  # it will have left the corridor before the shuttle gets there
+        # Speed along the route there: finite difference with the next sample (the previous at the end).
+        j = k + 1 if k + 1 < len(times) else k - 1
+        speed_along = route.ds_m(frenet[k].s_m, frenet[j].s_m) / (times[j] - times[k]) if j >= 0 else 0.0
         out.append(
             CutIn(
                 track_id=int(tid),
-                entry_s_m=s_m,
+                entry_s_m=frenet[k].s_m,
                 entry_t_s=t_s,
                 ahead_m=ahead_m,
-                speed_along_mps=_speed_along(route, pts, times, k, s_m),
+                speed_along_mps=speed_along,
                 length_m=o.length_m,
             )
         )
     return out
 
 
-def _exit_time(
-    route: Polyline,
-    path: Polyline | None,
-    pts: list[list[float]],
-    times: list[float],
-    k: int,
-    s_m: float,
-    half_m: float,
-) -> float:
-    """When the path, inside the corridor at sample ``k``, is first outside it again (a car crossing
-    the lane); infinity if it stays in (a car turning into the lane) for the rest of the prediction."""
-    hint = s_m
-    for j in range(k + 1, len(times)):
-        x, y = pts[j]
-        f = route.project(x, y, hint_s_m=hint, window_m=30.0)
-        hint = f.s_m
-        if abs(_lateral(path, x, y, f.d_m)) >= half_m:
-            return times[j]
-    return math.inf
+def _along_route(route: Polyline, pts: list[list[float]], hint_s_m: float) -> list[FrenetPoint]:
+    """Route Frenet coordinates of consecutive points, each searched near the one before."""
+    out = []
+    for x, y in pts:
+        f = route.project(x, y, hint_s_m=hint_s_m, window_m=30.0)
+        hint_s_m = f.s_m
+        out.append(f)
+    return out
+
+
+def _inside(path: Polyline | None, pt: list[float], f: FrenetPoint, half_m: float) -> bool:
+    """Whether a predicted centre (``f``: its route coordinates) is inside the corridor."""
+    return abs(_lateral(path, pt[0], pt[1], f.d_m)) < half_m
 
 
 def _lateral(path: Polyline | None, x_m: float, y_m: float, route_d_m: float) -> float:
     """Offset of a point from the planned path (from the route when there is no path)."""
     return path.project(x_m, y_m).d_m if path is not None else route_d_m
-
-
-def _speed_along(route: Polyline, pts: list[list[float]], times: list[float], k: int, s_m: float) -> float:
-    """Predicted speed along the route at sample ``k`` (finite difference with its neighbour)."""
-    j = k + 1 if k + 1 < len(times) else k - 1
-    if j < 0:
-        return 0.0
-    s_j = route.project(pts[j][0], pts[j][1], hint_s_m=s_m, window_m=30.0).s_m
-    return route.ds_m(s_m, s_j) / (times[j] - times[k])  # times strictly increase (PredictedPaths.validate)
