@@ -140,44 +140,21 @@ def iso22737_suite(seed: int = 0) -> list[SuiteCase]:
                 )
             )
             cases.append(
-                SuiteCase(
-                    name=f"cyclist_merging_{tag}",
-                    scenario=dataclasses.replace(
-                        base,
-                        name=f"cyclist_merging_{tag}",
-                        minutes=2.0,
-                        side_road_cars=(
-                            SideRoadCar(
-                                spawn_t_s=40.0, turn="right", kind="cyclist", speed_mps=4.5, start_m=60.0
-                            ),
-                        ),
-                    ),
-                    checks=(*GENERIC_CHECKS, "no_collision", "no_rule_violation"),
-                    group="hazard, clear view",
+                _side_road_case(
+                    base,
+                    f"cyclist_merging_{tag}",
+                    SideRoadCar(spawn_t_s=40.0, turn="right", kind="cyclist", speed_mps=4.5, start_m=60.0),
                 )
             )
             # A car turning right from the side road into the shuttle's lane just ahead of it. The
             # spawn times put the turn in front of the shuttle at each speed (found by sweeping them:
             # without decision's cut-in rule the shuttle hit the car at 20 km/h in all four weathers).
+            spawn_s = CAR_TURNING_IN_SPAWN_S[_speed_tag(speed)]
             cases.append(
-                SuiteCase(
-                    name=f"car_turning_in_{tag}",
-                    scenario=dataclasses.replace(
-                        base,
-                        name=f"car_turning_in_{tag}",
-                        minutes=2.0,
-                        side_road_cars=(
-                            SideRoadCar(
-                                spawn_t_s=CAR_TURNING_IN_SPAWN_S[_speed_tag(speed)],
-                                turn="right",
-                                kind="car",
-                                speed_mps=6.0,
-                                start_m=60.0,
-                            ),
-                        ),
-                    ),
-                    checks=(*GENERIC_CHECKS, "no_collision", "no_rule_violation"),
-                    group="hazard, clear view",
+                _side_road_case(
+                    base,
+                    f"car_turning_in_{tag}",
+                    SideRoadCar(spawn_t_s=spawn_s, turn="right", kind="car", speed_mps=6.0, start_m=60.0),
                 )
             )
     for fault in _suite_faults():
@@ -219,6 +196,16 @@ ESTOP_MIN_SPEED_MPS = {
     BehaviourState.PULLOVER: 1.0,
     BehaviourState.MERGING: 1.0,
 }
+
+
+def _side_road_case(base: Scenario, name: str, road_user: SideRoadCar) -> SuiteCase:
+    """A hazard from the side road: ``road_user`` enters the ring at the all-way stop (2 minutes)."""
+    return SuiteCase(
+        name=name,
+        scenario=dataclasses.replace(base, name=name, minutes=2.0, side_road_cars=(road_user,)),
+        checks=(*GENERIC_CHECKS, "no_collision", "no_rule_violation"),
+        group="hazard, clear view",
+    )
 
 
 def _estop_cases(seed: int) -> list[SuiteCase]:
