@@ -439,9 +439,8 @@ class ShuttleStack:
         fp = self.route.project(pose.x_m, pose.y_m, hint_s_m=self._route_s, window_m=5.0)
         front_s = fp.s_m + self.geometry.front_from_rear_axle_m
         gap = stopping_gap_m(d.stop_at_s_m, front_s)
-        if gap is not None and self.route.closed:
-            length = self.route.length_m
-            gap = (gap + length / 2.0) % length - length / 2.0
+        if gap is not None and d.stop_at_s_m is not None:
+            gap = self.route.ds_m(front_s, d.stop_at_s_m)  # the shorter way round on the loop
         assert self._trajectory is not None
         path_s = path.project(pose.x_m, pose.y_m).s_m
         v_ref = self.longitudinal.reference_speed_mps(self._trajectory, path_s, d.speed_limit_mps)
