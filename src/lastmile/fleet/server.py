@@ -43,6 +43,7 @@ from lastmile.fleet.dispatcher import Dispatcher
 from lastmile.fleet.live import Hub
 from lastmile.fleet.map_view import map_json
 from lastmile.fleet.scheduling import LoopRoute, Planner, SchedulingConfig
+from lastmile.fleet.service_views import ride_view, vehicle_view
 from lastmile.hdmap.loader import load_campus_map
 
 log = logging.getLogger(__name__)
@@ -224,7 +225,7 @@ def create_app(config: ServerConfig) -> FastAPI:
     @app.get("/api/rides/{ride_id}", tags=["rides"], response_model=api.RideOut)
     async def get_ride(request: Request, ride_id: str, who: Rider) -> dict[str, Any]:
         d = disp(request)
-        return d.ride_view(d.ride_or_404(ride_id, who))
+        return ride_view(d.ride_or_404(ride_id, who))
 
     @app.delete("/api/rides/{ride_id}", tags=["rides"], response_model=api.RideOut)
     async def cancel_ride(request: Request, ride_id: str, who: Rider) -> dict[str, Any]:
@@ -239,7 +240,7 @@ def create_app(config: ServerConfig) -> FastAPI:
             raise HTTPException(
                 status.HTTP_409_CONFLICT, f"ride {ride_id!r} has no shuttle yet: {ride['reason']}"
             )
-        return d.vehicle_view(d.vehicle_or_404(ride["vehicle_id"]))
+        return vehicle_view(d.vehicle_or_404(ride["vehicle_id"]))
 
     @app.get("/api/rides", tags=["rides"], response_model=list[api.RideOut])
     async def list_rides(
@@ -255,7 +256,7 @@ def create_app(config: ServerConfig) -> FastAPI:
             for r in d.rides.values()
             if (state is None or r["state"] == state) and (who.role != "rider" or r["rider"] == who.subject)
         ]
-        return [d.ride_view(r) for r in rides[-limit:]]
+        return [ride_view(r) for r in rides[-limit:]]
 
     # ----------------------------------------------------------------------------- operators
     @app.post("/api/vehicles", tags=["vehicles"], response_model=api.VehicleOut, status_code=201)
@@ -275,12 +276,12 @@ def create_app(config: ServerConfig) -> FastAPI:
     @app.get("/api/vehicles", tags=["vehicles"], response_model=list[api.VehicleOut])
     async def list_vehicles(request: Request, _who: Operator) -> list[dict[str, Any]]:
         d = disp(request)
-        return [d.vehicle_view(v) for v in d.vehicles.values()]
+        return [vehicle_view(v) for v in d.vehicles.values()]
 
     @app.get("/api/vehicles/{vehicle_id}", tags=["vehicles"], response_model=api.VehicleOut)
     async def get_vehicle(request: Request, vehicle_id: VehicleIdParam, _who: Operator) -> dict[str, Any]:
         d = disp(request)
-        return d.vehicle_view(d.vehicle_or_404(vehicle_id))
+        return vehicle_view(d.vehicle_or_404(vehicle_id))
 
     @app.post("/api/vehicles/{vehicle_id}/command", tags=["vehicles"], response_model=api.VehicleOut)
     async def command_vehicle(

@@ -36,11 +36,6 @@ class ServiceCore:
     """Service state and the shared rules. ``push`` sends a JSON message to a connected vehicle (set by
     the server)."""
 
-    # The views are pure functions of a record; kept reachable here for the server and the dashboards.
-    ride_view = staticmethod(ride_view)
-    vehicle_view = staticmethod(vehicle_view)
-    plan_message = staticmethod(plan_message)
-
     def __init__(self, engine: Engine, writer: db.Writer, route: LoopRoute, planner: Planner) -> None:
         self.engine = engine
         self.writer = writer

@@ -155,7 +155,7 @@ async def _run(
     for s in shuttles:
         for other in shuttles:
             if other is not s:
-                s.proxies[id(other)] = proxy_for(s, other, len(s.proxies))
+                s.proxies[id(other)] = proxy_for(other, len(s.proxies))
                 s.sim.world.agents.append(s.proxies[id(other)])
 
     # One set of pedestrians: they walk in shuttle 0's world and are mirrored into the others'.

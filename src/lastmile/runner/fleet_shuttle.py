@@ -94,7 +94,8 @@ def loop_crosswalks() -> list[int]:
     return out
 
 
-def proxy_for(host: FleetShuttle, other: FleetShuttle, k: int) -> Agent:
+def proxy_for(other: FleetShuttle, k: int) -> Agent:
+    """``other`` as a car-sized road user for another shuttle's world (id ``PROXY_ID_BASE + k``)."""
     g = other.sim.world.geometry
     agent = Agent(
         id=PROXY_ID_BASE + k,
