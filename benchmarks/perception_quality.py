@@ -61,16 +61,19 @@ from tests.perception import quality_scoring as qs  # noqa: E402
 
 from lastmile.core.geometry import SE2  # noqa: E402
 from lastmile.core.object_class import ObjectClass  # noqa: E402
-from lastmile.core.sensor_frames import GnssInsFrame, LidarSweep  # noqa: E402
+from lastmile.core.sensor_frames import GnssInsFrame, LidarSweep, SensorFrame  # noqa: E402
 from lastmile.core.stamp import Stamp  # noqa: E402
 from lastmile.hdmap.model import HDMap  # noqa: E402
 from lastmile.perception.curbs import frenet_of_points  # noqa: E402
 from lastmile.perception.motion_compensation import PoseTrajectory, se3_matrix  # noqa: E402
 from lastmile.perception.pipeline import LidarPipeline, LidarPipelineResult  # noqa: E402
 from lastmile.perception.road_region import MapRoadRegion  # noqa: E402
-from lastmile.runner.closed_loop import TICK_US, build_closed_loop  # noqa: E402
+from lastmile.runner.closed_loop import DEFAULT_CONFIG, build_closed_loop  # noqa: E402
+from lastmile.runner.loop import LoopCallback  # noqa: E402
 from lastmile.sim.raw_sensors import RawSensorRig  # noqa: E402
 from lastmile.sim.scenario import default_service  # noqa: E402
+
+TICK_US = DEFAULT_CONFIG.loop.tick_us
 from perception_scene import (  # noqa: E402  (beside this file)
     boxes_in_base,
     clear_of_ego,
@@ -277,7 +280,9 @@ def evaluate_frame(
 # --- one weather ------------------------------------------------------------------------------------------
 def run_weather(weather: str, args: argparse.Namespace) -> list[dict[str, object]]:
     scenario = default_service(seed=args.seed, minutes=args.minutes, weather=weather)
-    hdmap, sim, stack = build_closed_loop(scenario)
+    loop = build_closed_loop(scenario)
+    sim = loop.world
+    hdmap = sim.world.hdmap
     # The extra road users are seen by the LiDARs only (added for the rig's sampling and removed
     # after): the stack, the radars and the other road users never meet them, so the shuttle
     # drives the service as it would and nobody stops for a goose that is not there for them.
@@ -301,52 +306,55 @@ def run_weather(weather: str, args: argparse.Namespace) -> list[dict[str, object
     ins: deque[GnssInsFrame] = deque(maxlen=8)
     frames: list[dict[str, object]] = []
     pending: list[tuple] = []  # type: ignore[type-arg]
-    for tick in range(ticks):
-        sim.advance_world(tick)
-        delivered = sim.sensor_frames(tick)
-        ins.extend(f for f in delivered if isinstance(f, GnssInsFrame) and f.fix_ok)
-        if tick in window:
-            # A road user the shuttle is driving through would hold a LiDAR inside it: leave out
-            # those within 1 m of the body (the stack would have stopped short of a real one).
-            present = [a for a in extras if clear_of_ego(a, sim.world)]
-            sim.world.agents.extend(present)
-            produced = rig.sample(tick)
-            if tick in scored:
-                # Everything of this instant is frozen now; the pipeline runs once the INS sample
-                # of the sweep's end has arrived (it comes 30 ms after capture, the sweep 20 ms).
-                sweeps = [f for f, _ in produced if isinstance(f, LidarSweep)]
-                st = sim.world.ego.state
-                truth_pose = SE2(st.x_m, st.y_m, st.yaw_rad)
-                active = [a for a in sim.world.agents if a.active]
-                pending.append(
-                    (
-                        tick,
-                        sweeps,
-                        [rig.lidar_truth[s.sensor_id] for s in sweeps],
+
+    class Score(LoopCallback):
+        """In the loop's sense phase: sample the scoring rig and score the pipeline on its frames."""
+
+        def on_sense(self, tick: int, now: Stamp, delivered: list[SensorFrame]) -> list[SensorFrame]:
+            ins.extend(f for f in delivered if isinstance(f, GnssInsFrame) and f.fix_ok)
+            if tick in window:
+                # A road user the shuttle is driving through would hold a LiDAR inside it: leave out
+                # those within 1 m of the body (the stack would have stopped short of a real one).
+                present = [a for a in extras if clear_of_ego(a, sim.world)]
+                sim.world.agents.extend(present)
+                produced = rig.sample(tick)
+                if tick in scored:
+                    # Everything of this instant is frozen now; the pipeline runs once the INS sample
+                    # of the sweep's end has arrived (it comes 30 ms after capture, the sweep 20 ms).
+                    sweeps = [f for f, _ in produced if isinstance(f, LidarSweep)]
+                    st = sim.world.ego.state
+                    truth_pose = SE2(st.x_m, st.y_m, st.yaw_rad)
+                    active = [a for a in sim.world.agents if a.active]
+                    pending.append(
                         (
-                            *boxes_in_base(active, truth_pose),
-                            ground_z_m(rig, np.array([[a.x_m, a.y_m] for a in active]).reshape(-1, 2)),
-                            np.array([abs(a.speed_mps) for a in active]),
-                        ),
-                        truth_pose,
-                        st.speed_mps,
+                            tick,
+                            sweeps,
+                            [rig.lidar_truth[s.sensor_id] for s in sweeps],
+                            (
+                                *boxes_in_base(active, truth_pose),
+                                ground_z_m(rig, np.array([[a.x_m, a.y_m] for a in active]).reshape(-1, 2)),
+                                np.array([abs(a.speed_mps) for a in active]),
+                            ),
+                            truth_pose,
+                            st.speed_mps,
+                        )
+                    )
+                del sim.world.agents[len(sim.world.agents) - len(present) :]
+            while pending and ins and int(ins[-1].stamp) >= pending[0][0] * TICK_US:
+                t_ref, sweeps, truths, objects, truth_pose, speed = pending.pop(0)
+                traj = PoseTrajectory.from_ins(list(ins))
+                m = traj.matrices_at(np.array([t_ref * TICK_US]))[0]
+                est = SE2(float(m[0, 3]), float(m[1, 3]), math.atan2(m[1, 0], m[0, 0]))
+                frames.append(
+                    evaluate_frame(
+                        (sweeps, ext, traj, est), truths, objects, truth_pose, hdmap, road, bare, pipe, args
                     )
                 )
-            del sim.world.agents[len(sim.world.agents) - len(present) :]
-        while pending and ins and int(ins[-1].stamp) >= pending[0][0] * TICK_US:
-            t_ref, sweeps, truths, objects, truth_pose, speed = pending.pop(0)
-            traj = PoseTrajectory.from_ins(list(ins))
-            m = traj.matrices_at(np.array([t_ref * TICK_US]))[0]
-            est = SE2(float(m[0, 3]), float(m[1, 3]), math.atan2(m[1, 0], m[0, 0]))
-            frames.append(
-                evaluate_frame(
-                    (sweeps, ext, traj, est), truths, objects, truth_pose, hdmap, road, bare, pipe, args
-                )
-            )
-            frames[-1]["speed_mps"] = speed
-        out = stack.tick(Stamp(tick * TICK_US), delivered)
-        sim.apply_command(out.command)
-        sim.referee(out.takeover_request)
+                frames[-1]["speed_mps"] = speed
+            return delivered
+
+    loop.callbacks.append(Score())
+    loop.run(ticks)
     return frames
 
 

@@ -28,8 +28,10 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 from rich.console import Console
 from rich.table import Table
 
+from lastmile.core.perception_mode import PerceptionMode
 from lastmile.evaluation.metrics import compute_metrics
 from lastmile.runner.closed_loop import run_scenario
+from lastmile.runner.run_config import RunConfig
 from lastmile.sim.scenario import default_service
 
 TARGET_RTF = 2.0
@@ -37,7 +39,8 @@ MODES = ("lidar_camera_radar", "radar_tracking")
 
 
 def run(minutes: float, weather: str, mode: str) -> dict[str, object]:
-    log = run_scenario(default_service(seed=0, minutes=minutes, weather=weather), perception_mode=mode)
+    config = RunConfig().with_perception(PerceptionMode(mode))
+    log = run_scenario(default_service(seed=0, minutes=minutes, weather=weather), config)
     m = compute_metrics(log)
     t = log.timing
     perception = t["modules"].get("perception", {})

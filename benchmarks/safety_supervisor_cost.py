@@ -2,8 +2,9 @@
 
 Run: python benchmarks/safety_supervisor_cost.py [--seconds 120] [--seeds 0 1] [--json out.json]
 
-The default campus service runs with a SafetySupervisor (five modules' heartbeats, six sensor streams,
-map / route ODD checks), the actuator gate and the hardware watchdog fed from outside the stack. Reported
+The default campus service runs in the loop engine with its vehicle safety (five modules' heartbeats,
+the sensor streams, map / route ODD checks, the actuator gate and the hardware watchdog), which runs
+apart from the stack. Reported
 per 10 ms tick: the safety chain's wall time (median, p95) and the stack's own tick time, as a ratio, plus
 the malfunctions raised (a healthy run should raise none). There is no library to compare against: the
 reference is the stack it protects. One core, BLAS one thread.
@@ -27,67 +28,52 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from lastmile.core.safety_messages import FailSafeLevel
+from lastmile.core.perception_mode import PerceptionMode
+from lastmile.core.sensor_frames import SensorFrame
 from lastmile.core.stamp import Stamp
-from lastmile.runner.closed_loop import TICK_US, build_closed_loop
-from lastmile.safety.failsafe import FailSafeArbiter, apply_safety_gate
-from lastmile.safety.hardware_watchdog import HardwareWatchdog
-from lastmile.safety.health_monitor import HealthMonitor, ModuleSpec
-from lastmile.safety.reliability_config import ReliabilityConfig, SensorSpec
-from lastmile.safety.reliability_monitor import ReliabilityMonitor
-from lastmile.safety.supervisor import SafetySupervisor
+from lastmile.core.vehicle_messages import SafetyVerdict, StackOutput
+from lastmile.runner.closed_loop import build_closed_loop
+from lastmile.runner.run_config import RunConfig
+from lastmile.safety.vehicle_safety import VehicleSafety
 from lastmile.sim.scenario import default_service
 
-SENSORS = (
-    SensorSpec(key="gnss", rate_hz=10.0),
-    SensorSpec(key="imu", rate_hz=50.0, frozen_after=5),
-    SensorSpec(key="odom", rate_hz=50.0, frozen_after=None),
-    SensorSpec(key="door", rate_hz=10.0, frozen_after=None),
-    SensorSpec(key="front", rate_hz=20.0),
-    SensorSpec(key="rear", rate_hz=20.0, silent_level=FailSafeLevel.SPEED_LIMIT),
-)
-MODULES = ("localization", "tracking", "decision", "planning", "control")
+CONFIG = RunConfig().with_perception(PerceptionMode.RADAR_TRACKING)
+
+
+class TimedSafety:
+    """The loop's vehicle safety with a stopwatch on both of its phases (observe and step)."""
+
+    def __init__(self, inner: VehicleSafety) -> None:
+        self.inner = inner
+        self.ns: list[int] = []
+        self.signals: Counter[str] = Counter()
+        self._observe_ns = 0
+
+    @property
+    def directive(self):  # type: ignore[no-untyped-def]
+        return self.inner.directive
+
+    def observe(self, now: Stamp, frames: list[SensorFrame]) -> None:
+        t0 = time.perf_counter_ns()
+        self.inner.observe(now, frames)
+        self._observe_ns = time.perf_counter_ns() - t0
+
+    def step(self, now: Stamp, output: StackOutput | None, failure: str = "") -> SafetyVerdict:
+        t0 = time.perf_counter_ns()
+        verdict = self.inner.step(now, output, failure)
+        self.ns.append(self._observe_ns + time.perf_counter_ns() - t0)
+        self.signals.update(s.kind.value for s in self.inner.supervisor.last_signals)
+        return verdict
 
 
 def run(seed: int, seconds: float) -> dict[str, object]:
     scenario = dataclasses.replace(default_service(seed=seed), minutes=seconds / 60.0)
-    hdmap, sim, stack = build_closed_loop(scenario, "radar_tracking")
-    sup = SafetySupervisor(
-        HealthMonitor([ModuleSpec(name=m, period_us=100_000) for m in MODULES]),
-        ReliabilityMonitor(ReliabilityConfig(sensors=SENSORS), hdmap=hdmap, route=stack.route),
-        FailSafeArbiter(layers=stack.layers),
-    )
-    watchdog = HardwareWatchdog()
-    safety_ns: list[int] = []
-    stack_ns: list[int] = []
-    signals: Counter[str] = Counter()
-    clock = time.perf_counter_ns
-    for tick in range(round(seconds * 1e6 / TICK_US)):
-        now = Stamp(tick * TICK_US)
-        sim.advance_world(tick)
-        frames = sim.sensor_frames(tick)
-        t0 = clock()
-        sup.observe_frames(now, frames)
-        t1 = clock()
-        out = stack.tick(now, frames)
-        t2 = clock()
-        est = stack.ekf.estimate(now) if tick % 10 == 0 else None
-        speed = stack.ekf.estimate(now).speed_mps
-        t3 = clock()
-        directive = sup.step(
-            now, out.heartbeats, estimate=est, gate_rejections_total=stack.ekf.rejected_fixes, speed_mps=speed
-        )
-        assert out.command is not None
-        command = apply_safety_gate(out.command, directive, speed)
-        command = watchdog.observe(now, command) or command
-        t4 = clock()
-        safety_ns.append((t1 - t0) + (t4 - t3))
-        stack_ns.append(t2 - t1)
-        signals.update(s.kind.value for s in sup.last_signals)
-        sim.apply_command(command)
-        sim.referee(out.takeover_request or directive.takeover_request)
-    safety_us = np.asarray(safety_ns) / 1e3
-    stack_us = np.asarray(stack_ns) / 1e3
+    loop = build_closed_loop(scenario, CONFIG)
+    timed = TimedSafety(loop.safety)
+    loop.safety = timed  # type: ignore[assignment]
+    stack_s = [r.software_s for r in loop.ticks(round(seconds * 1e6 / CONFIG.loop.tick_us))]
+    safety_us = np.asarray(timed.ns) / 1e3
+    stack_us = np.asarray(stack_s) * 1e6
     return {
         "seed": seed,
         "safety_p50_us": float(np.percentile(safety_us, 50)),
@@ -95,7 +81,7 @@ def run(seed: int, seconds: float) -> dict[str, object]:
         "safety_mean_us": float(safety_us.mean()),
         "stack_mean_us": float(stack_us.mean()),
         "safety_share_of_stack": float(safety_us.mean() / stack_us.mean()),
-        "signals": dict(signals),
+        "signals": dict(timed.signals),
     }
 
 

@@ -4,20 +4,36 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
 from lastmile import __version__
 from lastmile.core.errors import ConfigError, LastmileError
+from lastmile.core.perception_mode import PerceptionMode
+
+if TYPE_CHECKING:
+    from lastmile.runner.run_config import RunConfig
 
 app = typer.Typer(
     add_completion=False, no_args_is_help=True, help="Autonomous campus shuttle: stack, simulator, tools."
 )
 
 
-PERCEPTION_OPTIONS = {"lidar": "lidar_camera_radar", "radar": "radar_tracking"}
+PERCEPTION_OPTIONS = {"lidar": PerceptionMode.LIDAR_CAMERA_RADAR, "radar": PerceptionMode.RADAR_TRACKING}
 """``--perception`` values and the stack's perception modes they select."""
+
+
+def _run_config(config: Path | None, perception: str | None, default_perception: PerceptionMode) -> RunConfig:
+    """The run configuration of ``--config`` (or the default), with ``--perception`` applied."""
+    from lastmile.runner.run_config import RunConfig, load_run_config
+
+    base = load_run_config(config) if config is not None else RunConfig()
+    if perception is None:
+        return base if config is not None else base.with_perception(default_perception)
+    if perception not in PERCEPTION_OPTIONS:
+        raise ConfigError(f"--perception: expected one of {sorted(PERCEPTION_OPTIONS)}, got {perception!r}")
+    return base.with_perception(PERCEPTION_OPTIONS[perception])
 
 
 @app.command()
@@ -47,12 +63,19 @@ def run(
         float, typer.Option(help="--fleet: ride requests per hour per ordered stop pair (Poisson).")
     ] = 2.0,
     perception: Annotated[
-        str,
+        str | None,
         typer.Option(
             help="lidar: raw LiDAR sweeps + camera boxes + radar through the stack's perception; "
-            "radar: the radars' object lists only (faster)."
+            "radar: the radars' object lists only (faster) [default: the configuration's, lidar]."
         ),
-    ] = "lidar",
+    ] = None,
+    config: Annotated[
+        Path | None,
+        typer.Option(help="Run configuration TOML: the vehicle software and the loop (default: built in)."),
+    ] = None,
+    black_box: Annotated[
+        bool, typer.Option(help="Keep the 30 s black box and write it under OUT/recordings on incidents.")
+    ] = True,
 ) -> None:
     """Simulate the shuttle service in closed loop and write a run directory with report.md."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
@@ -62,14 +85,15 @@ def run(
         return
 
     try:
-        if perception not in PERCEPTION_OPTIONS:
-            raise ConfigError(
-                f"--perception: expected one of {sorted(PERCEPTION_OPTIONS)}, got {perception!r}"
-            )
         from lastmile.runner.closed_loop import evaluate_run, run_scenario
         from lastmile.sim.scenario import default_service, load_scenario
         from lastmile.sim.weather import parse_weather
 
+        run_config = _run_config(config, perception, PERCEPTION_OPTIONS["lidar"])
+        if not black_box:
+            run_config = dataclasses.replace(
+                run_config, loop=dataclasses.replace(run_config.loop, black_box=False)
+            )
         spec = load_scenario(scenario) if scenario is not None else default_service()
         overrides: dict[str, object] = {}
         if minutes is not None:
@@ -80,6 +104,7 @@ def run(
             parse_weather(weather)
             overrides["weather"] = weather
         spec = dataclasses.replace(spec, **overrides)  # type: ignore[arg-type]
+        run_config.check_serves(spec)
         with Progress(
             TextColumn("[bold]simulating[/bold] {task.description}"),
             BarColumn(),
@@ -89,8 +114,9 @@ def run(
             task = bar.add_task(f"{spec.name} seed {spec.seed} {spec.weather}", total=spec.minutes * 60.0)
             log = run_scenario(
                 spec,
+                run_config,
                 progress=lambda done, total: bar.update(task, completed=done),
-                perception_mode=PERCEPTION_OPTIONS[perception],
+                black_box_dir=out / "recordings",
             )
         metrics = evaluate_run(log, out)
     except LastmileError as exc:
@@ -169,8 +195,16 @@ def sweep(
     ] = None,
     out: Annotated[Path, typer.Option(help="Output folder.")] = Path("runs/sweep"),
     perception: Annotated[
-        str, typer.Option(help="radar (object lists, faster) or lidar (raw LiDAR + camera + radar).")
-    ] = "radar",
+        str | None,
+        typer.Option(
+            help="radar (object lists, faster) or lidar (raw LiDAR + camera + radar) "
+            "[default: the configuration's; radar without --config]."
+        ),
+    ] = None,
+    config: Annotated[
+        Path | None,
+        typer.Option(help="Run configuration TOML for every case (each suite case may set its speed)."),
+    ] = None,
 ) -> None:
     """Run many scenarios; writes summary.json, report.md and every scenario file under OUT."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
@@ -182,10 +216,7 @@ def sweep(
         from lastmile.sim.scenario_generator import ScenarioSpace, sample_scenarios
         from lastmile.sim.suites import SUITES
 
-        if perception not in PERCEPTION_OPTIONS:
-            raise ConfigError(
-                f"--perception: expected one of {sorted(PERCEPTION_OPTIONS)}, got {perception!r}"
-            )
+        run_config = _run_config(config, perception, PERCEPTION_OPTIONS["radar"])
         chosen = [x for x in (suite, generate, scenarios) if x is not None]
         if len(chosen) != 1:
             raise ConfigError(
@@ -217,7 +248,7 @@ def sweep(
                 workers=workers,
                 ray_address=ray_address,
                 progress=lambda done, total: bar.update(task, completed=done),
-                perception_mode=PERCEPTION_OPTIONS[perception],
+                config=run_config,
             )
         report = write_sweep_report(summary, out, title)
     except LastmileError as exc:

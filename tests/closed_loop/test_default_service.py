@@ -12,10 +12,12 @@ from typing import Any
 
 import pytest
 
+from lastmile.core.perception_mode import PerceptionMode
 from lastmile.evaluation.metrics import compute_metrics
 from lastmile.recorder.run_log import RunLog
 from lastmile.runner.closed_loop import run_scenario
 from lastmile.sim.scenario import default_service
+from tests.closed_loop.harness import RADAR
 
 pytestmark = pytest.mark.closed_loop
 SEEDS = (0, 1, 2, 3, 4)
@@ -23,7 +25,7 @@ SEEDS = (0, 1, 2, 3, 4)
 
 @functools.cache
 def _run(seed: int) -> tuple[RunLog, dict[str, Any]]:
-    log = run_scenario(default_service(seed=seed), perception_mode="radar_tracking")
+    log = run_scenario(default_service(seed=seed), RADAR)
     return log, compute_metrics(log)
 
 
@@ -73,7 +75,9 @@ def test_same_seed_same_metrics(tmp_path: Path, mode: str, minutes: float) -> No
 
     texts = []
     for name in ("a", "b"):
-        log = run_scenario(default_service(seed=3, minutes=minutes), perception_mode=mode)
+        log = run_scenario(
+            default_service(seed=3, minutes=minutes), RADAR.with_perception(PerceptionMode(mode))
+        )
         evaluate_run(log, tmp_path / name)
         texts.append((tmp_path / name / "metrics.json").read_bytes())
     assert texts[0] == texts[1]

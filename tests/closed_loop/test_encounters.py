@@ -10,7 +10,7 @@ from lastmile.core.vehicle_messages import BehaviourState
 from lastmile.sim.passengers import PassengerConfig
 from lastmile.sim.scenario import CrosswalkPedestrians, RingCar, Scenario, SideRoadCar, Walker
 from lastmile.sim.suites import iso22737_suite
-from tests.closed_loop.harness import steps
+from tests.closed_loop.harness import RADAR, steps
 
 pytestmark = pytest.mark.closed_loop
 NO_RIDERS = PassengerConfig(arrivals_per_stop_per_min=0.0, initial_waiting={})
@@ -114,7 +114,8 @@ def test_a_car_turning_in_ahead_is_followed_not_hit(spawn_t_s: float) -> None:
     scenario = dataclasses.replace(case.scenario, name="car_turning_in", side_road_cars=(car,))
     followed = False
     last = None
-    for step in steps(scenario):
+    config = RADAR.with_cruise_speed(case.cruise_speed_mps)
+    for step in steps(scenario, config=config):
         last = step
         d = step.out.decision
         followed |= d is not None and "cut-in" in d.reason

@@ -14,7 +14,7 @@ import pytest
 
 from lastmile.evaluation.metrics import compute_metrics
 from lastmile.recorder.run_log import RunLog
-from lastmile.runner.closed_loop import DEFAULT_PERCEPTION_MODE, run_scenario
+from lastmile.runner.closed_loop import DEFAULT_CONFIG, run_scenario
 from lastmile.runner.sweep import pin_blas_threads
 from lastmile.sim.scenario import default_service
 
@@ -36,7 +36,7 @@ def _runs() -> dict[str, tuple[RunLog, dict[str, Any]]]:
 @pytest.mark.parametrize("weather", WEATHERS)
 def test_raw_perception_is_the_default_and_the_report_says_so(weather: str) -> None:
     log, m = _runs()[weather]
-    assert DEFAULT_PERCEPTION_MODE == "lidar_camera_radar"
+    assert DEFAULT_CONFIG.stack.perception == "lidar_camera_radar"
     assert m["perception_mode"] == "lidar_camera_radar" and log.meta.weather == weather
     raw = log.timing["raw_perception"]
     # Every 10 Hz rig frame of the run was perceived, with all three LiDARs' sweeps in it.

@@ -1,5 +1,6 @@
 import dataclasses
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -8,8 +9,10 @@ from typer.testing import CliRunner
 from lastmile.cli import app
 from lastmile.core.vehicle_messages import BehaviourState
 from lastmile.evaluation.metrics import compute_metrics
+from lastmile.recorder.replay import read_recording
 from lastmile.runner.closed_loop import run_scenario
-from lastmile.runner.sweep import CHECKS, SWEEP_PERCEPTION_MODE, generic_cases, run_sweep
+from lastmile.runner.run_config import load_run_config
+from lastmile.runner.sweep import CHECKS, SWEEP_CONFIG, generic_cases, run_sweep
 from lastmile.safety.supervisor import SafetySupervisor
 from lastmile.sim.faults import FAULT_MENU
 from lastmile.sim.scenario import load_scenario
@@ -28,8 +31,9 @@ def test_generated_scenarios_repeat_from_their_seed_and_round_trip_through_toml(
     cases = generic_cases(first)
     from lastmile.runner.sweep import write_cases
 
-    for case, path in write_cases(cases, tmp_path):
+    for case, path, config_path in write_cases(cases, tmp_path):
         assert load_scenario(path) == case.scenario
+        assert load_run_config(config_path) == SWEEP_CONFIG
 
 
 def test_local_sweep_writes_a_summary_row_per_scenario(tmp_path):
@@ -50,26 +54,58 @@ def test_ray_and_local_engines_give_identical_outcomes(tmp_path):
     cases = generic_cases(sample_scenarios(SHORT, 3, seed=7))
     local = run_sweep(cases, tmp_path / "local", engine="local", workers=2)
     remote = run_sweep(cases, tmp_path / "ray", engine="ray")
-    strip = lambda rows: [{k: v for k, v in r.items() if k != "scenario_file"} for r in rows]  # noqa: E731
+    strip = lambda rows: [  # noqa: E731
+        {k: v for k, v in r.items() if k not in ("scenario_file", "config_file")} for r in rows
+    ]
     assert strip(local["rows"]) == strip(remote["rows"])
 
 
-def test_a_crashing_stack_is_recorded_and_the_vehicle_brakes_to_a_stop(monkeypatch):
+def test_a_stack_raising_on_every_tick_is_stopped_by_the_loops_safety_and_the_black_box_written(
+    monkeypatch, tmp_path
+):
     real_tick = ShuttleStack.tick
 
-    def tick(self, now, frames):
+    def tick(self, now, frames, safety=None):
         if int(now) >= 20_000_000:
             raise RuntimeError("segfault in planning")
-        return real_tick(self, now, frames)
+        return real_tick(self, now, frames, safety)
 
     monkeypatch.setattr(ShuttleStack, "tick", tick)
     scenario = dataclasses.replace(sample_scenarios(SHORT, 1, seed=2)[0], minutes=0.6, faults=())
-    log = run_scenario(scenario, perception_mode=SWEEP_PERCEPTION_MODE)
+    log = run_scenario(scenario, SWEEP_CONFIG, black_box_dir=tmp_path)
     crashes = log.events_of("stack_crash")
     assert len(crashes) == 1 and crashes[0].t_s == 20.0 and "segfault" in crashes[0].data["error"]
+    # The loop's safety answers on the tick of the crash: an emergency stop, no waiting for the watchdog.
+    level = next(e for e in log.events_of("safety") if e.t_s >= 20.0)
+    assert level.t_s == 20.0 and level.data["level"] == "EMERGENCY_STOP", level
+    assert "vehicle software failed" in level.data["reason"]
     t, v = log.column("t_s"), log.column("speed_mps")
     assert v[t < 20.0].max() > 2.0  # it was driving
-    assert v[-1] < 0.05  # and the watchdog's brake stopped it
+    assert v[-1] < 0.05  # and the safety's brake stopped it
+    crash_files = [e for e in log.events_of("recording") if e.data["trigger"] == "crash"]
+    assert len(crash_files) == 1 and (tmp_path / Path(str(crash_files[0].data["path"])).name).exists()
+    rec = read_recording(Path(str(crash_files[0].data["path"])))
+    assert rec.span_us[1] >= 19_990_000  # the window runs up to the crash
+
+
+def test_a_stack_that_hangs_trips_the_hardware_watchdog_and_the_shuttle_stops(monkeypatch):
+    """A frozen control loop: the stack keeps returning its last output (stale command stamps)."""
+    real_tick = ShuttleStack.tick
+    frozen: dict[str, object] = {}
+
+    def tick(self, now, frames, safety=None):
+        if int(now) < 20_000_000:
+            frozen["out"] = real_tick(self, now, frames, safety)
+        return frozen["out"]
+
+    monkeypatch.setattr(ShuttleStack, "tick", tick)
+    scenario = dataclasses.replace(sample_scenarios(SHORT, 1, seed=2)[0], minutes=0.6, faults=())
+    log = run_scenario(scenario, SWEEP_CONFIG)
+    trips = log.events_of("hardware_watchdog")
+    assert len(trips) == 1 and 20.09 <= trips[0].t_s <= 20.12, trips  # 100 ms without a fresh command
+    assert not log.events_of("stack_crash")
+    t, v = log.column("t_s"), log.column("speed_mps")
+    assert v[t < 20.0].max() > 2.0 and v[-1] < 0.05
 
 
 def test_the_iso22737_suite_covers_the_plan():
@@ -111,7 +147,7 @@ def _estop_case(state: str, minutes: float):
 
 def test_operator_estop_while_cruising_stops_the_shuttle_and_holds_it_until_release():
     _case, scenario = _estop_case("normal_driving", 1.0)
-    log = run_scenario(scenario, perception_mode=SWEEP_PERCEPTION_MODE)
+    log = run_scenario(scenario, SWEEP_CONFIG)
     result = CHECKS["estop_honoured"](log, compute_metrics(log))
     assert result.ok, result.detail
     press = log.events_of("operator_estop")[0]
@@ -125,7 +161,7 @@ def test_operator_estop_while_cruising_stops_the_shuttle_and_holds_it_until_rele
 def test_estop_check_fails_when_the_stack_ignores_the_button(monkeypatch):
     monkeypatch.setattr(SafetySupervisor, "operator_emergency_stop", lambda self, now_us, reason: None)
     _, scenario = _estop_case("normal_driving", 0.8)
-    log = run_scenario(scenario, perception_mode=SWEEP_PERCEPTION_MODE)
+    log = run_scenario(scenario, SWEEP_CONFIG)
     result = CHECKS["estop_honoured"](log, compute_metrics(log))
     assert not result.ok and "EMERGENCY_STOP" in result.detail
 
@@ -133,10 +169,7 @@ def test_estop_check_fails_when_the_stack_ignores_the_button(monkeypatch):
 def test_estop_check_fails_when_the_state_is_never_reached():
     # The encounter scenarios carry no riders: the shuttle never onboards.
     base = next(c for c in iso22737_suite() if c.group == "hazard, clear view").scenario
-    log = run_scenario(
-        dataclasses.replace(base, minutes=0.3, estop_in_state="onboarding"),
-        perception_mode=SWEEP_PERCEPTION_MODE,
-    )
+    log = run_scenario(dataclasses.replace(base, minutes=0.3, estop_in_state="onboarding"), SWEEP_CONFIG)
     result = CHECKS["estop_honoured"](log, compute_metrics(log))
     assert not result.ok and "never reached state 'onboarding'" in result.detail
 

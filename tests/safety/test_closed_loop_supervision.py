@@ -1,4 +1,4 @@
-"""The safety chain beside the real closed loop: silent in a healthy run; a dead radar stops the shuttle."""
+"""The vehicle's safety in the real closed loop: silent in a healthy run; a dead radar stops the shuttle."""
 
 from __future__ import annotations
 
@@ -9,89 +9,69 @@ import pytest
 
 from lastmile.core.safety_messages import FailSafeLevel, MrmKind, SafetyDirective
 from lastmile.core.sensor_frames import RadarFrame
-from lastmile.core.stamp import Stamp
-from lastmile.recorder.black_box import BlackBox, BlackBoxConfig
+from lastmile.recorder.black_box import BlackBoxConfig
 from lastmile.recorder.replay import read_recording
-from lastmile.runner.closed_loop import TICK_US, build_closed_loop
-from lastmile.safety.failsafe import FailSafeArbiter, apply_safety_gate
-from lastmile.safety.hardware_watchdog import HardwareWatchdog
-from lastmile.safety.health_monitor import HealthMonitor, ModuleSpec
-from lastmile.safety.reliability_config import ReliabilityConfig, SensorSpec
-from lastmile.safety.reliability_monitor import ReliabilityMonitor
-from lastmile.safety.supervisor import SafetySupervisor
+from lastmile.recorder.run_log import RunMeta
+from lastmile.recorder.run_log_writer import RunLogWriter
+from lastmile.runner.closed_loop import build_closed_loop
+from lastmile.runner.loop import LoopCallback, TickRecord
+from lastmile.runner.loop_callbacks import BlackBoxCallback
 from lastmile.sim.scenario import default_service
+from tests.closed_loop.harness import RADAR, CutSensor
 
 pytestmark = pytest.mark.closed_loop
-
-SENSORS = (
-    SensorSpec(key="gnss", rate_hz=10.0),
-    SensorSpec(key="imu", rate_hz=50.0, frozen_after=5),
-    SensorSpec(key="odom", rate_hz=50.0, frozen_after=None),
-    SensorSpec(key="door", rate_hz=10.0, frozen_after=None),
-    SensorSpec(key="front", rate_hz=20.0),
-    SensorSpec(key="rear", rate_hz=20.0, silent_level=FailSafeLevel.SPEED_LIMIT),
-)
-MODULES = ("localization", "tracking", "decision", "planning", "control")
+TICK_US = RADAR.loop.tick_us
 
 
-def _drive(
-    seconds: float, out_dir: Path, radar_dies_at_s: float | None = None
-) -> tuple[list[SafetyDirective], list[float], BlackBox]:
+class _Watch(LoopCallback):
+    """Collects the directives and true speeds; asks the black box for a dump when an MRM starts."""
+
+    def __init__(self, box: BlackBoxCallback) -> None:
+        self.box = box
+        self.directives: list[SafetyDirective] = []
+        self.speeds: list[float] = []
+
+    def on_tick(self, record: TickRecord) -> None:
+        d = record.verdict.directive
+        if d.level >= FailSafeLevel.MINIMAL_RISK_MANOEUVRE and d.since_us == record.now:
+            self.box.box.trigger("manual", int(record.now), "; ".join(d.reasons))
+        self.directives.append(d)
+
+
+def _drive(seconds: float, out_dir: Path, radar_dies_at_s: float | None = None) -> tuple[_Watch, list[Path]]:
     scenario = dataclasses.replace(default_service(seed=0), minutes=seconds / 60.0)
-    hdmap, sim, stack = build_closed_loop(scenario, "radar_tracking")
-    sup = SafetySupervisor(
-        HealthMonitor([ModuleSpec(name=m, period_us=100_000) for m in MODULES]),
-        ReliabilityMonitor(ReliabilityConfig(sensors=SENSORS), hdmap=hdmap, route=stack.route),
-        FailSafeArbiter(layers=stack.layers),
-    )
-    bb = BlackBox(BlackBoxConfig(out_dir=out_dir))
-    watchdog = HardwareWatchdog()
-    directives: list[SafetyDirective] = []
-    speeds: list[float] = []
-    for tick in range(round(seconds * 1e6 / TICK_US)):
-        now = Stamp(tick * TICK_US)
-        sim.advance_world(tick)
-        frames = sim.sensor_frames(tick)
-        if radar_dies_at_s is not None and now >= radar_dies_at_s * 1e6:
-            frames = [f for f in frames if not (isinstance(f, RadarFrame) and f.sensor_id == "front")]
-        sup.observe_frames(now, frames)
-        out = stack.tick(now, frames)
-        est = stack.ekf.estimate(now)
-        directive = sup.step(
-            now,
-            out.heartbeats,
-            estimate=est if tick % 10 == 0 else None,
-            gate_rejections_total=stack.ekf.rejected_fixes,
-            speed_mps=est.speed_mps,
+    loop = build_closed_loop(scenario, RADAR)
+    writer = RunLogWriter(
+        RunMeta(
+            seed=0,
+            weather="clear",
+            perception_mode="radar_tracking",
+            scenario_name="t",
+            map_name="m",
+            tick_s=TICK_US / 1e6,
+            duration_s=seconds,
         )
-        assert out.command is not None
-        command = apply_safety_gate(out.command, directive, est.speed_mps)
-        command = watchdog.observe(now, command) or command
-        bb.record_frames(now, frames)
-        bb.record_output(now, out)
-        bb.record(now, "/safety/directive", directive)
-        if directive.level >= FailSafeLevel.MINIMAL_RISK_MANOEUVRE and directive.since_us == now:
-            bb.trigger(
-                "emergency_stop" if directive.emergency_stop else "manual", now, "; ".join(directive.reasons)
-            )
-        sim.apply_command(command)
-        sim.referee(out.takeover_request or directive.takeover_request)
-        directives.append(directive)
-        speeds.append(sim.world.ego.state.speed_mps)
-    bb.close()
-    return directives, speeds, bb
+    )
+    box = BlackBoxCallback(BlackBoxConfig(out_dir=out_dir), writer)
+    watch = _Watch(box)
+    cut_us = None if radar_dies_at_s is None else round(radar_dies_at_s * 1e6)
+    loop.callbacks.extend([CutSensor(RadarFrame, "front", cut_us), box, watch])
+    for _ in loop.ticks(round(seconds * 1e6 / TICK_US)):
+        watch.speeds.append(loop.world.ego_state.speed_mps)
+    return watch, box.box.dumps
 
 
 def test_healthy_run_raises_no_malfunction(tmp_path: Path) -> None:
-    directives, speeds, bb = _drive(25.0, tmp_path)
-    assert {d.level for d in directives} == {FailSafeLevel.NONE}
-    assert max(speeds) > 2.0  # it did drive
-    assert bb.dumps == []
+    watch, dumps = _drive(25.0, tmp_path)
+    assert {d.level for d in watch.directives} == {FailSafeLevel.NONE}
+    assert max(watch.speeds) > 2.0  # it did drive
+    assert dumps == []
 
 
 def test_dead_front_radar_triggers_a_minimal_risk_manoeuvre_that_stops_the_shuttle(tmp_path: Path) -> None:
     dies_at = 12.0
-    directives, speeds, bb = _drive(25.0, tmp_path, radar_dies_at_s=dies_at)
+    watch, dumps = _drive(25.0, tmp_path, radar_dies_at_s=dies_at)
+    directives, speeds = watch.directives, watch.speeds
     noticed = next(i for i, d in enumerate(directives) if d.level > FailSafeLevel.NONE)
     # The overdue frame is a latency fault (SPEED_LIMIT) first; the silence then escalates to an MRM.
     assert directives[noticed].level in (FailSafeLevel.SPEED_LIMIT, FailSafeLevel.MINIMAL_RISK_MANOEUVRE)
@@ -102,7 +82,8 @@ def test_dead_front_radar_triggers_a_minimal_risk_manoeuvre_that_stops_the_shutt
     assert any("sensor:front" in r for r in d.reasons)
     assert all(x.level == FailSafeLevel.MINIMAL_RISK_MANOEUVRE for x in directives[first:])
     assert speeds[first] > 1.0 and speeds[-1] < 0.05  # it was moving and came to a stop
-    (dump,) = bb.dumps
-    rec = read_recording(dump)
+    # The MRM asks for a takeover, which the referee logs and the loop's black box also records.
+    assert sorted(p.name.split("_")[1] for p in dumps) == ["manual", "takeover"], dumps
+    rec = read_recording(next(p for p in dumps if "manual" in p.name))
     assert rec.events[0]["trigger"] == "manual" and "no frame" in rec.events[0]["reason"]
     assert rec.span_us == (0, first * TICK_US)  # everything up to the trigger (less than 30 s so far)

@@ -24,7 +24,7 @@ def test_a_scenario_file_round_trips_into_typed_values(tmp_path):
         ("minutes = -1\n", r"scenario.minutes: expected a value in"),
         ("speed = 3\n", "unknown key 'speed'"),
         ('[[walkers]]\nkind = "dragon"\n', "expected one of \\['pedestrian', 'goose'\\]"),
-        ('lateral_controller = "stanley"\n', "heading_pid or pure_pursuit"),
+        ('lateral_controller = "stanley"\n', "is a vehicle setting: expected it in a run configuration"),
         ("minutes = \n", "expected valid TOML"),
     ],
 )

@@ -11,28 +11,28 @@ from lastmile.core.boxes3d import DetectedBoxes
 from lastmile.core.errors import ConfigError, MessageError
 from lastmile.core.geometry import SE2
 from lastmile.core.object_class import ObjectClass
+from lastmile.core.perception_mode import PerceptionMode
 from lastmile.core.sensor_frames import LidarSweep
 from lastmile.core.stamp import Stamp
 from lastmile.hdmap.drivable import DrivableRaster
 from lastmile.perception.snow_surface import curb_distance_m
-from lastmile.runner.closed_loop import TICK_US, build_closed_loop
+from lastmile.runner.closed_loop import build_closed_loop
 from lastmile.sim.scenario import Scenario, StaticObstacle
 from lastmile.stack.raw_perception import RawPerception, RawPerceptionConfig
-from lastmile.stack.shuttle_stack import StackConfig
+from lastmile.stack.shuttle_stack import ShuttleStack, StackConfig
 
 
 @functools.cache
 def _obstacle_run() -> tuple[list[tuple[float, float, int, float]], float, float, RawPerception]:
     """The shuttle drives at a 0.8 m box on its lane 60 m ahead, perceiving through LiDAR only."""
     scenario = Scenario(name="box_ahead", minutes=0.5, static_obstacles=(StaticObstacle(route_s_m=60.0),))
-    _, sim, stack = build_closed_loop(scenario)
-    box = sim.world.agents[-1]
+    loop = build_closed_loop(scenario)
+    stack = loop.software
+    assert isinstance(stack, ShuttleStack)
+    box = loop.world.road_users[-1]
     trace = []
-    for tick in range(round(30e6 / TICK_US)):
-        sim.advance_world(tick)
-        out = stack.tick(Stamp(tick * TICK_US), sim.sensor_frames(tick))
-        sim.apply_command(out.command)
-        sim.referee(out.takeover_request)
+    for record in loop.ticks(round(30e6 / loop.tick_us)):
+        tick = record.tick
         if tick % 10 == 0 and stack._route_s is not None:
             near = [float(np.hypot(r[0] - box.x_m, r[1] - box.y_m)) for r in stack._tracks.table.tolist()]
             trace.append((tick / 100.0, stack._route_s, len(near), min(near, default=np.inf)))
@@ -71,8 +71,8 @@ def test_the_stack_gives_the_pipeline_the_map_curb_lines_and_curb_faces_are_not_
 
 
 def _perception() -> RawPerception:
-    _, _, stack = build_closed_loop(Scenario(name="unit", minutes=0.1))
-    assert stack.raw is not None
+    stack = build_closed_loop(Scenario(name="unit", minutes=0.1)).software
+    assert isinstance(stack, ShuttleStack) and stack.raw is not None
     return RawPerception(
         RawPerceptionConfig(),
         stack.layers,
@@ -125,9 +125,9 @@ def test_bad_calibration_and_unknown_sensors_are_refused() -> None:
     with pytest.raises(MessageError, match="calibrated LiDAR"):
         raw.on_frame(LidarSweep(stamp=Stamp(0), sensor_id="roof", points=np.zeros((1, 6))), Stamp(0))
     with pytest.raises(ConfigError, match="lidar_mounts"):
-        StackConfig(perception_mode="lidar_camera_radar")
+        StackConfig(perception_mode=PerceptionMode.LIDAR_CAMERA_RADAR)
     with pytest.raises(ConfigError, match="perception_mode"):
-        StackConfig(perception_mode="oracle")
+        StackConfig(perception_mode="oracle")  # type: ignore[arg-type]
     with pytest.raises(ConfigError, match=r"\(4, 4\)"):
         RawPerception(RawPerceptionConfig(), raw.layers, {"front": np.eye(3)}, (), {})
     with pytest.raises(ConfigError, match="set_timeout_us"):

@@ -17,9 +17,11 @@ from lastmile.core.stamp import Stamp
 from lastmile.core.vehicle import VehicleGeometry
 from lastmile.core.vehicle_messages import BehaviourState
 from lastmile.decision.decision_config import DecisionConfig
+from lastmile.runner.loop import ClosedLoop
 from lastmile.safety.reliability_config import ReliabilityConfig, SensorSpec
 from lastmile.sim.vehicle_model import ActuatorDynamics, KinematicBicycle, VehicleState
 from lastmile.stack.shuttle_stack import ShuttleStack, StackConfig
+from lastmile.stack.vehicle_build import build_safety
 from lastmile.tracking.prediction import PredictionConfig
 
 G = VehicleGeometry()
@@ -36,15 +38,22 @@ RIG_SENSORS = (
 )
 
 
-def _drive(layers, seconds, obstacle_x=None, call=None, door_open_after=None):
-    config = StackConfig(radar_mounts={"front": FRONT}, reliability=ReliabilityConfig(sensors=RIG_SENSORS))
-    stack = ShuttleStack(layers, G, config)
-    car = KinematicBicycle(G, ActuatorDynamics(), VehicleState(20.0, 0.0, 0.0))
-    states, door_cmds, onboard_y = [], [], []
-    door_open = False
-    for tick in range(int(seconds * 100)):
-        now = Stamp(tick * 10_000)
-        s = car.state
+class _StraightRoadRig:
+    """The loop's world for these tests: the vehicle model on the straight test road, ideal odometry,
+    IMU, GNSS and door sensor, and a front radar that sees one obstacle at ``obstacle_x``."""
+
+    def __init__(self, obstacle_x=None, call=None, door_open_after=None):
+        self.car = KinematicBicycle(G, ActuatorDynamics(), VehicleState(20.0, 0.0, 0.0))
+        self.obstacle_x, self.call, self.door_open_after = obstacle_x, call, door_open_after
+        self.door_open = False
+        self.states, self.door_cmds, self.onboard_y = [], [], []
+        self._tick = 0
+
+    def advance_world(self, tick):
+        self._tick = tick
+
+    def sensor_frames(self, tick):
+        now, s = Stamp(tick * 10_000), self.car.state
         frames = []
         if tick % 2 == 0:
             frames.append(
@@ -65,31 +74,45 @@ def _drive(layers, seconds, obstacle_x=None, call=None, door_open_after=None):
                     yaw_std_rad=0.004,
                 )
             )
-            frames.append(DoorSensorFrame(stamp=now, door_open=door_open, person_in_doorway=False))
-        if tick == 1 and call is not None:
-            frames.append(StopCallFrame(stamp=now, stop_id=call, source="stop_button"))
+            frames.append(DoorSensorFrame(stamp=now, door_open=self.door_open, person_in_doorway=False))
+        if tick == 1 and self.call is not None:
+            frames.append(StopCallFrame(stamp=now, stop_id=self.call, source="stop_button"))
         if tick % 5 == 0:
             objects = np.zeros((0, 6))
-            if obstacle_x is not None:
+            if self.obstacle_x is not None:
                 mount = SE2(s.x_m, s.y_m, s.yaw_rad).compose(FRONT)
-                rel = mount.inverse().apply(obstacle_x, 0.0)
+                rel = mount.inverse().apply(self.obstacle_x, 0.0)
                 if 0 < rel[0] < 60:
                     objects = np.array([[rel[0], rel[1], 0.0, 0.0, -15.0, 0.0]])
             # The radar reports every cycle, an empty list when it sees nothing.
             frames.append(RadarFrame(stamp=now, sensor_id="front", objects=objects))
-        out = stack.tick(now, frames)
-        cmd = out.command
-        car.step(0.01, cmd.accel_mps2, cmd.steer_front_rad, cmd.steer_rear_rad, cmd.emergency_brake)
-        if out.decision is not None:
-            states.append(out.decision.state)
-            if out.decision.state == BehaviourState.ONBOARDING and car.state.speed_mps == 0.0:
-                onboard_y.append((car.state.y_m, car.state.yaw_rad))
-        door_cmds.append(cmd.door_open)
-        if door_open_after is not None and cmd.door_open and s.speed_mps == 0.0:
-            door_open = True
+        return frames
+
+    def apply_command(self, cmd):
+        s = self.car.state
+        self.car.step(0.01, cmd.accel_mps2, cmd.steer_front_rad, cmd.steer_rear_rad, cmd.emergency_brake)
+        self.door_cmds.append(cmd.door_open)
+        if self.door_open_after is not None and cmd.door_open and s.speed_mps == 0.0:
+            self.door_open = True
         elif not cmd.door_open:
-            door_open = False
-    return car, states, door_cmds, stack, onboard_y
+            self.door_open = False
+
+    def referee(self, takeover_request, reported_state=None):
+        if reported_state is not None:
+            self.states.append(reported_state)
+            if reported_state == BehaviourState.ONBOARDING and self.car.state.speed_mps == 0.0:
+                self.onboard_y.append((self.car.state.y_m, self.car.state.yaw_rad))
+
+    def drain_events(self):
+        return []
+
+
+def _drive(layers, seconds, obstacle_x=None, call=None, door_open_after=None):
+    config = StackConfig(radar_mounts={"front": FRONT}, reliability=ReliabilityConfig(sensors=RIG_SENSORS))
+    stack = ShuttleStack(layers, G, config)
+    rig = _StraightRoadRig(obstacle_x, call, door_open_after)
+    ClosedLoop(rig, stack, build_safety(layers, config.reliability), 10_000).run(int(seconds * 100))
+    return rig.car, rig.states, rig.door_cmds, stack, rig.onboard_y
 
 
 def test_the_stack_drives_off_and_cruises_near_20_kmh(straight_layers):

@@ -43,6 +43,35 @@ class MalfunctionKind(Enum):
     GNSS_LOST = "gnss_lost"
     LOCALIZATION_GATE_REJECTIONS = "localization_gate_rejections"
     OPERATOR_ESTOP = "operator_estop"
+    STACK_FAILED = "stack_failed"
+    """The vehicle software as a whole raised, or returned no command, on a tick."""
+
+
+class OperatorAction(Enum):
+    """What the operator (on board or remote) tells the vehicle's safety."""
+
+    EMERGENCY_STOP = "emergency_stop"
+    """The e-stop button: EMERGENCY_STOP until a reset."""
+    RESET = "reset"
+    """Release of the e-stop, confirming the cause is gone (also sent when a safety driver hands back)."""
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class OperatorInput:
+    """An operator's input, delivered to the vehicle like a sensor frame (the vehicle's safety reads it).
+
+    Attributes:
+        action: what the operator did.
+        reason: what the operator gave as the cause (logged with the e-stop).
+    """
+
+    stamp: Stamp
+    action: OperatorAction
+    reason: str = ""
+
+    def validate(self) -> None:
+        if not isinstance(self.action, OperatorAction):
+            raise MessageError(f"OperatorInput.action: expected an OperatorAction, got {self.action!r}")
 
 
 class MrmKind(Enum):

@@ -13,6 +13,7 @@ import numpy as np
 
 from lastmile.core.arrays import frozen_array
 from lastmile.core.errors import MessageError
+from lastmile.core.safety_messages import OperatorInput
 from lastmile.core.stamp import Stamp
 from lastmile.core.traffic_light_messages import TrafficLightDetections
 
@@ -238,5 +239,7 @@ SensorFrame = (
     | LidarSweep
     | CameraDetections
     | TrafficLightDetections
+    | OperatorInput
 )
-"""Everything the simulator (or a real vehicle) may hand to the stack."""
+"""Everything the simulator (or a real vehicle) may hand to the vehicle: sensors, V2I, the operator.
+Their names (stream, fault target, recording topic) are registered in :mod:`lastmile.core.frame_kinds`."""

@@ -7,9 +7,10 @@ from dataclasses import dataclass
 from typing import Protocol
 
 from lastmile.core.errors import ConfigError
+from lastmile.core.safety_messages import SafetyDirective
 from lastmile.core.sensor_frames import SensorFrame
 from lastmile.core.stamp import Stamp
-from lastmile.core.vehicle_messages import StackOutput
+from lastmile.core.vehicle_messages import StackOutput, VehicleReport
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -62,10 +63,18 @@ class VehicleGeometry:
 
 
 class VehicleSoftware(Protocol):
-    """What the simulator drives: anything that turns sensor frames into commands.
+    """What the loop drives: anything that turns sensor frames into commands.
 
     ``frames`` holds the frames delivered at ``now`` (their latency elapsed), in delivery order, which
-    need not be capture order.
+    need not be capture order. ``safety`` is the directive the vehicle's safety (which runs apart from
+    the software, in the loop) issued on the previous tick: decision and control obey it; the safety's
+    actuator gate enforces it whatever the software does.
     """
 
-    def tick(self, now: Stamp, frames: Sequence[SensorFrame]) -> StackOutput: ...
+    def tick(
+        self, now: Stamp, frames: Sequence[SensorFrame], safety: SafetyDirective | None = None
+    ) -> StackOutput: ...
+
+    def report(self) -> VehicleReport:
+        """Compute time per module and the software's own counters over the run so far."""
+        ...

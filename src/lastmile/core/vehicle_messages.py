@@ -118,6 +118,8 @@ class Heartbeat:
     module: str
     healthy: bool
     reason: str = ""
+    exception: bool = False
+    """The module raised (its call was contained); the health monitor reports MODULE_EXCEPTION."""
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -169,13 +171,87 @@ class VehicleStatus:
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
+class StackDiagnostics:
+    """What the vehicle software tells the vehicle's safety each tick (the safety runs apart from it).
+
+    Attributes:
+        estimate: the localization estimate, on planning cycles (the integrity checks' rate), else None.
+        gate_rejections_total: GNSS fixes the localization's innovation gate rejected so far.
+        gross_rejections_total: of those, fixes far beyond any plausible error (a single fix 20 sigma off).
+        speed_mps: the stack's own speed estimate (localization's while valid, else wheel odometry).
+        front_route_s_m: route s of the front bumper, None before the first localized planning cycle.
+    """
+
+    stamp: Stamp
+    estimate: LocalizationEstimate | None
+    gate_rejections_total: int
+    gross_rejections_total: int
+    speed_mps: float
+    front_route_s_m: float | None
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class VehicleReport:
+    """What the vehicle software reports about a whole run (timing and counters, no ground truth).
+
+    Attributes:
+        modules: compute time per module: ``p50_ms``, ``p95_ms``, ``max_ms`` and ``calls``.
+        counters: named totals (frames rejected, V2I reports received, perception frame counts...).
+        perception: the perception chain's own summary (rig frames, clusters, curb offsets), if any.
+    """
+
+    modules: dict[str, dict[str, float]]
+    counters: dict[str, int]
+    perception: dict[str, float | int | None] = field(default_factory=dict)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SafetyVerdict:
+    """What the vehicle's safety (apart from the stack) made of one tick.
+
+    Attributes:
+        directive: the fail-safe directive in force (the stack obeys it from its next tick on).
+        command: the command sent to the drive-by-wire: the stack's, gated by the directive, or the
+            safety's own brake command; None holds the vehicle's default brake.
+        watchdog_tripped: the hardware watchdog has cut the stack's command stream (latched).
+        stack_failed: the vehicle software raised, or returned no command, on this tick.
+    """
+
+    stamp: Stamp
+    directive: SafetyDirective
+    command: ActuatorCommand | None
+    watchdog_tripped: bool = False
+    stack_failed: bool = False
+
+    @property
+    def takeover_request(self) -> bool:
+        return self.directive.takeover_request
+
+
+class StopReason(Enum):
+    """Why decision asks for a stop point, for consumers that act on the cause (fleet, HMI, reports)."""
+
+    NONE = "none"
+    INFRASTRUCTURE_CROSSING = "infrastructure_crossing"
+    """An infrastructure camera reports pedestrians on a crossing ahead (V2I anticipation)."""
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
 class StackOutput:
-    """Everything one stack tick returns."""
+    """Everything one stack tick returns.
+
+    Attributes:
+        command: the actuator command (the vehicle's safety gates it before the drive-by-wire).
+        heartbeats: the modules that ran this tick and how their calls ended (the safety's process
+            health monitor watches them).
+        diagnostics: what the vehicle's safety needs from the stack each tick.
+        stop_reason: the cause of the decision's stop point when one of :class:`StopReason` applies.
+    """
 
     command: ActuatorCommand | None
     status: VehicleStatus | None = None
     decision: BehaviourDecision | None = None
     hmi: tuple[HmiMessage, ...] = field(default_factory=tuple)
     heartbeats: tuple[Heartbeat, ...] = field(default_factory=tuple)
-    takeover_request: bool = False
-    safety: SafetyDirective | None = None
+    diagnostics: StackDiagnostics | None = None
+    stop_reason: StopReason = StopReason.NONE

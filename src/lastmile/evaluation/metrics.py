@@ -404,8 +404,11 @@ def _write_json(doc: Mapping[str, Any], path: Path, what: str) -> Path:
     return path
 
 
-def write_metrics(metrics: Mapping[str, MetricValue], run_dir: str | os.PathLike[str]) -> Path:
-    """Write ``metrics.json`` (sorted keys, indent 2) into ``run_dir``; returns its path."""
+def write_metrics(metrics: Mapping[str, Any], run_dir: str | os.PathLike[str]) -> Path:
+    """Write ``metrics.json`` (sorted keys, indent 2) into ``run_dir``; returns its path.
+
+    Besides the metric values it may hold JSON-able tables (the configuration that produced them).
+    """
     return _write_json(metrics, Path(run_dir) / METRICS_FILE, "write_metrics")
 
 

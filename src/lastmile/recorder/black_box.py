@@ -24,20 +24,12 @@ from typing import Any
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 
+from lastmile.core import frame_kinds
 from lastmile.core.errors import ConfigError
 from lastmile.core.geometry import SE2
 from lastmile.core.sensor_frames import (
-    CameraDetections,
-    DoorSensorFrame,
-    GnssInsFrame,
-    ImuFrame,
-    LidarSweep,
-    RadarFrame,
     SensorFrame,
-    StopCallFrame,
-    WheelOdometryFrame,
 )
-from lastmile.core.traffic_light_messages import TrafficLightDetections
 from lastmile.core.vehicle_messages import StackOutput
 from lastmile.recorder import foxglove_schemas as fx
 from lastmile.recorder import mcap_codec
@@ -93,22 +85,7 @@ class BlackBoxConfig:
 
 def sensor_topic(frame: SensorFrame) -> str:
     """The topic a sensor frame is recorded on."""
-    if isinstance(frame, LidarSweep):
-        return f"/sensors/lidar/{frame.sensor_id}"
-    if isinstance(frame, RadarFrame):
-        return f"/sensors/radar/{frame.sensor_id}"
-    if isinstance(frame, CameraDetections):
-        return f"/sensors/camera/{frame.camera_id}"
-    if isinstance(frame, TrafficLightDetections):
-        return f"/sensors/traffic_lights/{frame.camera_id}"
-    names = {
-        GnssInsFrame: "/sensors/gnss",
-        ImuFrame: "/sensors/imu",
-        WheelOdometryFrame: "/sensors/odometry",
-        DoorSensorFrame: "/sensors/door",
-        StopCallFrame: "/sensors/stop_call",
-    }
-    return names.get(type(frame), f"/sensors/{type(frame).__name__}")
+    return frame_kinds.frame_topic(frame)
 
 
 def _compression(name: str) -> CompressionType:

@@ -8,7 +8,7 @@ import numpy as np
 
 from lastmile.core.errors import ConfigError
 from lastmile.fleet.scheduling import CAPACITY_SEATS
-from lastmile.runner.closed_loop import TICK_US
+from lastmile.runner.run_config import BASE_TICK_US as TICK_US
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

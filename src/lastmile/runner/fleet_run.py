@@ -13,10 +13,12 @@ timers; the server's own timestamps (wall clock) are not used for any metric. Wa
 are measured by the run in simulated seconds. The server's timetable clock is off (``--timetable-lead
 0``): it would hand out runs by the server's time of day.
 
-The world. Each shuttle has its own :class:`~lastmile.sim.simulation.Simulation` (vehicle model,
-sensors, door, referee); the other shuttles are placed in it every tick as road users at their true
-poses, so shuttles see (radar), avoid and can collide with each other. Other road users would be
-drawn separately in each shuttle's world, so the fleet scenario has none (a limitation).
+The world. Each shuttle has its own closed loop (:mod:`lastmile.runner.loop`: its
+:class:`~lastmile.sim.simulation.Simulation`, stack and vehicle safety, logged and black-boxed like a
+single run), and the loops are stepped in lockstep; the other shuttles are placed in each world every
+tick as road users at their true poses, so shuttles see (radar), avoid and can collide with each
+other. Other road users would be drawn separately in each shuttle's world, so the fleet scenario has
+none but the mirrored pedestrians (a limitation).
 
 Stops. The shuttle's stack is told the next stop of its plan as ``StopCallFrame(source="dispatch")``
 (as the vehicle's fleet link would pass them on); a shuttle without the server (``lastmile run``)
@@ -42,6 +44,7 @@ from threadpoolctl import threadpool_limits
 from lastmile.core.errors import ConfigError
 from lastmile.core.geometry import PreparedPolygon
 from lastmile.core.object_class import ObjectClass
+from lastmile.core.perception_mode import PerceptionMode
 from lastmile.core.rng import component_rng
 from lastmile.core.stamp import Stamp
 from lastmile.evaluation.fleet_metrics import (
@@ -52,28 +55,33 @@ from lastmile.evaluation.fleet_metrics import (
 )
 from lastmile.fleet.scheduling import CAPACITY_SEATS
 from lastmile.fleet.vehicle_client import Assignment, VehicleClient
-from lastmile.recorder.run_log import RunLog, RunMeta
+from lastmile.hdmap.layers import SLayerDatabase
+from lastmile.recorder.run_log import RunLog
 from lastmile.recorder.run_log_writer import RunLogWriter
-from lastmile.runner.closed_loop import (
-    TICK_US,
-    build_closed_loop,
-    evaluate_run,
-)
+from lastmile.runner.closed_loop import build_closed_loop, evaluate_run, load_world_map, run_meta
 from lastmile.runner.fleet_config import Demand, FleetConfig, poisson_demand
 from lastmile.runner.fleet_server import ServerProcess
 from lastmile.runner.fleet_shuttle import (
+    FleetLinkCallback,
     FleetShuttle,
     place_proxy,
     proxy_for,
     shuttle_scenario,
-    step_shuttle,
     take_presence,
 )
+from lastmile.runner.loop import run_lockstep
+from lastmile.runner.loop_callbacks import (
+    BlackBoxCallback,
+    RunLogCallback,
+    TimingCallback,
+    black_box_config,
+)
+from lastmile.runner.run_config import RunConfig
 from lastmile.sim.agents import Agent
 from lastmile.sim.infrastructure import CrossingCamera, CrossingCameraConfig
 
 # N shuttles in one process: the radar object lists keep a fleet hour affordable on one core.
-FLEET_PERCEPTION_MODE = "radar_tracking"
+FLEET_RUN_CONFIG = RunConfig().with_perception(PerceptionMode.RADAR_TRACKING)
 PEDESTRIAN_PROXY_BASE = 9100  # and of the mirrored pedestrians
 
 ProgressCallback = Callable[[float, float], None]
@@ -121,6 +129,7 @@ async def _run(
     config: FleetConfig, out_dir: Path, server: ServerProcess, progress: ProgressCallback | None
 ) -> dict[str, Any]:
     seeds = np.random.SeedSequence(config.seed).spawn(config.shuttles + 1)
+    run_config = FLEET_RUN_CONFIG.with_cruise_speed(config.cruise_speed_mps)
     shuttles: list[FleetShuttle] = []
     loop_length_m: float | None = None
     for k in range(config.shuttles):
@@ -128,22 +137,45 @@ async def _run(
         # Start positions: evenly round the loop (loop length from the first shuttle's simulator).
         start = 0.0 if loop_length_m is None else k * loop_length_m / config.shuttles
         scenario = shuttle_scenario(config, k, seed_k, start)
-        hdmap, sim, stack = build_closed_loop(scenario, FLEET_PERCEPTION_MODE)
-        loop_length_m = sim.service_route.length_m
-        meta = RunMeta(
-            seed=seed_k,
-            weather=scenario.weather,
-            perception_mode=FLEET_PERCEPTION_MODE,
-            scenario_name=scenario.name,
-            map_name=hdmap.name,
-            tick_s=TICK_US / 1e6,
+        loop = build_closed_loop(scenario, run_config)
+        loop_length_m = loop.world.service_route.length_m
+        meta = dataclasses.replace(
+            run_meta(scenario, run_config, loop.world.map_name),
             duration_s=config.minutes * 60.0,
-            config={"fleet": dataclasses.asdict(config), "shuttle": k, "start_route_s_m": start},
+            config={
+                "fleet": dataclasses.asdict(config),
+                "shuttle": k,
+                "start_route_s_m": start,
+                "run_config": run_meta(scenario, run_config, "").config["run_config"],
+            },
         )
         vid = f"sim-{k}"
-        client = VehicleClient(server.url, vid, server.tokens["vehicle"])
-        shuttles.append(FleetShuttle(vid=vid, sim=sim, stack=stack, writer=RunLogWriter(meta), client=client))
-    stop_ids = [s.id for s in shuttles[0].sim.world.hdmap.stops]
+        writer = RunLogWriter(meta)
+        shuttle = FleetShuttle(
+            vid=vid,
+            loop=loop,
+            writer=writer,
+            client=VehicleClient(server.url, vid, server.tokens["vehicle"]),
+            timing=TimingCallback(),
+        )
+        loop.callbacks.extend(
+            [
+                RunLogCallback(writer, loop.world, scenario),
+                shuttle.timing,
+                BlackBoxCallback(
+                    black_box_config(
+                        out_dir / f"shuttle-{k}" / "recordings",
+                        run_config.loop.black_box_window_s,
+                        loop.world,
+                    ),
+                    writer,
+                ),
+                FleetLinkCallback(shuttle),
+            ]
+        )
+        shuttles.append(shuttle)
+    world_map = load_world_map(shuttles[0].world.scenario.map)
+    stop_ids = [stop.id for stop in world_map.hdmap.stops]
     window_s = (config.demand_minutes if config.demand_minutes is not None else config.minutes) * 60.0
     demand = poisson_demand(
         stop_ids,
@@ -156,11 +188,11 @@ async def _run(
         for other in shuttles:
             if other is not s:
                 s.proxies[id(other)] = proxy_for(other, len(s.proxies))
-                s.sim.world.agents.append(s.proxies[id(other)])
+                s.world.add_road_user(s.proxies[id(other)])
 
     # One set of pedestrians: they walk in shuttle 0's world and are mirrored into the others'.
     owner = shuttles[0]
-    pedestrians = [a for a in owner.sim.world.agents if a.cls == ObjectClass.PEDESTRIAN]
+    pedestrians = [a for a in owner.world.road_users if a.cls == ObjectClass.PEDESTRIAN]
     for s in shuttles[1:]:
         for j, a in enumerate(pedestrians):
             proxy = Agent(
@@ -176,7 +208,12 @@ async def _run(
                 active=a.active,
             )
             s.pedestrian_proxies.append((a, proxy))
-            s.sim.world.agents.append(proxy)
+            s.world.add_road_user(proxy)
+    route_crosswalks = (
+        SLayerDatabase.build(world_map.hdmap, world_map.route_lanelets, step_m=1.0, closed=True).crosswalks
+        if config.cameras
+        else ()
+    )
     cameras = [
         _Camera(
             node_id=f"crossing-cam-{rc.crosswalk.id}",
@@ -187,7 +224,7 @@ async def _run(
                 component_rng(config.seed, f"crossing_camera_{rc.crosswalk.id}"),
             ),
         )
-        for rc in (owner.stack.layers.crosswalks if config.cameras else ())
+        for rc in route_crosswalks
     ]
 
     rider_headers = {"Authorization": f"Bearer {server.tokens['rider']}"}
@@ -195,6 +232,7 @@ async def _run(
     riders: list[_Rider] = []
     by_request: dict[str, _Rider] = {}
     wall0, cpu0 = time.perf_counter(), time.process_time()
+    tick_us = run_config.loop.tick_us
     async with httpx.AsyncClient(base_url=server.url, timeout=30) as http:
         for s in shuttles:
             await s.client.register(capacity=CAPACITY_SEATS)
@@ -211,24 +249,27 @@ async def _run(
             )
             _expect(res, 201, f"token for {cam.node_id}")
             cam.token = str(res.json()["token"])
-        ticks = round(config.minutes * 60.0 * 1e6 / TICK_US)
-        sync_ticks = round(config.sync_period_s * 1e6 / TICK_US)
-        dt = TICK_US / 1e6
+        ticks = round(config.minutes * 60.0 * 1e6 / tick_us)
+        sync_ticks = round(config.sync_period_s * 1e6 / tick_us)
+        dt = tick_us / 1e6
         next_rider = 0
-        end_tick = ticks
-        for tick in range(ticks):
-            now = Stamp(tick * TICK_US)
-            t_s = tick * dt
+
+        def before_tick(tick: int) -> None:
+            """Every shuttle sees the others, and the mirrored pedestrians, where they truly are."""
             for s in shuttles:
                 for other in shuttles:
                     if other is not s:
-                        place_proxy(s.proxies[id(other)], other.sim)
+                        place_proxy(s.proxies[id(other)], other.world)
                 for a, proxy in s.pedestrian_proxies:
                     proxy.x_m, proxy.y_m, proxy.yaw_rad = a.x_m, a.y_m, a.yaw_rad
                     proxy.speed_mps, proxy.active = a.speed_mps, a.active
+
+        async def after_tick(tick: int) -> bool:
+            """Account the tick, relay the cameras, and at sync points talk to the server; True ends."""
+            nonlocal next_rider
+            now, t_s = Stamp(tick * tick_us), tick * dt
             for s in shuttles:
-                step_shuttle(s, tick, now, t_s)
-                s.distance_m += s.sim.world.ego.state.speed_mps * dt
+                s.distance_m += s.world.ego_state.speed_mps * dt
                 if s.onboard > 0:
                     s.occupied_s += dt
                     s.seat_s += s.onboard * dt
@@ -237,58 +278,39 @@ async def _run(
                 for s in shuttles:
                     await s.client.sync()
                     take_presence(s, now)
-            if tick % sync_ticks == 0:
-                for s in shuttles:
-                    await _report_done(s, by_request)
-                    st = s.status
-                    if st is not None and st.map_from_base is not None:
-                        pose = st.map_from_base
-                        await s.client.send_status(
-                            x_m=pose.x_m,
-                            y_m=pose.y_m,
-                            yaw_rad=pose.yaw_rad,
-                            speed_mps=st.speed_mps,
-                            behaviour=st.state.value,
-                            health="ok" if st.healthy else "degraded",
-                            passengers=s.onboard,
-                            door="open" if st.door_open else "closed",
-                            hmi=dict(s.hmi) if s.hmi else None,
-                        )
-                while next_rider < len(demand) and demand[next_rider].t_s <= t_s:
-                    d = demand[next_rider]
-                    rider = _Rider(ref=f"rider-{config.seed}-{next_rider}", demand=d, requested_s=t_s)
-                    body = {
-                        "origin": d.origin,
-                        "destination": d.destination,
-                        "seats": d.seats,
-                        "client_ref": rider.ref,
-                    }
-                    res = await http.post("/api/rides", json=body, headers=rider_headers)
-                    _expect(res, 201, f"ride {rider.ref}")
-                    rider.ride_id = str(res.json()["id"])
-                    by_request[rider.ride_id] = rider
-                    riders.append(rider)
-                    next_rider += 1
-                for s in shuttles:
-                    await s.client.sync()
-                for s in shuttles:
-                    # Only the next visit: the stack's mission is a set of stops, and a later visit's
-                    # stop may lie on a later lap (the server keeps seats within capacity that way).
-                    s.calls = [s.client.plan[0][0]] if s.client.plan else []
-                if (
-                    config.until_served
-                    and next_rider == len(demand)
-                    and t_s >= window_s
-                    and all(r.dropped_off_s is not None for r in riders)
-                ):
-                    end_tick = tick + 1
-                    break
             if progress is not None and tick % 100 == 0:
                 progress(t_s, config.minutes * 60.0)
+            if tick % sync_ticks != 0:
+                return False
+            for s in shuttles:
+                await _report_done(s, by_request)
+                await _send_status(s)
+            while next_rider < len(demand) and demand[next_rider].t_s <= t_s:
+                rider = _Rider(
+                    ref=f"rider-{config.seed}-{next_rider}", demand=demand[next_rider], requested_s=t_s
+                )
+                await _request_ride(http, rider, rider_headers)
+                by_request[rider.ride_id] = rider
+                riders.append(rider)
+                next_rider += 1
+            for s in shuttles:
+                await s.client.sync()
+            for s in shuttles:
+                # Only the next visit: the stack's mission is a set of stops, and a later visit's
+                # stop may lie on a later lap (the server keeps seats within capacity that way).
+                s.calls = [s.client.plan[0][0]] if s.client.plan else []
+            return (
+                config.until_served
+                and next_rider == len(demand)
+                and t_s >= window_s
+                and all(r.dropped_off_s is not None for r in riders)
+            )
+
+        end_tick = await run_lockstep([s.loop for s in shuttles], ticks, before_tick, after_tick)
         for s in shuttles:
             await s.client.stop()
     wall, cpu = time.perf_counter() - wall0, time.process_time() - cpu0
-    duration_s = end_tick * TICK_US / 1e6
+    duration_s = end_tick * tick_us / 1e6
     records = [
         RideRecord(
             ref=r.ref,
@@ -315,13 +337,14 @@ async def _run(
     metrics = compute_fleet_metrics(records, vehicles, CAPACITY_SEATS)
     metrics["duration_s"] = duration_s
     for k, s in enumerate(shuttles):
+        # Wall and CPU time are the whole fleet's (one process steps every shuttle).
         s.writer.set_timing(
             {
                 "wall_s": wall,
                 "realtime_factor": duration_s / wall if wall > 0 else None,
                 "cpu_s": cpu,
-                "stack_wall_s": s.stack_wall_s,
-                "modules": s.stack.profiler.summary(),
+                "stack_wall_s": s.timing.software_s,
+                "modules": s.timing.timing.get("modules", {}),
             }
         )
         log: RunLog = s.writer.finish()
@@ -337,7 +360,9 @@ async def _run(
         "cameras": len(cameras),
         "reports_posted": sum(c.posts for c in cameras),
         "reports_delivered": sum(c.delivered for c in cameras),
-        "reports_received_by_stacks": {s.vid: s.stack.v2i.received for s in shuttles},
+        "reports_received_by_stacks": {
+            s.vid: s.loop.software.report().counters["v2i_reports_received"] for s in shuttles
+        },
     }
     timing = {"wall_s": wall, "cpu_s": cpu, "realtime_factor": duration_s / wall if wall > 0 else None}
     metrics["timing"] = timing
@@ -345,6 +370,32 @@ async def _run(
     if progress is not None:
         progress(config.minutes * 60.0, config.minutes * 60.0)
     return metrics
+
+
+async def _send_status(s: FleetShuttle) -> None:
+    st = s.status
+    if st is None or st.map_from_base is None:
+        return
+    pose = st.map_from_base
+    await s.client.send_status(
+        x_m=pose.x_m,
+        y_m=pose.y_m,
+        yaw_rad=pose.yaw_rad,
+        speed_mps=st.speed_mps,
+        behaviour=st.state.value,
+        health="ok" if st.healthy else "degraded",
+        passengers=s.onboard,
+        door="open" if st.door_open else "closed",
+        hmi=dict(s.hmi) if s.hmi else None,
+    )
+
+
+async def _request_ride(http: httpx.AsyncClient, rider: _Rider, headers: dict[str, str]) -> None:
+    d = rider.demand
+    body = {"origin": d.origin, "destination": d.destination, "seats": d.seats, "client_ref": rider.ref}
+    res = await http.post("/api/rides", json=body, headers=headers)
+    _expect(res, 201, f"ride {rider.ref}")
+    rider.ride_id = str(res.json()["id"])
 
 
 def _expect(res: httpx.Response, code: int, what: str) -> None:

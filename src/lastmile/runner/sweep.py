@@ -1,7 +1,9 @@
 """Sweeps: many scenarios on a local process pool (default) or a Ray cluster, one table of outcomes.
 
-Every case is written as a TOML file first and each worker reads it back, so the file is provably the
-whole description of what ran; the same files and seeds give the same rows on either engine.
+Every case is written as two TOML files first, its scenario (the world) and its run configuration (the
+vehicle), and each worker reads them back, so the files are provably the whole description of what
+ran; the same files and seeds give the same rows on either engine. Each outcome is checked against the
+configuration the case actually ran with.
 """
 
 from __future__ import annotations
@@ -17,10 +19,11 @@ from typing import Any
 import numpy as np
 
 from lastmile.core.errors import ConfigError
+from lastmile.core.perception_mode import PerceptionMode
 from lastmile.evaluation.metrics import compute_metrics
 from lastmile.recorder.run_log import RunLog
-from lastmile.runner.operator_estop import STANDSTILL_MPS
-from lastmile.safety.failsafe import FailSafeConfig
+from lastmile.runner.run_config import RunConfig, load_run_config, run_config_to_toml
+from lastmile.sim.operator_estop import STANDSTILL_MPS
 from lastmile.sim.scenario import load_scenario, scenario_to_toml
 from lastmile.sim.suites import FAULT_CHECKS, GENERIC_CHECKS, SuiteCase
 
@@ -168,7 +171,7 @@ def _check_estop_honoured(log: RunLog, m: dict[str, Any]) -> CheckResult:
     if not after.any():
         return CheckResult(ok=False, detail=f"the run ended at the press ({t0:.1f} s)")
     v0 = float(abs(v[after][0]))
-    bound_s = v0 / FailSafeConfig().max_decel_mps2 + ESTOP_STOP_MARGIN_S
+    bound_s = v0 / _max_decel_mps2(log) + ESTOP_STOP_MARGIN_S
     still = after & (np.abs(v) < STANDSTILL_MPS)
     if not still.any():
         return CheckResult(ok=False, detail=f"never stopped after the press at {t0:.1f} s")
@@ -191,6 +194,17 @@ def _check_estop_honoured(log: RunLog, m: dict[str, Any]) -> CheckResult:
     )
 
 
+def _max_decel_mps2(log: RunLog) -> float:
+    """The emergency-stop deceleration of the configuration the run used (recorded in its log)."""
+    try:
+        return float(log.meta.config["run_config"]["stack"]["safety"]["max_decel_mps2"])
+    except (KeyError, TypeError, ValueError):
+        raise ConfigError(
+            "estop_honoured: expected the run's configuration (run_config.stack.safety.max_decel_mps2) "
+            "in its log, got none"
+        ) from None
+
+
 CHECKS: dict[str, Callable[[RunLog, dict[str, Any]], CheckResult]] = {
     "no_stack_crash": _check_no_stack_crash,
     "no_collision": _check_no_collision,
@@ -204,15 +218,14 @@ CHECKS: dict[str, Callable[[RunLog, dict[str, Any]], CheckResult]] = {
 """Outcome checks by name; a suite case lists the ones its outcome must pass."""
 
 
-SWEEP_PERCEPTION_MODE = "radar_tracking"
+SWEEP_CONFIG = RunConfig().with_perception(PerceptionMode.RADAR_TRACKING)
 """Sweeps perceive through the radars by default: four times cheaper than the raw LiDAR chain, and
 what a sweep validates (decision, safety, faults) sits behind either."""
 
 
-def run_case(
-    scenario_path: str, checks: tuple[str, ...], group: str, perception_mode: str = SWEEP_PERCEPTION_MODE
-) -> dict[str, Any]:
-    """Run one scenario file and judge it: a row of the sweep table (no wall-clock figures in it).
+def run_case(scenario_path: str, config_path: str, checks: tuple[str, ...], group: str) -> dict[str, Any]:
+    """Run one scenario file with one run configuration file and judge it: a row of the sweep table
+    (no wall-clock figures in it).
 
     Black-box recordings go to ``recordings/<scenario name>/`` beside the ``scenarios`` folder.
     """
@@ -222,9 +235,8 @@ def run_case(
     path = Path(scenario_path)
     sweep_dir = path.parent.parent
     scenario = load_scenario(path)
-    log = run_scenario(
-        scenario, black_box_dir=sweep_dir / "recordings" / scenario.name, perception_mode=perception_mode
-    )
+    config = load_run_config(Path(config_path))
+    log = run_scenario(scenario, config, black_box_dir=sweep_dir / "recordings" / scenario.name)
     m = compute_metrics(log)
     results = {name: CHECKS[name](log, m) for name in checks}
     incidents = [
@@ -240,9 +252,10 @@ def run_case(
         "name": scenario.name,
         "group": group,
         "scenario_file": scenario_path,
+        "config_file": config_path,
         "seed": scenario.seed,
         "weather": scenario.weather,
-        "perception_mode": perception_mode,
+        "perception_mode": str(config.stack.perception),
         "faults": [f"{f.kind}:{f.target}" for f in scenario.faults],
         "passed": all(r.ok for r in results.values()),
         "checks": {k: {"ok": r.ok, "detail": r.detail} for k, r in results.items()},
@@ -264,8 +277,11 @@ def run_case(
     }
 
 
-def write_cases(cases: list[SuiteCase], out_dir: Path) -> list[tuple[SuiteCase, Path]]:
-    """Each case's scenario as ``out_dir/scenarios/<name>.toml``."""
+def write_cases(
+    cases: list[SuiteCase], out_dir: Path, config: RunConfig = SWEEP_CONFIG
+) -> list[tuple[SuiteCase, Path, Path]]:
+    """Each case's scenario as ``out_dir/scenarios/<name>.toml`` and the run configuration it runs with
+    (``config``, with the case's own shuttle speed) as ``out_dir/configs/<name>.toml``."""
     names = [c.name for c in cases]
     if len(set(names)) != len(names):
         raise ConfigError("sweep: expected unique scenario names, got duplicates")
@@ -276,12 +292,20 @@ def write_cases(cases: list[SuiteCase], out_dir: Path) -> list[tuple[SuiteCase, 
                 f"sweep case {case.name}: unknown check {unknown[0]!r}; expected one of {sorted(CHECKS)}"
             )
     folder = out_dir / "scenarios"
+    configs = out_dir / "configs"
     folder.mkdir(parents=True, exist_ok=True)
+    configs.mkdir(parents=True, exist_ok=True)
     written = []
     for case in cases:
+        case_config = (
+            config if case.cruise_speed_mps is None else config.with_cruise_speed(case.cruise_speed_mps)
+        )
+        case_config.check_serves(case.scenario)
         path = folder / f"{case.name}.toml"
         path.write_text(scenario_to_toml(case.scenario))
-        written.append((case, path))
+        config_path = configs / f"{case.name}.toml"
+        config_path.write_text(run_config_to_toml(case_config))
+        written.append((case, path, config_path))
     return written
 
 
@@ -305,13 +329,14 @@ def run_sweep(
     workers: int | None = None,
     ray_address: str | None = None,
     progress: ProgressCallback | None = None,
-    perception_mode: str = SWEEP_PERCEPTION_MODE,
+    config: RunConfig = SWEEP_CONFIG,
 ) -> dict[str, Any]:
-    """Run every case; writes ``summary.json`` and returns it (rows in case order)."""
+    """Run every case with ``config`` (each case may set its shuttle speed); writes ``summary.json``
+    and returns it (rows in case order)."""
     if engine not in ENGINES:
         raise ConfigError(f"sweep --engine: expected one of {ENGINES}, got {engine!r}")
-    written = write_cases(cases, out_dir)
-    jobs = [(str(path), case.checks, case.group, perception_mode) for case, path in written]
+    written = write_cases(cases, out_dir, config)
+    jobs = [(str(path), str(config_path), case.checks, case.group) for case, path, config_path in written]
     rows = _run_local(jobs, workers, progress) if engine == "local" else _run_ray(jobs, ray_address, progress)
     summary = summarize(rows)
     (out_dir / "summary.json").write_text(json.dumps(summary, indent=2))
@@ -343,7 +368,7 @@ def pin_blas_threads() -> None:
 
 
 def _run_local(
-    jobs: list[tuple[str, tuple[str, ...], str, str]], workers: int | None, progress: ProgressCallback | None
+    jobs: list[tuple[str, str, tuple[str, ...], str]], workers: int | None, progress: ProgressCallback | None
 ) -> list[dict[str, Any]]:
     workers = workers or os.cpu_count() or 1
     rows: list[dict[str, Any] | None] = [None] * len(jobs)
@@ -357,7 +382,7 @@ def _run_local(
 
 
 def _run_ray(
-    jobs: list[tuple[str, tuple[str, ...], str, str]], address: str | None, progress: ProgressCallback | None
+    jobs: list[tuple[str, str, tuple[str, ...], str]], address: str | None, progress: ProgressCallback | None
 ) -> list[dict[str, Any]]:
     try:
         import ray

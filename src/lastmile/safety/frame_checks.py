@@ -8,45 +8,20 @@ from dataclasses import fields
 
 import numpy as np
 
+from lastmile.core import frame_kinds
 from lastmile.core.errors import MessageError
 from lastmile.core.sensor_frames import (
-    CameraDetections,
-    CrossingPresenceFrame,
-    DoorSensorFrame,
     GnssInsFrame,
     ImuFrame,
-    LidarSweep,
     RadarFrame,
     SensorFrame,
-    StopCallFrame,
     WheelOdometryFrame,
 )
-from lastmile.core.traffic_light_messages import TrafficLightDetections
 
 
 def sensor_key(frame: SensorFrame) -> str | None:
     """The stream a frame belongs to (None for event-driven frames such as stop calls)."""
-    # Radars keep their bare ids (the suite's first streams); LiDARs and cameras are prefixed, since a
-    # front radar, a front LiDAR and a front camera are three streams.
-    if isinstance(frame, RadarFrame):
-        return frame.sensor_id
-    if isinstance(frame, LidarSweep):
-        return f"lidar_{frame.sensor_id}"
-    if isinstance(frame, CameraDetections):
-        return f"camera_{frame.camera_id}"
-    if isinstance(frame, TrafficLightDetections):
-        return f"traffic_lights.{frame.camera_id}"
-    if isinstance(frame, GnssInsFrame):
-        return "gnss"
-    if isinstance(frame, ImuFrame):
-        return "imu"
-    if isinstance(frame, WheelOdometryFrame):
-        return "odom"
-    if isinstance(frame, DoorSensorFrame):
-        return "door"
-    if isinstance(frame, StopCallFrame | CrossingPresenceFrame):
-        return None
-    raise MessageError(f"sensor_key: expected a SensorFrame, got {type(frame).__name__}")
+    return frame_kinds.stream_key(frame)
 
 
 def payload_digest(frame: SensorFrame) -> tuple[object, ...] | None:

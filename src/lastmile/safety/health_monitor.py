@@ -148,7 +148,7 @@ class HealthMonitor:
         m.last_beat_us = int(beat.stamp)
         m.healthy = beat.healthy
         m.reason = beat.reason if not beat.healthy else ""
-        m.exception = False
+        m.exception = beat.exception and not beat.healthy
 
     def pulse_all(self, beats: Iterable[Heartbeat]) -> None:
         for beat in beats:

@@ -1,4 +1,4 @@
-"""One object for the stack to call each tick: health monitor + reliability monitor -> fail-safe arbiter."""
+"""Health monitor + reliability monitor -> fail-safe arbiter, stepped once a tick by the vehicle's safety."""
 
 from __future__ import annotations
 
@@ -81,15 +81,19 @@ class SafetySupervisor:
         gross_rejections_total: int | None = None,
         speed_mps: float = 0.0,
         route_s_m: float | None = None,
+        extra_signals: tuple[MalfunctionSignal, ...] = (),
     ) -> SafetyDirective:
-        """Pulse, check, arbitrate; returns the directive decision/control and the gate must obey."""
+        """Pulse, check, arbitrate; returns the directive decision/control and the gate must obey.
+
+        ``extra_signals`` come from outside the monitors (the loop's safety reporting a failed stack).
+        """
         self.health.pulse_all(heartbeats)
         if estimate is not None:
             self.reliability.observe_localization(now_us, estimate)
         if gate_rejections_total is not None:
             self.reliability.observe_gate_rejections(now_us, gate_rejections_total, gross_rejections_total)
         health = self.health.check(now_us)
-        signals = self.health.signals(health) + self.reliability.evaluate(now_us)
+        signals = self.health.signals(health) + self.reliability.evaluate(now_us) + extra_signals
         if self._operator_estop is not None:
             signals = (*signals, self._operator_estop)
         if self._reset_until_us is not None:

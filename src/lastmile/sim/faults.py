@@ -14,6 +14,7 @@ from typing import Literal
 
 import numpy as np
 
+from lastmile.core import frame_kinds
 from lastmile.core.config import check_range
 from lastmile.core.errors import ConfigError
 from lastmile.core.rng import component_rng
@@ -25,7 +26,6 @@ from lastmile.core.sensor_frames import (
     LidarSweep,
     RadarFrame,
     SensorFrame,
-    StopCallFrame,
     WheelOdometryFrame,
 )
 
@@ -125,25 +125,13 @@ class FaultSpec:
         return self.start_s <= t_s < self.end_s
 
 
+RAW_SENSOR_TARGET_PREFIXES = ("lidar_", "camera_")
+"""Fault targets on the raw sensors (LiDARs, cameras): only the raw-sensor perception reads them."""
+
+
 def sensor_of(frame: SensorFrame) -> str | None:
     """The fault target name of the sensor that captured ``frame`` (None: not a faultable sensor)."""
-    if isinstance(frame, GnssInsFrame):
-        return "gnss"
-    if isinstance(frame, ImuFrame):
-        return "imu"
-    if isinstance(frame, WheelOdometryFrame):
-        return "odom"
-    if isinstance(frame, DoorSensorFrame):
-        return "door"
-    if isinstance(frame, RadarFrame):
-        return f"radar_{frame.sensor_id}"
-    if isinstance(frame, LidarSweep):
-        return f"lidar_{frame.sensor_id}"
-    if isinstance(frame, CameraDetections):
-        return f"camera_{frame.camera_id}"
-    if isinstance(frame, StopCallFrame):
-        return None
-    return None
+    return frame_kinds.sensor_name(frame)
 
 
 class FaultInjector:

@@ -106,16 +106,32 @@ class Walker:
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
+class MapSpec:
+    """The map the world is built on (and the shuttle's service route on it).
+
+    Attributes:
+        name: "campus", the built-in campus map (``src/lastmile/hdmap/data/campus.osm``) with its loop.
+    """
+
+    name: Literal["campus"] = "campus"
+
+
+VEHICLE_SETTINGS = ("lateral_controller", "cruise_speed_mps", "serve_all_stops", "perception")
+"""Keys that older scenario files carried and that now belong to the run configuration."""
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
 class Scenario:
-    """Everything that defines a run besides the code: with the seed, it repeats bit for bit."""
+    """The world of a run: map, road users, riders, weather, faults and the operators. With the seed and
+    a run configuration (the vehicle software: :mod:`lastmile.runner.run_config`) it repeats bit for bit.
+    """
 
     name: str = "default_service"
     minutes: float = 10.0
     seed: int = 0
     weather: str = "clear"
-    lateral_controller: str = "heading_pid"
+    map: MapSpec = field(default_factory=MapSpec)
     start_route_s_m: float = 0.0
-    serve_all_stops: bool = False
     passengers: PassengerConfig = field(default_factory=PassengerConfig)
     ring_cars: tuple[RingCar, ...] = ()
     side_road_cars: tuple[SideRoadCar, ...] = ()
@@ -124,7 +140,6 @@ class Scenario:
     walkers: tuple[Walker, ...] = ()
     static_obstacles: tuple[StaticObstacle, ...] = ()
     faults: tuple[FaultSpec, ...] = ()
-    cruise_speed_mps: float | None = None
     snow_cover_lane_m: float = 0.0
     """In snow, this much of the lane beside the curb lies under snow at curb height (raw LiDAR only)."""
     estop_in_state: str = ""
@@ -146,22 +161,21 @@ class Scenario:
             )
         check_range("scenario.estop_release_s", self.estop_release_s, 0.0, 3600.0)
         check_range("scenario.estop_min_speed_mps", self.estop_min_speed_mps, 0.0, 20.0 / 3.6)
-        if self.cruise_speed_mps is not None:
-            # The shuttle's operating speeds: up to its 20 km/h top speed.
-            check_range("scenario.cruise_speed_mps", self.cruise_speed_mps, 0.5, 20.0 / 3.6 + 1e-9)
         parse_weather(self.weather)
         # The snow bank (0.6 m) and the cover together stay under 4 m: a lane is 3.5 m wide.
         check_range("scenario.snow_cover_lane_m", self.snow_cover_lane_m, 0.0, 3.4)
-        if self.lateral_controller not in ("heading_pid", "pure_pursuit"):
-            raise ConfigError(
-                "scenario.lateral_controller: expected heading_pid or pure_pursuit, "
-                f"got {self.lateral_controller!r}"
-            )
 
 
 def load_scenario(path: Path) -> Scenario:
     """Read and check a scenario TOML file."""
-    return from_mapping(Scenario, load_toml(path), str(path))
+    data = load_toml(path)
+    moved = [key for key in VEHICLE_SETTINGS if key in data]
+    if moved:
+        raise ConfigError(
+            f"{path}: {moved[0]!r} is a vehicle setting: expected it in a run configuration's [stack] "
+            "table (--config FILE), got it in the scenario"
+        )
+    return from_mapping(Scenario, data, str(path))
 
 
 def scenario_to_toml(scenario: Scenario) -> str:

@@ -1,7 +1,8 @@
 """The simulator assembled from a scenario: world, sensors, riders, referee and operator, in loop phases.
 
-The runner calls the phases in DESIGN.md's order: ``advance_world``, ``sensor_frames``, (the stack),
-``apply_command``, ``referee``.
+The loop calls the phases in DESIGN.md's order: ``advance_world``, ``sensor_frames``, (the vehicle),
+``apply_command``, ``referee``; then ``drain_events`` hands over what the referee and the operators saw.
+Road users are added with ``add_road_user``; nothing outside the simulator mutates its lists.
 """
 
 from __future__ import annotations
@@ -15,15 +16,18 @@ from lastmile.core.geometry import SE2
 from lastmile.core.object_class import ObjectClass
 from lastmile.core.polyline import Polyline
 from lastmile.core.rng import component_rng
+from lastmile.core.safety_messages import OperatorAction, OperatorInput
 from lastmile.core.sensor_frames import SensorFrame
+from lastmile.core.stamp import Stamp
 from lastmile.core.vehicle import VehicleGeometry
-from lastmile.core.vehicle_messages import ActuatorCommand
+from lastmile.core.vehicle_messages import ActuatorCommand, BehaviourState
 from lastmile.hdmap.model import HDMap
 from lastmile.hdmap.routing import route, route_polyline
 from lastmile.sim.agents import Agent, PathCar, StopLineOnPath, WalkingAgent
 from lastmile.sim.faults import FaultInjector
-from lastmile.sim.judge import Judge
+from lastmile.sim.judge import Event, Judge
 from lastmile.sim.operator import OperatorModel
+from lastmile.sim.operator_estop import EStopAction, OperatorEStop
 from lastmile.sim.passengers import PassengerModel
 from lastmile.sim.raw_sensors import RawSensorRig
 from lastmile.sim.scenario import Scenario
@@ -79,6 +83,13 @@ class Simulation:
         )
         self.judge = Judge(self.world, self.passengers, service_route, signals=self.signals)
         self.operator = OperatorModel(self.judge)
+        self.estop_operator = OperatorEStop(
+            scenario.estop_in_state, scenario.estop_release_s, scenario.estop_min_speed_mps
+        )
+        self._operator_had_control = False
+        self._operator_inputs: list[OperatorInput] = []
+        self._events_drained = 0
+        self._tick = 0
         self._pending_side_cars = sorted(
             ((c.spawn_t_s, c) for c in scenario.side_road_cars), key=lambda item: item[0]
         )
@@ -92,12 +103,43 @@ class Simulation:
         """Where the radars sit, which the stack is configured with (as a real vehicle's calibration)."""
         return {r.sensor_id: r.base_from_sensor for r in self.sensors.radars}
 
-    def module_fault(self, module: str) -> str | None:
-        """ "hang" or "raise" while the scenario injects a fault into the stack module ``module``."""
-        return self.faults.module_fault(module, self.world.t_s)
+    @property
+    def ego_state(self) -> VehicleState:
+        """The shuttle's true state (for the run log and the referee's side, never for the vehicle)."""
+        return self.world.ego.state
+
+    def ego_centre(self) -> tuple[float, float]:
+        """The true centre of the shuttle's footprint."""
+        return self.world.ego_centre()
+
+    @property
+    def map_name(self) -> str:
+        return self.world.hdmap.name
+
+    @property
+    def route_progress_m(self) -> float:
+        """The referee's measure of how far along its route the shuttle is."""
+        return self.judge.route_s_m
+
+    @property
+    def road_users(self) -> tuple[Agent, ...]:
+        """The other road users, as they are (a fleet mirrors one world's pedestrians into the others)."""
+        return tuple(self.world.agents)
+
+    def add_road_user(self, agent: Agent) -> None:
+        """Put another road user into the world (a fleet's other shuttles, mirrored pedestrians)."""
+        self.world.agents.append(agent)
+
+    def drain_events(self) -> list[Event]:
+        """The referee's and the operators' events since the last call, in the order they happened."""
+        events = self.judge.events
+        fresh = events[self._events_drained :]
+        self._events_drained = len(events)
+        return fresh
 
     def advance_world(self, tick: int) -> None:
         w = self.world
+        self._tick = tick
         w.t_s = tick * self.dt_s
         while self._pending_side_cars and self._pending_side_cars[0][0] <= w.t_s:
             _, spec = self._pending_side_cars.pop(0)
@@ -128,7 +170,11 @@ class Simulation:
                 self.sensors.push(frame, latency_us)
         for frame, latency_us in self.light_cameras.sample(tick):
             self.sensors.push(frame, latency_us)
-        return self.sensors.deliver(tick * self.tick_us)
+        frames = self.sensors.deliver(tick * self.tick_us)
+        # The operators' inputs of the last tick reach the vehicle with this tick's frames.
+        frames.extend(self._operator_inputs)
+        self._operator_inputs = []
+        return frames
 
     def apply_command(self, command: ActuatorCommand | None) -> None:
         """Safety gate then vehicle dynamics: the operator's brake overrides the stack while in control."""
@@ -173,9 +219,31 @@ class Simulation:
         self.sensors.door_open = p.door_position > 0.0
         self.sensors.person_in_doorway = p.person_in_doorway
 
-    def referee(self, takeover_request: bool) -> None:
+    def referee(self, takeover_request: bool, reported_state: BehaviourState | None = None) -> None:
+        """Judge the tick; the safety driver and the e-stop operator act on what they see.
+
+        Args:
+            takeover_request: the vehicle asks for a takeover.
+            reported_state: the behaviour state the vehicle shows (the e-stop operator presses in one).
+        """
         self.judge.step()
         self.operator.step(takeover_request, self.passengers.door_position > 0.0)
+        now = Stamp(self._tick * self.tick_us)
+        # The safety driver handing back is the operator's reset of a latched emergency stop.
+        if self._operator_had_control and not self.operator.in_control:
+            self._operator_inputs.append(OperatorInput(stamp=now, action=OperatorAction.RESET))
+        self._operator_had_control = self.operator.in_control
+        action = self.estop_operator.step(self.world.t_s, reported_state, self.world.ego.state.speed_mps)
+        state = self.scenario.estop_in_state
+        if action == EStopAction.PRESS:
+            reason = f"operator e-stop in {state}"
+            self._operator_inputs.append(
+                OperatorInput(stamp=now, action=OperatorAction.EMERGENCY_STOP, reason=reason)
+            )
+            self.judge.emit("operator_estop", state=state)
+        elif action == EStopAction.RELEASE:
+            self._operator_inputs.append(OperatorInput(stamp=now, action=OperatorAction.RESET))
+            self.judge.emit("operator_release", state=state)
 
 
 def _path_car(

@@ -47,22 +47,24 @@ class SuiteCase:
         scenario: the scenario (with its seed).
         checks: names of outcome checks (see ``runner.sweep.CHECKS``).
         group: the test-plan heading it belongs to.
+        cruise_speed_mps: the shuttle speed the case is run at (set in the case's run configuration;
+            None: the configuration's own).
     """
 
     name: str
     scenario: Scenario
     checks: tuple[str, ...]
     group: str
+    cruise_speed_mps: float | None = None
 
 
-def _encounter_base(name: str, weather: str, speed_mps: float, seed: int, minutes: float = 1.4) -> Scenario:
+def _encounter_base(name: str, weather: str, seed: int, minutes: float = 1.4) -> Scenario:
     # No riders and no stops to serve: the shuttle drives the loop from s = 0 through the encounter.
     return Scenario(
         name=name,
         minutes=minutes,
         seed=seed,
         weather=weather,
-        cruise_speed_mps=speed_mps,
         passengers=PassengerConfig(arrivals_per_stop_per_min=0.0),
     )
 
@@ -77,7 +79,7 @@ def iso22737_suite(seed: int = 0) -> list[SuiteCase]:
     for weather in WEATHERS:
         for speed in SHUTTLE_SPEEDS_MPS:
             tag = f"{weather}_{_speed_tag(speed)}"
-            base = _encounter_base("", weather, speed, seed)
+            base = _encounter_base("", weather, seed)
             cases.append(
                 SuiteCase(
                     name=f"stationary_obstacle_in_lane_{tag}",
@@ -88,6 +90,7 @@ def iso22737_suite(seed: int = 0) -> list[SuiteCase]:
                     ),
                     checks=(*GENERIC_CHECKS, "no_collision"),
                     group="hazard, clear view",
+                    cruise_speed_mps=speed,
                 )
             )
             cases.append(
@@ -109,6 +112,7 @@ def iso22737_suite(seed: int = 0) -> list[SuiteCase]:
                     ),
                     checks=(*GENERIC_CHECKS, "no_collision"),
                     group="hazard, clear view",
+                    cruise_speed_mps=speed,
                 )
             )
             cases.append(
@@ -137,6 +141,7 @@ def iso22737_suite(seed: int = 0) -> list[SuiteCase]:
                     ),
                     checks=(*GENERIC_CHECKS, "no_collision"),
                     group="hazard, occluded view",
+                    cruise_speed_mps=speed,
                 )
             )
             cases.append(
@@ -144,6 +149,7 @@ def iso22737_suite(seed: int = 0) -> list[SuiteCase]:
                     base,
                     f"cyclist_merging_{tag}",
                     SideRoadCar(spawn_t_s=40.0, turn="right", kind="cyclist", speed_mps=4.5, start_m=60.0),
+                    speed,
                 )
             )
             # A car turning right from the side road into the shuttle's lane just ahead of it. The
@@ -155,6 +161,7 @@ def iso22737_suite(seed: int = 0) -> list[SuiteCase]:
                     base,
                     f"car_turning_in_{tag}",
                     SideRoadCar(spawn_t_s=spawn_s, turn="right", kind="car", speed_mps=6.0, start_m=60.0),
+                    speed,
                 )
             )
     for fault in _suite_faults():
@@ -163,10 +170,11 @@ def iso22737_suite(seed: int = 0) -> list[SuiteCase]:
             SuiteCase(
                 name=name,
                 scenario=dataclasses.replace(
-                    _encounter_base(name, "clear", SHUTTLE_SPEEDS_MPS[0], seed, minutes=1.5), faults=(fault,)
+                    _encounter_base(name, "clear", seed, minutes=1.5), faults=(fault,)
                 ),
                 checks=FAULT_CHECKS,
                 group="minimal risk manoeuvre on faults",
+                cruise_speed_mps=SHUTTLE_SPEEDS_MPS[0],
             )
         )
     cases.extend(_estop_cases(seed))
@@ -198,13 +206,14 @@ ESTOP_MIN_SPEED_MPS = {
 }
 
 
-def _side_road_case(base: Scenario, name: str, road_user: SideRoadCar) -> SuiteCase:
+def _side_road_case(base: Scenario, name: str, road_user: SideRoadCar, speed_mps: float) -> SuiteCase:
     """A hazard from the side road: ``road_user`` enters the ring at the all-way stop (2 minutes)."""
     return SuiteCase(
         name=name,
         scenario=dataclasses.replace(base, name=name, minutes=2.0, side_road_cars=(road_user,)),
         checks=(*GENERIC_CHECKS, "no_collision", "no_rule_violation"),
         group="hazard, clear view",
+        cruise_speed_mps=speed_mps,
     )
 
 

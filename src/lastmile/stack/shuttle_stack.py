@@ -4,9 +4,14 @@ It sees only sensor frames, the map and its own configuration (import-linter kee
 Modules run at integer divisors of the base tick: planning and decision at 10 Hz, control at 50 Hz,
 estimation whenever a frame arrives, LiDAR perception whenever a rig frame is complete.
 
-Perception modes (``StackConfig.perception_mode``): "lidar_camera_radar" runs the raw-sensor chain of
-:mod:`lastmile.stack.raw_perception` (LiDAR clusters fused with radar and camera, aUToTrack);
-"radar_tracking" tracks the radars' object lists alone (cheaper: the safety sweeps use it).
+Perception modes (``StackConfig.perception_mode``, a :class:`~lastmile.core.perception_mode.PerceptionMode`):
+LIDAR_CAMERA_RADAR runs the raw-sensor chain of :mod:`lastmile.stack.raw_perception` (LiDAR clusters
+fused with radar and camera, aUToTrack); RADAR_TRACKING tracks the radars' object lists alone (cheaper:
+the safety sweeps use it).
+
+Safety is not in here: the vehicle's safety (:class:`lastmile.safety.vehicle_safety.VehicleSafety`,
+built beside the stack by :mod:`lastmile.stack.vehicle_build`) runs in the loop, apart from the stack.
+The stack reports its modules' heartbeats and its diagnostics, and obeys the directive it is handed.
 """
 
 from __future__ import annotations
@@ -24,10 +29,11 @@ from lastmile.core.camera_model import PinholeCamera
 from lastmile.core.errors import ConfigError, MessageError
 from lastmile.core.geometry import SE2, FloatArray
 from lastmile.core.objects import TrackedObjects, empty_tracks
+from lastmile.core.perception_mode import PerceptionMode
 from lastmile.core.polyline import Polyline
 from lastmile.core.predictions import PredictedPaths
 from lastmile.core.route_obstacles import route_obstacles
-from lastmile.core.safety_messages import FailSafeLevel, SafetyDirective
+from lastmile.core.safety_messages import SafetyDirective
 from lastmile.core.sensor_frames import (
     CameraDetections,
     CrossingPresenceFrame,
@@ -47,10 +53,12 @@ from lastmile.core.vehicle_messages import (
     ActuatorCommand,
     BehaviourDecision,
     BehaviourState,
-    Heartbeat,
     HmiMessage,
+    StackDiagnostics,
     StackOutput,
+    StopReason,
     Trajectory,
+    VehicleReport,
     VehicleStatus,
 )
 from lastmile.decision.behaviour_fsm import BehaviourStateMachine
@@ -59,21 +67,15 @@ from lastmile.decision.mission import MissionManager
 from lastmile.hdmap.layers import SLayerDatabase
 from lastmile.localization.ekf import PoseEkf, PoseEkfConfig
 from lastmile.planning.local_path import LocalPathConfig, LocalPathPlanner
-from lastmile.safety.failsafe import FailSafeArbiter, apply_safety_gate
-from lastmile.safety.health_monitor import HealthMonitor, ModuleSpec
 from lastmile.safety.reliability_config import ReliabilityConfig, default_sensor_specs
-from lastmile.safety.reliability_monitor import ReliabilityMonitor
-from lastmile.safety.supervisor import SafetySupervisor
 from lastmile.stack.hmi import HmiComposer
+from lastmile.stack.module_guard import ModuleGuard
 from lastmile.stack.profiler import ModuleProfiler
 from lastmile.stack.raw_perception import RawPerception, RawPerceptionConfig
 from lastmile.stack.v2i import AnticipationConfig, CrossingAnticipation
 from lastmile.tracking.prediction import MapAwarePredictor, PredictionConfig
 from lastmile.tracking.radar_tracker import RadarObjectTracker, RadarTrackerConfig
 from lastmile.tracking.traffic_lights import TrafficLightTracker, TrafficLightTrackerConfig
-
-PERCEPTION_MODES = ("lidar_camera_radar", "radar_tracking")
-"""What the stack perceives through: raw LiDAR + camera + radar, or the radars' object lists alone."""
 
 DEFAULT_SENSORS = default_sensor_specs(radar_keys=("front", "rear"))
 """The simulator's sensor suite as the reliability monitor watches it (radars by their sensor ids)."""
@@ -90,7 +92,7 @@ class StackConfig:
         radar_mounts: base_from_sensor pose of each radar by sensor id.
         serve_all_stops: timetable mode (serve every stop) instead of on request.
         v2i: anticipation of crossings reported occupied by infrastructure cameras (``stack.v2i``).
-        perception_mode: one of :data:`PERCEPTION_MODES`.
+        perception_mode: what the stack perceives through.
         lidar_mounts: (4, 4) base_from_sensor of each LiDAR by sensor id (raw perception).
         cameras: the cameras' calibration (raw perception).
         raw_perception: the raw-sensor chain's parameters.
@@ -116,7 +118,7 @@ class StackConfig:
     tracker: RadarTrackerConfig = field(default_factory=RadarTrackerConfig)
     reliability: ReliabilityConfig = field(default_factory=lambda: ReliabilityConfig(sensors=DEFAULT_SENSORS))
     v2i: AnticipationConfig = field(default_factory=AnticipationConfig)
-    perception_mode: str = "radar_tracking"
+    perception_mode: PerceptionMode = PerceptionMode.RADAR_TRACKING
     lidar_mounts: dict[str, np.ndarray] = field(default_factory=dict)
     cameras: tuple[PinholeCamera, ...] = ()
     raw_perception: RawPerceptionConfig = field(default_factory=RawPerceptionConfig)
@@ -133,14 +135,14 @@ class StackConfig:
                     f"StackConfig.prediction.horizon_s: expected at least the decision's {name} "
                     f"({need_s} s), got {self.prediction.horizon_s} s"
                 )
-        if self.perception_mode not in PERCEPTION_MODES:
+        if not isinstance(self.perception_mode, PerceptionMode):
             raise ConfigError(
-                f"StackConfig.perception_mode: expected one of {PERCEPTION_MODES}, "
+                f"StackConfig.perception_mode: expected one of {[m.value for m in PerceptionMode]}, "
                 f"got {self.perception_mode!r}"
             )
-        if self.perception_mode == "lidar_camera_radar" and not self.lidar_mounts:
+        if self.perception_mode.needs_raw_sensors and not self.lidar_mounts:
             raise ConfigError(
-                "StackConfig: perception_mode 'lidar_camera_radar' expects lidar_mounts (the LiDAR "
+                f"StackConfig: perception_mode '{self.perception_mode}' expects lidar_mounts (the LiDAR "
                 "calibration), got none"
             )
 
@@ -153,9 +155,6 @@ MODULE_PERIODS_US = {
     "control": 20_000,
 }
 """The stack's modules and how often each runs (and so pulses its heartbeat)."""
-# Losing the pose or the actuation loop leaves nothing to stop comfortably with: an e-stop. Any other
-# module failing still leaves pose and control for a minimal risk manoeuvre.
-MODULE_FAILURE_LEVEL = {"localization": FailSafeLevel.EMERGENCY_STOP, "control": FailSafeLevel.EMERGENCY_STOP}
 
 
 ModuleFaultHook = Callable[[str, int], str | None]
@@ -190,7 +189,7 @@ class ShuttleStack:
             RawPerception(
                 config.raw_perception, layers, config.lidar_mounts, config.cameras, config.radar_mounts
             )
-            if config.perception_mode == "lidar_camera_radar"
+            if config.perception_mode.needs_raw_sensors
             else None
         )
         self.light_tracker = (
@@ -233,32 +232,23 @@ class ShuttleStack:
         )
         self.hmi = HmiComposer()
         self.v2i = CrossingAnticipation(layers.crosswalks, self.route.length_m, self.route.closed, config.v2i)
-        # Safety watches the modules from the side: heartbeats through guarded calls, the inputs as
-        # they arrive, and a directive the decision and the actuator gate obey.
-        self.safety = SafetySupervisor(
-            HealthMonitor(
-                [
-                    ModuleSpec(
-                        name=name,
-                        period_us=period,
-                        failure_level=MODULE_FAILURE_LEVEL.get(name, FailSafeLevel.MINIMAL_RISK_MANOEUVRE),
-                    )
-                    for name, period in MODULE_PERIODS_US.items()
-                ]
-            ),
-            ReliabilityMonitor(config.reliability, layers.hdmap, self.route),
-            FailSafeArbiter(layers=layers),
-        )
+        # The vehicle's safety watches from outside: each module call is contained and pulses a
+        # heartbeat; the directive it sends back is obeyed by decision and enforced by its own gate.
+        self.guard = ModuleGuard()
         self._directive: SafetyDirective | None = None
+        self._stop_reason = StopReason.NONE
         self.fault_hook = fault_hook
         self.rejected_frames = 0
 
     # ------------------------------------------------------------------------------------------------
-    def tick(self, now: Stamp, frames: Sequence[SensorFrame]) -> StackOutput:
+    def tick(
+        self, now: Stamp, frames: Sequence[SensorFrame], safety: SafetyDirective | None = None
+    ) -> StackOutput:
         p = self.profiler
         hmi: list[HmiMessage] = []
         self._now = now
-        self.safety.observe_frames(now, frames)
+        if safety is not None:
+            self._directive = safety
         with p.measure("estimation"):
             self._guarded("localization", now, self._ingest_all, frames)
         c = self.config
@@ -285,22 +275,37 @@ class ShuttleStack:
         if self._tick % c.control_period_ticks == 0:
             with p.measure("control"):
                 self._guarded("control", now, self._control, now)
-        with p.measure("safety"):
-            directive = self._supervise(now, planning_cycle)
         if planning_cycle:
             status = self._status(now)
-            hmi.extend(self.hmi.step(now, self._decision, directive.takeover_request))
+            takeover = self._directive.takeover_request if self._directive is not None else False
+            hmi.extend(self.hmi.step(now, self._decision, takeover))
         self._tick += 1
-        command = apply_safety_gate(self._command, directive, self._speed_mps)
         return StackOutput(
-            command=command,
+            command=self._command,
             status=status,
             decision=self._decision,
             hmi=tuple(hmi),
-            heartbeats=self._heartbeats(now) if planning_cycle else (),
-            takeover_request=directive.takeover_request,
-            safety=directive,
+            heartbeats=self.guard.drain(),
+            diagnostics=self._diagnostics(now, planning_cycle),
+            stop_reason=self._stop_reason,
         )
+
+    def report(self) -> VehicleReport:
+        """Compute time per module, the stack's counters and the raw perception's summary."""
+        counters = {"rejected_frames": self.rejected_frames, "v2i_reports_received": self.v2i.received}
+        perception: dict[str, float | int | None] = {}
+        if self.raw is not None:
+            st = self.raw.stats
+            offsets = st.curb_offsets_m
+            perception = {
+                "rig_frames": st.rig_frames,
+                "incomplete_frames": st.incomplete_frames,
+                "skipped_no_pose": st.skipped_no_pose,
+                "clusters_per_frame": st.clusters / max(st.rig_frames, 1),
+                "curb_valid_frames": st.curb_valid,
+                "curb_offset_median_m": float(np.median(offsets)) if offsets else None,
+            }
+        return VehicleReport(modules=self.profiler.summary(), counters=counters, perception=perception)
 
     def _guarded(self, module: str, now: Stamp, fn: Callable[..., object], *args: object) -> object:
         fault = self.fault_hook(module, int(now)) if self.fault_hook is not None else None
@@ -308,28 +313,19 @@ class ShuttleStack:
             return None  # a hung module neither runs nor pulses: its watchdog must notice
         if fault == "raise":
             fn, args = _injected_fault, ()
-        return self.safety.health.guarded_call(module, now, fn, *args)
+        return self.guard.call(module, now, fn, *args)
 
-    def _supervise(self, now: Stamp, planning_cycle: bool) -> SafetyDirective:
+    def _diagnostics(self, now: Stamp, planning_cycle: bool) -> StackDiagnostics:
+        """What the vehicle's safety checks each tick (the pose's integrity on planning cycles)."""
         est = self.ekf.estimate(now)
         front_s = self._route_s + self.geometry.front_from_rear_axle_m if self._route_s is not None else None
-        directive = self.safety.step(
-            now,
+        return StackDiagnostics(
+            stamp=now,
             estimate=est if planning_cycle else None,
             gate_rejections_total=self.ekf.rejected_fixes,
             gross_rejections_total=self.ekf.gross_rejections,
             speed_mps=est.speed_mps if est.valid else self._speed_mps,
-            route_s_m=front_s,
-        )
-        self._directive = directive
-        return directive
-
-    def _heartbeats(self, now: Stamp) -> tuple[Heartbeat, ...]:
-        health = self.safety.last_health
-        if health is None:
-            return ()
-        return tuple(
-            Heartbeat(stamp=now, module=m.module, healthy=m.healthy, reason=m.reason) for m in health.modules
+            front_route_s_m=front_s,
         )
 
     def _ingest_all(self, frames: Sequence[SensorFrame]) -> None:
@@ -378,6 +374,7 @@ class ShuttleStack:
         est = self.ekf.estimate(now)
         if not est.valid:
             self._decision = None
+            self._stop_reason = StopReason.NONE
             return
         pose = est.map_from_base
         f = self.route.project(pose.x_m, pose.y_m, hint_s_m=self._route_s, window_m=20.0)
@@ -403,6 +400,7 @@ class ShuttleStack:
     def _anticipate(self, now: Stamp, route_s_m: float, speed_mps: float) -> None:
         """A crossing the infrastructure reports occupied: stop before it, unless a nearer stop binds."""
         d = self._decision
+        self._stop_reason = StopReason.NONE
         if d is None or d.state != BehaviourState.NORMAL_DRIVING or not self.v2i.reports:
             return
         front_s = route_s_m + self.geometry.front_from_rear_axle_m
@@ -413,6 +411,7 @@ class ShuttleStack:
                 stop_at_s_m=stop,
                 reason=f"{d.reason}; stop for crosswalk (infrastructure reports pedestrians)",
             )
+            self._stop_reason = StopReason.INFRASTRUCTURE_CROSSING
 
     def _plan(self, now: Stamp) -> None:
         if self._decision is None or self._route_s is None:

@@ -1,0 +1,203 @@
+"""The loop's recording and reporting phase: run log, black box, progress and timing, as callbacks.
+
+Every kind of run (single, fleet, sweep, tests, benchmarks) composes the same callbacks, so a fleet's
+shuttle logs its watchdog trips, safety levels and black-box recordings exactly as a single run does.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from lastmile.core.safety_messages import FailSafeLevel
+from lastmile.core.vehicle_messages import BehaviourState
+from lastmile.recorder.black_box import BlackBox, BlackBoxConfig
+from lastmile.recorder.run_log import STATE_NAMES
+from lastmile.recorder.run_log_writer import RunLogWriter
+from lastmile.runner.loop import ClosedLoop, LoopCallback, TickRecord
+from lastmile.sim.scenario import Scenario
+from lastmile.sim.simulation import Simulation
+
+LOG_EVERY_TICKS = 2  # ego trace at 50 Hz with the 10 ms tick
+PROGRESS_EVERY_TICKS = 100
+BLACK_BOX_TRIGGERS = ("takeover", "collision")
+"""Referee events that make the black box write its window (besides e-stops and crashes)."""
+
+ProgressFn = Callable[[float, float], None]
+
+
+class RunLogCallback(LoopCallback):
+    """Writes the run log: injected faults, crashes, watchdog trips, safety levels, behaviour states,
+    HMI messages, the referee's events and the ego trace (every :data:`LOG_EVERY_TICKS` ticks)."""
+
+    def __init__(self, writer: RunLogWriter, world: Simulation, scenario: Scenario) -> None:
+        self.writer = writer
+        self.world = world
+        # Injected faults are ground truth for the evaluation (when each began and ended), never for the
+        # vehicle.
+        self._fault_marks = sorted(
+            [(f.start_s, "fault_start", f.kind, f.target) for f in scenario.faults]
+            + [(f.end_s, "fault_end", f.kind, f.target) for f in scenario.faults]
+        )
+        self._failing = False
+        self._watchdog_logged = False
+        self._level = FailSafeLevel.NONE
+        self._state: BehaviourState | None = None
+
+    def on_tick(self, record: TickRecord) -> None:
+        w, t_s = self.writer, record.t_s
+        while self._fault_marks and self._fault_marks[0][0] <= t_s:
+            _, mark, kind, target = self._fault_marks.pop(0)
+            w.add_event(t_s, mark, kind=kind, target=target)
+        if record.failure and not self._failing:
+            w.add_event(t_s, "stack_crash", error=record.failure)
+        self._failing = bool(record.failure)
+        if record.verdict.watchdog_tripped and not self._watchdog_logged:
+            w.add_event(t_s, "hardware_watchdog", reason="no fresh command for 100 ms")
+            self._watchdog_logged = True
+        self._safety_level(record)
+        self._state_change(record)
+        for msg in record.output.hmi if record.output is not None else ():
+            w.add_event(
+                t_s, "hmi", screen=msg.screen, text=msg.text, sound=msg.sound, light=msg.light, cue=msg.cue
+            )
+        if record.tick % LOG_EVERY_TICKS == 0:
+            s = self.world.ego_state
+            code = STATE_NAMES.index(record.state.value) if record.state is not None else -1
+            w.add_ego_row(
+                t_s,
+                s.x_m,
+                s.y_m,
+                s.yaw_rad,
+                s.speed_mps,
+                s.accel_mps2,
+                s.steer_front_rad,
+                code,
+                self.world.route_progress_m,
+            )
+        if record.events:
+            w.add_events(record.events)
+
+    def _safety_level(self, record: TickRecord) -> None:
+        directive = record.verdict.directive
+        if directive.level != self._level:
+            self.writer.add_event(
+                record.t_s,
+                "safety",
+                level=directive.level.name,
+                mrm=directive.mrm.name,
+                reason="; ".join(directive.reasons),
+            )
+            self._level = directive.level
+
+    def _state_change(self, record: TickRecord) -> None:
+        state, out = record.state, record.output
+        if out is None or out.decision is None or state is None or state == self._state:
+            return
+        self.writer.add_event(
+            record.t_s,
+            "state_change",
+            **{
+                "from": self._state.value if self._state else "",
+                "to": state.value,
+                "reason": out.decision.reason,
+            },
+        )
+        if state == BehaviourState.EMERGENCY_STOP:
+            self.writer.add_event(record.t_s, "emergency_stop", reason=out.decision.reason)
+        self._state = state
+
+
+class BlackBoxCallback(LoopCallback):
+    """Keeps the black box's rolling window and makes it write on a takeover, a collision, an emergency
+    stop or a crash of the vehicle software; logs a ``recording`` event per file at the end."""
+
+    def __init__(self, config: BlackBoxConfig, writer: RunLogWriter) -> None:
+        self.box = BlackBox(config)
+        self.writer = writer
+        self._failing = False
+        self._state: BehaviourState | None = None
+
+    def on_tick(self, record: TickRecord) -> None:
+        box, now_us = self.box, int(record.now)
+        if record.failure and not self._failing:
+            box.dump("crash", reason=record.failure, now_us=now_us)
+        self._failing = bool(record.failure)
+        box.record_frames(now_us, record.frames)
+        out, directive = record.output, record.verdict.directive
+        if out is not None:
+            box.record_output(now_us, out)
+            if directive.level != FailSafeLevel.NONE:
+                box.record(now_us, "/safety/directive", directive)
+        if out is not None and out.decision is not None and record.state != self._state:
+            if record.state == BehaviourState.EMERGENCY_STOP:
+                box.trigger("emergency_stop", now_us, out.decision.reason)
+            self._state = record.state
+        for _, kind, data in record.events:
+            if kind in BLACK_BOX_TRIGGERS:
+                box.trigger(kind, now_us, str(data))
+
+    def on_end(self, loop: ClosedLoop[Any], ticks_run: int) -> None:
+        self.box.close()
+        for path in sorted(self.box.dumps):
+            # blackbox_<trigger>_<t>s_<n>.mcap; the trigger may itself hold underscores (emergency_stop).
+            head, t_text, _ = path.stem.rsplit("_", 2)
+            trigger = head.removeprefix("blackbox_")
+            self.writer.add_event(float(t_text.rstrip("s")), "recording", path=str(path), trigger=trigger)
+
+
+class ProgressCallback(LoopCallback):
+    """Reports simulated progress every :data:`PROGRESS_EVERY_TICKS` ticks and at the end."""
+
+    def __init__(self, progress: ProgressFn, duration_s: float) -> None:
+        self.progress = progress
+        self.duration_s = duration_s
+
+    def on_tick(self, record: TickRecord) -> None:
+        if record.tick % PROGRESS_EVERY_TICKS == 0:
+            self.progress(record.t_s, self.duration_s)
+
+    def on_end(self, loop: ClosedLoop[Any], ticks_run: int) -> None:
+        if not loop.interrupted:
+            self.progress(self.duration_s, self.duration_s)
+
+
+class TimingCallback(LoopCallback):
+    """Wall-clock and CPU time of the run and of the vehicle software (reports only, never decisions)."""
+
+    def __init__(self) -> None:
+        self.software_s = 0.0
+        self._wall0 = 0.0
+        self._cpu0 = 0.0
+        self.timing: dict[str, Any] = {}
+
+    def on_start(self, loop: ClosedLoop[Any]) -> None:
+        self._wall0, self._cpu0 = time.perf_counter(), time.process_time()
+
+    def on_tick(self, record: TickRecord) -> None:
+        self.software_s += record.software_s
+
+    def on_end(self, loop: ClosedLoop[Any], ticks_run: int) -> None:
+        wall = time.perf_counter() - self._wall0
+        cpu = time.process_time() - self._cpu0
+        simulated_s = ticks_run * loop.tick_us / 1e6
+        report = loop.software.report()
+        self.timing = {
+            "wall_s": wall,
+            "realtime_factor": simulated_s / wall if wall > 0 else None,
+            # CPU seconds of this process: the one-core figure when other work shares the machine.
+            "cpu_s": cpu,
+            "realtime_factor_cpu": simulated_s / cpu if cpu > 0 else None,
+            "stack_wall_s": self.software_s,
+            "stack_tick_mean_ms": 1e3 * self.software_s / max(ticks_run, 1),
+            "modules": report.modules,
+        }
+        if report.perception:
+            self.timing["raw_perception"] = dict(report.perception)
+
+
+def black_box_config(out_dir: Path, window_s: float, world: Simulation) -> BlackBoxConfig:
+    """The black box of a run writing into ``out_dir``, keeping ``window_s`` seconds."""
+    return BlackBoxConfig(out_dir=out_dir, window_us=round(window_s * 1e6), sensor_mounts=world.radar_mounts)

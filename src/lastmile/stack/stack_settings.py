@@ -1,0 +1,121 @@
+"""The vehicle software's part of a run configuration: which modules run, and their parameters.
+
+Loaded from the ``[stack]`` table of a run configuration TOML (``lastmile run --config FILE``); unknown
+keys and names are rejected with one line. Implementations are chosen by name from explicit registries.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from enum import StrEnum
+
+from lastmile.control.lateral import LATERAL_CONTROLLERS, LateralConfig
+from lastmile.control.longitudinal import LongitudinalConfig
+from lastmile.core.config import check_range
+from lastmile.core.errors import ConfigError
+from lastmile.core.perception_mode import PerceptionMode
+from lastmile.decision.decision_config import DecisionConfig
+from lastmile.localization.ekf import PoseEkfConfig
+from lastmile.planning.local_path import LocalPathConfig
+from lastmile.safety.failsafe import FailSafeConfig
+from lastmile.safety.hardware_watchdog import HardwareWatchdogConfig
+
+
+class LongitudinalControllerName(StrEnum):
+    """Longitudinal controllers by name."""
+
+    WATONOBUS = "watonobus"
+    """WATonoBus's longitudinal law (eqs. 1-3) with curvature and jerk limits."""
+
+
+class PlannerName(StrEnum):
+    """Local path planners by name."""
+
+    POTENTIAL_FIELD_BEZIER = "potential_field_bezier"
+    """WATonoBus: potential-field nudge inside the lane, Bezier pull-over and merge curves."""
+
+
+class LocalizationMode(StrEnum):
+    """Localization modes by name."""
+
+    EKF = "ekf"
+    """Pose EKF over RTK GNSS/INS, wheel odometry and IMU yaw rate, gated, with late-fix replay."""
+
+
+_FAILSAFE = FailSafeConfig()
+_WATCHDOG = HardwareWatchdogConfig()
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SafetySettings:
+    """The vehicle safety's parameters that a run configuration may set (the rest are the defaults of
+    :class:`~lastmile.safety.failsafe.FailSafeConfig`).
+
+    Attributes:
+        max_decel_mps2: emergency-stop deceleration (the vehicle's maximum).
+        mrm_decel_mps2: the minimal risk manoeuvre's comfortable deceleration.
+        default_speed_cap_mps: speed cap of SPEED_LIMIT signals that carry none (Snow Lion: 0.5 m/s).
+        watchdog_timeout_us: the hardware watchdog trips when the command stream is silent this long.
+    """
+
+    max_decel_mps2: float = _FAILSAFE.max_decel_mps2
+    mrm_decel_mps2: float = _FAILSAFE.mrm_decel_mps2
+    default_speed_cap_mps: float = _FAILSAFE.default_speed_cap_mps
+    watchdog_timeout_us: int = _WATCHDOG.timeout_us
+
+    def __post_init__(self) -> None:
+        check_range("stack.safety.max_decel_mps2", self.max_decel_mps2, 1.0, 10.0)
+        check_range("stack.safety.mrm_decel_mps2", self.mrm_decel_mps2, 0.1, self.max_decel_mps2)
+        check_range("stack.safety.default_speed_cap_mps", self.default_speed_cap_mps, 0.0, 20.0 / 3.6)
+        check_range("stack.safety.watchdog_timeout_us", self.watchdog_timeout_us, 10_000, 1_000_000)
+
+    def failsafe(self) -> FailSafeConfig:
+        return FailSafeConfig(
+            max_decel_mps2=self.max_decel_mps2,
+            mrm_decel_mps2=self.mrm_decel_mps2,
+            default_speed_cap_mps=self.default_speed_cap_mps,
+        )
+
+    def watchdog(self) -> HardwareWatchdogConfig:
+        return HardwareWatchdogConfig(
+            timeout_us=self.watchdog_timeout_us, brake_decel_mps2=self.max_decel_mps2
+        )
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class StackSettings:
+    """Which modules the vehicle software runs, and their parameters.
+
+    Attributes:
+        perception: what the stack perceives through (default: the raw sensors).
+        lateral_controller: a name of :data:`lastmile.control.lateral.LATERAL_CONTROLLERS`.
+        longitudinal_controller, planner, localization: names of the registered implementations.
+        cruise_speed_mps: the shuttle's cruise speed (None: decision's default, 20 km/h).
+        serve_all_stops: timetable mode (every stop) instead of on request.
+        decision, path, longitudinal, lateral, ekf: the modules' parameters (their defaults).
+        safety: the vehicle safety's parameters.
+    """
+
+    perception: PerceptionMode = PerceptionMode.LIDAR_CAMERA_RADAR
+    lateral_controller: str = "heading_pid"
+    longitudinal_controller: LongitudinalControllerName = LongitudinalControllerName.WATONOBUS
+    planner: PlannerName = PlannerName.POTENTIAL_FIELD_BEZIER
+    localization: LocalizationMode = LocalizationMode.EKF
+    cruise_speed_mps: float | None = None
+    serve_all_stops: bool = False
+    decision: DecisionConfig = field(default_factory=DecisionConfig)
+    path: LocalPathConfig = field(default_factory=LocalPathConfig)
+    longitudinal: LongitudinalConfig = field(default_factory=LongitudinalConfig)
+    lateral: LateralConfig = field(default_factory=LateralConfig)
+    ekf: PoseEkfConfig = field(default_factory=PoseEkfConfig)
+    safety: SafetySettings = field(default_factory=SafetySettings)
+
+    def __post_init__(self) -> None:
+        if self.lateral_controller not in LATERAL_CONTROLLERS:
+            raise ConfigError(
+                f"stack.lateral_controller: expected one of {sorted(LATERAL_CONTROLLERS)}, "
+                f"got {self.lateral_controller!r}"
+            )
+        if self.cruise_speed_mps is not None:
+            # The shuttle's operating speeds: up to its 20 km/h top speed.
+            check_range("stack.cruise_speed_mps", self.cruise_speed_mps, 0.5, 20.0 / 3.6 + 1e-9)
