@@ -7,18 +7,28 @@ import math
 import numpy as np
 import pytest
 
+from lastmile.core.camera_model import PinholeCamera
 from lastmile.core.errors import ConfigError, MessageError
 from lastmile.core.geometry import SE2
 from lastmile.core.object_class import ObjectClass
 from lastmile.core.sensor_frames import CameraDetections, RadarFrame
 from lastmile.core.stamp import Stamp
-from lastmile.perception.camera_geometry import PinholeCamera, box_corners_3d, box_iou
+from lastmile.perception.camera_geometry import box_corners_3d, box_iou
 from lastmile.perception.cluster_geometry import ClusterSet, describe_clusters
 from lastmile.perception.late_fusion import LateFusionConfig, fuse
 from lastmile.perception.pedestrian_verification import verify_pedestrians
 
-CAM = PinholeCamera.looking_forward(
-    "front", fx_px=800, width_px=1280, height_px=720, x_m=4.0, y_m=0.0, z_m=1.6
+CAM = PinholeCamera.mounted(
+    "front",
+    fx_px=800,
+    fy_px=800,
+    cx_px=640,
+    cy_px=360,
+    width_px=1280,
+    height_px=720,
+    x_m=4.0,
+    y_m=0.0,
+    z_m=1.6,
 )
 
 
@@ -39,7 +49,7 @@ def _image_box(x, y, length, width, h):
 
 
 def test_projection_of_a_point_on_the_optical_axis_is_the_principal_point():
-    uv, front = CAM.project(np.array([[14.0, 0.0, 1.6], [0.0, 0.0, 1.6]]))
+    uv, front = CAM.pixels_from_base(np.array([[14.0, 0.0, 1.6], [0.0, 0.0, 1.6]]))
     assert front.tolist() == [True, False]
     assert np.allclose(uv[0], [640, 360])
 
@@ -115,10 +125,11 @@ def test_iou_and_bad_inputs():
     assert box_iou([[0, 0, 2, 2]], [[1, 1, 3, 3], [5, 5, 6, 6]]).tolist() == [[1 / 7, 0.0]]
     with pytest.raises(MessageError, match="mounting for radar"):
         fuse(Stamp(0), _clusters([(10, 0, 1, 1, 1)]), [RadarFrame(stamp=Stamp(0), sensor_id="rear")], {})
-    with pytest.raises(MessageError, match="rotation"):
+    with pytest.raises(ConfigError, match="rotation"):
         PinholeCamera(
-            camera_id="c", K=np.eye(3), camera_from_base=np.diag([2.0, 1, 1, 1]), width_px=10, height_px=10
-        )
+            camera_id="c", fx_px=1.0, fy_px=1.0, cx_px=0.0, cy_px=0.0, width_px=10, height_px=10,
+            camera_from_base=np.diag([2.0, 1, 1, 1]),
+        )  # fmt: skip
 
 
 def test_radar_only_objects_are_dropped_unless_asked_for():

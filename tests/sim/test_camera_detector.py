@@ -46,7 +46,7 @@ def exact(camera: PinholeCamera = FRONT) -> CameraDetectorModel:
 def test_principal_axis_projects_to_the_principal_point() -> None:
     cam = PinholeCamera.from_fov("c", 2048, 1536, 70.0, 1.0, 0.0, 2.0)
     p = cam.to_camera(np.array([[11.0, 0.0, 2.0], [11.0, 1.0, 2.0]]))
-    uv = cam.project(p)
+    uv = cam.pixels_from_camera(p)
     assert uv[0] == pytest.approx([1024.0, 768.0])
     assert uv[1, 0] < 1024.0  # a point to the left (base +y) is left in the image
     assert np.allclose(cam.K @ np.array([0.0, 0.0, 1.0]), [1024.0, 768.0, 1.0])
@@ -59,7 +59,7 @@ def test_object_in_view_is_boxed_around_its_projection() -> None:
     corners = np.array(
         [[x + sx * 2.25, y + sy * 0.9, z] for sx in (-1, 1) for sy in (-1, 1) for z in (0.0, 1.5)]
     )
-    uv = FRONT.project(FRONT.to_camera(corners))
+    uv = FRONT.pixels_from_camera(FRONT.to_camera(corners))
     expected = [*uv.min(axis=0), *uv.max(axis=0)]
     assert dets.boxes[0, :4] == pytest.approx(expected, abs=1e-3)
     assert dets.boxes[0, 4] == ObjectClass.CAR

@@ -97,12 +97,6 @@ def _corner_xy(boxes: np.ndarray, origin: np.ndarray) -> tuple[np.ndarray, np.nd
     ) + s * lx + c * ly
 
 
-def bev_corners(boxes: np.ndarray) -> np.ndarray:
-    """Ground-plane corners, (N, 4, 2), counter-clockwise."""
-    x, y = _corner_xy(boxes, np.zeros((boxes.shape[0], 2)))
-    return np.stack([x, y], axis=-1)
-
-
 def bev_intersection_pairs(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Ground-plane intersection area of row-aligned box pairs ``a[k]``, ``b[k]``; shape (K,).
 

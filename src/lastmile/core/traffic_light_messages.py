@@ -245,13 +245,3 @@ class TrafficLightStates:
             raise MessageError(
                 f"TrafficLightStates.frames_since_seen: expected >= 0, got {self.frames_since_seen.tolist()}"
             )
-
-    def index_of(self, light_id: str) -> int:
-        """Row of ``light_id``; raises MessageError when the light is not tracked."""
-        try:
-            return self.light_ids.index(light_id)
-        except ValueError:
-            raise MessageError(
-                f"TrafficLightStates: expected a tracked light id among {list(self.light_ids)}, "
-                f"got {light_id!r}"
-            ) from None

@@ -53,10 +53,6 @@ class VehicleGeometry:
             )
 
     @property
-    def front_overhang_m(self) -> float:
-        return self.length_m - self.wheelbase_m - self.rear_overhang_m
-
-    @property
     def front_from_rear_axle_m(self) -> float:
         """Distance from the rear axle to the front bumper."""
         return self.length_m - self.rear_overhang_m

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from lastmile.core.errors import ConfigError
 from lastmile.core.geometry import SE2
 from lastmile.core.objects import TrackedObjects
 from lastmile.core.predictions import PredictedPaths
@@ -17,6 +18,9 @@ from lastmile.decision.traffic_light_rule import TrafficLightRuleConfig
 @dataclass(frozen=True, slots=True, kw_only=True)
 class DecisionConfig:
     """Parameters of the decision module (units in names).
+
+    Sources are named per field; where none is, the value is our reasoning, given beside it. The fields
+    from ``in_path_lookahead_m`` on were inline numbers of the state machine, with the same defaults.
 
     Attributes:
         cruise_speed_mps: reference speed in normal driving (WATonoBus: 20 km/h).
@@ -56,6 +60,55 @@ class DecisionConfig:
             as the radar tracks reliably.
         transition_m: route length a pull-over needs (the planner's curve plus its straight settle),
             kept clear of obstacles when the spot is chosen.
+        in_path_lookahead_m: obstacles further ahead of the front (route s) are not checked for the
+            in-path test: well beyond the 15 m the shuttle needs to stop comfortably (1 m/s^2) from
+            cruise speed, and beyond the 20 m WATonoBus's decisions look at.
+        vulnerable_horizon_s: a pedestrian's or cyclist's constant-velocity motion is followed for the
+            time the shuttle needs to reach it, at most this long (Snow Lion's constant-velocity check).
+        vulnerable_reach_min_speed_mps: that time is taken at no less than this speed, so a slow or
+            standing shuttle does not look arbitrarily far into the future.
+        in_path_prediction_steps: the predicted motion is tested at this many equal steps (plus now).
+        behind_front_ignore_m: an obstacle whose centre is more than this behind the front and which
+            moves along the route is not stopped for (it is beside or behind us, going our way).
+        lead_decel_mps2: how hard a lead is assumed to brake when it stops, which places the point
+            eq. (2)'s gap is kept to (a firm but ordinary brake of a car).
+        emergency_contact_margin_m: the emergency test asks whether the shuttle can stop this short of
+            the obstacle itself (its stop point plus min_gap_m): the comfort gap may be given up, not
+            this last margin.
+        emergency_gap_floor_m: that remaining distance is taken as at least this (no division by zero
+            at or past the point).
+        emergency_min_speed_mps: no emergency stop below this speed: the ordinary stop needs under
+            4 cm at emergency_decel_mps2.
+        emergency_close_m: an emergency stop holds while a constraint that may trigger one is within
+            min_gap_m plus this of the front.
+        emergency_clear_s: and is released after the shuttle has stood this long with none such.
+        standstill_mps: below this the shuttle counts as stopped (pull-over arrival, emergency release).
+        entry_heading_back_m: an all-way stop entry's heading is the lanelet's heading this far before
+            its end (the stop line is at the end; the last vertex has no heading of its own).
+        stop_line_passed_m: an all-way stop line counts as still ahead until the front is this far past
+            it (the shuttle stops stop_line_setback_m before it).
+        stop_line_setback_m: the shuttle's front stops this far before an all-way stop line.
+        stop_line_reach_m: the front within this of the line counts as at the line for the full stop.
+        line_stopped_mps: below this speed the shuttle counts as stopped at the line.
+        intersection_cleared_m: intersection handling ends when the front is this far past the stop
+            line (past the campus junction's conflict box).
+        platform_lane_probe_m: the lane's right edge at a stop is read this far into the platform.
+        spot_stopping_decel_mps2: a re-chosen spot must be at least v^2 / (2 a) ahead of the front, a
+            the comfortable deceleration (the fail-safe's minimal risk manoeuvre uses the same 1 m/s^2).
+        spot_transition_share: the share of transition_m before the spot that must be free of bay
+            obstacles (the lateral move enters the bay only in its second half).
+        spot_extra_margin_m: clearance to a parked car before and behind the spot, beyond min_gap_m.
+        spot_commit_m: the spot is fixed once the spot plus merge_room_m is this close ahead (WATonoBus
+            scans 20 m ahead).
+        spot_arrival_m: the front within this of the spot, stopped, counts as arrived.
+        merged_max_offset_m: merging ends when the shuttle is within this of the lane centre ...
+        merged_after_m: ... and has driven this far since the merge began.
+        merge_hold_m: rear traffic holds the merge only while the shuttle is within this of where the
+            merge began (once out in the lane it goes on).
+        rear_half_width_m: road users more than this to either side of the route are not rear traffic
+            (beyond the adjacent lane's centre).
+        rear_too_close_m: rear traffic this close behind the shuttle's rear always holds the merge.
+        rear_min_closing_mps: rear traffic further back holds it only when closing at least this fast.
     """
 
     cruise_speed_mps: float = 20.0 / 3.6
@@ -79,7 +132,54 @@ class DecisionConfig:
     transition_m: float = 32.0
     merge_room_m: float = 4.0
     spot_scan_m: float = 40.0
+    in_path_lookahead_m: float = 70.0
+    vulnerable_horizon_s: float = 4.0
+    vulnerable_reach_min_speed_mps: float = 1.0
+    in_path_prediction_steps: int = 4
+    behind_front_ignore_m: float = 1.0
+    lead_decel_mps2: float = 3.0
+    emergency_contact_margin_m: float = 0.5
+    emergency_gap_floor_m: float = 0.05
+    emergency_min_speed_mps: float = 0.5
+    emergency_close_m: float = 2.0
+    emergency_clear_s: float = 1.0
+    standstill_mps: float = 0.05
+    entry_heading_back_m: float = 0.1
+    stop_line_passed_m: float = 0.5
+    stop_line_setback_m: float = 0.5
+    stop_line_reach_m: float = 3.0
+    line_stopped_mps: float = 0.1
+    intersection_cleared_m: float = 15.0
+    platform_lane_probe_m: float = 1.0
+    spot_stopping_decel_mps2: float = 1.0
+    spot_transition_share: float = 0.5
+    spot_extra_margin_m: float = 0.5
+    spot_commit_m: float = 20.0
+    spot_arrival_m: float = 0.6
+    merged_max_offset_m: float = 0.3
+    merged_after_m: float = 5.0
+    merge_hold_m: float = 2.0
+    rear_half_width_m: float = 2.5
+    rear_too_close_m: float = 8.0
+    rear_min_closing_mps: float = 0.5
     traffic_lights: TrafficLightRuleConfig = field(default_factory=TrafficLightRuleConfig)
+
+    def __post_init__(self) -> None:
+        steps = self.in_path_prediction_steps
+        if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
+            raise ConfigError(
+                f"DecisionConfig.in_path_prediction_steps: expected an integer >= 1, got {steps!r}"
+            )
+        # Divisors: a zero or negative value would divide by zero or turn a braking distance around.
+        for name in (
+            "lead_decel_mps2",
+            "spot_stopping_decel_mps2",
+            "emergency_gap_floor_m",
+            "vulnerable_reach_min_speed_mps",
+        ):
+            value = getattr(self, name)
+            if not value > 0:
+                raise ConfigError(f"DecisionConfig.{name}: expected a positive number, got {value!r}")
 
 
 @dataclass(frozen=True, slots=True)

@@ -17,6 +17,7 @@ yellow over green). Then:
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -46,6 +47,10 @@ class TrafficLightRuleConfig:
             passengers: well below a car's 3 m/s^2).
         full_stop_s: how long the shuttle stands at a flashing red before it goes.
         stop_before_line_m: where the front bumper stops, this far before the line.
+        gap_floor_m: the gap left to the stop point is taken as at least this when the braking it
+            needs is computed (no division by zero at or past the point).
+        at_line_m: at a flashing red, the front within this of the stop point counts as at the line.
+        stopped_mps: below this speed the shuttle counts as standing at the line.
     """
 
     approach_m: float = 60.0
@@ -53,6 +58,9 @@ class TrafficLightRuleConfig:
     comfort_decel_mps2: float = 2.0
     full_stop_s: float = 1.0
     stop_before_line_m: float = 0.5
+    gap_floor_m: float = 0.05
+    at_line_m: float = 3.0
+    stopped_mps: float = 0.1
 
     def __post_init__(self) -> None:
         if not 0 < self.unknown_as_red_m <= self.approach_m:
@@ -66,6 +74,8 @@ class TrafficLightRuleConfig:
                 f"stop_before_line_m >= 0, got {self.comfort_decel_mps2}, {self.full_stop_s}, "
                 f"{self.stop_before_line_m}"
             )
+        if self.gap_floor_m <= 0:
+            raise ConfigError(f"TrafficLightRuleConfig.gap_floor_m: expected > 0, got {self.gap_floor_m}")
 
 
 @dataclass(slots=True)
@@ -110,12 +120,7 @@ class TrafficLightRule:
             lights: the tracker's latest states (None: no tracker output, every signal is unknown).
             ahead: route distance from the front to an s (wrapping on a loop), as the FSM measures it.
         """
-        c = self.config
-        best: tuple[float, RouteStopLine] | None = None
-        for rl in self.layers.signal_stop_lines:
-            d = ahead(rl.s_m, front_s_m)
-            if -c.stop_before_line_m < d < c.approach_m and (best is None or d < best[0]):
-                best = (d, rl)
+        best = self._nearest_line(front_s_m, ahead)
         # Forget lines no longer being approached, so the next pass starts afresh.
         active = best[1].stop_line.id if best is not None else None
         for line_id in [k for k in self._approach if k != active]:
@@ -127,39 +132,27 @@ class TrafficLightRule:
         seen = self.signal_state(rl.stop_line.id, lights)
         self.last_seen = seen
         st = self._approach.setdefault(rl.stop_line.id, _Approach())
-        stop_s = rl.s_m - c.stop_before_line_m
-        gap = dist - c.stop_before_line_m
-        if seen in (GREEN, FLASHING_YELLOW):
-            st.yellow_choice = ""
-            return None, f"signal {seen}: go"
-        if seen == UNKNOWN:
-            if dist > c.unknown_as_red_m:
-                return None, ""
-            return stop_s, "signal expected but unknown: treat as red"
-        if seen == RED:
-            need = speed_mps**2 / (2.0 * max(gap, 0.05))
-            if st.yellow_choice == "go" and need > c.comfort_decel_mps2:
-                return None, "signal turned red after the yellow go: committed"
-            return stop_s, "signal red"
-        if seen == YELLOW:
-            if not st.yellow_choice:
-                need = speed_mps**2 / (2.0 * max(gap, 0.05))
-                st.yellow_choice = "stop" if need <= c.comfort_decel_mps2 else "go"
-            if st.yellow_choice == "go":
-                return None, "signal yellow: too close to stop comfortably, go"
-            return stop_s, "signal yellow: stop"
-        # Flashing red: a stop sign.
-        if st.cleared:
-            return None, "signal flashing red: stopped, go"
-        if gap < 3.0 and speed_mps < 0.1:
-            if st.stopped_since_s is None:
-                st.stopped_since_s = t_s
-            if t_s - st.stopped_since_s >= c.full_stop_s:
-                st.cleared = True
-                return None, "signal flashing red: stopped, go"
-        else:
-            st.stopped_since_s = None
-        return stop_s, "signal flashing red: stop"
+        c = self.config
+        line = _LineApproach(
+            t_s=t_s,
+            speed_mps=speed_mps,
+            dist_m=dist,
+            stop_s_m=rl.s_m - c.stop_before_line_m,
+            gap_m=dist - c.stop_before_line_m,
+        )
+        return _VERDICT_RULES[seen](c, st, line)
+
+    def _nearest_line(
+        self, front_s_m: float, ahead: Callable[[float, float], float]
+    ) -> tuple[float, RouteStopLine] | None:
+        """(distance from the front, line) of the nearest signalised line within the approach."""
+        c = self.config
+        best: tuple[float, RouteStopLine] | None = None
+        for rl in self.layers.signal_stop_lines:
+            d = ahead(rl.s_m, front_s_m)
+            if -c.stop_before_line_m < d < c.approach_m and (best is None or d < best[0]):
+                best = (d, rl)
+        return best
 
     def signal_state(self, stop_line_id: int, lights: TrafficLightStates | None) -> str:
         """The state the rule acts on for the signal of ``stop_line_id`` (see the module docstring)."""
@@ -182,3 +175,70 @@ class TrafficLightRule:
             if verdict in seen:
                 return verdict
         return UNKNOWN
+
+
+@dataclass(frozen=True, slots=True)
+class _LineApproach:
+    """The line being approached this cycle: when, how fast, how far, where to stop."""
+
+    t_s: float
+    speed_mps: float
+    dist_m: float
+    stop_s_m: float
+    gap_m: float
+
+
+_Verdict = tuple[float | None, str]
+
+
+def _go(c: TrafficLightRuleConfig, st: _Approach, line: _LineApproach, seen: str) -> _Verdict:
+    st.yellow_choice = ""
+    return None, f"signal {seen}: go"
+
+
+def _unknown(c: TrafficLightRuleConfig, st: _Approach, line: _LineApproach) -> _Verdict:
+    if line.dist_m > c.unknown_as_red_m:
+        return None, ""
+    return line.stop_s_m, "signal expected but unknown: treat as red"
+
+
+def _red(c: TrafficLightRuleConfig, st: _Approach, line: _LineApproach) -> _Verdict:
+    need = line.speed_mps**2 / (2.0 * max(line.gap_m, c.gap_floor_m))
+    if st.yellow_choice == "go" and need > c.comfort_decel_mps2:
+        return None, "signal turned red after the yellow go: committed"
+    return line.stop_s_m, "signal red"
+
+
+def _yellow(c: TrafficLightRuleConfig, st: _Approach, line: _LineApproach) -> _Verdict:
+    if not st.yellow_choice:
+        need = line.speed_mps**2 / (2.0 * max(line.gap_m, c.gap_floor_m))
+        st.yellow_choice = "stop" if need <= c.comfort_decel_mps2 else "go"
+    if st.yellow_choice == "go":
+        return None, "signal yellow: too close to stop comfortably, go"
+    return line.stop_s_m, "signal yellow: stop"
+
+
+def _flashing_red(c: TrafficLightRuleConfig, st: _Approach, line: _LineApproach) -> _Verdict:
+    """A stop sign: stop at the line, stand ``full_stop_s``, then go."""
+    if st.cleared:
+        return None, "signal flashing red: stopped, go"
+    if line.gap_m < c.at_line_m and line.speed_mps < c.stopped_mps:
+        if st.stopped_since_s is None:
+            st.stopped_since_s = line.t_s
+        if line.t_s - st.stopped_since_s >= c.full_stop_s:
+            st.cleared = True
+            return None, "signal flashing red: stopped, go"
+    else:
+        st.stopped_since_s = None
+    return line.stop_s_m, "signal flashing red: stop"
+
+
+_VERDICT_RULES: dict[str, Callable[[TrafficLightRuleConfig, _Approach, _LineApproach], _Verdict]] = {
+    GREEN: functools.partial(_go, seen=GREEN),
+    FLASHING_YELLOW: functools.partial(_go, seen=FLASHING_YELLOW),
+    UNKNOWN: _unknown,
+    RED: _red,
+    YELLOW: _yellow,
+    FLASHING_RED: _flashing_red,
+}
+"""One rule per state the signal is read as (see the module docstring)."""

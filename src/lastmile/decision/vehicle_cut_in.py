@@ -87,6 +87,7 @@ def predicted_cut_ins(
         return []
     by_id = {o.track_id: o for o in obstacles}
     times = predictions.times_s.tolist()
+    shuttle = _Shuttle(route, path, front_s_m, max(speed_mps, 1.0), horizon_s, pass_margin_s, lookahead_m)
     out: list[CutIn] = []
     rows = zip(predictions.ids.tolist(), predictions.mode.tolist(), predictions.xy_m, strict=True)
     for tid, mode, xy in rows:
@@ -96,46 +97,75 @@ def predicted_cut_ins(
         half = half_width_m + o.width_m / 2.0
         if abs(_lateral(path, o.x_m, o.y_m, o.d_m)) < half:
             continue  # already in the corridor: the in-path test's
-        # Each predicted centre projected on the route once. The corridor test (a projection on the
-        # planned path, the costly part) runs on samples up to the entry, then on those after it: each
-        # sample at most once.
-        pts: list[list[float]] = xy.tolist()
-        frenet = _along_route(route, pts, o.s_m)
-        entry: tuple[float, float, int] | None = None
-        for k, (t, f) in enumerate(zip(times, frenet, strict=True)):
-            if t > horizon_s + 1e-9:
-                break
-            ahead = route.ds_m(front_s_m, f.s_m)
-            if not 0.0 < ahead <= lookahead_m or not _inside(path, pts[k], f, half):
-                continue
-            if t >= ahead / max(speed_mps, 1.0) + pass_margin_s:
-                break  # the shuttle passes the entry first: the car comes in behind it
-            entry = (t, ahead, k)
-            break
-        if entry is None:
-            continue
-        t_s, ahead_m, k = entry
-        # Crossing traffic: when the path is first outside the corridor again (never: it turns in).
-        t_out = next(
-            (times[j] for j in range(k + 1, len(times)) if not _inside(path, pts[j], frenet[j], half)),
-            math.inf,
-        )
-        if ahead_m / max(speed_mps, 1.0) >= t_out + pass_margin_s:
-            continue  # it will have left the corridor before the shuttle gets there
-        # Speed along the route there: finite difference with the next sample (the previous at the end).
-        j = k + 1 if k + 1 < len(times) else k - 1
-        speed_along = route.ds_m(frenet[k].s_m, frenet[j].s_m) / (times[j] - times[k]) if j >= 0 else 0.0
-        out.append(
-            CutIn(
-                track_id=int(tid),
-                entry_s_m=frenet[k].s_m,
-                entry_t_s=t_s,
-                ahead_m=ahead_m,
-                speed_along_mps=speed_along,
-                length_m=o.length_m,
-            )
-        )
+        cut_in = _cut_in(shuttle, o, xy.tolist(), times, half)
+        if cut_in is not None:
+            out.append(cut_in)
     return out
+
+
+@dataclass(frozen=True, slots=True)
+class _Shuttle:
+    """The shuttle's side of the test: its route, planned path, front, speed (at least 1 m/s) and the
+    limits of :func:`predicted_cut_ins`."""
+
+    route: Polyline
+    path: Polyline | None
+    front_s_m: float
+    speed_mps: float
+    horizon_s: float
+    pass_margin_s: float
+    lookahead_m: float
+
+
+def _cut_in(
+    shuttle: _Shuttle, o: RouteObstacle, pts: list[list[float]], times: list[float], half: float
+) -> CutIn | None:
+    """The cut-in of one vehicle's path (``pts`` at ``times``), or None when it does not cut in."""
+    # Each predicted centre projected on the route once. The corridor test (a projection on the
+    # planned path, the costly part) runs on samples up to the entry, then on those after it: each
+    # sample at most once.
+    route = shuttle.route
+    frenet = _along_route(route, pts, o.s_m)
+    entry = _entry(shuttle, pts, frenet, times, half)
+    if entry is None:
+        return None
+    t_s, ahead_m, k = entry
+    # Crossing traffic: when the path is first outside the corridor again (never: it turns in).
+    t_out = next(
+        (times[j] for j in range(k + 1, len(times)) if not _inside(shuttle.path, pts[j], frenet[j], half)),
+        math.inf,
+    )
+    if ahead_m / shuttle.speed_mps >= t_out + shuttle.pass_margin_s:
+        return None  # it will have left the corridor before the shuttle gets there
+    # Speed along the route there: finite difference with the next sample (the previous at the end).
+    j = k + 1 if k + 1 < len(times) else k - 1
+    speed_along = route.ds_m(frenet[k].s_m, frenet[j].s_m) / (times[j] - times[k]) if j >= 0 else 0.0
+    return CutIn(
+        track_id=int(o.track_id),
+        entry_s_m=frenet[k].s_m,
+        entry_t_s=t_s,
+        ahead_m=ahead_m,
+        speed_along_mps=speed_along,
+        length_m=o.length_m,
+    )
+
+
+def _entry(
+    shuttle: _Shuttle, pts: list[list[float]], frenet: list[FrenetPoint], times: list[float], half: float
+) -> tuple[float, float, int] | None:
+    """(time, distance ahead of the front, sample) of the path's first centre inside the corridor
+    ahead, within the horizon and the lookahead; None when there is none, or when the shuttle's
+    front passes that point ``pass_margin_s`` before the car gets there."""
+    for k, (t, f) in enumerate(zip(times, frenet, strict=True)):
+        if t > shuttle.horizon_s + 1e-9:
+            return None
+        ahead = shuttle.route.ds_m(shuttle.front_s_m, f.s_m)
+        if not 0.0 < ahead <= shuttle.lookahead_m or not _inside(shuttle.path, pts[k], f, half):
+            continue
+        if t >= ahead / shuttle.speed_mps + shuttle.pass_margin_s:
+            return None  # the shuttle passes the entry first: the car comes in behind it
+        return (t, ahead, k)
+    return None
 
 
 def _along_route(route: Polyline, pts: list[list[float]], hint_s_m: float) -> list[FrenetPoint]:

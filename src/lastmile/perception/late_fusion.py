@@ -25,13 +25,14 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from lastmile.core.camera_model import PinholeCamera
 from lastmile.core.errors import ConfigError, MessageError
 from lastmile.core.geometry import SE2, wrap_angles_rad
 from lastmile.core.object_class import ObjectClass
 from lastmile.core.objects import DETECTION_COLUMNS, DetectedObjects
 from lastmile.core.sensor_frames import CAMERA_BOX_COLUMNS, RADAR_COLUMNS, CameraDetections, RadarFrame
 from lastmile.core.stamp import Stamp
-from lastmile.perception.camera_geometry import PinholeCamera, box_corners_3d, box_iou
+from lastmile.perception.camera_geometry import box_corners_3d, box_iou
 from lastmile.perception.cluster_geometry import ClusterSet
 
 
@@ -226,7 +227,7 @@ def _associate_camera(
     claimed = np.zeros(len(boxes), dtype=bool)
     centres = np.column_stack([rows[:, 0], rows[:, 1], (rows[:, 2] + rows[:, 3]) / 2])
     depth = camera.to_camera(centres)[:, 2]
-    uv, front = camera.project(centres)
+    uv, front = camera.pixels_from_base(centres)
     for k in np.argsort(depth):
         if not front[k] or camera_ok[k]:
             continue

@@ -13,10 +13,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from lastmile.core.camera_model import PinholeCamera
 from lastmile.core.errors import ConfigError
 from lastmile.core.object_class import ObjectClass
 from lastmile.core.sensor_frames import CAMERA_BOX_COLUMNS, CameraDetections
-from lastmile.perception.camera_geometry import PinholeCamera, box_corners_3d, box_iou
+from lastmile.perception.camera_geometry import box_corners_3d, box_iou
 from lastmile.perception.cluster_geometry import ClusterSet
 
 

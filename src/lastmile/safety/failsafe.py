@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -101,6 +101,88 @@ class FailSafeConfig:
             )
 
 
+def signal_speed_cap_mps(signal: MalfunctionSignal, default_cap_mps: float) -> float | None:
+    """The speed cap a signal asks for: its own, else ``default_cap_mps`` for a SPEED_LIMIT signal."""
+    cap = signal.speed_cap_mps
+    if cap is None and signal.level == FailSafeLevel.SPEED_LIMIT:
+        cap = default_cap_mps
+    return cap
+
+
+def held_level(
+    last_seen_us: Mapping[FailSafeLevel, int], now_us: int, clear_hold_us: Mapping[FailSafeLevel, int]
+) -> FailSafeLevel:
+    """The highest level whose last signal (at or above it) is younger than that level's clear hold."""
+    for lv in _LEVELS_DOWN:
+        seen = last_seen_us.get(lv)
+        if seen is not None and now_us - seen < clear_hold_us[lv]:
+            return lv
+    return FailSafeLevel.NONE
+
+
+def worst_first_reasons(active: Sequence[MalfunctionSignal]) -> tuple[FailSafeLevel, tuple[str, ...]]:
+    """The top level among ``active`` and the reasons of its signals above NONE, most severe first."""
+    if not active:
+        return FailSafeLevel.NONE, ()
+    top = max(s.level for s in active)
+    if top == FailSafeLevel.NONE:
+        return top, ()
+    worst_first = sorted(active, key=lambda s: -int(s.level))
+    return top, tuple(s.reason for s in worst_first if s.level > FailSafeLevel.NONE)
+
+
+def reasons_at_or_below(
+    reasons_by_level: Mapping[FailSafeLevel, tuple[str, ...]], level: FailSafeLevel
+) -> tuple[str, ...]:
+    """The last recorded reasons of the highest level at or below ``level`` (why it is held)."""
+    for lv in _LEVELS_DOWN:
+        if lv <= level and lv in reasons_by_level:
+            return reasons_by_level[lv]
+    return ()
+
+
+def combined_speed_cap_mps(caps: Mapping[str, tuple[float, int]], level: FailSafeLevel) -> float | None:
+    """The speed cap a directive at ``level`` carries: 0 at an e-stop, else the minimum of ``caps``
+    (``(cap_mps, seen_us)`` per signal source and kind), none at NONE or without caps."""
+    if level == FailSafeLevel.EMERGENCY_STOP:
+        return 0.0
+    if level == FailSafeLevel.NONE:
+        return None
+    return min((v[0] for v in caps.values()), default=None)
+
+
+@dataclass(slots=True)
+class EStopLatch:
+    """EMERGENCY_STOP, once held, stays until the vehicle stands still and (when ``needs_reset``) the
+    operator has confirmed; a reset given while the e-stop is still signalled is discarded."""
+
+    latched: bool = False
+    reset_requested: bool = False
+
+    def request_reset(self) -> None:
+        self.reset_requested = True
+
+    def apply(self, held: FailSafeLevel, *, stopped: bool, needs_reset: bool) -> FailSafeLevel:
+        """The level after the latch: ``held``, or EMERGENCY_STOP while the latch holds.
+
+        Args:
+            held: the level the signals hold now.
+            stopped: the vehicle stands still.
+            needs_reset: a release needs :meth:`request_reset` (``FailSafeConfig.estop_needs_reset``).
+        """
+        if held == FailSafeLevel.EMERGENCY_STOP:
+            self.latched = True
+            self.reset_requested = False
+            return held
+        if not self.latched:
+            return held
+        if stopped and (self.reset_requested or not needs_reset):
+            self.latched = False
+            self.reset_requested = False
+            return held
+        return FailSafeLevel.EMERGENCY_STOP
+
+
 class FailSafeArbiter:
     """Picks the highest-priority response among the active signals and latches it.
 
@@ -108,6 +190,11 @@ class FailSafeArbiter:
     ``clear_hold_us``; then the level drops to the highest still held. EMERGENCY_STOP additionally
     needs standstill and (by default) :meth:`operator_reset`. Speed caps combine by minimum over the
     signals seen within the SPEED_LIMIT hold.
+
+    Each ``update`` runs four steps, each testable alone: record the signals (:meth:`_record`), find
+    the held level (:func:`held_level`, then :class:`EStopLatch`), follow a level change and choose
+    the minimal risk manoeuvre once when it starts (:meth:`_enter_level`), and build the directive
+    (:meth:`_directive`).
     """
 
     def __init__(self, config: FailSafeConfig | None = None, layers: SLayerDatabase | None = None) -> None:
@@ -118,8 +205,7 @@ class FailSafeArbiter:
         self._caps: dict[str, tuple[float, int]] = {}
         self._level = FailSafeLevel.NONE
         self._since_us = 0
-        self._estop_latched = False
-        self._reset_requested = False
+        self._latch = EStopLatch()
         self._mrm: MrmKind = MrmKind.NONE
         self._mrm_stop_s: float | None = None
         self.history: list[tuple[int, str, str]] = []
@@ -131,7 +217,7 @@ class FailSafeArbiter:
 
     def operator_reset(self) -> None:
         """The operator confirms the e-stop cause is gone (takes effect once the vehicle stands still)."""
-        self._reset_requested = True
+        self._latch.request_reset()
 
     def update(
         self,
@@ -149,82 +235,71 @@ class FailSafeArbiter:
             route_s_m: front-bumper route s, for the MRM's stopping point and the pull-over search.
         """
         c = self.config
-        active = list(signals)
+        blockers = self._record(now_us, list(signals))
+        held = held_level(self._last_seen, now_us, c.clear_hold_us)
+        held = self._latch.apply(
+            held, stopped=abs(speed_mps) < c.standstill_mps, needs_reset=c.estop_needs_reset
+        )
+        self._enter_level(now_us, held)
+        if held >= FailSafeLevel.MINIMAL_RISK_MANOEUVRE and self._mrm == MrmKind.NONE:
+            # Chosen once when the manoeuvre starts, so the stopping point does not run away.
+            self._mrm, self._mrm_stop_s = self._plan_mrm(speed_mps, route_s_m, blockers)
+        return self._directive(now_us, held)
+
+    def _record(self, now_us: int, active: list[MalfunctionSignal]) -> bool:
+        """Note when each level was last signalled, each signal's speed cap and the top level's reasons.
+
+        Returns:
+            Whether an active signal takes away what a pull-over needs (:data:`PULLOVER_BLOCKERS`).
+        """
         blockers = False
         for sig in active:
-            lv = sig.level
-            if lv == FailSafeLevel.NONE:
+            if sig.level == FailSafeLevel.NONE:
                 continue
             if sig.kind in PULLOVER_BLOCKERS:
                 blockers = True
             for covered in _LEVELS_DOWN:
-                if covered <= lv:
+                if covered <= sig.level:
                     self._last_seen[covered] = int(now_us)
-            cap = sig.speed_cap_mps
-            if cap is None and lv == FailSafeLevel.SPEED_LIMIT:
-                cap = c.default_speed_cap_mps
+            cap = signal_speed_cap_mps(sig, self.config.default_speed_cap_mps)
             if cap is not None:
                 self._caps[sig.source + "/" + sig.kind.value] = (cap, int(now_us))
-        if active:
-            top = max(s.level for s in active)
-            if top > FailSafeLevel.NONE:
-                worst_first = sorted(active, key=lambda s: -int(s.level))
-                self._reasons[top] = tuple(s.reason for s in worst_first if s.level > FailSafeLevel.NONE)
+        top, reasons = worst_first_reasons(active)
+        if top > FailSafeLevel.NONE:
+            self._reasons[top] = reasons
+        return blockers
 
-        held = FailSafeLevel.NONE
-        for lv in _LEVELS_DOWN:
-            seen = self._last_seen.get(lv)
-            if seen is not None and now_us - seen < c.clear_hold_us[lv]:
-                held = lv
-                break
-        stopped = abs(speed_mps) < c.standstill_mps
-        if held == FailSafeLevel.EMERGENCY_STOP:
-            self._estop_latched = True
-            self._reset_requested = False
-        elif self._estop_latched:
-            if stopped and (self._reset_requested or not c.estop_needs_reset):
-                self._estop_latched = False
-                self._reset_requested = False
-            else:
-                held = FailSafeLevel.EMERGENCY_STOP
+    def _enter_level(self, now_us: int, held: FailSafeLevel) -> None:
+        """Log a level change; a manoeuvre is chosen afresh on escalating to it and dropped below it."""
+        if held == self._level:
+            return
+        self.history.append((int(now_us), self._level.name, held.name))
+        if (
+            held >= FailSafeLevel.MINIMAL_RISK_MANOEUVRE > self._level
+            or held < FailSafeLevel.MINIMAL_RISK_MANOEUVRE
+        ):
+            self._mrm, self._mrm_stop_s = MrmKind.NONE, None
+        self._level = held
+        self._since_us = int(now_us)
 
-        if held != self._level:
-            self.history.append((int(now_us), self._level.name, held.name))
-            if (
-                held >= FailSafeLevel.MINIMAL_RISK_MANOEUVRE > self._level
-                or held < FailSafeLevel.MINIMAL_RISK_MANOEUVRE
-            ):
-                self._mrm, self._mrm_stop_s = MrmKind.NONE, None
-            self._level = held
-            self._since_us = int(now_us)
-        if held >= FailSafeLevel.MINIMAL_RISK_MANOEUVRE and self._mrm == MrmKind.NONE:
-            # Chosen once when the manoeuvre starts, so the stopping point does not run away.
-            self._mrm, self._mrm_stop_s = self._plan_mrm(speed_mps, route_s_m, blockers)
-
+    def _directive(self, now_us: int, held: FailSafeLevel) -> SafetyDirective:
+        """The directive for ``held``; speed caps older than the SPEED_LIMIT hold are forgotten first."""
+        c = self.config
         cap_window = c.clear_hold_us[FailSafeLevel.SPEED_LIMIT]
         self._caps = {k: v for k, v in self._caps.items() if now_us - v[1] < cap_window}
-        speed_cap = (
-            min((v[0] for v in self._caps.values()), default=None) if held > FailSafeLevel.NONE else None
-        )
-        if held == FailSafeLevel.EMERGENCY_STOP:
-            speed_cap = 0.0
-        reasons: tuple[str, ...] = ()
-        for lv in _LEVELS_DOWN:
-            if lv <= held and lv in self._reasons:
-                reasons = self._reasons[lv]
-                break
         estop = held == FailSafeLevel.EMERGENCY_STOP
+        mrm = held >= FailSafeLevel.MINIMAL_RISK_MANOEUVRE
         return SafetyDirective(
             stamp=Stamp(int(now_us)),
             level=held,
-            speed_cap_mps=speed_cap,
-            mrm=self._mrm if held >= FailSafeLevel.MINIMAL_RISK_MANOEUVRE else MrmKind.NONE,
+            speed_cap_mps=combined_speed_cap_mps(self._caps, held),
+            mrm=self._mrm if mrm else MrmKind.NONE,
             mrm_decel_mps2=c.max_decel_mps2 if estop else c.mrm_decel_mps2,
-            mrm_stop_s_m=self._mrm_stop_s if held >= FailSafeLevel.MINIMAL_RISK_MANOEUVRE else None,
+            mrm_stop_s_m=self._mrm_stop_s if mrm else None,
             emergency_stop=estop,
             takeover_request=held >= FailSafeLevel.TAKEOVER_REQUEST,
             since_us=self._since_us,
-            reasons=reasons,
+            reasons=reasons_at_or_below(self._reasons, held),
         )
 
     def _plan_mrm(

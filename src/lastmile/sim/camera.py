@@ -229,7 +229,7 @@ class CameraDetectorModel:
         self.effects = CAMERA_WEATHER[weather]
         self.daylight = float(daylight)
         self._rng = component_rng(seed, f"sensor.camera.{camera.camera_id}")
-        self._rot, self._t = camera.camera_from_base()
+        self._rot, self._t = camera.rotation, camera.translation
 
     def detect(self, observation: CameraScene, stamp: Stamp) -> CameraDetections:
         """Boxes for ``observation`` (a :class:`CameraScene`) captured at ``stamp``."""
@@ -314,7 +314,7 @@ class CameraDetectorModel:
                 cross = (a[:, 2] - _NEAR_M) * (b[:, 2] - _NEAR_M) < 0
                 s = (_NEAR_M - a[cross, 2]) / (b[cross, 2] - a[cross, 2])
                 pc = np.vstack([pc[depth >= _NEAR_M], a[cross] + s[:, None] * (b[cross] - a[cross])])
-            uv = cam.project(pc)
+            uv = cam.pixels_from_camera(pc)
             u0, v0 = uv.min(axis=0)
             u1, v1 = uv.max(axis=0)
             cu0, cv0 = max(u0, 0.0), max(v0, 0.0)

@@ -233,7 +233,7 @@ class TrafficLightDetectorModel:
         blockers = self._blockers(map_from_base, scene)
         for i in np.flatnonzero(ok).tolist():
             z = pc[i, 2]
-            ((u, v),) = cam.project(pc[i : i + 1])
+            ((u, v),) = cam.pixels_from_camera(pc[i : i + 1])
             hw, hh = 0.5 * cam.fx_px * t[i, 4] / z, 0.5 * cam.fy_px * t[i, 5] / z
             box = np.array([u - hw, v - hh, u + hw, v + hh])
             if (
@@ -271,7 +271,7 @@ class TrafficLightDetectorModel:
             pc = cam.to_camera(pts)
             if np.any(pc[:, 2] <= 0.2):  # behind the camera (or straddling it): not in the picture
                 continue
-            uv = cam.project(pc)
+            uv = cam.pixels_from_camera(pc)
             out.append(
                 (
                     float(uv[:, 0].min()),

@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from lastmile.core.boxes3d import DetectedBoxes
-from lastmile.core.camera_model import PinholeCamera as CameraModel
+from lastmile.core.camera_model import PinholeCamera
 from lastmile.core.errors import ConfigError, MessageError
 from lastmile.core.geometry import SE2
 from lastmile.core.object_class import ObjectClass
@@ -40,7 +40,6 @@ from lastmile.core.stamp import Stamp
 from lastmile.hdmap.drivable import DrivableRaster
 from lastmile.hdmap.layers import SLayerDatabase
 from lastmile.localization.ekf import LocalizationEstimate
-from lastmile.perception.camera_geometry import PinholeCamera
 from lastmile.perception.late_fusion import LateFusionConfig, fuse_objects
 from lastmile.perception.map_curbs import MapCurbIndex
 from lastmile.perception.motion_compensation import PoseTrajectory
@@ -147,7 +146,7 @@ class RawPerception:
         config: RawPerceptionConfig,
         layers: SLayerDatabase,
         lidar_mounts: Mapping[str, np.ndarray],
-        cameras: Sequence[CameraModel],
+        cameras: Sequence[PinholeCamera],
         radar_mounts: Mapping[str, SE2],
     ) -> None:
         if not lidar_mounts:
@@ -160,7 +159,7 @@ class RawPerception:
                 raise ConfigError(
                     f"RawPerception: LiDAR {k!r} mounting: expected a finite (4, 4), got {v.shape}"
                 )
-        self.cameras = tuple(PinholeCamera.from_model(c) for c in cameras)
+        self.cameras = tuple(cameras)
         self.radar_mounts = dict(radar_mounts)
         self.pipeline = LidarPipeline(config.pipeline)
         self.road = MapRoadRegion(layers.hdmap)

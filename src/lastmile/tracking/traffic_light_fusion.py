@@ -81,7 +81,7 @@ def project_lights(
     idx = np.flatnonzero(ok)
     if idx.size == 0:
         return ProjectedLights(np.zeros(0, dtype=np.int64), np.zeros((0, 4)))
-    centre = camera.project(pts_cam[idx])
+    centre = camera.pixels_from_camera(pts_cam[idx])
     half_w = 0.5 * camera.fx_px * lights[idx, 4] / depth[idx]
     half_h = 0.5 * camera.fy_px * lights[idx, 5] / depth[idx]
     boxes = np.column_stack(

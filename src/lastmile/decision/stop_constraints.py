@@ -1,0 +1,160 @@
+"""Stop points every behaviour state respects: obstacles in the path, cut-ins, crosswalks, the fail-safe."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from lastmile.core.objects import TrackedObjects
+from lastmile.core.polyline import Polyline
+from lastmile.core.predictions import PredictedPaths
+from lastmile.core.route_obstacles import RouteObstacle
+from lastmile.core.safety_messages import FailSafeLevel, SafetyDirective
+from lastmile.core.vehicle import VehicleGeometry
+from lastmile.decision.crosswalk_yield import crosswalk_yields
+from lastmile.decision.decision_config import DecisionConfig
+from lastmile.decision.vehicle_cut_in import predicted_cut_ins
+from lastmile.hdmap.layers import RouteCrosswalk
+
+
+@dataclass(slots=True)
+class StopConstraint:
+    """A point the shuttle's front must stop at.
+
+    Attributes:
+        stop_front_s_m: route s of the front bumper at the stop point.
+        kind: what it is for (an object class, ``crosswalk``, ``stop_line``, ``spot`` ...), shown in the
+            decision's reason.
+        track_id: the track that causes it (-1: none).
+        emergency_ok: an emergency stop may be ordered when this point can no longer be reached
+            comfortably (an obstacle, not a rule or a prediction).
+    """
+
+    stop_front_s_m: float
+    kind: str
+    track_id: int = -1
+    emergency_ok: bool = True
+
+
+def lead_stop_s_m(s_m: float, length_m: float, speed_along_mps: float, lead_decel_mps2: float) -> float:
+    """Route s of the rear of a lead at ``s_m`` once it has stopped: a lead moving along the route
+    stops where it would stop braking at ``lead_decel_mps2``, and eq. (2) applies to that point (one
+    coming towards the shuttle, or crossing, is taken as standing)."""
+    moving_away = max(speed_along_mps, 0.0)
+    return s_m - length_m / 2.0 + moving_away**2 / (2.0 * lead_decel_mps2)
+
+
+def in_path_constraints(
+    obstacles: list[RouteObstacle],
+    speed_mps: float,
+    path: Polyline | None,
+    geometry: VehicleGeometry,
+    config: DecisionConfig,
+) -> list[StopConstraint]:
+    """Obstacles in (or about to enter) the corridor swept along the planned path ``path``."""
+    g, c = geometry, config
+    steps = c.in_path_prediction_steps
+    out: list[StopConstraint] = []
+    for o in obstacles:
+        if o.ds_m < -g.length_m or o.ds_m > c.in_path_lookahead_m:
+            continue
+        half = g.width_m / 2.0 + o.width_m / 2.0 + c.corridor_margin_m
+        # Constant-velocity prediction over the time the shuttle needs to get there (Snow Lion).
+        horizon = (
+            min(c.vulnerable_horizon_s, max(o.ds_m, 0.0) / max(speed_mps, c.vulnerable_reach_min_speed_mps))
+            if o.cls.vulnerable
+            else 0.0
+        )
+        # Offset of the planned path from the route where the obstacle is (pull-over, nudge).
+        path_d = o.d_m - path.project(o.x_m, o.y_m).d_m if path is not None else 0.0
+        hit = any(abs(o.d_m + o.v_d_mps * horizon * k / steps - path_d) < half for k in range(steps + 1))
+        if not hit:
+            continue
+        if o.ds_m < -c.behind_front_ignore_m and o.v_s_mps > 0.0:
+            continue  # behind the front, moving with us: not ours to stop for
+        stop_s = lead_stop_s_m(o.s_m, o.length_m, o.v_s_mps, c.lead_decel_mps2) - c.min_gap_m
+        out.append(StopConstraint(stop_s, o.cls.name.lower(), o.track_id))
+    return out
+
+
+def cut_in_constraints(
+    obstacles: list[RouteObstacle],
+    predictions: PredictedPaths | None,
+    route: Polyline,
+    path: Polyline | None,
+    front_s_m: float,
+    speed_mps: float,
+    geometry: VehicleGeometry,
+    config: DecisionConfig,
+) -> list[StopConstraint]:
+    """Vehicles the lane-following prediction brings into the corridor ahead before the shuttle
+    passes (``vehicle_cut_in``): followed like a lead from where they enter. Never an emergency
+    stop on a prediction alone; once the car is in the corridor the in-path test takes over."""
+    c = config
+    cut_ins = predicted_cut_ins(
+        obstacles,
+        predictions,
+        route,
+        path,
+        front_s_m,
+        speed_mps,
+        geometry.width_m / 2.0 + c.corridor_margin_m,
+        horizon_s=c.vehicle_prediction_horizon_s,
+        pass_margin_s=c.cut_in_pass_margin_s,
+    )
+    return [
+        StopConstraint(
+            lead_stop_s_m(k.entry_s_m, k.length_m, k.speed_along_mps, c.lead_decel_mps2) - c.min_gap_m,
+            "cut-in",
+            k.track_id,
+            emergency_ok=False,
+        )
+        for k in cut_ins
+    ]
+
+
+def crosswalk_constraints(
+    crosswalks: Sequence[RouteCrosswalk],
+    route: Polyline,
+    tracks: TrackedObjects,
+    front_s_m: float,
+    speed_mps: float,
+    predictions: PredictedPaths | None,
+    geometry: VehicleGeometry,
+    config: DecisionConfig,
+) -> list[StopConstraint]:
+    """Yield at a crosswalk to the people ``crosswalk_yield`` finds there or about to be."""
+    return [
+        StopConstraint(stop_s, "crosswalk", tid, emergency_ok=False)
+        for stop_s, tid in crosswalk_yields(
+            crosswalks,
+            route,
+            tracks,
+            front_s_m,
+            speed_mps,
+            geometry.length_m,
+            predictions,
+            margin_m=config.crosswalk_margin_m,
+            lookahead_s=config.crosswalk_lookahead_s,
+        )
+    ]
+
+
+def safety_constraints(
+    directive: SafetyDirective | None, cap_mps: float
+) -> tuple[float, list[StopConstraint]]:
+    """The fail-safe's directive as a speed cap and, for a minimal risk manoeuvre, a stop point.
+
+    The e-stop itself is not here: it changes the state (``BehaviourStateMachine.request_emergency``).
+
+    Returns:
+        The speed cap (``cap_mps`` or the directive's, whichever is lower) and the stop points.
+    """
+    if directive is None or directive.level == FailSafeLevel.NONE:
+        return cap_mps, []
+    if directive.speed_cap_mps is not None:
+        cap_mps = min(cap_mps, directive.speed_cap_mps)
+    if directive.level >= FailSafeLevel.MINIMAL_RISK_MANOEUVRE and directive.mrm_stop_s_m is not None:
+        # A comfortable stop at the arbiter's point (never an emergency brake for it).
+        return cap_mps, [StopConstraint(directive.mrm_stop_s_m, "minimal risk manoeuvre", emergency_ok=False)]
+    return cap_mps, []
