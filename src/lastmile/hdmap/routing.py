@@ -19,6 +19,8 @@ from lastmile.core.polyline import Polyline
 from lastmile.hdmap import campus_layout
 from lastmile.hdmap.model import HDMap
 
+JOIN_TOLERANCE_M = 1e-6
+
 
 def route(hdmap: HDMap, start_id: int, goal_id: int) -> tuple[int, ...]:
     """Shortest lanelet sequence from ``start_id`` to ``goal_id`` (both included) following successors.
@@ -85,7 +87,12 @@ def route_polyline(hdmap: HDMap, lanelet_ids: tuple[int, ...], closed: bool = Fa
         if a not in hdmap.lanelets or b not in hdmap.lanelets or b not in hdmap.successors(a):
             raise RoutingError(f"route_polyline: expected lanelet {b} to follow lanelet {a}, it does not")
     parts = [hdmap.lanelets[i].centerline.xy_m for i in lanelet_ids]
-    xy = np.vstack([parts[0], *(p[1:] for p in parts[1:])])
+    # Consecutive lanelets share their end points; a link bridged over a gap (a route file's
+    # connect_gaps_m) keeps both, and the joined line crosses the gap straight.
+    joined = [parts[0]]
+    for prev, part in itertools.pairwise(parts):
+        joined.append(part[1:] if float(np.hypot(*(part[0] - prev[-1]))) < JOIN_TOLERANCE_M else part)
+    xy = np.vstack(joined)
     if closed:
         xy = xy[:-1]
     return Polyline(xy, closed=closed)
