@@ -28,7 +28,7 @@ from lastmile.hdmap.layers import (
     RouteStopLine,
 )
 from lastmile.hdmap.model import HDMap, LaneletInfo
-from lastmile.hdmap.routing import lanelet_starts_m, route_polyline
+from lastmile.hdmap.routing import lanelet_starts_m, route_pieces, route_polyline
 
 if TYPE_CHECKING:
     from lastmile.hdmap.layers import SLayerDatabase
@@ -173,8 +173,11 @@ def _road_types(
     for k, lid in enumerate(lanelet_ids):
         prev = lanelet_ids[k - 1] if k > 0 else None
         nxt = lanelet_ids[k + 1] if k + 1 < len(lanelet_ids) else None
-        branches = prev is not None and len(hdmap.successors(prev)) > 1
-        merges = nxt is not None and predecessors.get(nxt, 0) > 1
+        # Only successor links make a junction; a lane change beside a lanelet is no branch.
+        branches = (
+            prev is not None and lid in hdmap.successor_ids.get(prev, ()) and len(hdmap.successors(prev)) > 1
+        )
+        merges = nxt is not None and nxt in hdmap.successor_ids.get(lid, ()) and predecessors.get(nxt, 0) > 1
         mask = lane_of == lid
         if lid in inside_stop:
             road[mask], junction[mask] = INTERSECTION, ALL_WAY_STOP
@@ -219,11 +222,13 @@ def _route_crosswalks(hdmap: HDMap, centre: Polyline) -> tuple[RouteCrosswalk, .
 def _route_stop_lines(
     hdmap: HDMap, lanelet_ids: tuple[int, ...], starts: np.ndarray
 ) -> tuple[RouteStopLine, ...]:
-    """A stop line sits at the end of its lanelet, so its s is where the next lanelet begins."""
+    """A stop line sits at the end of its lanelet, so its s is where the next lanelet begins (a lanelet
+    the route leaves by a lane change never reaches its line)."""
+    pieces = route_pieces(hdmap, lanelet_ids)
     out = []
     for line in hdmap.stop_lines:
         for k, lid in enumerate(lanelet_ids):
-            if lid == line.lanelet_id:
+            if lid == line.lanelet_id and pieces[k].s1_m == math.inf:
                 out.append(
                     RouteStopLine(
                         stop_line=line, s_m=float(starts[k + 1]), all_way_stop_id=line.all_way_stop_id

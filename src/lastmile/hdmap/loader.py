@@ -212,6 +212,7 @@ def _convert(lmap: Any, name: str) -> HDMap:
     graph = ll2_routing.RoutingGraph(lmap, rules)
     lanelets: dict[int, LaneletInfo] = {}
     successors: dict[int, tuple[int, ...]] = {}
+    beside: dict[int, tuple[int, ...]] = {}
     for lanelet in lmap.laneletLayer:
         # A two-way lanelet is two directed lanelets to a router: the reversed one gets the negated id.
         directions = [lanelet]
@@ -224,12 +225,16 @@ def _convert(lmap: Any, name: str) -> HDMap:
                 continue
             lanelets[lid] = info
             successors[lid] = tuple(_directed_id(f) for f in graph.following(directed, False))
+            sides = (graph.left(directed), graph.right(directed))
+            beside[lid] = tuple(_directed_id(n) for n in sides if n is not None)
     successors = {k: tuple(s for s in v if s in lanelets) for k, v in successors.items()}
+    beside = {k: tuple(s for s in v if s in lanelets) for k, v in beside.items() if k in lanelets}
     stop_lines, all_way_stops = _regulatory(lmap, lanelets, successors)
     return HDMap(
         name=name,
         lanelets=lanelets,
         successor_ids=successors,
+        neighbour_ids={k: v for k, v in beside.items() if v},
         stops=_bus_stops(lmap, lanelets),
         crosswalks=tuple(
             Crosswalk(id=lid, polygon=info.polygon(), width_m=_mean_gap(info.left, info.right))

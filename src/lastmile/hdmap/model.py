@@ -188,6 +188,9 @@ class HDMap:
     signals: tuple[TrafficSignal, ...] = ()
     priority_lanelet_ids: frozenset[int] = frozenset()
     tagged_stops: tuple[TaggedStop, ...] = ()
+    neighbour_ids: Mapping[int, tuple[int, ...]] = field(default_factory=dict)
+    """Lanelets beside each lanelet, same direction, that a lane change may enter (Lanelet2's
+    ``left``/``right``: the line between them permits crossing)."""
     """Lanelets a right-of-way rule names (with priority or yielding): entries of a priority junction."""
     _polygons: dict[int, tuple[FloatArray, FloatArray, FloatArray]] = field(default_factory=dict, repr=False)
 
@@ -206,6 +209,10 @@ class HDMap:
 
     def successors(self, lanelet_id: int) -> tuple[int, ...]:
         return tuple(self.successor_ids.get(lanelet_id, ()))
+
+    def neighbours(self, lanelet_id: int) -> tuple[int, ...]:
+        """Lanelets a lane change from ``lanelet_id`` may enter."""
+        return tuple(self.neighbour_ids.get(lanelet_id, ()))
 
     def lanelet_at(self, x_m: float, y_m: float) -> int | None:
         """A lanelet whose outline contains the point (drivable ones first), else None."""

@@ -31,13 +31,16 @@ from lastmile.hdmap.route_file import (
     heading_rad,
     read_route_file,
 )
-from lastmile.hdmap.routing import lanelet_starts_m, route, route_polyline
+from lastmile.hdmap.routing import lanelet_starts_m, route, route_pieces, route_polyline
 from lastmile.hdmap.waypoints import read_waypoints
 
 GAP_HEADING_TOLERANCE_RAD = math.radians(45.0)
 """A bridged gap joins lanes heading the same way: more than this apart is a turn, not a gap."""
 PLATFORM_MARGIN_M = 5.0  # between a platform and the loop's start, where a bridged gap bends the line
 SAME_PLACE_M = 0.5  # a stop this little ahead of the previous one on its lanelet is the same place
+INTERSECTION_REACH_M = 30.0
+"""Branches and merges this close along the route are one place (a junction box of a few lanes each
+way, or a roundabout's arms)."""
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -80,6 +83,15 @@ class ServiceStop:
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
+class RouteJunction:
+    """Where other traffic leaves (``branch``) or joins (``merge``) the service path, at route s."""
+
+    s_m: float
+    kind: str
+    lanelet_id: int
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
 class ServiceRoute:
     """A service on a map: what the runner needs to build the world and the stack.
 
@@ -92,6 +104,7 @@ class ServiceRoute:
         stops: in service order.
         unmapped_speed_limit_mps: the route file's limit for lanelets whose map states none.
         bridged_gaps: (from lanelet, to lanelet, gap m) links added by ``connect_gaps_m``.
+        junctions: branches and merges along the path, in route s.
     """
 
     name: str
@@ -102,10 +115,21 @@ class ServiceRoute:
     stops: tuple[ServiceStop, ...]
     unmapped_speed_limit_mps: float | None
     bridged_gaps: tuple[tuple[int, int, float], ...] = ()
+    junctions: tuple[RouteJunction, ...] = ()
 
     @property
     def length_m(self) -> float:
         return self.polyline.length_m
+
+    def intersections(self, reach_m: float = INTERSECTION_REACH_M) -> list[tuple[float, float]]:
+        """Junction events grouped into places: (first s, last s) of runs of events within ``reach_m``."""
+        out: list[tuple[float, float]] = []
+        for j in self.junctions:
+            if out and j.s_m - out[-1][1] <= reach_m:
+                out[-1] = (out[-1][0], j.s_m)
+            else:
+                out.append((j.s_m, j.s_m))
+        return out
 
     def layers(self, step_m: float = 1.0) -> SLayerDatabase:
         """The s-layer database along the service path (closed), with the route file's speed limit."""
@@ -153,10 +177,11 @@ def build_service(spec: RouteSpec, hdmap: HDMap) -> ServiceRoute:
     else:
         path, at = _path_through(hdmap, snaps, names)
     polyline = route_polyline(hdmap, path, closed=True)
+    pieces = route_pieces(hdmap, path, closed=True)
     starts = lanelet_starts_m(hdmap, path) * (polyline.length_m / lanelet_starts_m(hdmap, path)[-1])
     stops = []
     for name, (x, y), snap, k, source in zip(names, xy, snaps, at, sources, strict=True):
-        hint = float(starts[k]) + snap.lanelet_s_m
+        hint = float(starts[k]) + max(snap.lanelet_s_m - pieces[k].s0_m, 0.0)
         s = polyline.project(*_on_lane(hdmap, snap), hint_s_m=hint, window_m=20.0).s_m
         # A platform is kept within one lap of route s (consumers compare s_start < s_end): one that
         # would straddle the loop's start slides forward, or back, to end there.
@@ -173,7 +198,27 @@ def build_service(spec: RouteSpec, hdmap: HDMap) -> ServiceRoute:
         stops=tuple(stops),
         unmapped_speed_limit_mps=spec.unmapped_speed_limit_mps,
         bridged_gaps=gaps,
+        junctions=_junctions(hdmap, path, starts),
     )
+
+
+def _junctions(hdmap: HDMap, path: tuple[int, ...], starts: np.ndarray) -> tuple[RouteJunction, ...]:
+    predecessors: dict[int, int] = {}
+    for succ in hdmap.successor_ids.values():
+        for lid in succ:
+            predecessors[lid] = predecessors.get(lid, 0) + 1
+    out = []
+    n = len(path)
+    for k, a in enumerate(path):
+        b = path[(k + 1) % n]
+        if b not in hdmap.successors(a):
+            continue  # a lane change: no junction
+        s = float(starts[k + 1]) % float(starts[-1])
+        if len(hdmap.successors(a)) > 1:
+            out.append(RouteJunction(s_m=s, kind="branch", lanelet_id=a))
+        if predecessors.get(b, 0) > 1:
+            out.append(RouteJunction(s_m=s, kind="merge", lanelet_id=b))
+    return tuple(sorted(out, key=lambda j: j.s_m))
 
 
 def _stop_points(spec: RouteSpec, hdmap: HDMap) -> list[tuple[str, float, float, float | None, str]]:
@@ -272,7 +317,19 @@ def _path_through(hdmap: HDMap, snaps: list[Snap], names: list[str]) -> tuple[tu
             at.append(len(path) - 1)
     if len(path) > 1:
         path.pop()  # the last leg ends on the first stop's lanelet, where the path began
-    return tuple(path), at
+    return _rotate_to_successor(hdmap, path, at)
+
+
+def _rotate_to_successor(hdmap: HDMap, path: list[int], at: list[int]) -> tuple[tuple[int, ...], list[int]]:
+    """Start the closed path after a successor link, so that it closes along one (not a lane change)."""
+    n = len(path)
+    for k in range(n):
+        prev = path[k - 1]
+        if n == 1 or path[k] in hdmap.successors(prev):
+            return tuple(path[k:] + path[:k]), [(i - k) % n for i in at]
+    raise RoutingError(
+        f"route: expected the service path to follow a lane somewhere, got only lane changes {path}"
+    )
 
 
 def _leg(hdmap: HDMap, a: Snap, b: Snap) -> tuple[int, ...]:
@@ -280,12 +337,12 @@ def _leg(hdmap: HDMap, a: Snap, b: Snap) -> tuple[int, ...]:
     if a.lanelet_id == b.lanelet_id and b.lanelet_s_m > a.lanelet_s_m + SAME_PLACE_M:
         return ()
     if a.lanelet_id != b.lanelet_id:
-        return route(hdmap, a.lanelet_id, b.lanelet_id)[1:]
+        return route(hdmap, a.lanelet_id, b.lanelet_id, lane_changes=True)[1:]
     # b is behind a on the same lanelet: leave it and come round again.
     best: tuple[int, ...] | None = None
     for nxt in hdmap.successors(a.lanelet_id):
         try:
-            way = route(hdmap, nxt, a.lanelet_id)
+            way = route(hdmap, nxt, a.lanelet_id, lane_changes=True)
         except RoutingError:
             continue
         if best is None or _length(hdmap, way) < _length(hdmap, best):
@@ -314,7 +371,7 @@ def _path_along_drive(spec: RouteSpec, hdmap: HDMap, snaps: list[Snap]) -> tuple
     path = [seq[0]]
     for a, b in itertools.pairwise([*seq, seq[0]]):
         if a != b:
-            path.extend(route(hdmap, a, b)[1:])
+            path.extend(route(hdmap, a, b, lane_changes=True)[1:])
     if len(path) > 1 and path[-1] == path[0]:
         path.pop()
     on_path = {lid: i for i, lid in enumerate(path)}
@@ -326,7 +383,7 @@ def _path_along_drive(spec: RouteSpec, hdmap: HDMap, snaps: list[Snap]) -> tuple
                 "got it off them"
             )
         at.append(on_path[snap.lanelet_id])
-    return tuple(path), at
+    return _rotate_to_successor(hdmap, path, at)
 
 
 def _bridge_gaps(hdmap: HDMap, gap_m: float) -> tuple[HDMap, tuple[tuple[int, int, float], ...]]:
