@@ -61,7 +61,9 @@ class OsmBuilder:
         **tags: str,
     ) -> int:
         rid = self._id()
-        members = f"<member type='way' role='left' ref='{left}'/><member type='way' role='right' ref='{right}'/>"
+        members = (
+            f"<member type='way' role='left' ref='{left}'/><member type='way' role='right' ref='{right}'/>"
+        )
         members += "".join(f"<member type='relation' role='regulatory_element' ref='{r}'/>" for r in rules)
         all_tags = {"type": "lanelet", "subtype": "road", "location": "urban", "one_way": "yes", **tags}
         body = "".join(f"<tag k='{k}' v='{v}'/>" for k, v in all_tags.items())

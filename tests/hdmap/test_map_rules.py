@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from lastmile.core.errors import MapError
-from lastmile.hdmap import layers as L
+from lastmile.hdmap import layers as codes
 from lastmile.hdmap.layers import SLayerDatabase
 from lastmile.hdmap.loader import load_map
 from lastmile.hdmap.routing import route
@@ -54,7 +54,9 @@ def _crossroads(b: OsmBuilder, reference_from_lanelets: bool) -> dict[str, int]:
 
 
 @pytest.mark.parametrize("referenced", [True, False], ids=["lanelets-reference-rule", "only-rule-lists"])
-def test_every_all_way_stop_line_is_kept_whoever_references_the_rule(tmp_path: Path, referenced: bool) -> None:
+def test_every_all_way_stop_line_is_kept_whoever_references_the_rule(
+    tmp_path: Path, referenced: bool
+) -> None:
     b = OsmBuilder()
     ids = _crossroads(b, reference_from_lanelets=referenced)
     hdmap = _load(b, tmp_path)
@@ -70,7 +72,7 @@ def test_every_all_way_stop_line_is_kept_whoever_references_the_rule(tmp_path: P
     db = SLayerDatabase.build(hdmap, path)
     (rsl,) = db.stop_lines
     assert rsl.all_way_stop_id == ids["rule"] and rsl.s_m == pytest.approx(35.0, abs=0.05)
-    assert set(db.intersection_type[db.lanelet_id == ids["e_mid"]].tolist()) == {L.ALL_WAY_STOP}
+    assert set(db.intersection_type[db.lanelet_id == ids["e_mid"]].tolist()) == {codes.ALL_WAY_STOP}
 
 
 def test_turn_direction_alone_makes_no_driveway(tmp_path: Path) -> None:
@@ -83,8 +85,8 @@ def test_turn_direction_alone_makes_no_driveway(tmp_path: Path) -> None:
     hdmap = _load(b, tmp_path)
     assert hdmap.lanelets[mid].turn == "straight"
     db = SLayerDatabase.build(hdmap, (a, mid, c))
-    assert set(db.road_type.tolist()) == {L.NORMAL}
-    assert set(db.intersection_type.tolist()) == {L.NO_INTERSECTION}
+    assert set(db.road_type.tolist()) == {codes.NORMAL}
+    assert set(db.intersection_type.tolist()) == {codes.NO_INTERSECTION}
 
 
 def test_an_uncontrolled_branch_and_merge_is_a_driveway(tmp_path: Path) -> None:
@@ -102,9 +104,9 @@ def test_an_uncontrolled_branch_and_merge_is_a_driveway(tmp_path: Path) -> None:
     hdmap = _load(b, tmp_path)
     db = SLayerDatabase.build(hdmap, (a, mid, c))
     on_mid = db.lanelet_id == mid
-    assert set(db.road_type[on_mid].tolist()) == {L.DRIVEWAY}
-    assert set(db.intersection_type[on_mid].tolist()) == {L.UNCONTROLLED}
-    assert set(db.road_type[~on_mid].tolist()) == {L.NORMAL}
+    assert set(db.road_type[on_mid].tolist()) == {codes.DRIVEWAY}
+    assert set(db.intersection_type[on_mid].tolist()) == {codes.UNCONTROLLED}
+    assert set(db.road_type[~on_mid].tolist()) == {codes.NORMAL}
 
 
 def test_a_map_without_speed_tags_has_no_speed_limit_not_fifty(tmp_path: Path) -> None:

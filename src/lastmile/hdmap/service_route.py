@@ -317,6 +317,7 @@ def _path_through(hdmap: HDMap, snaps: list[Snap], names: list[str]) -> tuple[tu
             at.append(len(path) - 1)
     if len(path) > 1:
         path.pop()  # the last leg ends on the first stop's lanelet, where the path began
+        at = [k % len(path) for k in at]  # a stop on that last lanelet is on the first one
     return _rotate_to_successor(hdmap, path, at)
 
 

@@ -1,0 +1,217 @@
+"""Route files and ``load_route``: snapping, A* through the stops, patterns, projections, bad input."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pyproj import Transformer
+
+from lastmile.core.errors import ConfigError, MapError, RoutingError
+from lastmile.hdmap.loader import load_projected_map
+from lastmile.hdmap.projection import MapProjection, ProjectionKind, mgrs_square_origin
+from lastmile.hdmap.service_route import load_route
+from tests.hdmap.osm_builder import ORIGIN_LAT_DEG, ORIGIN_LON_DEG, OsmBuilder, straight_lane
+
+UTM = MapProjection(kind=ProjectionKind.UTM, origin_lat_deg=ORIGIN_LAT_DEG, origin_lon_deg=ORIGIN_LON_DEG)
+HEADER = f"""
+[map]
+path = "map.osm"
+projection = "utm"
+origin_lat_deg = {ORIGIN_LAT_DEG}
+origin_lon_deg = {ORIGIN_LON_DEG}
+"""
+
+
+def _arc(cx: float, cy: float, r: float, a0: float, a1: float, n: int = 9) -> list[tuple[float, float]]:
+    return [(cx + r * math.cos(a), cy + r * math.sin(a)) for a in np.linspace(a0, a1, n)]
+
+
+def stadium(b: OsmBuilder, length_m: float = 100.0) -> dict[str, int]:
+    """Eastbound lane on y = 0, westbound on y = 5 (x from 0 to length), U-turn lanelets at both ends."""
+    half = math.pi / 2
+    east = b.lanelet(
+        b.way([(0, 1.75), (length_m / 2, 1.75), (length_m, 1.75)], type="line_thin", subtype="dashed"),
+        b.way([(0, -1.75), (length_m / 2, -1.75), (length_m, -1.75)], type="curbstone"),
+        speed_limit="20",
+    )
+    turn_e = b.lanelet(
+        b.way(_arc(length_m, 2.5, 0.75, -half, half), type="line_thin"),
+        b.way(_arc(length_m, 2.5, 4.25, -half, half), type="curbstone"),
+        speed_limit="20",
+    )
+    west = b.lanelet(
+        b.way([(length_m, 3.25), (length_m / 2, 3.25), (0, 3.25)], type="line_thin", subtype="dashed"),
+        b.way([(length_m, 6.75), (length_m / 2, 6.75), (0, 6.75)], type="curbstone"),
+        speed_limit="20",
+    )
+    turn_w = b.lanelet(
+        b.way(_arc(0, 2.5, 0.75, half, 3 * half), type="line_thin"),
+        b.way(_arc(0, 2.5, 4.25, half, 3 * half), type="curbstone"),
+        speed_limit="20",
+    )
+    return {"east": east, "turn_e": turn_e, "west": west, "turn_w": turn_w}
+
+
+def _write(tmp_path: Path, b: OsmBuilder, body: str, header: str = HEADER) -> Path:
+    b.write(tmp_path / "map.osm")
+    route = tmp_path / "route.toml"
+    route.write_text(header + body, encoding="utf-8")
+    return route
+
+
+def _stop(name: str, x: float, y: float) -> str:
+    return f'\n[[stops]]\nname = "{name}"\nx_m = {x}\ny_m = {y}\n'
+
+
+def test_loop_through_stops_in_order_with_snap_distances(tmp_path: Path) -> None:
+    b = OsmBuilder()
+    ids = stadium(b)
+    route = load_route(_write(tmp_path, b, _stop("A", 20, -1.0) + _stop("B", 80, -1.0) + _stop("C", 50, 7.5)))
+    assert set(route.lanelet_ids) == set(ids.values()) and len(route.lanelet_ids) == 4
+    assert route.polyline.closed
+    assert route.length_m == pytest.approx(2 * 100 + 2 * math.pi * 2.5, rel=0.02)
+    names = [s.name for s in route.stops]
+    assert names == ["A", "B", "C"]
+    a, b_, c = route.stops
+    assert a.snap.lanelet_id == ids["east"] and a.snap.distance_m == 0.0
+    assert c.snap.lanelet_id == ids["west"] and c.snap.distance_m == pytest.approx(0.75, abs=0.05)
+    assert route.polyline.ds_m(a.route_s_m, b_.route_s_m) == pytest.approx(60.0, abs=0.5)
+    assert route.polyline.ds_m(b_.route_s_m, c.route_s_m) == pytest.approx(20 + 50 + math.pi * 2.5, abs=1.0)
+    # The runner's view: the map's stops are the route's (kerbside), and the s-layers place them.
+    assert [s.id for s in route.hdmap.stops] == names
+    db = route.layers()
+    assert [rs.stop.id for rs in db.stops] == ["A", "B", "C"]
+    for rs in db.stops:
+        assert rs.s_end_m - rs.s_start_m == pytest.approx(12.0, abs=0.5)
+        assert rs.curb_d_m == pytest.approx(-1.75, abs=0.1)
+    np.testing.assert_allclose(db.speed_limit_mps, 20 / 3.6)
+
+
+def test_a_stop_behind_the_last_on_its_lanelet_takes_a_lap(tmp_path: Path) -> None:
+    """aUToronto's corner case: the goal lies behind the start on the same lanelet."""
+    b = OsmBuilder()
+    ids = stadium(b)
+    route = load_route(_write(tmp_path, b, _stop("A", 70, -1.0) + _stop("B", 30, -1.0)))
+    assert sorted(route.lanelet_ids) == sorted(ids.values())
+    a, b_ = route.stops
+    lap = route.length_m
+    assert (b_.route_s_m - a.route_s_m) % lap == pytest.approx(lap - 40.0, abs=0.5)
+
+
+def test_out_and_back_serves_the_middle_stops_on_the_other_side(tmp_path: Path) -> None:
+    b = OsmBuilder()
+    ids = stadium(b)
+    body = '\n[service]\npattern = "out_and_back"\n'
+    body += _stop("A", 20, 1.0) + _stop("B", 50, 1.0) + _stop("C", 80, 1.0)
+    route = load_route(_write(tmp_path, b, body))
+    assert [s.name for s in route.stops] == ["A", "B", "C", "B (return)"]
+    assert route.stops[1].snap.lanelet_id == ids["east"]
+    assert route.stops[3].snap.lanelet_id == ids["west"]
+    assert route.stops[3].snap.distance_m == pytest.approx(2.25, abs=0.05)
+
+
+def test_latitude_longitude_stops_and_a_recorded_drive(tmp_path: Path) -> None:
+    b = OsmBuilder()
+    stadium(b)
+    (lat_a, lon_a), (lat_b, lon_b) = UTM.latlon_from_xy(np.array([[20.0, -1.0], [80.0, 6.0]]))
+    body = '\n[service]\nwaypoints = "drive.csv"\n'
+    body += f'\n[[stops]]\nname = "A"\nlat_deg = {lat_a}\nlon_deg = {lon_a}\n'
+    body += f'\n[[stops]]\nname = "B"\nlat_deg = {lat_b}\nlon_deg = {lon_b}\n'
+    drive = np.array([[x, 0.0] for x in range(5, 100, 10)] + [[x, 5.0] for x in range(95, 0, -10)])
+    latlon = UTM.latlon_from_xy(drive)
+    rows = "\n".join(f"{la:.9f},{lo:.9f},2.5" for la, lo in latlon)
+    (tmp_path / "drive.csv").write_text("lat,lon,speed\n" + rows + "\n", encoding="utf-8")
+    route = load_route(_write(tmp_path, b, body))
+    assert len(route.lanelet_ids) == 4
+    assert route.stops[0].x_m == pytest.approx(20.0, abs=1e-6)
+    assert route.stops[1].y_m == pytest.approx(6.0, abs=1e-6)
+    (tmp_path / "drive.csv").write_text("lat,lon,speed\n49.0,8.4\n", encoding="utf-8")
+    with pytest.raises(ConfigError, match="line 2: expected three numbers"):
+        load_route(tmp_path / "route.toml")
+
+
+def test_bad_routes_get_one_clear_line(tmp_path: Path) -> None:
+    b = OsmBuilder()
+    stadium(b)
+    with pytest.raises(MapError, match=r"'Far'.*within 5 m"):
+        load_route(_write(tmp_path, b, _stop("A", 20, -1.0) + _stop("Far", 50, -12.0)))
+    with pytest.raises(ConfigError, match=r"map\.projection: expected 'utm'"):
+        load_route(
+            _write(tmp_path, b, _stop("A", 20, -1) + _stop("B", 50, -1), header='[map]\npath = "map.osm"\n')
+        )
+    with pytest.raises(ConfigError, match="at least two"):
+        load_route(_write(tmp_path, b, _stop("A", 20, -1)))
+    with pytest.raises(ConfigError, match="unknown key"):
+        load_route(_write(tmp_path, b, _stop("A", 20, -1) + _stop("B", 50, -1) + "speed = 3\n"))
+    with pytest.raises(MapError, match="wrong origin"):
+        far = HEADER.replace(f"origin_lon_deg = {ORIGIN_LON_DEG}", "origin_lon_deg = 12.0")
+        load_route(_write(tmp_path, b, _stop("A", 20, -1) + _stop("B", 50, -1), header=far))
+    with pytest.raises(ConfigError, match="lat_deg/lon_deg need a geographic projection"):
+        local = '[map]\npath = "map.osm"\nprojection = "local"\n'
+        load_route(
+            _write(
+                tmp_path,
+                b,
+                '\n[[stops]]\nname = "A"\nlat_deg = 49.0\nlon_deg = 8.4\n' + _stop("B", 1, 1),
+                header=local,
+            )
+        )
+
+
+def test_stops_with_no_way_between_them(tmp_path: Path) -> None:
+    b = OsmBuilder()
+    straight_lane(b, 0, 0, 50, 0, speed_limit="20")
+    straight_lane(b, 0, 30, 50, 30, speed_limit="20")
+    with pytest.raises(RoutingError, match=r"from stop 'A'.*to stop 'B'"):
+        load_route(_write(tmp_path, b, _stop("A", 20, 0) + _stop("B", 20, 30)))
+
+
+@pytest.mark.parametrize(
+    ("text", "suffix", "match"),
+    [
+        ("<osm><node id='1' lat='x'", ".osm", "expected Lanelet2 OSM XML"),
+        ("<?xml version='1.0'?><osm version='0.6'></osm>", ".osm", "at least one lanelet"),
+        ("<OpenDRIVE/>", ".xodr", "convert it to Lanelet2 first"),
+        ("<osm/>", ".osm_xy", "convert it to .osm first"),
+    ],
+)
+def test_bad_maps_get_one_clear_line(tmp_path: Path, text: str, suffix: str, match: str) -> None:
+    path = tmp_path / f"bad{suffix}"
+    path.write_text(text, encoding="utf-8")
+    with pytest.raises(MapError, match=match):
+        load_projected_map(path, UTM)
+
+
+def test_autoware_local_coordinates_and_the_mgrs_grid(tmp_path: Path) -> None:
+    """Nodes carry local_x/local_y (metres in the MGRS square 32UMV, Karlsruhe's) beside lat/lon."""
+    e0, n0 = 400_000.0, 5_400_000.0  # south-west corner of 32UMV
+    assert mgrs_square_origin("32UMV") == (32, True, e0, n0)
+    to_utm = Transformer.from_crs("EPSG:4326", "EPSG:32632", always_xy=True)
+    origin_e, origin_n = to_utm.transform(ORIGIN_LON_DEG, ORIGIN_LAT_DEG)
+    offset = (origin_e - e0, origin_n - n0)  # our test map's (0, 0) in the square, from pyproj alone
+    b = OsmBuilder(local_tags=True, local_offset=offset)
+    lane = straight_lane(b, 0, 0, 40, 0, speed_limit="20")
+    path = b.write(tmp_path / "lanelet2_map.osm")
+    mgrs = load_projected_map(path, MapProjection(kind=ProjectionKind.MGRS, mgrs_grid="32UMV"))
+    start = mgrs.lanelets[lane].centerline.xy_m[0]
+    np.testing.assert_allclose(start, np.array(offset), atol=1e-3)
+    local = load_projected_map(path, MapProjection(kind=ProjectionKind.LOCAL))
+    np.testing.assert_allclose(local.lanelets[lane].centerline.xy_m[0], np.array(offset), atol=1e-3)
+    with pytest.raises(MapError, match="wrong MGRS grid"):
+        load_projected_map(path, MapProjection(kind=ProjectionKind.MGRS, mgrs_grid="32UMU"))
+    (tmp_path / "map_projector_info.yaml").write_text("projector_type: MGRS\nmgrs_grid: 32UMV\n")
+    body = '[map]\npath = "lanelet2_map.osm"\nprojection = "mgrs"\n'
+    (tmp_path / "route.toml").write_text(
+        body + _stop("A", offset[0] + 5, offset[1]) + _stop("B", offset[0] + 30, offset[1])
+    )
+    with pytest.raises(RoutingError):  # a straight one-way lane: no way back from B to A
+        load_route(tmp_path / "route.toml")
+    untagged = OsmBuilder()
+    straight_lane(untagged, 0, 0, 40, 0)
+    with pytest.raises(MapError, match="local_x/local_y tags on every node"):
+        load_projected_map(untagged.write(tmp_path / "plain.osm"), MapProjection(kind=ProjectionKind.LOCAL))
+    with pytest.raises(MapError, match="MGRS grid"):
+        MapProjection(kind=ProjectionKind.MGRS, mgrs_grid="44QIO")
