@@ -215,3 +215,29 @@ def test_autoware_local_coordinates_and_the_mgrs_grid(tmp_path: Path) -> None:
         load_projected_map(untagged.write(tmp_path / "plain.osm"), MapProjection(kind=ProjectionKind.LOCAL))
     with pytest.raises(MapError, match="MGRS grid"):
         MapProjection(kind=ProjectionKind.MGRS, mgrs_grid="44QIO")
+
+
+def test_campus_service_is_the_campus_loop_and_layers_unchanged() -> None:
+    """The runner can hold every service as a ServiceRoute: the campus one is bit for bit today's."""
+    from lastmile.hdmap.layers import SLayerDatabase
+    from lastmile.hdmap.loader import load_campus_map
+    from lastmile.hdmap.routing import campus_shuttle_loop, route_polyline
+    from lastmile.hdmap.service_route import campus_service
+
+    hdmap = load_campus_map()
+    ids = campus_shuttle_loop(hdmap)
+    service = campus_service()
+    assert service.hdmap is hdmap and service.lanelet_ids == ids
+    np.testing.assert_array_equal(service.polyline.xy_m, route_polyline(hdmap, ids, closed=True).xy_m)
+    old = SLayerDatabase.build(hdmap, ids, step_m=1.0, closed=True)
+    new = service.layers(step_m=1.0)
+    for name in (
+        "s_m",
+        "speed_limit_mps",
+        "lane_right_d_m",
+        "curb_right_d_m",
+        "road_type",
+        "intersection_type",
+    ):
+        np.testing.assert_array_equal(getattr(new, name), getattr(old, name))
+    assert [rs.stop.id for rs in new.stops] == [s.name for s in service.stops] == ["S1", "S2", "S3", "S4"]

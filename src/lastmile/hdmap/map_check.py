@@ -207,12 +207,13 @@ def _route(route: ServiceRoute) -> CheckItem:
         if b not in route.hdmap.successors(a)
     )
     far = max(s.snap.distance_m for s in route.stops)
+    pattern = route.spec.pattern.value if route.spec else "loop"
     stops = ", ".join(f"{s.name} @ {s.route_s_m:.0f} m (snap {s.snap.distance_m:.1f} m)" for s in route.stops)
     gaps = "".join(f"; bridged a {g:.1f} m gap {a} -> {b}" for a, b, g in route.bridged_gaps)
     return CheckItem(
         layer="route",
         status=Status.OK,
-        detail=f"{route.spec.pattern.value} of {route.length_m:.0f} m through {len(route.stops)} stops over "
+        detail=f"{pattern} of {route.length_m:.0f} m through {len(route.stops)} stops over "
         f"{len(route.lanelet_ids)} lanelets, {changes} lane changes, {len(route.junctions)} branches/merges "
         f"at {len(route.intersections())} places; farthest snap {far:.1f} m{gaps}. Stops: {stops}",
     )

@@ -21,7 +21,7 @@ from lastmile.core.errors import ConfigError, MapError, RoutingError
 from lastmile.core.geometry import point_in_polygon
 from lastmile.core.polyline import Polyline
 from lastmile.hdmap.layers import SLayerDatabase
-from lastmile.hdmap.loader import load_projected_map
+from lastmile.hdmap.loader import load_campus_map, load_projected_map
 from lastmile.hdmap.model import DRIVABLE_SUBTYPES, BusStop, HDMap
 from lastmile.hdmap.route_file import (
     MAX_SNAP_M,
@@ -31,7 +31,7 @@ from lastmile.hdmap.route_file import (
     heading_rad,
     read_route_file,
 )
-from lastmile.hdmap.routing import lanelet_starts_m, route, route_pieces, route_polyline
+from lastmile.hdmap.routing import campus_shuttle_loop, lanelet_starts_m, route, route_pieces, route_polyline
 from lastmile.hdmap.waypoints import read_waypoints
 
 GAP_HEADING_TOLERANCE_RAD = math.radians(45.0)
@@ -65,7 +65,8 @@ class ServiceStop:
     """A stop of the service, in service order.
 
     Attributes:
-        name: unique within the route (the return side of an out-and-back stop is "NAME (return)").
+        name: unique within the route, and the id of its ``BusStop`` in ``ServiceRoute.hdmap`` (the
+            return side of an out-and-back stop is "NAME (return)").
         x_m, y_m: where the route file (or the map) put it, map frame.
         snap: its lanelet, and how far it was from it.
         route_s_m: along ``ServiceRoute.polyline``; a stop whose platform would straddle the loop's
@@ -108,7 +109,7 @@ class ServiceRoute:
     """
 
     name: str
-    spec: RouteSpec
+    spec: RouteSpec | None
     hdmap: HDMap
     lanelet_ids: tuple[int, ...]
     polyline: Polyline
@@ -153,6 +154,43 @@ def load_route(path: str | Path) -> ServiceRoute:
     spec = read_route_file(path)
     hdmap = load_projected_map(spec.map_path, spec.projection)
     return build_service(spec, hdmap)
+
+
+def campus_service() -> ServiceRoute:
+    """The built-in campus service as a ServiceRoute: its ring loop and its four bays, exactly as
+    ``campus_shuttle_loop`` and ``SLayerDatabase.build`` give them (the same path, s and layers)."""
+    hdmap = load_campus_map()
+    ids = campus_shuttle_loop(hdmap)
+    polyline = route_polyline(hdmap, ids, closed=True)
+    stops = []
+    for bay in hdmap.stops:
+        mid = bay.curb.xy_m[len(bay.curb.xy_m) // 2]
+        lane = hdmap.lanelets[bay.lane_lanelet_id].centerline
+        on_lane = lane.project(float(mid[0]), float(mid[1]))
+        snap = Snap(
+            lanelet_id=bay.lane_lanelet_id,
+            lanelet_s_m=float(on_lane.s_m),
+            offset_m=float(on_lane.d_m),
+            distance_m=0.0,  # a mapped bay needs no snapping
+        )
+        s = polyline.project(float(mid[0]), float(mid[1])).s_m
+        stops.append(
+            ServiceStop(
+                name=bay.id, x_m=float(mid[0]), y_m=float(mid[1]), snap=snap, route_s_m=float(s), source="bay"
+            )
+        )
+    stops.sort(key=lambda st: st.route_s_m)
+    starts = lanelet_starts_m(hdmap, ids)
+    return ServiceRoute(
+        name="campus",
+        spec=None,
+        hdmap=hdmap,
+        lanelet_ids=ids,
+        polyline=polyline,
+        stops=tuple(stops),
+        unmapped_speed_limit_mps=None,
+        junctions=_junctions(hdmap, ids, starts),
+    )
 
 
 def build_service(spec: RouteSpec, hdmap: HDMap) -> ServiceRoute:
