@@ -172,3 +172,11 @@ def test_tagged_stop_nodes_are_offered(tmp_path: Path) -> None:
     (stop,) = hdmap.tagged_stops
     assert stop.name == "Library" and stop.source == "lastmile:bus_stop"
     assert stop.x_m == pytest.approx(12.0, abs=0.05) and stop.y_m == pytest.approx(-2.5, abs=0.05)
+
+
+@pytest.mark.parametrize("tag", ["fast", "-5"])
+def test_a_speed_tag_lanelet2_cannot_read_is_an_error_not_zero(tmp_path: Path, tag: str) -> None:
+    b = OsmBuilder()
+    straight_lane(b, 0, 0, 30, 0, speed_limit=tag)
+    with pytest.raises(MapError, match=f"positive speed_limit.*got '{tag}'"):
+        _load(b, tmp_path)

@@ -328,7 +328,15 @@ def _mapped_speed_limit_mps(lanelet: Any, rules: Any) -> float:
     stated = "speed_limit" in lanelet.attributes or any(
         isinstance(rule, ll2.SpeedLimit) for rule in lanelet.regulatoryElements
     )
-    return float(rules.speedLimit(lanelet).speedLimitMPS) if stated else math.nan
+    if not stated:
+        return math.nan
+    limit = float(rules.speedLimit(lanelet).speedLimitMPS)
+    if not (math.isfinite(limit) and limit > 0):  # Lanelet2 reads "fast" as 0 and "-5" as -5 km/h
+        tag = _attr(lanelet.attributes, "speed_limit", "a speed-limit rule")
+        raise MapError(
+            f"lanelet {lanelet.id}: expected a positive speed_limit (such as '30' or '30 km/h'), got {tag!r}"
+        )
+    return limit
 
 
 def _mean_gap(a: Polyline, b: Polyline) -> float:
