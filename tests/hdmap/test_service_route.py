@@ -241,3 +241,23 @@ def test_campus_service_is_the_campus_loop_and_layers_unchanged() -> None:
     ):
         np.testing.assert_array_equal(getattr(new, name), getattr(old, name))
     assert [rs.stop.id for rs in new.stops] == [s.name for s in service.stops] == ["S1", "S2", "S3", "S4"]
+
+
+def test_stops_read_from_the_map_ours_and_autowares(tmp_path: Path) -> None:
+    b = OsmBuilder()
+    ids = stadium(b)
+    b.node(30.0, -2.5, **{"lastmile:bus_stop": "Library"})
+    area = b.way([(68, -2), (72, -2), (72, -3), (68, -3), (68, -2)], type="bus_stop_area", area="yes")
+    b.relation([("way", "refers", area)], type="regulatory_element", subtype="bus_stop_area", name="Gym")
+    body = '\n[service]\nstops_from = "map"\norder = ["Gym", "Library"]\n'
+    route = load_route(_write(tmp_path, b, body))
+    assert [(s.name, s.source) for s in route.stops] == [
+        ("Gym", "autoware:bus_stop_area"),
+        ("Library", "lastmile:bus_stop"),
+    ]
+    assert all(s.snap.lanelet_id == ids["east"] for s in route.stops)
+    # Lanelet2 has no class for Autoware's rule: the map loads, the rule is counted as not read.
+    assert route.hdmap.unread_rules == (("bus_stop_area", 1),)
+    assert route.stops[0].x_m == pytest.approx(70.0, abs=0.5)
+    with pytest.raises(ConfigError, match="'Pool'"):
+        load_route(_write(tmp_path, b, '\n[service]\nstops_from = "map"\norder = ["Gym", "Pool"]\n'))

@@ -6,11 +6,14 @@ Lanelet2 does the parsing, the projection, the traffic rules (speed limits) and 
 
 from __future__ import annotations
 
+import dataclasses
 import math
+import re
 from collections.abc import Iterable
 from functools import lru_cache
 from pathlib import Path
 from typing import Any
+from xml.etree import ElementTree
 
 import lanelet2.core as ll2
 import lanelet2.routing as ll2_routing
@@ -80,6 +83,7 @@ def load_projected_map(path: str | Path, projection: MapProjection, name: str = 
         lmap, errors = loadRobust(str(path), projector)
     except RuntimeError as exc:  # lanelet2 raises ParseError (a RuntimeError) on XML it cannot read
         raise MapError(f"map {str(path)!r}: expected Lanelet2 OSM XML, lanelet2 said: {exc}") from exc
+    unknown_rules, errors = _split_unknown_rules(errors)
     if errors:
         shown = "; ".join(errors[:3]) + (f" (and {len(errors) - 3} more)" if len(errors) > 3 else "")
         raise MapError(
@@ -91,7 +95,51 @@ def load_projected_map(path: str | Path, projection: MapProjection, name: str = 
         _check_near_origin(lmap, path, projection)
     else:
         _to_local_frame(lmap, path, projection, projector)
-    return _convert(lmap, name or path.stem)
+    hdmap = _convert(lmap, name or path.stem)
+    if not unknown_rules:
+        return hdmap
+    names = _autoware_bus_stop_names(path) if AUTOWARE_BUS_STOP in dict(unknown_rules) else {}
+    tagged = tuple(
+        dataclasses.replace(t, name=names.get(t.id, t.name)) if t.source.startswith("autoware:") else t
+        for t in hdmap.tagged_stops
+    )
+    return dataclasses.replace(hdmap, unread_rules=unknown_rules, tagged_stops=tagged)
+
+
+_UNKNOWN_RULE = re.compile(r"No regulatory element found that implements rule (\S+)")
+
+
+def _split_unknown_rules(errors: list[str]) -> tuple[tuple[tuple[str, int], ...], list[str]]:
+    """Lanelet2 reports the rules it has no class for (Autoware's bus_stop_area, detection_area, ...)
+    as parse errors and leaves them out; they are extensions, not a broken map. They are counted (map
+    check lists them) and only the other errors remain errors."""
+    counts: dict[str, int] = {}
+    rest = []
+    for err in errors:
+        found = _UNKNOWN_RULE.search(err)
+        if found:
+            counts[found.group(1)] = counts.get(found.group(1), 0) + 1
+        elif not err.startswith("Errors ocurred while parsing"):  # Lanelet2's header line (sic)
+            rest.append(err)
+    if not counts:
+        return (), list(errors)
+    return tuple(sorted(counts.items())), rest
+
+
+def _autoware_bus_stop_names(path: Path) -> dict[int, str]:
+    """The ``name`` of each Autoware bus_stop_area rule, by the ids of the areas it refers to (Lanelet2
+    drops the rule itself, see ``_split_unknown_rules``)."""
+    out: dict[int, str] = {}
+    for _, elem in ElementTree.iterparse(path):
+        if elem.tag != "relation":
+            continue
+        tags = {t.get("k"): t.get("v") for t in elem.iter("tag")}
+        if tags.get("subtype") == AUTOWARE_BUS_STOP and tags.get("name"):
+            for member in elem.iter("member"):
+                if member.get("role") == "refers":
+                    out[int(member.get("ref", "0"))] = str(tags["name"])
+        elem.clear()
+    return out
 
 
 def _check_format(path: Path) -> None:

@@ -246,6 +246,10 @@ def _rules(hdmap: HDMap, db: SLayerDatabase | None) -> CheckItem:
         f"({len(hdmap.traffic_lights)} heads), {len(hdmap.crosswalks)} crosswalks, "
         f"{len(hdmap.stop_lines)} stop lines"
     )
+    if hdmap.unread_rules:
+        counts += "; not read (Lanelet2 has no class for them): " + ", ".join(
+            f"{name} x{n}" for name, n in hdmap.unread_rules
+        )
     if db is not None:
         counts += (
             f"; along the route {len(db.stop_lines)} stop lines ({len(db.signal_stop_lines)} signalised), "

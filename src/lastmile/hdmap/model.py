@@ -188,6 +188,8 @@ class HDMap:
     signals: tuple[TrafficSignal, ...] = ()
     priority_lanelet_ids: frozenset[int] = frozenset()
     tagged_stops: tuple[TaggedStop, ...] = ()
+    unread_rules: tuple[tuple[str, int], ...] = ()
+    """Regulatory elements Lanelet2 has no class for (Autoware extensions), by subtype and count: left out."""
     neighbour_ids: Mapping[int, tuple[int, ...]] = field(default_factory=dict)
     """Lanelets beside each lanelet, same direction, that a lane change may enter (Lanelet2's
     ``left``/``right``: the line between them permits crossing)."""
