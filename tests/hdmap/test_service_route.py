@@ -261,3 +261,13 @@ def test_stops_read_from_the_map_ours_and_autowares(tmp_path: Path) -> None:
     assert route.stops[0].x_m == pytest.approx(70.0, abs=0.5)
     with pytest.raises(ConfigError, match="'Pool'"):
         load_route(_write(tmp_path, b, '\n[service]\nstops_from = "map"\norder = ["Gym", "Pool"]\n'))
+
+
+def test_a_stop_heading_picks_the_lane_between_two_equally_near(tmp_path: Path) -> None:
+    b = OsmBuilder()
+    ids = stadium(b)
+    body = _stop("A", 20, -1.0) + '\n[[stops]]\nname = "Mid"\nx_m = 50.0\ny_m = 2.5\nheading_deg = 180.0\n'
+    route = load_route(_write(tmp_path, b, body))
+    assert route.stops[1].snap.lanelet_id == ids["west"]
+    body = _stop("A", 20, -1.0) + '\n[[stops]]\nname = "Mid"\nx_m = 50.0\ny_m = 2.5\nheading_deg = 0.0\n'
+    assert load_route(_write(tmp_path, b, body)).stops[1].snap.lanelet_id == ids["east"]

@@ -19,8 +19,8 @@ from lastmile.hdmap.layers import SLayerDatabase
 from lastmile.hdmap.loader import load_projected_map
 from lastmile.hdmap.model import DRIVABLE_SUBTYPES, HDMap
 from lastmile.hdmap.projection import PROJECTOR_INFO_FILE, MapProjection, parse_projector, read_projector_info
-from lastmile.hdmap.route_file import read_route_file
-from lastmile.hdmap.service_route import ServiceRoute, build_service
+from lastmile.hdmap.route_file import MAX_SNAP_M, read_route_file
+from lastmile.hdmap.service_route import ServiceRoute, bridge_gaps, build_service
 
 
 class Status(enum.Enum):
@@ -149,9 +149,19 @@ def _largest_circuit(hdmap: HDMap) -> str:
     """The largest set of drivable lanelets that all reach each other (successors and lane changes)."""
     drv = set(_drivable(hdmap))
     adj = {k: [n for n in (*hdmap.successors(k), *hdmap.neighbours(k)) if n in drv] for k in drv}
-    best = max(_strong_components(adj), key=len, default=[])
+    circuits = [c for c in _strong_components(adj) if len(c) > 1 or c[0] in adj[c[0]]]
+    _, gaps = bridge_gaps(hdmap, 2 * MAX_SNAP_M)
+    hint = (
+        f"; {len(gaps)} dead ends lie within {2 * MAX_SNAP_M:g} m of a lane start heading the same way "
+        f"(route files bridge them with map.connect_gaps_m, smallest {min(g for _, _, g in gaps):.1f} m)"
+        if gaps
+        else ""
+    )
+    if not circuits:
+        return "none (no set of lanelets that reach each other)" + hint
+    best = max(circuits, key=len)
     metres = sum(hdmap.lanelets[k].centerline.length_m for k in best)
-    return f"{len(best)} lanelets, {metres:.0f} m of lane"
+    return f"{len(best)} lanelets, {metres:.0f} m of lane" + hint
 
 
 def _strong_components(adj: dict[int, list[int]]) -> list[list[int]]:

@@ -195,7 +195,7 @@ def campus_service() -> ServiceRoute:
 
 def build_service(spec: RouteSpec, hdmap: HDMap) -> ServiceRoute:
     """The service of ``spec`` on an already loaded ``hdmap`` (see ``load_route``)."""
-    hdmap, gaps = _bridge_gaps(hdmap, spec.connect_gaps_m)
+    hdmap, gaps = bridge_gaps(hdmap, spec.connect_gaps_m)
     points = _stop_points(spec, hdmap)
     snaps = [_snap(hdmap, name, x, y, heading) for name, x, y, heading, _ in points]
     names = [p[0] for p in points]
@@ -425,7 +425,7 @@ def _path_along_drive(spec: RouteSpec, hdmap: HDMap, snaps: list[Snap]) -> tuple
     return _rotate_to_successor(hdmap, path, at)
 
 
-def _bridge_gaps(hdmap: HDMap, gap_m: float) -> tuple[HDMap, tuple[tuple[int, int, float], ...]]:
+def bridge_gaps(hdmap: HDMap, gap_m: float) -> tuple[HDMap, tuple[tuple[int, int, float], ...]]:
     """Link lanelet ends to lanelet starts within ``gap_m`` that head the same way and are not linked."""
     if gap_m <= 0:
         return hdmap, ()
