@@ -271,3 +271,48 @@ def test_a_stop_heading_picks_the_lane_between_two_equally_near(tmp_path: Path) 
     assert route.stops[1].snap.lanelet_id == ids["west"]
     body = _stop("A", 20, -1.0) + '\n[[stops]]\nname = "Mid"\nx_m = 50.0\ny_m = 2.5\nheading_deg = 0.0\n'
     assert load_route(_write(tmp_path, b, body)).stops[1].snap.lanelet_id == ids["east"]
+
+
+def test_a_stop_on_a_passing_lane_is_reached_by_lane_changes(tmp_path: Path) -> None:
+    """Two lanes eastbound between x = 20 and 80 (the left one a dead-end passing lane), one lane back
+    on y = 12. A* reaches the stop on the passing lane by a lane change and leaves it by another."""
+    b = OsmBuilder()
+    half = math.pi / 2
+    dashed = b.way([(20, 1.75), (50, 1.75), (80, 1.75)], type="line_thin", subtype="dashed")
+    curb = "curbstone"
+    r1 = b.lanelet(
+        b.way([(0, 1.75), (20, 1.75)], type="line_thin"), b.way([(0, -1.75), (20, -1.75)], type=curb)
+    )
+    r2 = b.lanelet(dashed, b.way([(20, -1.75), (50, -1.75), (80, -1.75)], type=curb))
+    r3 = b.lanelet(
+        b.way([(80, 1.75), (100, 1.75)], type="line_thin"), b.way([(80, -1.75), (100, -1.75)], type=curb)
+    )
+    passing = b.lanelet(b.way([(20, 5.25), (50, 5.25), (80, 5.25)], type=curb), dashed)
+    b.lanelet(
+        b.way(_arc(100, 6, 4.25, -half, half), type="line_thin"),
+        b.way(_arc(100, 6, 7.75, -half, half), type=curb),
+    )
+    west = b.lanelet(
+        b.way([(100, 10.25), (50, 10.25), (0, 10.25)], type="line_thin"),
+        b.way([(100, 13.75), (50, 13.75), (0, 13.75)], type=curb),
+    )
+    b.lanelet(
+        b.way(_arc(0, 6, 4.25, half, 3 * half), type="line_thin"),
+        b.way(_arc(0, 6, 7.75, half, 3 * half), type=curb),
+    )
+    header = HEADER + "unmapped_speed_limit_kph = 15.0\n"
+    route = load_route(
+        _write(tmp_path, b, _stop("A", 10, -1) + _stop("B", 70, 4.5) + _stop("C", 50, 13), header=header)
+    )
+    assert [s.snap.lanelet_id for s in route.stops] == [r1, passing, west]
+    ids = route.lanelet_ids
+    assert ids.count(r2) == 2 and passing in ids and r3 in ids
+    changes = [
+        (a, c) for a, c in zip(ids, (*ids[1:], ids[0]), strict=True) if c not in route.hdmap.successors(a)
+    ]
+    assert changes == [(r2, passing), (passing, r2)]
+    steps = np.hypot(*np.diff(route.polyline.xy_m, axis=0).T)
+    assert steps.max() < 32.0  # one continuous line: the changes are short diagonals, no jumps back
+    db = route.layers()
+    np.testing.assert_allclose(db.speed_limit_mps, 15 / 3.6)
+    assert [rs.stop.id for rs in db.stops] == ["A", "B", "C"]
