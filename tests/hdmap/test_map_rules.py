@@ -180,3 +180,46 @@ def test_a_speed_tag_lanelet2_cannot_read_is_an_error_not_zero(tmp_path: Path, t
     straight_lane(b, 0, 0, 30, 0, speed_limit=tag)
     with pytest.raises(MapError, match=f"positive speed_limit.*got '{tag}'"):
         _load(b, tmp_path)
+
+
+def _plain_crossroads(b: OsmBuilder, east_rule: int | None = None) -> dict[str, int]:
+    """Eastbound and northbound lanes crossing at (0, 0), no turns: only their overlap tells the junction."""
+    refs = (east_rule,) if east_rule is not None else ()
+    return {
+        "e_in": straight_lane(b, -40, 0, -5, 0, rules=refs, speed_limit="30"),
+        "e_mid": straight_lane(b, -5, 0, 5, 0, left_type="virtual", right_type="virtual", speed_limit="30"),
+        "e_out": straight_lane(b, 5, 0, 40, 0, speed_limit="30"),
+        "n_in": straight_lane(b, 0, -40, 0, -5, speed_limit="30"),
+        "n_mid": straight_lane(b, 0, -5, 0, 5, left_type="virtual", right_type="virtual", speed_limit="30"),
+        "n_out": straight_lane(b, 0, 5, 0, 40, speed_limit="30"),
+    }
+
+
+@pytest.mark.parametrize("control", ["none", "traffic_light", "right_of_way"])
+def test_a_crossing_is_typed_by_its_control(tmp_path: Path, control: str) -> None:
+    b = OsmBuilder()
+    rule = b.reserve() if control != "none" else None
+    ids = _plain_crossroads(b, rule)
+    if rule is not None:
+        line = b.way([(-5, -1.75), (-5, 1.75)], type="stop_line")
+        if control == "traffic_light":
+            head = b.way([(8, -3.0), (8, -2.6)], type="traffic_light", subtype="red_yellow_green", height="1")
+            members = [("way", "refers", head), ("way", "ref_line", line)]
+        else:
+            members = [("relation", "yield", ids["e_in"]), ("relation", "right_of_way", ids["n_in"])]
+            members.append(("way", "ref_line", line))
+        b.relation_with_id(rule, members, type="regulatory_element", subtype=control)
+    hdmap = _load(b, tmp_path)
+    assert ids["n_mid"] in hdmap.conflict_ids[ids["e_mid"]]
+    db = SLayerDatabase.build(hdmap, (ids["e_in"], ids["e_mid"], ids["e_out"]))
+    on_mid = db.lanelet_id == ids["e_mid"]
+    expected = {
+        "none": (codes.DRIVEWAY, codes.UNCONTROLLED),
+        "traffic_light": (codes.INTERSECTION, codes.SIGNALISED),
+        "right_of_way": (codes.INTERSECTION, codes.PRIORITY),
+    }[control]
+    assert (set(db.road_type[on_mid].tolist()), set(db.intersection_type[on_mid].tolist())) == (
+        {expected[0]},
+        {expected[1]},
+    )
+    assert set(db.road_type[~on_mid].tolist()) == {codes.NORMAL}

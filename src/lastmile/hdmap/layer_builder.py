@@ -158,8 +158,9 @@ def _curb_lanelets(hdmap: HDMap, lanelet_ids: tuple[int, ...]) -> dict[int, Lane
 def _road_types(
     hdmap: HDMap, lanelet_ids: tuple[int, ...], lane_of: np.ndarray, n: int
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Junction records: inside an all-way stop, past a signal or a right-of-way rule's entry where
-    the route branches or merges (intersection), or at an uncontrolled branch-and-merge (driveway)."""
+    """Junction records: inside an all-way stop, or past a signal's or a right-of-way rule's entry
+    where the route branches, merges or crosses another lane's path (intersection); at an uncontrolled
+    branch-and-merge or crossing (driveway)."""
     predecessors: dict[int, int] = {}
     for succ in hdmap.successor_ids.values():
         for lid in succ:
@@ -178,14 +179,16 @@ def _road_types(
             prev is not None and lid in hdmap.successor_ids.get(prev, ()) and len(hdmap.successors(prev)) > 1
         )
         merges = nxt is not None and nxt in hdmap.successor_ids.get(lid, ()) and predecessors.get(nxt, 0) > 1
+        crosses = bool(hdmap.conflict_ids.get(lid))  # another lane's path overlaps this one
+        at_junction = branches or merges or crosses
         mask = lane_of == lid
         if lid in inside_stop:
             road[mask], junction[mask] = INTERSECTION, ALL_WAY_STOP
-        elif (branches or merges) and prev in signal_entries:
+        elif at_junction and prev in signal_entries:
             road[mask], junction[mask] = INTERSECTION, SIGNALISED
-        elif (branches or merges) and prev in hdmap.priority_lanelet_ids:
+        elif at_junction and prev in hdmap.priority_lanelet_ids:
             road[mask], junction[mask] = INTERSECTION, PRIORITY
-        elif (branches and merges) or ((branches or merges) and hdmap.lanelets[lid].turn in TURNS):
+        elif (branches and merges) or crosses or (at_junction and hdmap.lanelets[lid].turn in TURNS):
             road[mask], junction[mask] = DRIVEWAY, UNCONTROLLED
     return road, junction
 

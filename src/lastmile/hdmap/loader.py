@@ -261,6 +261,7 @@ def _convert(lmap: Any, name: str) -> HDMap:
     lanelets: dict[int, LaneletInfo] = {}
     successors: dict[int, tuple[int, ...]] = {}
     beside: dict[int, tuple[int, ...]] = {}
+    crossing: dict[int, tuple[int, ...]] = {}
     for lanelet in lmap.laneletLayer:
         # A two-way lanelet is two directed lanelets to a router: the reversed one gets the negated id.
         directions = [lanelet]
@@ -275,14 +276,19 @@ def _convert(lmap: Any, name: str) -> HDMap:
             successors[lid] = tuple(_directed_id(f) for f in graph.following(directed, False))
             sides = (graph.left(directed), graph.right(directed))
             beside[lid] = tuple(_directed_id(n) for n in sides if n is not None)
+            crossing[lid] = tuple(
+                _directed_id(c) for c in graph.conflicting(directed) if isinstance(c, ll2.ConstLanelet)
+            )
     successors = {k: tuple(s for s in v if s in lanelets) for k, v in successors.items()}
     beside = {k: tuple(s for s in v if s in lanelets) for k, v in beside.items() if k in lanelets}
+    crossing = {k: tuple(s for s in v if s in lanelets) for k, v in crossing.items() if k in lanelets}
     stop_lines, all_way_stops = _regulatory(lmap, lanelets, successors)
     return HDMap(
         name=name,
         lanelets=lanelets,
         successor_ids=successors,
         neighbour_ids={k: v for k, v in beside.items() if v},
+        conflict_ids={k: v for k, v in crossing.items() if v},
         stops=_bus_stops(lmap, lanelets),
         crosswalks=tuple(
             Crosswalk(id=lid, polygon=info.polygon(), width_m=_mean_gap(info.left, info.right))

@@ -188,6 +188,9 @@ class HDMap:
     signals: tuple[TrafficSignal, ...] = ()
     priority_lanelet_ids: frozenset[int] = frozenset()
     tagged_stops: tuple[TaggedStop, ...] = ()
+    conflict_ids: Mapping[int, tuple[int, ...]] = field(default_factory=dict)
+    """Drivable lanelets whose area overlaps each lanelet's (Lanelet2's ``conflicting``): paths that
+    cross or merge inside a junction."""
     unread_rules: tuple[tuple[str, int], ...] = ()
     """Regulatory elements Lanelet2 has no class for (Autoware extensions), by subtype and count: left out."""
     neighbour_ids: Mapping[int, tuple[int, ...]] = field(default_factory=dict)
