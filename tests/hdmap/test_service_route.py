@@ -316,3 +316,18 @@ def test_a_stop_on_a_passing_lane_is_reached_by_lane_changes(tmp_path: Path) -> 
     db = route.layers()
     np.testing.assert_allclose(db.speed_limit_mps, 15 / 3.6)
     assert [rs.stop.id for rs in db.stops] == ["A", "B", "C"]
+
+
+def test_utm_stops_land_where_lanelet2_puts_the_map() -> None:
+    """Stops in lat/lon go through pyproj; the map through Lanelet2's UtmProjector: the same frame."""
+    from lanelet2.core import GPSPoint
+    from lanelet2.io import Origin
+    from lanelet2.projection import UtmProjector
+
+    lanelet2_utm = UtmProjector(Origin(ORIGIN_LAT_DEG, ORIGIN_LON_DEG))
+    lat = np.array([49.0, 49.00345654351, 48.99, 49.02])
+    lon = np.array([8.4, 8.42427590707, 8.37, 8.45])
+    ours = UTM.xy_from_latlon(lat, lon)
+    for (x, y), la, lo in zip(ours, lat, lon, strict=True):
+        p = lanelet2_utm.forward(GPSPoint(float(la), float(lo)))
+        assert (x, y) == pytest.approx((p.x, p.y), abs=1e-3)
