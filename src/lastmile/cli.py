@@ -466,5 +466,33 @@ def serve(
     )
 
 
+map_app = typer.Typer(no_args_is_help=True, help="Check maps and route files for a shuttle service.")
+app.add_typer(map_app, name="map")
+
+
+@map_app.command("check")
+def map_check(
+    map_file: Annotated[Path | None, typer.Argument(help="Lanelet2 .osm map (or give --route).")] = None,
+    projector: Annotated[
+        str | None,
+        typer.Option(help="utm:LAT,LON | mgrs:GRID | mgrs (map_projector_info.yaml beside the map) | local."),
+    ] = None,
+    route: Annotated[Path | None, typer.Option(help="Route file (TOML): its map, stops and loop.")] = None,
+    png: Annotated[Path, typer.Option(help="Where to write the picture of the map and route.")] = Path(
+        "map_check.png"
+    ),
+) -> None:
+    """Print what the map offers a shuttle service and what is missing; write a PNG of it."""
+    from lastmile.hdmap.map_check import main_check
+
+    try:
+        code = main_check(map_file, projector, route, png)
+    except LastmileError as exc:
+        typer.echo(f"lastmile map check: {exc}", err=True)
+        raise typer.Exit(2) from None
+    if code:
+        raise typer.Exit(code)
+
+
 def main() -> None:
     app()

@@ -20,25 +20,34 @@ from lastmile.hdmap.layers import (
     DRIVEWAY,
     INTERSECTION,
     LANDMARK_RADIUS_M,
+    PRIORITY,
+    SIGNALISED,
     UNCONTROLLED,
     RouteCrosswalk,
     RouteStop,
     RouteStopLine,
 )
-from lastmile.hdmap.model import HDMap
-from lastmile.hdmap.routing import lanelet_starts_m, route_polyline
+from lastmile.hdmap.model import HDMap, LaneletInfo
+from lastmile.hdmap.routing import lanelet_starts_m, route_pieces, route_polyline
 
 if TYPE_CHECKING:
     from lastmile.hdmap.layers import SLayerDatabase
 
+TURNS = ("left", "right")  # a turn_direction that makes a one-sided branch or merge a junction
 CROSSWALK_REACH_M = 8.0  # a crosswalk belongs to the route when its centre is this close to the lane
 
 
 def build_layers(
-    cls: type[SLayerDatabase], hdmap: HDMap, lanelet_ids: tuple[int, ...], step_m: float, closed: bool
+    cls: type[SLayerDatabase],
+    hdmap: HDMap,
+    lanelet_ids: tuple[int, ...],
+    step_m: float,
+    closed: bool,
+    unmapped_speed_limit_mps: float | None = None,
 ) -> SLayerDatabase:
     if not (math.isfinite(step_m) and step_m > 0):
         raise MapError(f"SLayerDatabase.build step_m: expected a positive step, got {step_m}")
+    limits = _speed_limits(hdmap, lanelet_ids, unmapped_speed_limit_mps)
     centre = route_polyline(hdmap, lanelet_ids, closed=closed)
     starts = lanelet_starts_m(hdmap, lanelet_ids)
     # Lanelet lengths sum to the joined line's length up to rounding; scale so s maps exactly.
@@ -49,16 +58,24 @@ def build_layers(
     lane_of = np.asarray(lanelet_ids, dtype=np.int64)[which]
     pts = centre.points_at(s)
     limit, left, right, curb = (np.empty(n) for _ in range(4))
-    bays = {st.lane_lanelet_id: hdmap.lanelets[st.bay_lanelet_id] for st in hdmap.stops}
+    # A stop without a bay (its "bay" is the lane itself) adds no curb: the lane's edge may be paint.
+    bays = {
+        st.lane_lanelet_id: hdmap.lanelets[st.bay_lanelet_id]
+        for st in hdmap.stops
+        if st.bay_lanelet_id != st.lane_lanelet_id
+    }
+    curb_side = _curb_lanelets(hdmap, lanelet_ids)
     for i, (lid, (x, y)) in enumerate(zip(lane_of.tolist(), pts.tolist(), strict=True)):
         info = hdmap.lanelets[lid]
-        limit[i] = info.speed_limit_mps
+        limit[i] = limits[lid]
         left[i] = abs(info.left.project(x, y).d_m)
         right[i] = -abs(info.right.project(x, y).d_m)
-        if info.right_type.startswith("curbstone"):
+        if info.right_is_curb:
             curb[i] = right[i]
         elif lid in bays:
             curb[i] = -abs(bays[lid].right.project(x, y).d_m)
+        elif lid in curb_side:
+            curb[i] = -abs(curb_side[lid].right.project(x, y).d_m)
         else:
             curb[i] = math.nan  # an opening (junction, driveway): no curb to stop against
     road, junction = _road_types(hdmap, lanelet_ids, lane_of, n)
@@ -89,10 +106,61 @@ def build_layers(
     )
 
 
+def _speed_limits(hdmap: HDMap, lanelet_ids: tuple[int, ...], unmapped_mps: float | None) -> dict[int, float]:
+    """Each route lanelet's limit: the mapped one, else ``unmapped_mps``; never a silent default."""
+    if unmapped_mps is not None and not (math.isfinite(unmapped_mps) and unmapped_mps > 0):
+        raise MapError(f"unmapped speed limit: expected a positive number of m/s, got {unmapped_mps}")
+    out: dict[int, float] = {}
+    missing: list[int] = []
+    for lid in dict.fromkeys(lanelet_ids):
+        mapped = hdmap.lanelets[lid].speed_limit_mps
+        if math.isfinite(mapped):
+            out[lid] = mapped
+        elif unmapped_mps is not None:
+            out[lid] = unmapped_mps
+        else:
+            missing.append(lid)
+    if missing:
+        raise MapError(
+            f"map {hdmap.name!r}: expected a speed limit on every route lanelet (a speed_limit tag, or the "
+            f"route file's unmapped_speed_limit_kph), got none on {len(missing)} lanelets ({missing[:5]})"
+        )
+    return out
+
+
+MAX_LANES_TO_CURB = 4  # lanes between the route's lane and a curb that still counts as the road's edge
+
+
+def _curb_lanelets(hdmap: HDMap, lanelet_ids: tuple[int, ...]) -> dict[int, LaneletInfo]:
+    """For route lanelets whose right bound is a lane line: the lanelet beside them (same direction,
+    sharing that line as its left bound, up to MAX_LANES_TO_CURB lanes over) whose right bound is a curb.
+    """
+    by_left_bound: dict[int, int] = {}
+    for lid, info in hdmap.lanelets.items():
+        if info.left_bound_id and info.subtype in ("road", "bus_lane", "highway"):
+            by_left_bound.setdefault(info.left_bound_id, lid)
+    out: dict[int, LaneletInfo] = {}
+    for lid in dict.fromkeys(lanelet_ids):
+        info = hdmap.lanelets[lid]
+        for _ in range(MAX_LANES_TO_CURB):
+            if info.right_is_curb or not info.right_bound_id:
+                break
+            nxt = by_left_bound.get(info.right_bound_id)
+            # The same bound id seen from the other direction is the lane across the road, not beside it.
+            if nxt is None or (nxt < 0) != (lid < 0) or nxt == lid:
+                break
+            info = hdmap.lanelets[nxt]
+        if info.right_is_curb and info.id != lid:
+            out[lid] = info
+    return out
+
+
 def _road_types(
     hdmap: HDMap, lanelet_ids: tuple[int, ...], lane_of: np.ndarray, n: int
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Intersection records lie inside an all-way stop; driveway records on a lanelet that branches."""
+    """Junction records: inside an all-way stop, or past a signal's or a right-of-way rule's entry
+    where the route branches, merges or crosses another lane's path (intersection); at an uncontrolled
+    branch-and-merge or crossing (driveway)."""
     predecessors: dict[int, int] = {}
     for succ in hdmap.successor_ids.values():
         for lid in succ:
@@ -100,17 +168,27 @@ def _road_types(
     inside_stop = {
         s for aws in hdmap.all_way_stops for e in aws.entry_lanelet_ids for s in hdmap.successors(e)
     }
+    signal_entries = {sl.lanelet_id for sl in hdmap.stop_lines if sl.signal_id is not None}
     road = np.zeros(n, dtype=np.int8)
     junction = np.zeros(n, dtype=np.int8)
     for k, lid in enumerate(lanelet_ids):
         prev = lanelet_ids[k - 1] if k > 0 else None
         nxt = lanelet_ids[k + 1] if k + 1 < len(lanelet_ids) else None
-        branches = prev is not None and len(hdmap.successors(prev)) > 1
-        merges = nxt is not None and predecessors.get(nxt, 0) > 1
+        # Only successor links make a junction; a lane change beside a lanelet is no branch.
+        branches = (
+            prev is not None and lid in hdmap.successor_ids.get(prev, ()) and len(hdmap.successors(prev)) > 1
+        )
+        merges = nxt is not None and nxt in hdmap.successor_ids.get(lid, ()) and predecessors.get(nxt, 0) > 1
+        crosses = bool(hdmap.conflict_ids.get(lid))  # another lane's path overlaps this one
+        at_junction = branches or merges or crosses
         mask = lane_of == lid
         if lid in inside_stop:
             road[mask], junction[mask] = INTERSECTION, ALL_WAY_STOP
-        elif (branches and merges) or hdmap.lanelets[lid].turn:
+        elif at_junction and prev in signal_entries:
+            road[mask], junction[mask] = INTERSECTION, SIGNALISED
+        elif at_junction and prev in hdmap.priority_lanelet_ids:
+            road[mask], junction[mask] = INTERSECTION, PRIORITY
+        elif (branches and merges) or crosses or (at_junction and hdmap.lanelets[lid].turn in TURNS):
             road[mask], junction[mask] = DRIVEWAY, UNCONTROLLED
     return road, junction
 
@@ -147,11 +225,13 @@ def _route_crosswalks(hdmap: HDMap, centre: Polyline) -> tuple[RouteCrosswalk, .
 def _route_stop_lines(
     hdmap: HDMap, lanelet_ids: tuple[int, ...], starts: np.ndarray
 ) -> tuple[RouteStopLine, ...]:
-    """A stop line sits at the end of its lanelet, so its s is where the next lanelet begins."""
+    """A stop line sits at the end of its lanelet, so its s is where the next lanelet begins (a lanelet
+    the route leaves by a lane change never reaches its line)."""
+    pieces = route_pieces(hdmap, lanelet_ids)
     out = []
     for line in hdmap.stop_lines:
         for k, lid in enumerate(lanelet_ids):
-            if lid == line.lanelet_id:
+            if lid == line.lanelet_id and pieces[k].s1_m == math.inf:
                 out.append(
                     RouteStopLine(
                         stop_line=line, s_m=float(starts[k + 1]), all_way_stop_id=line.all_way_stop_id

@@ -13,7 +13,7 @@ from lastmile.hdmap.model import BusStop, Crosswalk, HDMap, Landmark, StopLine
 # road_type codes
 NORMAL, INTERSECTION, CROSSWALK, BUS_BAY, DRIVEWAY = 0, 1, 2, 3, 4
 # intersection_type codes
-NO_INTERSECTION, ALL_WAY_STOP, UNCONTROLLED = 0, 1, 2
+NO_INTERSECTION, ALL_WAY_STOP, UNCONTROLLED, SIGNALISED, PRIORITY = 0, 1, 2, 3, 4
 LANDMARK_RADIUS_M = 40.0  # a landmark is "nearby" when a sensor on the shuttle could see it
 
 
@@ -50,9 +50,13 @@ class SLayerDatabase:
         s_m: (N,) record positions, equally spaced by ``step_m``.
         speed_limit_mps, lane_left_d_m, lane_right_d_m, curb_right_d_m: (N,) layers; lane and curb
             offsets are signed distances from the centre line, left positive (NaN: no curb nearby).
-        road_type: (N,) int8 codes: 0 normal, 1 intersection, 2 crosswalk, 3 bus bay, 4 driveway
-            (a junction without control, such as a parking-lot entrance).
-        intersection_type: (N,) int8 codes: 0 none, 1 all-way stop, 2 uncontrolled junction.
+        road_type: (N,) int8 codes: 0 normal, 1 intersection (a controlled junction: all-way stop,
+            signal or right-of-way rule), 2 crosswalk, 3 bus bay, 4 driveway (a junction without
+            control, such as a parking-lot entrance). Junctions come from the lanelet topology (the
+            route lanelet's predecessor branches, its successor merges); a ``turn_direction`` tag alone
+            makes no junction.
+        intersection_type: (N,) int8 codes: 0 none, 1 all-way stop, 2 uncontrolled junction,
+            3 signalised junction, 4 priority junction (a right-of-way rule).
         lanelet_id: (N,) int64, the route lanelet each record lies on.
         landmark_start, landmark_index: landmarks within LANDMARK_RADIUS_M of record i are
             ``hdmap.landmarks[j]`` for j in ``landmark_index[landmark_start[i]:landmark_start[i + 1]]``.
@@ -98,12 +102,25 @@ class SLayerDatabase:
 
     @classmethod
     def build(
-        cls, hdmap: HDMap, lanelet_ids: tuple[int, ...], step_m: float = 1.0, closed: bool = False
+        cls,
+        hdmap: HDMap,
+        lanelet_ids: tuple[int, ...],
+        step_m: float = 1.0,
+        closed: bool = False,
+        unmapped_speed_limit_mps: float | None = None,
     ) -> SLayerDatabase:
-        """Cut the route through ``lanelet_ids`` every ``step_m`` and fill every layer from the map."""
+        """Cut the route through ``lanelet_ids`` every ``step_m`` and fill every layer from the map.
+
+        Args:
+            unmapped_speed_limit_mps: the limit on route lanelets whose map states none (the route
+                file's); None: such a lanelet is an error.
+
+        Raises:
+            MapError: a bad step, a route lanelet without a mapped speed limit and no limit given.
+        """
         from lastmile.hdmap.layer_builder import build_layers  # the builder needs this class itself
 
-        return build_layers(cls, hdmap, lanelet_ids, step_m, closed)
+        return build_layers(cls, hdmap, lanelet_ids, step_m, closed, unmapped_speed_limit_mps)
 
     @property
     def length_m(self) -> float:

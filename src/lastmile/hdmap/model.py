@@ -26,8 +26,12 @@ class LaneletInfo:
     Attributes:
         subtype: Lanelet2 subtype ("road", "crosswalk", "parking", ...).
         left_type, right_type: boundary types ("curbstone", "line_thin", ...).
+        speed_limit_mps: the mapped limit (a ``speed_limit`` tag or a speed-limit rule); NaN where the
+            map states none (no country default is assumed: the route file's limit applies).
         turn: "" or "left" / "right" / "straight" inside intersections.
         bus_stop_id: the stop whose bay this lanelet is ("" for ordinary lanes).
+        left_bound_id, right_bound_id: Lanelet2 ids of the bounds (0: unknown); lanelets side by side
+            share one.
     """
 
     id: int
@@ -40,6 +44,12 @@ class LaneletInfo:
     right_type: str = ""
     turn: str = ""
     bus_stop_id: str = ""
+    left_bound_id: int = 0
+    right_bound_id: int = 0
+
+    @property
+    def right_is_curb(self) -> bool:
+        return is_curb_type(self.right_type)
 
     def polygon(self) -> FloatArray:
         """(N, 2) outline: the left bound forward, the right bound back."""
@@ -59,6 +69,18 @@ class BusStop:
     @property
     def length_m(self) -> float:
         return self.curb.length_m
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class TaggedStop:
+    """A stop the map marks without a bay: a node tagged ``lastmile:bus_stop`` (the tag's value is its
+    name), or an Autoware ``bus_stop_area`` (its polygon's centre). Routes snap it to a lanelet."""
+
+    id: int
+    name: str
+    x_m: float
+    y_m: float
+    source: str
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -136,6 +158,15 @@ class MapArea:
     name: str = ""
 
 
+CURB_TYPES = ("curbstone", "road_border")
+"""Boundary types that are a physical road edge (a kerb step or a border): the curb layer's sources."""
+
+
+def is_curb_type(boundary_type: str) -> bool:
+    """True for a boundary type ("curbstone:high", "road_border", ...) that is a physical road edge."""
+    return boundary_type.split(":", 1)[0] in CURB_TYPES
+
+
 # Lanelet subtypes a car may drive on; crosswalks, walkways, bicycle lanes and rails are not.
 DRIVABLE_SUBTYPES = frozenset({"road", "highway", "bus_lane", "play_street", "emergency_lane"})
 
@@ -155,6 +186,17 @@ class HDMap:
     curbs: tuple[Polyline, ...] = ()
     areas: tuple[MapArea, ...] = ()
     signals: tuple[TrafficSignal, ...] = ()
+    priority_lanelet_ids: frozenset[int] = frozenset()
+    tagged_stops: tuple[TaggedStop, ...] = ()
+    conflict_ids: Mapping[int, tuple[int, ...]] = field(default_factory=dict)
+    """Drivable lanelets whose area overlaps each lanelet's (Lanelet2's ``conflicting``): paths that
+    cross or merge inside a junction."""
+    unread_rules: tuple[tuple[str, int], ...] = ()
+    """Regulatory elements Lanelet2 has no class for (Autoware extensions), by subtype and count: left out."""
+    neighbour_ids: Mapping[int, tuple[int, ...]] = field(default_factory=dict)
+    """Lanelets beside each lanelet, same direction, that a lane change may enter (Lanelet2's
+    ``left``/``right``: the line between them permits crossing)."""
+    """Lanelets a right-of-way rule names (with priority or yielding): entries of a priority junction."""
     _polygons: dict[int, tuple[FloatArray, FloatArray, FloatArray]] = field(default_factory=dict, repr=False)
 
     def __post_init__(self) -> None:
@@ -172,6 +214,10 @@ class HDMap:
 
     def successors(self, lanelet_id: int) -> tuple[int, ...]:
         return tuple(self.successor_ids.get(lanelet_id, ()))
+
+    def neighbours(self, lanelet_id: int) -> tuple[int, ...]:
+        """Lanelets a lane change from ``lanelet_id`` may enter."""
+        return tuple(self.neighbour_ids.get(lanelet_id, ()))
 
     def lanelet_at(self, x_m: float, y_m: float) -> int | None:
         """A lanelet whose outline contains the point (drivable ones first), else None."""

@@ -11,6 +11,7 @@ from __future__ import annotations
 import heapq
 import itertools
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -19,9 +20,37 @@ from lastmile.core.polyline import Polyline
 from lastmile.hdmap import campus_layout
 from lastmile.hdmap.model import HDMap
 
+JOIN_TOLERANCE_M = 1e-6
+LANE_CHANGE_COST_M = 10.0
+"""Extra cost of a lane change in metres of driving: Lanelet2's default (``defaultRoutingCosts``:
+``RoutingCostDistance(10.)``)."""
+LANE_CHANGE_SHARE = 1.0 / 3.0
+"""A lane change leaves its lanelet a third of the way along what is left of it and joins the lanelet
+beside two thirds along: the middle third is the change."""
 
-def route(hdmap: HDMap, start_id: int, goal_id: int) -> tuple[int, ...]:
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class RoutePiece:
+    """The part of one lanelet's centre line a route drives: s from ``s0_m`` to ``s1_m`` on it."""
+
+    lanelet_id: int
+    s0_m: float
+    s1_m: float
+
+    @property
+    def whole(self) -> bool:
+        return self.s0_m == 0.0 and self.s1_m == math.inf
+
+    def length_m(self, hdmap: HDMap) -> float:
+        return min(self.s1_m, hdmap.lanelets[self.lanelet_id].centerline.length_m) - self.s0_m
+
+
+def route(hdmap: HDMap, start_id: int, goal_id: int, lane_changes: bool = False) -> tuple[int, ...]:
     """Shortest lanelet sequence from ``start_id`` to ``goal_id`` (both included) following successors.
+
+    With ``lane_changes`` a step may also go to a lanelet beside (``HDMap.neighbours``), at the extra
+    cost LANE_CHANGE_COST_M, so that routes change lanes only where they must (aUToronto 7.1.2
+    discourages lane changes; Lanelet2 prices one alike).
 
     Raises:
         RoutingError: an id is not in the map, or the goal cannot be reached from the start.
@@ -56,8 +85,16 @@ def route(hdmap: HDMap, start_id: int, goal_id: int) -> tuple[int, ...]:
         if lid in closed:
             continue
         closed.add(lid)
-        for nxt in hdmap.successors(lid):
-            cost = g_cost[lid] + hdmap.lanelets[nxt].centerline.length_m
+        here = hdmap.lanelets[lid].centerline.length_m
+        steps = [(n, hdmap.lanelets[n].centerline.length_m) for n in hdmap.successors(lid)]
+        if lane_changes:
+            # Beside a lanelet one is as far along as in it: pay only what the new lane is longer.
+            steps += [
+                (n, LANE_CHANGE_COST_M + max(hdmap.lanelets[n].centerline.length_m - here, 0.0))
+                for n in hdmap.neighbours(lid)
+            ]
+        for nxt, step in steps:
+            cost = g_cost[lid] + step
             if cost < g_cost.get(nxt, math.inf):
                 g_cost[nxt] = cost
                 parent[nxt] = lid
@@ -67,33 +104,89 @@ def route(hdmap: HDMap, start_id: int, goal_id: int) -> tuple[int, ...]:
 
 
 def route_length_m(hdmap: HDMap, lanelet_ids: tuple[int, ...]) -> float:
-    return float(sum(hdmap.lanelets[i].centerline.length_m for i in lanelet_ids))
+    return float(sum(p.length_m(hdmap) for p in route_pieces(hdmap, lanelet_ids)))
 
 
-def route_polyline(hdmap: HDMap, lanelet_ids: tuple[int, ...], closed: bool = False) -> Polyline:
-    """The route's centre line: the lanelets' centre lines joined end to end.
+def _is_lane_change(hdmap: HDMap, a: int, b: int) -> bool:
+    return b not in hdmap.successors(a) and b in hdmap.neighbours(a)
+
+
+def route_pieces(hdmap: HDMap, lanelet_ids: tuple[int, ...], closed: bool = False) -> tuple[RoutePiece, ...]:
+    """What of each lanelet the route drives: all of it, except around lane changes.
+
+    A lanelet entered from its predecessor is driven from its start; one left by a lane change is left
+    LANE_CHANGE_SHARE along what remained, and the lanelet beside is joined twice that far along (as
+    a fraction of its own length). Whole pieces carry ``s1_m = inf`` (to the lanelet's end).
 
     Raises:
-        RoutingError: the sequence is empty, names an unknown lanelet, or skips a successor link.
+        RoutingError: the sequence is empty, names an unknown lanelet, or has a step that is neither
+            a successor nor a permitted lane change; a closed route that closes with a lane change.
     """
     if not lanelet_ids:
-        raise RoutingError("route_polyline: expected at least one lanelet id, got none")
+        raise RoutingError("route: expected at least one lanelet id, got none")
     links = list(itertools.pairwise(lanelet_ids))
     if closed and len(lanelet_ids) > 1:
         links.append((lanelet_ids[-1], lanelet_ids[0]))
     for a, b in links:
-        if a not in hdmap.lanelets or b not in hdmap.lanelets or b not in hdmap.successors(a):
+        if a not in hdmap.lanelets or b not in hdmap.lanelets:
+            raise RoutingError(f"route: expected lanelet ids of map {hdmap.name!r}, got {a} and {b}")
+        if b not in hdmap.successors(a) and b not in hdmap.neighbours(a):
             raise RoutingError(f"route_polyline: expected lanelet {b} to follow lanelet {a}, it does not")
-    parts = [hdmap.lanelets[i].centerline.xy_m for i in lanelet_ids]
-    xy = np.vstack([parts[0], *(p[1:] for p in parts[1:])])
+    if closed and len(lanelet_ids) > 1 and _is_lane_change(hdmap, lanelet_ids[-1], lanelet_ids[0]):
+        raise RoutingError(
+            f"route: expected a closed route to close along a successor, got a lane change from "
+            f"{lanelet_ids[-1]} to {lanelet_ids[0]}"
+        )
+    pieces = []
+    start_frac = 0.0
+    for k, lid in enumerate(lanelet_ids):
+        length = hdmap.lanelets[lid].centerline.length_m
+        nxt = lanelet_ids[k + 1] if k + 1 < len(lanelet_ids) else None
+        if nxt is not None and _is_lane_change(hdmap, lid, nxt):
+            leave = start_frac + (1.0 - start_frac) * LANE_CHANGE_SHARE
+            pieces.append(RoutePiece(lanelet_id=lid, s0_m=start_frac * length, s1_m=leave * length))
+            start_frac = start_frac + 2.0 * (1.0 - start_frac) * LANE_CHANGE_SHARE
+        else:
+            s0 = start_frac * length
+            pieces.append(RoutePiece(lanelet_id=lid, s0_m=s0 if start_frac else 0.0, s1_m=math.inf))
+            start_frac = 0.0
+    return tuple(pieces)
+
+
+def _piece_xy(hdmap: HDMap, piece: RoutePiece) -> np.ndarray:
+    line = hdmap.lanelets[piece.lanelet_id].centerline
+    if piece.whole:
+        return line.xy_m
+    s1 = min(piece.s1_m, line.length_m)
+    inner = (line.s_m > piece.s0_m) & (line.s_m < s1)
+    return np.vstack(
+        [line.points_at(np.array([piece.s0_m])), line.xy_m[inner], line.points_at(np.array([s1]))]
+    )
+
+
+def route_polyline(hdmap: HDMap, lanelet_ids: tuple[int, ...], closed: bool = False) -> Polyline:
+    """The route's centre line: the lanelets' centre lines joined end to end (a lane change crosses
+    from one lane's line to the other's, see ``route_pieces``).
+
+    Raises:
+        RoutingError: the sequence is empty, names an unknown lanelet, or skips a successor link.
+    """
+    pieces = route_pieces(hdmap, lanelet_ids, closed)
+    parts = [_piece_xy(hdmap, p) for p in pieces]
+    # Consecutive lanelets share their end points; a link bridged over a gap (a route file's
+    # connect_gaps_m) or a lane change keeps both, and the joined line crosses straight.
+    joined = [parts[0]]
+    for prev, part in itertools.pairwise(parts):
+        joined.append(part[1:] if float(np.hypot(*(part[0] - prev[-1]))) < JOIN_TOLERANCE_M else part)
+    xy = np.vstack(joined)
     if closed:
         xy = xy[:-1]
     return Polyline(xy, closed=closed)
 
 
 def lanelet_starts_m(hdmap: HDMap, lanelet_ids: tuple[int, ...]) -> np.ndarray:
-    """(N+1,) route s where each lanelet begins, then the route's end."""
-    lengths = [hdmap.lanelets[i].centerline.length_m for i in lanelet_ids]
+    """(N+1,) route s where each lanelet's piece begins, then the route's end."""
+    lengths = [p.length_m(hdmap) for p in route_pieces(hdmap, lanelet_ids)]
     return np.concatenate([[0.0], np.cumsum(lengths)])
 
 

@@ -1,0 +1,58 @@
+"""``lastmile map check`` on small hand-written maps: report, PNG, exit codes."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from typer.testing import CliRunner
+
+from lastmile.cli import app
+from lastmile.hdmap.map_check import Status, check
+from tests.hdmap.osm_builder import OsmBuilder, straight_lane
+from tests.hdmap.test_service_route import _stop, _write, stadium
+
+
+def test_check_names_what_is_missing_and_what_it_turns_off(tmp_path: Path) -> None:
+    b = OsmBuilder()
+    stadium(b)
+    route = _write(tmp_path, b, _stop("A", 20, -1.0) + _stop("B", 80, 6.0))
+    report = check(None, None, route)
+    items = {i.layer: i for i in report.items}
+    assert not report.has_errors
+    assert items["route"].status is Status.OK and "2 stops" in items["route"].detail
+    assert items["curbs"].status is Status.OK  # the stadium's outer bounds are curbstone
+    assert items["landmarks"].status is Status.MISSING
+    assert "GNSS-denied landmark localization" in items["landmarks"].off
+    assert (
+        items["regulatory elements"].status is Status.MISSING
+        and "all-way-stop" in items["regulatory elements"].off
+    )
+
+
+def test_cli_writes_the_png_and_exits_zero_unless_there_are_errors(tmp_path: Path) -> None:
+    b = OsmBuilder()
+    stadium(b)
+    route = _write(tmp_path, b, _stop("A", 20, -1.0) + _stop("B", 80, 6.0))
+    png = tmp_path / "out" / "check.png"
+    result = CliRunner().invoke(app, ["map", "check", "--route", str(route), "--png", str(png)])
+    assert result.exit_code == 0, result.output
+    assert "[missing] landmarks" in result.output
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # A stop 6 m from the lanes: the map loads, the route is an error: exit 1, the reason on one line.
+    bad = _write(tmp_path, b, _stop("A", 20, -1.0) + _stop("Far", 50, -12.0))
+    result = CliRunner().invoke(app, ["map", "check", "--route", str(bad), "--png", str(png)])
+    assert result.exit_code == 1
+    assert "'Far'" in result.output and "within 5 m" in result.output
+    # A map without a projection: a usage error, one line, no traceback.
+    result = CliRunner().invoke(app, ["map", "check", str(tmp_path / "map.osm")])
+    assert result.exit_code == 2 and "expected --projector" in result.output
+    assert "Traceback" not in result.output
+
+
+def test_a_map_without_speed_tags_and_no_route_limit_is_reported_not_defaulted(tmp_path: Path) -> None:
+    b = OsmBuilder()
+    straight_lane(b, 0, 0, 50, 0)
+    b.write(tmp_path / "map.osm")
+    report = check(tmp_path / "map.osm", "utm:49,8.4", None)
+    speed = next(i for i in report.items if i.layer == "speed limits")
+    assert speed.status is Status.MISSING and "unmapped_speed_limit_kph" in speed.off

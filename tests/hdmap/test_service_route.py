@@ -1,0 +1,333 @@
+"""Route files and ``load_route``: snapping, A* through the stops, patterns, projections, bad input."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pyproj import Transformer
+
+from lastmile.core.errors import ConfigError, MapError, RoutingError
+from lastmile.hdmap.loader import load_projected_map
+from lastmile.hdmap.projection import MapProjection, ProjectionKind, mgrs_square_origin
+from lastmile.hdmap.service_route import load_route
+from tests.hdmap.osm_builder import ORIGIN_LAT_DEG, ORIGIN_LON_DEG, OsmBuilder, straight_lane
+
+UTM = MapProjection(kind=ProjectionKind.UTM, origin_lat_deg=ORIGIN_LAT_DEG, origin_lon_deg=ORIGIN_LON_DEG)
+HEADER = f"""
+[map]
+path = "map.osm"
+projection = "utm"
+origin_lat_deg = {ORIGIN_LAT_DEG}
+origin_lon_deg = {ORIGIN_LON_DEG}
+"""
+
+
+def _arc(cx: float, cy: float, r: float, a0: float, a1: float, n: int = 9) -> list[tuple[float, float]]:
+    return [(cx + r * math.cos(a), cy + r * math.sin(a)) for a in np.linspace(a0, a1, n)]
+
+
+def stadium(b: OsmBuilder, length_m: float = 100.0) -> dict[str, int]:
+    """Eastbound lane on y = 0, westbound on y = 5 (x from 0 to length), U-turn lanelets at both ends."""
+    half = math.pi / 2
+    east = b.lanelet(
+        b.way([(0, 1.75), (length_m / 2, 1.75), (length_m, 1.75)], type="line_thin", subtype="dashed"),
+        b.way([(0, -1.75), (length_m / 2, -1.75), (length_m, -1.75)], type="curbstone"),
+        speed_limit="20",
+    )
+    turn_e = b.lanelet(
+        b.way(_arc(length_m, 2.5, 0.75, -half, half), type="line_thin"),
+        b.way(_arc(length_m, 2.5, 4.25, -half, half), type="curbstone"),
+        speed_limit="20",
+    )
+    west = b.lanelet(
+        b.way([(length_m, 3.25), (length_m / 2, 3.25), (0, 3.25)], type="line_thin", subtype="dashed"),
+        b.way([(length_m, 6.75), (length_m / 2, 6.75), (0, 6.75)], type="curbstone"),
+        speed_limit="20",
+    )
+    turn_w = b.lanelet(
+        b.way(_arc(0, 2.5, 0.75, half, 3 * half), type="line_thin"),
+        b.way(_arc(0, 2.5, 4.25, half, 3 * half), type="curbstone"),
+        speed_limit="20",
+    )
+    return {"east": east, "turn_e": turn_e, "west": west, "turn_w": turn_w}
+
+
+def _write(tmp_path: Path, b: OsmBuilder, body: str, header: str = HEADER) -> Path:
+    b.write(tmp_path / "map.osm")
+    route = tmp_path / "route.toml"
+    route.write_text(header + body, encoding="utf-8")
+    return route
+
+
+def _stop(name: str, x: float, y: float) -> str:
+    return f'\n[[stops]]\nname = "{name}"\nx_m = {x}\ny_m = {y}\n'
+
+
+def test_loop_through_stops_in_order_with_snap_distances(tmp_path: Path) -> None:
+    b = OsmBuilder()
+    ids = stadium(b)
+    route = load_route(_write(tmp_path, b, _stop("A", 20, -1.0) + _stop("B", 80, -1.0) + _stop("C", 50, 7.5)))
+    assert set(route.lanelet_ids) == set(ids.values()) and len(route.lanelet_ids) == 4
+    assert route.polyline.closed
+    assert route.length_m == pytest.approx(2 * 100 + 2 * math.pi * 2.5, rel=0.02)
+    names = [s.name for s in route.stops]
+    assert names == ["A", "B", "C"]
+    a, b_, c = route.stops
+    assert a.snap.lanelet_id == ids["east"] and a.snap.distance_m == 0.0
+    assert c.snap.lanelet_id == ids["west"] and c.snap.distance_m == pytest.approx(0.75, abs=0.05)
+    assert route.polyline.ds_m(a.route_s_m, b_.route_s_m) == pytest.approx(60.0, abs=0.5)
+    assert route.polyline.ds_m(b_.route_s_m, c.route_s_m) == pytest.approx(20 + 50 + math.pi * 2.5, abs=1.0)
+    # The runner's view: the map's stops are the route's (kerbside), and the s-layers place them.
+    assert [s.id for s in route.hdmap.stops] == names
+    db = route.layers()
+    assert [rs.stop.id for rs in db.stops] == ["A", "B", "C"]
+    for rs in db.stops:
+        assert rs.s_end_m - rs.s_start_m == pytest.approx(12.0, abs=0.5)
+        assert rs.curb_d_m == pytest.approx(-1.75, abs=0.1)
+    np.testing.assert_allclose(db.speed_limit_mps, 20 / 3.6)
+
+
+def test_a_stop_behind_the_last_on_its_lanelet_takes_a_lap(tmp_path: Path) -> None:
+    """aUToronto's corner case: the goal lies behind the start on the same lanelet."""
+    b = OsmBuilder()
+    ids = stadium(b)
+    route = load_route(_write(tmp_path, b, _stop("A", 70, -1.0) + _stop("B", 30, -1.0)))
+    assert sorted(route.lanelet_ids) == sorted(ids.values())
+    a, b_ = route.stops
+    lap = route.length_m
+    assert (b_.route_s_m - a.route_s_m) % lap == pytest.approx(lap - 40.0, abs=0.5)
+
+
+def test_out_and_back_serves_the_middle_stops_on_the_other_side(tmp_path: Path) -> None:
+    b = OsmBuilder()
+    ids = stadium(b)
+    body = '\n[service]\npattern = "out_and_back"\n'
+    body += _stop("A", 20, 1.0) + _stop("B", 50, 1.0) + _stop("C", 80, 1.0)
+    route = load_route(_write(tmp_path, b, body))
+    assert [s.name for s in route.stops] == ["A", "B", "C", "B (return)"]
+    assert route.stops[1].snap.lanelet_id == ids["east"]
+    assert route.stops[3].snap.lanelet_id == ids["west"]
+    assert route.stops[3].snap.distance_m == pytest.approx(2.25, abs=0.05)
+
+
+def test_latitude_longitude_stops_and_a_recorded_drive(tmp_path: Path) -> None:
+    b = OsmBuilder()
+    stadium(b)
+    (lat_a, lon_a), (lat_b, lon_b) = UTM.latlon_from_xy(np.array([[20.0, -1.0], [80.0, 6.0]]))
+    body = '\n[service]\nwaypoints = "drive.csv"\n'
+    body += f'\n[[stops]]\nname = "A"\nlat_deg = {lat_a}\nlon_deg = {lon_a}\n'
+    body += f'\n[[stops]]\nname = "B"\nlat_deg = {lat_b}\nlon_deg = {lon_b}\n'
+    drive = np.array([[x, 0.0] for x in range(5, 100, 10)] + [[x, 5.0] for x in range(95, 0, -10)])
+    latlon = UTM.latlon_from_xy(drive)
+    rows = "\n".join(f"{la:.9f},{lo:.9f},2.5" for la, lo in latlon)
+    (tmp_path / "drive.csv").write_text("lat,lon,speed\n" + rows + "\n", encoding="utf-8")
+    route = load_route(_write(tmp_path, b, body))
+    assert len(route.lanelet_ids) == 4
+    assert route.stops[0].x_m == pytest.approx(20.0, abs=1e-6)
+    assert route.stops[1].y_m == pytest.approx(6.0, abs=1e-6)
+    (tmp_path / "drive.csv").write_text("lat,lon,speed\n49.0,8.4\n", encoding="utf-8")
+    with pytest.raises(ConfigError, match="line 2: expected three numbers"):
+        load_route(tmp_path / "route.toml")
+
+
+def test_bad_routes_get_one_clear_line(tmp_path: Path) -> None:
+    b = OsmBuilder()
+    stadium(b)
+    with pytest.raises(MapError, match=r"'Far'.*within 5 m"):
+        load_route(_write(tmp_path, b, _stop("A", 20, -1.0) + _stop("Far", 50, -12.0)))
+    with pytest.raises(ConfigError, match=r"map\.projection: expected 'utm'"):
+        load_route(
+            _write(tmp_path, b, _stop("A", 20, -1) + _stop("B", 50, -1), header='[map]\npath = "map.osm"\n')
+        )
+    with pytest.raises(ConfigError, match="at least two"):
+        load_route(_write(tmp_path, b, _stop("A", 20, -1)))
+    with pytest.raises(ConfigError, match="unknown key"):
+        load_route(_write(tmp_path, b, _stop("A", 20, -1) + _stop("B", 50, -1) + "speed = 3\n"))
+    with pytest.raises(MapError, match="wrong origin"):
+        far = HEADER.replace(f"origin_lon_deg = {ORIGIN_LON_DEG}", "origin_lon_deg = 12.0")
+        load_route(_write(tmp_path, b, _stop("A", 20, -1) + _stop("B", 50, -1), header=far))
+    with pytest.raises(ConfigError, match="lat_deg/lon_deg need a geographic projection"):
+        local = '[map]\npath = "map.osm"\nprojection = "local"\n'
+        load_route(
+            _write(
+                tmp_path,
+                b,
+                '\n[[stops]]\nname = "A"\nlat_deg = 49.0\nlon_deg = 8.4\n' + _stop("B", 1, 1),
+                header=local,
+            )
+        )
+
+
+def test_stops_with_no_way_between_them(tmp_path: Path) -> None:
+    b = OsmBuilder()
+    straight_lane(b, 0, 0, 50, 0, speed_limit="20")
+    straight_lane(b, 0, 30, 50, 30, speed_limit="20")
+    with pytest.raises(RoutingError, match=r"from stop 'A'.*to stop 'B'"):
+        load_route(_write(tmp_path, b, _stop("A", 20, 0) + _stop("B", 20, 30)))
+
+
+@pytest.mark.parametrize(
+    ("text", "suffix", "match"),
+    [
+        ("<osm><node id='1' lat='x'", ".osm", "expected Lanelet2 OSM XML"),
+        ("<?xml version='1.0'?><osm version='0.6'></osm>", ".osm", "at least one lanelet"),
+        ("<OpenDRIVE/>", ".xodr", "convert it to Lanelet2 first"),
+        ("<osm/>", ".osm_xy", "convert it to .osm first"),
+    ],
+)
+def test_bad_maps_get_one_clear_line(tmp_path: Path, text: str, suffix: str, match: str) -> None:
+    path = tmp_path / f"bad{suffix}"
+    path.write_text(text, encoding="utf-8")
+    with pytest.raises(MapError, match=match):
+        load_projected_map(path, UTM)
+
+
+def test_autoware_local_coordinates_and_the_mgrs_grid(tmp_path: Path) -> None:
+    """Nodes carry local_x/local_y (metres in the MGRS square 32UMV, Karlsruhe's) beside lat/lon."""
+    e0, n0 = 400_000.0, 5_400_000.0  # south-west corner of 32UMV
+    assert mgrs_square_origin("32UMV") == (32, True, e0, n0)
+    to_utm = Transformer.from_crs("EPSG:4326", "EPSG:32632", always_xy=True)
+    origin_e, origin_n = to_utm.transform(ORIGIN_LON_DEG, ORIGIN_LAT_DEG)
+    offset = (origin_e - e0, origin_n - n0)  # our test map's (0, 0) in the square, from pyproj alone
+    b = OsmBuilder(local_tags=True, local_offset=offset)
+    lane = straight_lane(b, 0, 0, 40, 0, speed_limit="20")
+    path = b.write(tmp_path / "lanelet2_map.osm")
+    mgrs = load_projected_map(path, MapProjection(kind=ProjectionKind.MGRS, mgrs_grid="32UMV"))
+    start = mgrs.lanelets[lane].centerline.xy_m[0]
+    np.testing.assert_allclose(start, np.array(offset), atol=1e-3)
+    local = load_projected_map(path, MapProjection(kind=ProjectionKind.LOCAL))
+    np.testing.assert_allclose(local.lanelets[lane].centerline.xy_m[0], np.array(offset), atol=1e-3)
+    with pytest.raises(MapError, match="wrong MGRS grid"):
+        load_projected_map(path, MapProjection(kind=ProjectionKind.MGRS, mgrs_grid="32UMU"))
+    (tmp_path / "map_projector_info.yaml").write_text("projector_type: MGRS\nmgrs_grid: 32UMV\n")
+    body = '[map]\npath = "lanelet2_map.osm"\nprojection = "mgrs"\n'
+    (tmp_path / "route.toml").write_text(
+        body + _stop("A", offset[0] + 5, offset[1]) + _stop("B", offset[0] + 30, offset[1])
+    )
+    with pytest.raises(RoutingError):  # a straight one-way lane: no way back from B to A
+        load_route(tmp_path / "route.toml")
+    untagged = OsmBuilder()
+    straight_lane(untagged, 0, 0, 40, 0)
+    with pytest.raises(MapError, match="local_x/local_y tags on every node"):
+        load_projected_map(untagged.write(tmp_path / "plain.osm"), MapProjection(kind=ProjectionKind.LOCAL))
+    with pytest.raises(MapError, match="MGRS grid"):
+        MapProjection(kind=ProjectionKind.MGRS, mgrs_grid="44QIO")
+
+
+def test_campus_service_is_the_campus_loop_and_layers_unchanged() -> None:
+    """The runner can hold every service as a ServiceRoute: the campus one is bit for bit today's."""
+    from lastmile.hdmap.layers import SLayerDatabase
+    from lastmile.hdmap.loader import load_campus_map
+    from lastmile.hdmap.routing import campus_shuttle_loop, route_polyline
+    from lastmile.hdmap.service_route import campus_service
+
+    hdmap = load_campus_map()
+    ids = campus_shuttle_loop(hdmap)
+    service = campus_service()
+    assert service.hdmap is hdmap and service.lanelet_ids == ids
+    np.testing.assert_array_equal(service.polyline.xy_m, route_polyline(hdmap, ids, closed=True).xy_m)
+    old = SLayerDatabase.build(hdmap, ids, step_m=1.0, closed=True)
+    new = service.layers(step_m=1.0)
+    for name in (
+        "s_m",
+        "speed_limit_mps",
+        "lane_right_d_m",
+        "curb_right_d_m",
+        "road_type",
+        "intersection_type",
+    ):
+        np.testing.assert_array_equal(getattr(new, name), getattr(old, name))
+    assert [rs.stop.id for rs in new.stops] == [s.name for s in service.stops] == ["S1", "S2", "S3", "S4"]
+
+
+def test_stops_read_from_the_map_ours_and_autowares(tmp_path: Path) -> None:
+    b = OsmBuilder()
+    ids = stadium(b)
+    b.node(30.0, -2.5, **{"lastmile:bus_stop": "Library"})
+    area = b.way([(68, -2), (72, -2), (72, -3), (68, -3), (68, -2)], type="bus_stop_area", area="yes")
+    b.relation([("way", "refers", area)], type="regulatory_element", subtype="bus_stop_area", name="Gym")
+    body = '\n[service]\nstops_from = "map"\norder = ["Gym", "Library"]\n'
+    route = load_route(_write(tmp_path, b, body))
+    assert [(s.name, s.source) for s in route.stops] == [
+        ("Gym", "autoware:bus_stop_area"),
+        ("Library", "lastmile:bus_stop"),
+    ]
+    assert all(s.snap.lanelet_id == ids["east"] for s in route.stops)
+    # Lanelet2 has no class for Autoware's rule: the map loads, the rule is counted as not read.
+    assert route.hdmap.unread_rules == (("bus_stop_area", 1),)
+    assert route.stops[0].x_m == pytest.approx(70.0, abs=0.5)
+    with pytest.raises(ConfigError, match="'Pool'"):
+        load_route(_write(tmp_path, b, '\n[service]\nstops_from = "map"\norder = ["Gym", "Pool"]\n'))
+
+
+def test_a_stop_heading_picks_the_lane_between_two_equally_near(tmp_path: Path) -> None:
+    b = OsmBuilder()
+    ids = stadium(b)
+    body = _stop("A", 20, -1.0) + '\n[[stops]]\nname = "Mid"\nx_m = 50.0\ny_m = 2.5\nheading_deg = 180.0\n'
+    route = load_route(_write(tmp_path, b, body))
+    assert route.stops[1].snap.lanelet_id == ids["west"]
+    body = _stop("A", 20, -1.0) + '\n[[stops]]\nname = "Mid"\nx_m = 50.0\ny_m = 2.5\nheading_deg = 0.0\n'
+    assert load_route(_write(tmp_path, b, body)).stops[1].snap.lanelet_id == ids["east"]
+
+
+def test_a_stop_on_a_passing_lane_is_reached_by_lane_changes(tmp_path: Path) -> None:
+    """Two lanes eastbound between x = 20 and 80 (the left one a dead-end passing lane), one lane back
+    on y = 12. A* reaches the stop on the passing lane by a lane change and leaves it by another."""
+    b = OsmBuilder()
+    half = math.pi / 2
+    dashed = b.way([(20, 1.75), (50, 1.75), (80, 1.75)], type="line_thin", subtype="dashed")
+    curb = "curbstone"
+    r1 = b.lanelet(
+        b.way([(0, 1.75), (20, 1.75)], type="line_thin"), b.way([(0, -1.75), (20, -1.75)], type=curb)
+    )
+    r2 = b.lanelet(dashed, b.way([(20, -1.75), (50, -1.75), (80, -1.75)], type=curb))
+    r3 = b.lanelet(
+        b.way([(80, 1.75), (100, 1.75)], type="line_thin"), b.way([(80, -1.75), (100, -1.75)], type=curb)
+    )
+    passing = b.lanelet(b.way([(20, 5.25), (50, 5.25), (80, 5.25)], type=curb), dashed)
+    b.lanelet(
+        b.way(_arc(100, 6, 4.25, -half, half), type="line_thin"),
+        b.way(_arc(100, 6, 7.75, -half, half), type=curb),
+    )
+    west = b.lanelet(
+        b.way([(100, 10.25), (50, 10.25), (0, 10.25)], type="line_thin"),
+        b.way([(100, 13.75), (50, 13.75), (0, 13.75)], type=curb),
+    )
+    b.lanelet(
+        b.way(_arc(0, 6, 4.25, half, 3 * half), type="line_thin"),
+        b.way(_arc(0, 6, 7.75, half, 3 * half), type=curb),
+    )
+    header = HEADER + "unmapped_speed_limit_kph = 15.0\n"
+    route = load_route(
+        _write(tmp_path, b, _stop("A", 10, -1) + _stop("B", 70, 4.5) + _stop("C", 50, 13), header=header)
+    )
+    assert [s.snap.lanelet_id for s in route.stops] == [r1, passing, west]
+    ids = route.lanelet_ids
+    assert ids.count(r2) == 2 and passing in ids and r3 in ids
+    changes = [
+        (a, c) for a, c in zip(ids, (*ids[1:], ids[0]), strict=True) if c not in route.hdmap.successors(a)
+    ]
+    assert changes == [(r2, passing), (passing, r2)]
+    steps = np.hypot(*np.diff(route.polyline.xy_m, axis=0).T)
+    assert steps.max() < 32.0  # one continuous line: the changes are short diagonals, no jumps back
+    db = route.layers()
+    np.testing.assert_allclose(db.speed_limit_mps, 15 / 3.6)
+    assert [rs.stop.id for rs in db.stops] == ["A", "B", "C"]
+
+
+def test_utm_stops_land_where_lanelet2_puts_the_map() -> None:
+    """Stops in lat/lon go through pyproj; the map through Lanelet2's UtmProjector: the same frame."""
+    from lanelet2.core import GPSPoint
+    from lanelet2.io import Origin
+    from lanelet2.projection import UtmProjector
+
+    lanelet2_utm = UtmProjector(Origin(ORIGIN_LAT_DEG, ORIGIN_LON_DEG))
+    lat = np.array([49.0, 49.00345654351, 48.99, 49.02])
+    lon = np.array([8.4, 8.42427590707, 8.37, 8.45])
+    ours = UTM.xy_from_latlon(lat, lon)
+    for (x, y), la, lo in zip(ours, lat, lon, strict=True):
+        p = lanelet2_utm.forward(GPSPoint(float(la), float(lo)))
+        assert (x, y) == pytest.approx((p.x, p.y), abs=1e-3)
