@@ -76,6 +76,10 @@ def run(
     black_box: Annotated[
         bool, typer.Option(help="Keep the 30 s black box and write it under OUT/recordings on incidents.")
     ] = True,
+    route: Annotated[
+        Path | None,
+        typer.Option(help="Route file (TOML): serve its stops on its Lanelet2 map instead of the campus."),
+    ] = None,
 ) -> None:
     """Simulate the shuttle service in closed loop and write a run directory with report.md."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
@@ -85,8 +89,8 @@ def run(
         return
 
     try:
-        from lastmile.runner.closed_loop import evaluate_run, run_scenario
-        from lastmile.sim.scenario import default_service, load_scenario
+        from lastmile.runner.closed_loop import evaluate_run, load_world_map, run_scenario
+        from lastmile.sim.scenario import MapSpec, default_service, load_scenario, route_service
         from lastmile.sim.weather import parse_weather
 
         run_config = _run_config(config, perception, PERCEPTION_OPTIONS["lidar"])
@@ -94,7 +98,12 @@ def run(
             run_config = dataclasses.replace(
                 run_config, loop=dataclasses.replace(run_config.loop, black_box=False)
             )
-        spec = load_scenario(scenario) if scenario is not None else default_service()
+        if scenario is not None:
+            spec = load_scenario(scenario)
+            if route is not None:
+                spec = dataclasses.replace(spec, map=MapSpec(name="route", route=str(route)))
+        else:
+            spec = route_service(str(route)) if route is not None else default_service()
         overrides: dict[str, object] = {}
         if minutes is not None:
             overrides["minutes"] = minutes
@@ -118,7 +127,7 @@ def run(
                 progress=lambda done, total: bar.update(task, completed=done),
                 black_box_dir=out / "recordings",
             )
-        metrics = evaluate_run(log, out)
+        metrics = evaluate_run(log, out, hdmap=load_world_map(spec.map).hdmap)
     except LastmileError as exc:
         typer.echo(f"lastmile run: {exc}", err=True)
         raise typer.Exit(2) from None

@@ -2,20 +2,18 @@
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
 from threadpoolctl import threadpool_limits
 
-from lastmile.core.errors import ConfigError
 from lastmile.core.vehicle import VehicleGeometry
 from lastmile.evaluation.metrics import compute_metrics, write_metrics, write_timing
 from lastmile.evaluation.report import write_report
-from lastmile.hdmap.layers import SLayerDatabase
 from lastmile.hdmap.loader import load_campus_map
 from lastmile.hdmap.model import HDMap
-from lastmile.hdmap.routing import campus_shuttle_loop, route_polyline
+from lastmile.hdmap.service_route import ServiceRoute, campus_service, load_route
 from lastmile.recorder.run_log import RunLog, RunMeta
 from lastmile.recorder.run_log_writer import RunLogWriter
 from lastmile.runner.loop import ClosedLoop, LoopCallback
@@ -36,21 +34,11 @@ DEFAULT_CONFIG = RunConfig()
 """The default run configuration: raw LiDAR + camera + radar perception, WATonoBus's controllers."""
 
 
-@dataclass(frozen=True, slots=True)
-class WorldMap:
-    """The map a scenario names and the shuttle's service route on it (lanelet ids in driving order)."""
-
-    hdmap: HDMap
-    route_lanelets: tuple[int, ...]
-    closed: bool
-
-
-def load_world_map(spec: MapSpec) -> WorldMap:
-    """The map of a scenario's ``[map]`` section."""
-    if spec.name == "campus":
-        hdmap = load_campus_map()
-        return WorldMap(hdmap=hdmap, route_lanelets=tuple(campus_shuttle_loop(hdmap)), closed=True)
-    raise ConfigError(f"scenario.map.name: expected 'campus', got {spec.name!r}")
+def load_world_map(spec: MapSpec) -> ServiceRoute:
+    """The map and service route of a scenario's ``[map]`` section."""
+    if spec.name == "route":
+        return load_route(spec.route)
+    return campus_service()
 
 
 def build_closed_loop(
@@ -64,9 +52,9 @@ def build_closed_loop(
     configured with them, the sensors' mounts), never the simulator's objects.
     """
     config.check_serves(scenario)
-    world_map = load_world_map(scenario.map)
-    hdmap = world_map.hdmap
-    service_route = route_polyline(hdmap, world_map.route_lanelets, closed=world_map.closed)
+    service = load_world_map(scenario.map)
+    hdmap = service.hdmap
+    service_route = service.polyline
     geometry = VehicleGeometry()
     tick_us = config.loop.tick_us
     world = Simulation(
@@ -77,7 +65,7 @@ def build_closed_loop(
         tick_us,
         raw_sensors=config.stack.perception.needs_raw_sensors,
     )
-    layers = SLayerDatabase.build(hdmap, world_map.route_lanelets, step_m=1.0, closed=world_map.closed)
+    layers = service.layers(step_m=1.0)
     vehicle = build_vehicle(
         layers,
         geometry,
@@ -147,7 +135,7 @@ def run_scenario(
         return writer.finish()
 
 
-def evaluate_run(log: RunLog, run_dir: Path) -> dict[str, Any]:
+def evaluate_run(log: RunLog, run_dir: Path, hdmap: HDMap | None = None) -> dict[str, Any]:
     """Write the run directory: run log, metrics.json (with the configuration that produced it),
     timing.json, report.md with plots."""
     run_dir.mkdir(parents=True, exist_ok=True)
@@ -155,7 +143,7 @@ def evaluate_run(log: RunLog, run_dir: Path) -> dict[str, Any]:
     metrics = compute_metrics(log)
     write_metrics({**metrics, "configuration": log.meta.config}, run_dir)
     write_timing(log.timing, run_dir)
-    write_report(log, metrics, run_dir, hdmap=load_campus_map())
+    write_report(log, metrics, run_dir, hdmap=hdmap if hdmap is not None else load_campus_map())
     return metrics
 
 

@@ -55,7 +55,6 @@ from lastmile.evaluation.fleet_metrics import (
 )
 from lastmile.fleet.scheduling import CAPACITY_SEATS
 from lastmile.fleet.vehicle_client import Assignment, VehicleClient
-from lastmile.hdmap.layers import SLayerDatabase
 from lastmile.recorder.run_log import RunLog
 from lastmile.recorder.run_log_writer import RunLogWriter
 from lastmile.runner.closed_loop import build_closed_loop, evaluate_run, load_world_map, run_meta
@@ -209,11 +208,7 @@ async def _run(
             )
             s.pedestrian_proxies.append((a, proxy))
             s.world.add_road_user(proxy)
-    route_crosswalks = (
-        SLayerDatabase.build(world_map.hdmap, world_map.route_lanelets, step_m=1.0, closed=True).crosswalks
-        if config.cameras
-        else ()
-    )
+    route_crosswalks = world_map.layers(step_m=1.0).crosswalks if config.cameras else ()
     cameras = [
         _Camera(
             node_id=f"crossing-cam-{rc.crosswalk.id}",

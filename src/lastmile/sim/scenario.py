@@ -110,10 +110,21 @@ class MapSpec:
     """The map the world is built on (and the shuttle's service route on it).
 
     Attributes:
-        name: "campus", the built-in campus map (``src/lastmile/hdmap/data/campus.osm``) with its loop.
+        name: "campus", the built-in campus map (``src/lastmile/hdmap/data/campus.osm``) with its loop;
+            "route", the map and service of the route file ``route``.
+        route: a route file (TOML: a Lanelet2 map, its projection, the stops and the service pattern;
+            see ``lastmile.hdmap.route_file``), relative to the working directory.
     """
 
-    name: Literal["campus"] = "campus"
+    name: Literal["campus", "route"] = "campus"
+    route: str = ""
+
+    def __post_init__(self) -> None:
+        if (self.name == "route") != bool(self.route):
+            raise ConfigError(
+                f"scenario.map: expected a route file exactly when name = 'route', got name = {self.name!r} "
+                f"and route = {self.route!r}"
+            )
 
 
 VEHICLE_SETTINGS = ("lateral_controller", "cruise_speed_mps", "serve_all_stops", "perception")
@@ -190,6 +201,18 @@ def _without_none(value: Any) -> Any:
     if isinstance(value, list | tuple):
         return [_without_none(v) for v in value]
     return value
+
+
+def route_service(route: str, seed: int = 0, minutes: float = 10.0, weather: str = "clear") -> Scenario:
+    """The service on a route file's map: riders arriving at its stops, nothing campus-specific."""
+    return Scenario(
+        name="route_service",
+        minutes=minutes,
+        seed=seed,
+        weather=weather,
+        map=MapSpec(name="route", route=route),
+        passengers=PassengerConfig(arrivals_per_stop_per_min=0.3),
+    )
 
 
 def default_service(seed: int = 0, minutes: float = 10.0, weather: str = "clear") -> Scenario:

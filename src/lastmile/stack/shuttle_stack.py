@@ -20,6 +20,7 @@ import dataclasses
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -239,6 +240,7 @@ class ShuttleStack:
         self._stop_reason = StopReason.NONE
         self.fault_hook = fault_hook
         self.rejected_frames = 0
+        self._handlers = self._frame_handlers()
 
     # ------------------------------------------------------------------------------------------------
     def tick(
@@ -343,32 +345,55 @@ class ShuttleStack:
         return self.layers.curb_right_d_m[self.layers.record_indices(s_m)]
 
     def _ingest(self, frame: SensorFrame) -> None:
-        if isinstance(frame, WheelOdometryFrame):
-            self._speed_mps = frame.speed_mps
-            self.ekf.predict(frame.stamp, frame.speed_mps, self._yaw_rate_radps)
-        elif isinstance(frame, ImuFrame):
-            self._yaw_rate_radps = frame.yaw_rate_radps
-        elif isinstance(frame, GnssInsFrame):
-            self.ekf.update_gnss(frame)
-        elif isinstance(frame, LidarSweep | CameraDetections | RadarFrame) and self.raw is not None:
+        handler = self._handlers.get(type(frame))
+        if handler is not None:  # frames for others (operator inputs: the vehicle safety's) are skipped
+            handler(frame)
+
+    def _frame_handlers(self) -> dict[type, Callable[[Any], object]]:
+        """Which module each frame type feeds: one table, so a new frame type is one entry."""
+        handlers: dict[type, Callable[[Any], object]] = {
+            WheelOdometryFrame: self._on_odometry,
+            ImuFrame: self._on_imu,
+            GnssInsFrame: self.ekf.update_gnss,
+            RadarFrame: self._on_radar,
+            DoorSensorFrame: self._on_door,
+            StopCallFrame: self.mission.on_call,
+            CrossingPresenceFrame: self.v2i.on_frame,
+        }
+        if self.raw is not None:
             # Raw perception fuses the radar objects with the LiDAR clusters (no separate radar tracker).
-            self.raw.on_frame(frame, self._now)
-        elif isinstance(frame, RadarFrame):
-            est = self.ekf.estimate(frame.stamp)
-            mount = self.config.radar_mounts.get(frame.sensor_id)
-            if est.valid and mount is not None:
-                self.tracker.update(frame, est.map_from_base, mount)
-        elif isinstance(frame, DoorSensorFrame):
-            self._door_open = frame.door_open
-            self._person_in_doorway = frame.person_in_doorway
-        elif isinstance(frame, StopCallFrame):
-            self.mission.on_call(frame)
-        elif isinstance(frame, CrossingPresenceFrame):
-            self.v2i.on_frame(frame)
-        elif isinstance(frame, TrafficLightDetections) and self.light_tracker is not None:
-            est = self.ekf.estimate(frame.stamp)
-            if est.valid:
-                self.light_tracker.update(frame, est.map_from_base)
+            for kind in (LidarSweep, CameraDetections, RadarFrame):
+                handlers[kind] = self._on_raw
+        if self.light_tracker is not None:
+            handlers[TrafficLightDetections] = self._on_lights
+        return handlers
+
+    def _on_odometry(self, frame: WheelOdometryFrame) -> None:
+        self._speed_mps = frame.speed_mps
+        self.ekf.predict(frame.stamp, frame.speed_mps, self._yaw_rate_radps)
+
+    def _on_imu(self, frame: ImuFrame) -> None:
+        self._yaw_rate_radps = frame.yaw_rate_radps
+
+    def _on_raw(self, frame: LidarSweep | CameraDetections | RadarFrame) -> None:
+        assert self.raw is not None
+        self.raw.on_frame(frame, self._now)
+
+    def _on_radar(self, frame: RadarFrame) -> None:
+        est = self.ekf.estimate(frame.stamp)
+        mount = self.config.radar_mounts.get(frame.sensor_id)
+        if est.valid and mount is not None:
+            self.tracker.update(frame, est.map_from_base, mount)
+
+    def _on_door(self, frame: DoorSensorFrame) -> None:
+        self._door_open = frame.door_open
+        self._person_in_doorway = frame.person_in_doorway
+
+    def _on_lights(self, frame: TrafficLightDetections) -> None:
+        assert self.light_tracker is not None
+        est = self.ekf.estimate(frame.stamp)
+        if est.valid:
+            self.light_tracker.update(frame, est.map_from_base)
 
     def _decide(self, now: Stamp) -> None:
         est = self.ekf.estimate(now)
