@@ -8,6 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from lastmile.core.errors import ConfigError, MessageError
+from lastmile.core.gnss_messages import GnssQuality
 from lastmile.core.sensor_frames import GnssInsFrame
 from lastmile.core.stamp import Stamp, stamp_from_s
 from lastmile.localization.ekf import PoseEkf, PoseEkfConfig, _kalman, _Snap
@@ -279,12 +280,15 @@ def snapshots(draw):
             draw(st.floats(-0.02, 0.02)),
             draw(st.floats(-0.5, 0.5)),
             draw(st.floats(-0.03, 0.03)),
+            draw(st.floats(-2, 2)),
+            draw(st.floats(-2, 2)),
         )
     )
-    a = np.array(draw(st.lists(st.floats(-1, 1), min_size=49, max_size=49))).reshape(7, 7)
-    cov = a @ a.T + 1e-3 * np.eye(7)
+    a = np.array(draw(st.lists(st.floats(-1, 1), min_size=81, max_size=81))).reshape(9, 9)
+    cov = a @ a.T + 1e-3 * np.eye(9)
     accel = draw(st.one_of(st.just(math.nan), st.floats(-2, 2)))
-    return _Snap(0, True, True, draw(st.floats(-0.5, 0.5)), accel, state, cov)
+    quality = draw(st.sampled_from([None, GnssQuality.RTK_FIXED, GnssQuality.SINGLE]))
+    return _Snap(0, True, True, draw(st.floats(-0.5, 0.5)), accel, state, cov, None, quality)
 
 
 @settings(max_examples=50, deadline=None)
@@ -293,14 +297,14 @@ def test_prediction_covariance_is_propagated_with_the_numerical_jacobian(snap, d
     ekf = PoseEkf(PoseEkfConfig(zero_slip_offset_m=lever_m))
     t_us = round(dt_s * 1e6)
     out = ekf._propagate(snap, t_us)
-    jac = np.zeros((7, 7))
-    for j in range(7):
+    jac = np.zeros((9, 9))
+    for j in range(9):
         h = 1e-6
         plus, minus = snap.s.copy(), snap.s.copy()
         plus[j] += h
         minus[j] -= h
-        sp = ekf._propagate(_Snap(0, True, True, snap.w_in, snap.a_in, plus, snap.p), t_us).s
-        sm = ekf._propagate(_Snap(0, True, True, snap.w_in, snap.a_in, minus, snap.p), t_us).s
+        sp = ekf._propagate(dataclasses.replace(snap, s=plus), t_us).s
+        sm = ekf._propagate(dataclasses.replace(snap, s=minus), t_us).s
         diff = sp - sm
         diff[2] = (diff[2] + math.pi) % (2 * math.pi) - math.pi
         jac[:, j] = diff / (2 * h)
@@ -311,12 +315,12 @@ def test_prediction_covariance_is_propagated_with_the_numerical_jacobian(snap, d
 
 
 @settings(max_examples=50, deadline=None)
-@given(snapshots(), st.integers(0, 6), st.floats(-1, 1), st.floats(1e-4, 1.0))
+@given(snapshots(), st.integers(0, 8), st.floats(-1, 1), st.floats(1e-4, 1.0))
 def test_the_joseph_update_is_the_kalman_update_and_keeps_the_covariance_positive(snap, index, innov, r):
-    h = np.zeros((1, 7))
+    h = np.zeros((1, 9))
     h[0, index] = 1.0
     s, p = _kalman(snap.s, snap.p, h, np.array([innov]), np.array([[r]]))
     gain = snap.p @ h[0] / (h[0] @ snap.p @ h[0] + r)
     assert np.allclose(s, snap.s + gain * innov)
-    assert np.allclose(p, (np.eye(7) - np.outer(gain, h[0])) @ snap.p, atol=1e-9)
+    assert np.allclose(p, (np.eye(9) - np.outer(gain, h[0])) @ snap.p, atol=1e-9)
     assert np.linalg.eigvalsh(p).min() > -1e-9

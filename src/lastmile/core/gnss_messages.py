@@ -19,17 +19,27 @@ class GnssQuality(Enum):
     SINGLE = "single"
 
 
-# Horizontal accuracy floors, one sigma per axis, m. A receiver's own covariance is formal (it assumes
-# white, uncorrelated code/carrier noise) and is often smaller than the real error; no solution of a
-# given type is better than the receiver class's datasheet figure. u-blox ZED-F9P datasheet
-# (UBX-17051259): RTK 0.01 m + 1 ppm CEP, PVT 1.5 m CEP, SBAS 1.0 m CEP; CEP = 1.1774 sigma for a
-# circular Gaussian. Float solutions are decimetre-level (RTKLIB manual, ch. 3): 0.2 m.
+# Horizontal accuracy, one sigma per axis, m, by solution type: u-blox ZED-F9P datasheet
+# (UBX-17051259): RTK 0.01 m + 1 ppm CEP, PVT 1.5 m CEP, SBAS 1.0 m CEP; CEP = 1.1774 sigma for a circular
+# Gaussian. Float solutions are decimetre-level (RTKLIB manual, ch. 3): 0.2 m. A receiver's own
+# covariance is formal (it assumes white, uncorrelated noise) and is often smaller than this; and the
+# error of a solution is not white: atmosphere, orbits and multipath change over tens of seconds to
+# minutes. Filters therefore floor each epoch's reported covariance at this figure (the white part)
+# and model a Gauss-Markov error of the same sigma with ``ERROR_CORRELATION_S`` (the correlated part).
 ACCURACY_FLOOR_M: dict[GnssQuality, float] = {
     GnssQuality.RTK_FIXED: 0.01 / 1.1774,
     GnssQuality.RTK_FLOAT: 0.2,
     GnssQuality.DGNSS: 1.0 / 1.1774,
     GnssQuality.SINGLE: 1.5 / 1.1774,
 }
+ERROR_CORRELATION_S = 60.0
+"""Correlation time of a GNSS solution's error (multipath and atmosphere change over about a minute), s."""
+
+
+def white_covariance_m2(fix: GnssFix) -> tuple[float, float, float]:
+    """The fix's reported covariance (xx, xy, yy) with each axis floored at its type's accuracy, m^2."""
+    floor = ACCURACY_FLOOR_M[fix.quality] ** 2
+    return max(fix.var_xx_m2, floor), fix.var_xy_m2, max(fix.var_yy_m2, floor)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -22,7 +22,13 @@ from scipy.stats import chi2
 
 from lastmile.core.errors import MessageError
 from lastmile.core.geometry import SE2, wrap_angle_rad
-from lastmile.core.gnss_messages import ACCURACY_FLOOR_M, GnssFix
+from lastmile.core.gnss_messages import (
+    ACCURACY_FLOOR_M,
+    ERROR_CORRELATION_S,
+    GnssFix,
+    GnssQuality,
+    white_covariance_m2,
+)
 from lastmile.core.sensor_frames import GnssInsFrame
 from lastmile.core.stamp import US_PER_S, Stamp
 from lastmile.core.vehicle_messages import LocalizationEstimate
@@ -30,8 +36,8 @@ from lastmile.localization.ekf_config import PoseEkfConfig
 
 __all__ = ["PoseEkf", "PoseEkfConfig", "PosePosterior"]
 
-_X, _Y, _YAW, _V, _BG, _BA, _K = range(7)
-N_STATES = 7
+_X, _Y, _YAW, _V, _BG, _BA, _K, _GE, _GN = range(9)
+N_STATES = 9
 _SPEED_PRIOR_STD_MPS = 10.0  # a shuttle's speed range: the speed is unknown until measured
 _NO_ACCEL = math.nan
 _MAX_REACQUIRE_FIXES = 64
@@ -49,6 +55,7 @@ class _Snap:
     s: np.ndarray
     p: np.ndarray
     anchor: tuple[float, float, float] | None = None
+    gnss_quality: GnssQuality | None = None
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -56,9 +63,9 @@ class PosePosterior:
     """The filter's state and covariance at a stamp.
 
     Attributes:
-        state: (7,) float64: x_m, y_m, yaw_rad, speed_mps, gyro bias rad/s, accelerometer bias m/s^2,
-            wheel-odometry scale error.
-        covariance: (7, 7) float64, same order.
+        state: (9,) float64: x_m, y_m, yaw_rad, speed_mps, gyro bias rad/s, accelerometer bias m/s^2,
+            wheel-odometry scale error, GNSS solution error east and north (m; its correlated part).
+        covariance: (9, 9) float64, same order.
     """
 
     stamp: Stamp
@@ -125,6 +132,8 @@ class PoseEkf:
                 c.yaw_rate_bias_std_radps**2,
                 c.grade_accel_std_mps2**2,
                 c.odom_scale_std**2,
+                0.0,
+                0.0,
             ]
         )
         self._latest = _Snap(-1, False, False, 0.0, _NO_ACCEL, np.zeros(N_STATES), prior)
@@ -313,7 +322,7 @@ class PoseEkf:
         if dt == 0.0:
             return snap
         c = self.config
-        x, y, yaw, v, bg, ba, k = snap.s.tolist()
+        x, y, yaw, v, bg, ba, k = snap.s[:7].tolist()
         has_accel = not math.isnan(snap.a_in)
         w = snap.w_in - bg
         acc = snap.a_in - ba if has_accel else 0.0
@@ -349,8 +358,19 @@ class PoseEkf:
         p[4, 4] += c.yaw_rate_bias_walk_radps**2 * adt
         p[5, 5] += c.grade_accel_std_mps2**2 * (1.0 - decay * decay)
         p[6, 6] += c.odom_scale_walk**2 * adt
+        ge, gn = snap.s[_GE], snap.s[_GN]
+        if snap.gnss_quality is not None:
+            # The GNSS error is a Gauss-Markov process: it decorrelates, towards its datasheet sigma.
+            fade = math.exp(-adt / ERROR_CORRELATION_S)
+            f_g = np.diag([fade, fade])
+            p[7:9, :] = f_g @ p[7:9, :]
+            p[:, 7:9] = p[:, 7:9] @ f_g
+            q_g = ACCURACY_FLOOR_M[snap.gnss_quality] ** 2 * (1.0 - fade * fade)
+            p[7, 7] += q_g
+            p[8, 8] += q_g
+            ge, gn = ge * fade, gn * fade
         s = np.array(
-            (x + vx * dt, y + vy * dt, wrap_angle_rad(yaw + w * dt), v + acc * dt, bg, ba * decay, k)
+            (x + vx * dt, y + vy * dt, wrap_angle_rad(yaw + w * dt), v + acc * dt, bg, ba * decay, k, ge, gn)
         )
         return _replace(snap, t_us=t_us, s=s, p=p)
 
@@ -367,7 +387,7 @@ class PoseEkf:
     def _fuse_ins(self, snap: _Snap, fix: GnssInsFrame, reset: bool, first_time: bool) -> tuple[_Snap, bool]:
         r = np.diag([fix.pos_std_m**2, fix.pos_std_m**2]) + self._timing_cov(snap)
         if not snap.initialised or not snap.yaw_known or reset:
-            snap = self._set_position(snap, fix.x_m, fix.y_m, r, fix.yaw_rad, fix.yaw_std_rad**2)
+            snap = self._set_position(snap, fix.x_m, fix.y_m, r, fix.yaw_rad, fix.yaw_std_rad**2, False)
             return self._fuse_speed_yaw(snap, fix), self._count_accepted(first_time)
         h = np.zeros((2, N_STATES))
         h[0, _X] = h[1, _Y] = 1.0
@@ -375,7 +395,7 @@ class PoseEkf:
         used, snap = self._gated_update(snap, h, innovation, r, first_time)
         if used is None:
             pos = np.array([fix.x_m, fix.y_m])
-            snap = self._set_position(snap, pos[0], pos[1], r, fix.yaw_rad, fix.yaw_std_rad**2)
+            snap = self._set_position(snap, pos[0], pos[1], r, fix.yaw_rad, fix.yaw_std_rad**2, False)
             used = True
         if not used:
             return snap, False
@@ -391,9 +411,10 @@ class PoseEkf:
         return _replace(snap, s=s, p=p)
 
     def _fuse_position(self, snap: _Snap, fix: GnssFix, reset: bool, first_time: bool) -> tuple[_Snap, bool]:
-        floor = ACCURACY_FLOOR_M[fix.quality] ** 2
-        r = np.array([[max(fix.var_xx_m2, floor), fix.var_xy_m2], [fix.var_xy_m2, max(fix.var_yy_m2, floor)]])
-        r = r + self._timing_cov(snap)
+        xx, xy, yy = white_covariance_m2(fix)
+        r = np.array([[xx, xy], [xy, yy]]) + self._timing_cov(snap)
+        if snap.gnss_quality is not fix.quality:
+            snap = self._restart_gnss_error(snap, fix.quality)
         if not snap.initialised or not snap.yaw_known:
             return self._initialise_from_positions(snap, fix, r), self._count_accepted(first_time)
         lf, ll = self._lever
@@ -402,8 +423,10 @@ class PoseEkf:
         h = np.zeros((2, N_STATES))
         h[0, _X] = h[1, _Y] = 1.0
         h[0, _YAW], h[1, _YAW] = -sn * lf - cs * ll, cs * lf - sn * ll
+        h[0, _GE] = h[1, _GN] = 1.0
         antenna = (snap.s[_X] + cs * lf - sn * ll, snap.s[_Y] + sn * lf + cs * ll)
-        innovation = np.array([fix.x_m - antenna[0], fix.y_m - antenna[1]])
+        predicted = (antenna[0] + snap.s[_GE], antenna[1] + snap.s[_GN])
+        innovation = np.array([fix.x_m - predicted[0], fix.y_m - predicted[1]])
         if reset:
             return self._reset_to_fix(snap, fix, r), True
         used, snap = self._gated_update(snap, h, innovation, r, first_time)
@@ -483,16 +506,45 @@ class PoseEkf:
         d = np.array([math.cos(yaw), math.sin(yaw)])
         return (v * self.config.fix_timing_std_s) ** 2 * np.outer(d, d)
 
+    def _restart_gnss_error(self, snap: _Snap, quality: GnssQuality) -> _Snap:
+        """A new solution type is a new error process: zero mean, its datasheet sigma, uncorrelated."""
+        s, p = snap.s.copy(), snap.p.copy()
+        s[7:9] = 0.0
+        p[7:9, :] = 0.0
+        p[:, 7:9] = 0.0
+        p[7, 7] = p[8, 8] = ACCURACY_FLOOR_M[quality] ** 2
+        return _replace(snap, s=s, p=p, gnss_quality=quality)
+
     def _set_position(
-        self, snap: _Snap, x: float, y: float, r: np.ndarray, yaw: float | None, yaw_var: float | None
+        self,
+        snap: _Snap,
+        x: float,
+        y: float,
+        r: np.ndarray,
+        yaw: float | None,
+        yaw_var: float | None,
+        position_fix: bool = True,
     ) -> _Snap:
-        """Position (and yaw) from a fix; speed, biases and scale (with covariance) kept."""
+        """Position (and yaw) from a fix; speed, biases and scale (with covariance) kept.
+
+        For a position-only fix the measured point is the position plus the GNSS error state: the
+        error restarts at zero with its sigma, and the position takes that sigma on, anti-correlated.
+        """
         s, p = snap.s.copy(), snap.p.copy()
         s[_X], s[_Y] = x, y
         rows = [_X, _Y] if yaw is None else [_X, _Y, _YAW]
         p[rows, :] = 0.0
         p[:, rows] = 0.0
         p[:2, :2] = r
+        if position_fix and snap.gnss_quality is not None:
+            bias_var = ACCURACY_FLOOR_M[snap.gnss_quality] ** 2
+            s[7:9] = 0.0
+            p[7:9, :] = 0.0
+            p[:, 7:9] = 0.0
+            eye = np.eye(2)
+            p[:2, :2] += bias_var * eye
+            p[:2, 7:9] = p[7:9, :2] = -bias_var * eye
+            p[7:9, 7:9] = bias_var * eye
         if yaw is not None and yaw_var is not None:
             s[_YAW] = wrap_angle_rad(yaw)
             p[_YAW, _YAW] = yaw_var

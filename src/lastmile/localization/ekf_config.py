@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -160,7 +161,64 @@ class PoseEkfConfig:
                 f"got {self.reacquire_chi2_quantile}"
             )
 
+    def with_imu(self, name: str) -> PoseEkfConfig:
+        """This configuration with the IMU error model of a named grade (``IMU_PROFILES``).
+
+        Raises:
+            ConfigError: an unknown name.
+        """
+        profile = IMU_PROFILES.get(name)
+        if profile is None:
+            raise ConfigError(f"IMU grade: expected one of {', '.join(IMU_PROFILES)}, got {name!r}")
+        return dataclasses.replace(
+            self,
+            gyro_noise_radps=profile.gyro_noise_radps,
+            gyro_scale_error=profile.gyro_scale_error,
+            yaw_rate_bias_std_radps=profile.yaw_rate_bias_std_radps,
+            yaw_rate_bias_walk_radps=profile.yaw_rate_bias_walk_radps,
+            accel_noise_mps2=profile.accel_noise_mps2,
+        )
+
     @property
     def grade_accel_std_mps2(self) -> float:
         """One sigma of the accelerometer reading caused by road grade, m/s^2."""
         return _G_MPS2 * self.road_grade_std
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ImuProfile:
+    """An IMU grade's error model (the fields of :class:`PoseEkfConfig` of the same names)."""
+
+    gyro_noise_radps: float
+    gyro_scale_error: float
+    yaw_rate_bias_std_radps: float
+    yaw_rate_bias_walk_radps: float
+    accel_noise_mps2: float
+
+
+_DEFAULT = PoseEkfConfig()
+_VIBRATION = 10.0  # a running vehicle body's vibration over a bench datasheet's accelerometer noise
+
+IMU_PROFILES: dict[str, ImuProfile] = {
+    # Analog Devices ADIS16470 (rev. C): the defaults of PoseEkfConfig.
+    "industrial_mems": ImuProfile(
+        gyro_noise_radps=_DEFAULT.gyro_noise_radps,
+        gyro_scale_error=_DEFAULT.gyro_scale_error,
+        yaw_rate_bias_std_radps=_DEFAULT.yaw_rate_bias_std_radps,
+        yaw_rate_bias_walk_radps=_DEFAULT.yaw_rate_bias_walk_radps,
+        accel_noise_mps2=_DEFAULT.accel_noise_mps2,
+    ),
+    # InvenSense MPU-6000/6050 class (PS-MPU-6000A-00 rev. 3.4): rate noise 0.005 deg/s/sqrt(Hz),
+    # sensitivity tolerance +-3 %, zero-rate output drift +-20 deg/s over 125 degC (0.16 deg/s per degC:
+    # a cabin warming by 1 degC in 10 min moves the bias by 0.16 deg/s, a random walk of
+    # 0.0065 deg/s per sqrt(s)), accelerometer noise 400 ug/sqrt(Hz). The start-up bias prior is
+    # 1 deg/s: drivers remove the datasheet's +-20 deg/s untrimmed offset at start-up.
+    "consumer_mems": ImuProfile(
+        gyro_noise_radps=0.005 * _DEG,
+        gyro_scale_error=0.03,
+        yaw_rate_bias_std_radps=1.0 * _DEG,
+        yaw_rate_bias_walk_radps=0.16 * _DEG / math.sqrt(600.0),
+        accel_noise_mps2=_VIBRATION * 400e-6 * _G_MPS2,
+    ),
+}
+"""IMU grades by name, from their datasheets."""
