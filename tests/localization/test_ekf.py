@@ -303,8 +303,8 @@ def test_prediction_covariance_is_propagated_with_the_numerical_jacobian(snap, d
         plus, minus = snap.s.copy(), snap.s.copy()
         plus[j] += h
         minus[j] -= h
-        sp = ekf._propagate(dataclasses.replace(snap, s=plus), t_us).s
-        sm = ekf._propagate(dataclasses.replace(snap, s=minus), t_us).s
+        sp = ekf._propagate(snap._replace(s=plus), t_us).s
+        sm = ekf._propagate(snap._replace(s=minus), t_us).s
         diff = sp - sm
         diff[2] = (diff[2] + math.pi) % (2 * math.pi) - math.pi
         jac[:, j] = diff / (2 * h)
@@ -316,7 +316,7 @@ def test_prediction_covariance_is_propagated_with_the_numerical_jacobian(snap, d
 
 @settings(max_examples=50, deadline=None)
 @given(snapshots(), st.integers(0, 8), st.floats(-1, 1), st.floats(1e-4, 1.0))
-def test_the_joseph_update_is_the_kalman_update_and_keeps_the_covariance_positive(snap, index, innov, r):
+def test_the_update_is_the_kalman_update_and_keeps_the_covariance_positive(snap, index, innov, r):
     h = np.zeros((1, 9))
     h[0, index] = 1.0
     s, p = _kalman(snap.s, snap.p, h, np.array([innov]), np.array([[r]]))

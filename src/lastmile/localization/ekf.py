@@ -14,11 +14,10 @@ inputs and posteriors lets late inputs be inserted at their stamps and the newer
 from __future__ import annotations
 
 import math
-from collections import deque
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
-from scipy.stats import chi2
 
 from lastmile.core.errors import MessageError
 from lastmile.core.geometry import SE2, wrap_angle_rad
@@ -33,6 +32,7 @@ from lastmile.core.sensor_frames import GnssInsFrame
 from lastmile.core.stamp import US_PER_S, Stamp
 from lastmile.core.vehicle_messages import LocalizationEstimate
 from lastmile.localization.ekf_config import PoseEkfConfig
+from lastmile.localization.reacquisition import ReacquisitionRule, RejectedFix
 
 __all__ = ["PoseEkf", "PoseEkfConfig", "PosePosterior"]
 
@@ -40,11 +40,10 @@ _X, _Y, _YAW, _V, _BG, _BA, _K, _GE, _GN = range(9)
 N_STATES = 9
 _SPEED_PRIOR_STD_MPS = 10.0  # a shuttle's speed range: the speed is unknown until measured
 _NO_ACCEL = math.nan
-_MAX_REACQUIRE_FIXES = 64
+_EYE = np.eye(N_STATES)
 
 
-@dataclass(frozen=True, slots=True)
-class _Snap:
+class _Snap(NamedTuple):
     """Posterior after one input. ``t_us`` < 0 before the first input; arrays are never mutated."""
 
     t_us: int
@@ -88,14 +87,6 @@ class _Event:
     reset: bool = False
 
 
-@dataclass(frozen=True, slots=True)
-class _Rejected:
-    t_us: int
-    innovation: np.ndarray  # (2,) m
-    r: np.ndarray  # (2, 2) the fix's covariance (floored)
-    p_pos: np.ndarray  # (2, 2) the filter's position covariance when it arrived
-
-
 class PoseEkf:
     """Extended Kalman filter over (x, y, yaw, speed, gyro bias, accelerometer bias, odometry scale).
 
@@ -118,10 +109,9 @@ class PoseEkf:
         """Inputs older than the history, dropped."""
         self.resets = 0
         """Re-acquisitions: the filter re-initialised its position from consistent rejected fixes."""
-        self._rejected: deque[_Rejected] = deque(maxlen=_MAX_REACQUIRE_FIXES)
-        self._chi2_bound = [math.inf] + [
-            float(chi2.ppf(c.reacquire_chi2_quantile, 2 * n)) for n in range(1, _MAX_REACQUIRE_FIXES)
-        ]
+        self._reacquisition = ReacquisitionRule(
+            c.reacquire_window_s, c.reacquire_min_fixes, c.reacquire_chi2_quantile
+        )
         self._reset_on_arrival = False
         prior = np.diag(
             [
@@ -141,6 +131,7 @@ class PoseEkf:
         self._history_us = round(c.history_s * US_PER_S)
         self._lever = c.antenna_lever_arm_m
         self._lever_sq = c.antenna_lever_arm_m[0] ** 2 + c.antenna_lever_arm_m[1] ** 2
+        self._r_odom = c.odom_speed_std_mps**2
 
     # --- public API ----------------------------------------------------------------------------
     @property
@@ -301,14 +292,14 @@ class PoseEkf:
     def _apply(
         self, snap: _Snap, t_us: int, kind: int, payload: _Payload, reset: bool, first_time: bool
     ) -> tuple[_Snap, bool]:
-        snap = self._propagate(snap, t_us) if snap.t_us >= 0 else _replace(snap, t_us=t_us)
+        snap = self._propagate(snap, t_us) if snap.t_us >= 0 else snap._replace(t_us=t_us)
         if kind == _ODOM:
             speed, yaw_rate = payload  # type: ignore[misc]
-            snap = _replace(snap, w_in=yaw_rate)
+            snap = snap._replace(w_in=yaw_rate)
             return self._wheel_update(snap, speed), True
         if kind == _IMU:
             yaw_rate, accel = payload  # type: ignore[misc]
-            return _replace(snap, w_in=yaw_rate, a_in=accel), True
+            return snap._replace(w_in=yaw_rate, a_in=accel), True
         if kind == _WHEEL:
             return self._wheel_update(snap, payload), True  # type: ignore[arg-type]
         if kind == _GNSS_INS:
@@ -334,7 +325,7 @@ class PoseEkf:
         vy = v_mid * sn - w * lever * cs
         adt = abs(dt)
         decay = math.exp(-abs(v) * adt / c.road_grade_length_m)
-        f = np.eye(N_STATES)
+        f = _EYE.copy()
         f[0, 2], f[1, 2] = -vy * dt, vx * dt
         f[0, 3], f[1, 3] = cs * dt, sn * dt
         f[0, 4] = (0.5 * vy * dt - lever * sn) * dt
@@ -372,17 +363,19 @@ class PoseEkf:
         s = np.array(
             (x + vx * dt, y + vy * dt, wrap_angle_rad(yaw + w * dt), v + acc * dt, bg, ba * decay, k, ge, gn)
         )
-        return _replace(snap, t_us=t_us, s=s, p=p)
+        return snap._replace(t_us=t_us, s=s, p=p)
 
     # --- corrections ---------------------------------------------------------------------------
     def _wheel_update(self, snap: _Snap, speed_mps: float) -> _Snap:
         """Wheel speed = speed x (1 + scale error)."""
         v, k = float(snap.s[_V]), float(snap.s[_K])
-        h = np.zeros((1, N_STATES))
-        h[0, _V], h[0, _K] = 1.0 + k, v
-        r = np.array([[self.config.odom_speed_std_mps**2]])
-        s, p = _kalman(snap.s, snap.p, h, np.array([speed_mps - v * (1.0 + k)]), r)
-        return _replace(snap, s=s, p=p)
+        # H has two non-zeros (speed and scale): P H^T is two columns, no matrix product needed.
+        p = snap.p
+        ph = p[:, _V] * (1.0 + k) + p[:, _K] * v
+        gain = ph / (ph[_V] * (1.0 + k) + ph[_K] * v + self._r_odom)
+        new_p = p - np.outer(gain, ph)
+        s = snap.s + gain * (speed_mps - v * (1.0 + k))
+        return snap._replace(s=s, p=0.5 * (new_p + new_p.T))
 
     def _fuse_ins(self, snap: _Snap, fix: GnssInsFrame, reset: bool, first_time: bool) -> tuple[_Snap, bool]:
         r = np.diag([fix.pos_std_m**2, fix.pos_std_m**2]) + self._timing_cov(snap)
@@ -408,7 +401,7 @@ class PoseEkf:
         r = np.diag([fix.yaw_std_rad**2, self.config.gnss_speed_std_mps**2])
         s, p = _kalman(snap.s, snap.p, h, innovation, r)
         s[_YAW] = wrap_angle_rad(s[_YAW])
-        return _replace(snap, s=s, p=p)
+        return snap._replace(s=s, p=p)
 
     def _fuse_position(self, snap: _Snap, fix: GnssFix, reset: bool, first_time: bool) -> tuple[_Snap, bool]:
         xx, xy, yy = white_covariance_m2(fix)
@@ -442,60 +435,28 @@ class PoseEkf:
         d2 = float(innovation @ np.linalg.solve(s_cov, innovation))
         if d2 <= self.config.gate_chi2:
             if first_time:
-                self._rejected.clear()
+                self._reacquisition.clear()
                 self.accepted_fixes += 1
             s, p = _kalman(snap.s, snap.p, h, innovation, r)
             s[_YAW] = wrap_angle_rad(s[_YAW])
-            return True, _replace(snap, s=s, p=p)
+            return True, snap._replace(s=s, p=p)
         if not first_time:
             return False, snap
         self.rejected_fixes += 1
         self.gross_rejections += d2 > self.config.gross_chi2
         self.max_rejected_chi2 = max(self.max_rejected_chi2, d2)
-        self._rejected.append(_Rejected(snap.t_us, innovation, r, snap.p[:2, :2].copy()))
-        if self._reacquire(snap):
-            self._rejected.clear()
+        rejected = RejectedFix(snap.t_us, innovation, r, snap.p[:2, :2].copy())
+        if self._reacquisition.reject(rejected, snap.p[:2, :2]):
             self._reset_on_arrival = True
             self.resets += 1
             self.accepted_fixes += 1
             return None, snap
         return False, snap
 
-    def _reacquire(self, snap: _Snap) -> bool:
-        """Whether the recent rejected fixes prove the filter, not the receiver, wrong.
-
-        They must span ``reacquire_window_s`` with at least ``reacquire_min_fixes`` fixes, each
-        claiming (by its own covariance) to be better than the filter, and agree on one offset: their
-        innovations about the mean, weighted by each fix's covariance plus the filter's own position
-        drift since that fix, pass a chi-square test. A drifted filter sees one steady offset;
-        multipath and a wandering receiver do not.
-        """
-        c = self.config
-        newest = self._rejected[-1].t_us
-        window_us = round(c.reacquire_window_s * US_PER_S)
-        recent = [f for f in self._rejected if newest - f.t_us <= window_us]
-        if len(recent) < c.reacquire_min_fixes or newest - recent[0].t_us < 0.75 * window_us:
-            return False
-        filter_var = float(np.linalg.eigvalsh(snap.p[:2, :2])[-1])
-        if any(float(np.linalg.eigvalsh(f.r)[-1]) >= filter_var for f in recent):
-            return False
-        innovations = np.array([f.innovation for f in recent])
-        mean = innovations.mean(axis=0)
-        stat = 0.0
-        p_now = snap.p[:2, :2]
-        for f, nu in zip(recent, innovations, strict=True):
-            drift = p_now - f.p_pos
-            drift = 0.5 * (drift + drift.T)
-            vals, vecs = np.linalg.eigh(drift)
-            drift = (vecs * np.clip(vals, 0.0, None)) @ vecs.T
-            dev = nu - mean
-            stat += float(dev @ np.linalg.solve(f.r + drift, dev))
-        return stat <= self._chi2_bound[len(recent) - 1]
-
     def _count_accepted(self, first_time: bool) -> bool:
         if first_time:
             self.accepted_fixes += 1
-            self._rejected.clear()
+            self._reacquisition.clear()
         return True
 
     # --- (re-)initialisation -------------------------------------------------------------------
@@ -513,7 +474,7 @@ class PoseEkf:
         p[7:9, :] = 0.0
         p[:, 7:9] = 0.0
         p[7, 7] = p[8, 8] = ACCURACY_FLOOR_M[quality] ** 2
-        return _replace(snap, s=s, p=p, gnss_quality=quality)
+        return snap._replace(s=s, p=p, gnss_quality=quality)
 
     def _set_position(
         self,
@@ -548,7 +509,7 @@ class PoseEkf:
         if yaw is not None and yaw_var is not None:
             s[_YAW] = wrap_angle_rad(yaw)
             p[_YAW, _YAW] = yaw_var
-        return _replace(snap, initialised=True, yaw_known=snap.yaw_known or yaw is not None, s=s, p=p)
+        return snap._replace(initialised=True, yaw_known=snap.yaw_known or yaw is not None, s=s, p=p)
 
     def _reset_to_fix(self, snap: _Snap, fix: GnssFix, r: np.ndarray) -> _Snap:
         """Re-acquisition: the base from the antenna fix with the filter's yaw; yaw doubt enters r."""
@@ -567,7 +528,7 @@ class PoseEkf:
         yaw_rel = float(snap.s[_YAW])
         if anchor is None:
             snap = self._set_position(snap, fix.x_m, fix.y_m, loose, None, None)
-            return _replace(snap, anchor=(fix.x_m, fix.y_m, yaw_rel))
+            return snap._replace(anchor=(fix.x_m, fix.y_m, yaw_rel))
         dx, dy = fix.x_m - anchor[0], fix.y_m - anchor[1]
         dist = math.hypot(dx, dy)
         if dist < self.config.heading_init_distance_m:
@@ -582,24 +543,23 @@ class PoseEkf:
         r_base = r + self._lever_sq * yaw_var * np.eye(2)
         base_x, base_y = fix.x_m - (cs * lf - sn * ll), fix.y_m - (sn * lf + cs * ll)
         snap = self._set_position(snap, base_x, base_y, r_base, yaw, yaw_var)
-        return _replace(snap, anchor=None)
+        return snap._replace(anchor=None)
 
 
 def _kalman(
     s: np.ndarray, p: np.ndarray, h: np.ndarray, innovation: np.ndarray, r: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Kalman update in Joseph form (stays symmetric and positive semi-definite)."""
+    """Kalman update of a 1- or 2-row measurement (closed-form inverse), kept symmetric."""
     ph = p @ h.T
-    gain = np.linalg.solve(h @ ph + r, ph.T).T
-    i_kh = np.eye(N_STATES) - gain @ h
-    new_p = i_kh @ p @ i_kh.T + gain @ r @ gain.T
+    cov = h @ ph + r
+    if cov.shape == (1, 1):
+        inv = np.array([[1.0 / cov[0, 0]]])
+    else:
+        a, b, c, d = cov[0, 0], cov[0, 1], cov[1, 0], cov[1, 1]
+        inv = np.array([[d, -b], [-c, a]]) / (a * d - b * c)
+    gain = ph @ inv
+    new_p = p - gain @ ph.T
     return s + gain @ innovation, 0.5 * (new_p + new_p.T)
-
-
-def _replace(snap: _Snap, **changes: object) -> _Snap:
-    fields = {name: getattr(snap, name) for name in _Snap.__slots__}
-    fields.update(changes)
-    return _Snap(**fields)
 
 
 def _check_inputs(where: str, stamp: Stamp, **values: float) -> None:
