@@ -282,10 +282,11 @@ def snapshots(draw):
             draw(st.floats(-0.03, 0.03)),
             draw(st.floats(-2, 2)),
             draw(st.floats(-2, 2)),
+            draw(st.floats(-0.03, 0.03)),
         )
     )
-    a = np.array(draw(st.lists(st.floats(-1, 1), min_size=81, max_size=81))).reshape(9, 9)
-    cov = a @ a.T + 1e-3 * np.eye(9)
+    a = np.array(draw(st.lists(st.floats(-1, 1), min_size=100, max_size=100))).reshape(10, 10)
+    cov = a @ a.T + 1e-3 * np.eye(10)
     accel = draw(st.one_of(st.just(math.nan), st.floats(-2, 2)))
     quality = draw(st.sampled_from([None, GnssQuality.RTK_FIXED, GnssQuality.SINGLE]))
     return _Snap(0, True, True, draw(st.floats(-0.5, 0.5)), accel, state, cov, None, quality)
@@ -297,8 +298,8 @@ def test_prediction_covariance_is_propagated_with_the_numerical_jacobian(snap, d
     ekf = PoseEkf(PoseEkfConfig(zero_slip_offset_m=lever_m))
     t_us = round(dt_s * 1e6)
     out = ekf._propagate(snap, t_us)
-    jac = np.zeros((9, 9))
-    for j in range(9):
+    jac = np.zeros((10, 10))
+    for j in range(10):
         h = 1e-6
         plus, minus = snap.s.copy(), snap.s.copy()
         plus[j] += h
@@ -311,16 +312,16 @@ def test_prediction_covariance_is_propagated_with_the_numerical_jacobian(snap, d
     q = out.p - jac @ snap.p @ jac.T
     # What is left is the process noise: diagonal and non-negative.
     assert np.allclose(q - np.diag(np.diag(q)), 0.0, atol=1e-6)
-    assert (np.diag(q) > -1e-9).all()
+    assert (np.diag(q) > -1e-6).all()
 
 
 @settings(max_examples=50, deadline=None)
-@given(snapshots(), st.integers(0, 8), st.floats(-1, 1), st.floats(1e-4, 1.0))
+@given(snapshots(), st.integers(0, 9), st.floats(-1, 1), st.floats(1e-4, 1.0))
 def test_the_update_is_the_kalman_update_and_keeps_the_covariance_positive(snap, index, innov, r):
-    h = np.zeros((1, 9))
+    h = np.zeros((1, 10))
     h[0, index] = 1.0
     s, p = _kalman(snap.s, snap.p, h, np.array([innov]), np.array([[r]]))
     gain = snap.p @ h[0] / (h[0] @ snap.p @ h[0] + r)
     assert np.allclose(s, snap.s + gain * innov)
-    assert np.allclose(p, (np.eye(9) - np.outer(gain, h[0])) @ snap.p, atol=1e-9)
+    assert np.allclose(p, (np.eye(10) - np.outer(gain, h[0])) @ snap.p, atol=1e-9)
     assert np.linalg.eigvalsh(p).min() > -1e-9

@@ -36,8 +36,8 @@ from lastmile.localization.reacquisition import ReacquisitionRule, RejectedFix
 
 __all__ = ["PoseEkf", "PoseEkfConfig", "PosePosterior"]
 
-_X, _Y, _YAW, _V, _BG, _BA, _K, _GE, _GN = range(9)
-N_STATES = 9
+_X, _Y, _YAW, _V, _BG, _BA, _K, _GE, _GN, _GS = range(10)
+N_STATES = 10
 _SPEED_PRIOR_STD_MPS = 10.0  # a shuttle's speed range: the speed is unknown until measured
 _NO_ACCEL = math.nan
 _EYE = np.eye(N_STATES)
@@ -62,9 +62,10 @@ class PosePosterior:
     """The filter's state and covariance at a stamp.
 
     Attributes:
-        state: (9,) float64: x_m, y_m, yaw_rad, speed_mps, gyro bias rad/s, accelerometer bias m/s^2,
-            wheel-odometry scale error, GNSS solution error east and north (m; its correlated part).
-        covariance: (9, 9) float64, same order.
+        state: (10,) float64: x_m, y_m, yaw_rad, speed_mps, gyro bias rad/s, accelerometer bias m/s^2,
+            wheel-odometry scale error, GNSS solution error east and north (m; its correlated part),
+            gyro scale error.
+        covariance: (10, 10) float64, same order.
     """
 
     stamp: Stamp
@@ -124,6 +125,7 @@ class PoseEkf:
                 c.odom_scale_std**2,
                 0.0,
                 0.0,
+                c.gyro_scale_error**2,
             ]
         )
         self._latest = _Snap(-1, False, False, 0.0, _NO_ACCEL, np.zeros(N_STATES), prior)
@@ -228,7 +230,7 @@ class PoseEkf:
             stamp=stamp,
             map_from_base=SE2(float(s[_X]), float(s[_Y]), float(s[_YAW])),
             speed_mps=float(s[_V]),
-            yaw_rate_radps=snap.w_in - float(s[_BG]),
+            yaw_rate_radps=(snap.w_in - float(s[_BG])) * (1.0 - float(s[_GS])),
             pos_std_m=pos_std,
             yaw_std_rad=math.sqrt(p[_YAW, _YAW]),
             valid=snap.initialised and snap.yaw_known and pos_std <= self.config.max_pos_std_m,
@@ -313,9 +315,10 @@ class PoseEkf:
         if dt == 0.0:
             return snap
         c = self.config
-        x, y, yaw, v, bg, ba, k = snap.s[:7].tolist()
+        x, y, yaw, v, bg, ba, k, ge, gn, gs = snap.s.tolist()
         has_accel = not math.isnan(snap.a_in)
-        w = snap.w_in - bg
+        # The gyro reads (1 + scale error) x rate + bias; to first order in the scale error:
+        w = (snap.w_in - bg) * (1.0 - gs)
         acc = snap.a_in - ba if has_accel else 0.0
         v_mid = v + 0.5 * acc * dt
         mid = yaw + 0.5 * w * dt
@@ -328,9 +331,11 @@ class PoseEkf:
         f = _EYE.copy()
         f[0, 2], f[1, 2] = -vy * dt, vx * dt
         f[0, 3], f[1, 3] = cs * dt, sn * dt
-        f[0, 4] = (0.5 * vy * dt - lever * sn) * dt
-        f[1, 4] = (-0.5 * vx * dt + lever * cs) * dt
-        f[2, 4] = -dt
+        dx_dw = (-0.5 * vy * dt + lever * sn) * dt
+        dy_dw = (0.5 * vx * dt - lever * cs) * dt
+        dw_dbg, dw_dgs = -(1.0 - gs), -(snap.w_in - bg)
+        f[0, 4], f[1, 4], f[2, 4] = dx_dw * dw_dbg, dy_dw * dw_dbg, dt * dw_dbg
+        f[0, 9], f[1, 9], f[2, 9] = dx_dw * dw_dgs, dy_dw * dw_dgs, dt * dw_dgs
         if has_accel:
             f[0, 5], f[1, 5] = -0.5 * cs * dt * dt, -0.5 * sn * dt * dt
             f[3, 5] = -dt
@@ -341,7 +346,7 @@ class PoseEkf:
         q_pos = (c.pos_noise_mps**2 + (c.side_slip_ratio * v) ** 2 * tau) * adt
         p[0, 0] += q_pos
         p[1, 1] += q_pos
-        p[2, 2] += (c.gyro_noise_radps**2 + (c.gyro_scale_error * w) ** 2 * tau) * adt
+        p[2, 2] += c.gyro_noise_radps**2 * adt
         if has_accel:
             p[3, 3] += (c.accel_noise_mps2**2 + (c.pitch_gradient * acc) ** 2 * tau) * adt
         else:
@@ -349,7 +354,6 @@ class PoseEkf:
         p[4, 4] += c.yaw_rate_bias_walk_radps**2 * adt
         p[5, 5] += c.grade_accel_std_mps2**2 * (1.0 - decay * decay)
         p[6, 6] += c.odom_scale_walk**2 * adt
-        ge, gn = snap.s[_GE], snap.s[_GN]
         if snap.gnss_quality is not None:
             # The GNSS error is a Gauss-Markov process: it decorrelates, towards its datasheet sigma.
             fade = math.exp(-adt / ERROR_CORRELATION_S)
@@ -361,7 +365,18 @@ class PoseEkf:
             p[8, 8] += q_g
             ge, gn = ge * fade, gn * fade
         s = np.array(
-            (x + vx * dt, y + vy * dt, wrap_angle_rad(yaw + w * dt), v + acc * dt, bg, ba * decay, k, ge, gn)
+            (
+                x + vx * dt,
+                y + vy * dt,
+                wrap_angle_rad(yaw + w * dt),
+                v + acc * dt,
+                bg,
+                ba * decay,
+                k,
+                ge,
+                gn,
+                gs,
+            )
         )
         return snap._replace(t_us=t_us, s=s, p=p)
 

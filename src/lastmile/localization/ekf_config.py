@@ -25,10 +25,11 @@ class PoseEkfConfig:
 
     Attributes:
         gyro_noise_radps: gyro white noise density, rad/s per sqrt(Hz) (ADIS16470: 0.008 deg/s/sqrt(Hz)).
-        gyro_scale_error: gyro scale-factor error, relative (MEMS datasheets: up to 1 %). Over a turn it
-            is a heading error proportional to the angle turned; modelled as noise of density
-            scale x |yaw rate| x sqrt(``turn_correlation_s``).
-        turn_correlation_s: how long a turn (and the scale errors it excites) lasts, s.
+        gyro_scale_error: prior one-sigma gyro scale-factor error, relative (industrial MEMS: 1 %). A
+            state: over a turn it is a heading error proportional to the angle turned, the same
+            sign at every turn the same way (a loop accumulates it), learnt in turns while GNSS is
+            available.
+        turn_correlation_s: how long a turn (and the slip and pitch errors it excites) lasts, s.
         yaw_rate_bias_std_radps: prior one-sigma gyro bias at start-up, rad/s (0.3 deg/s: MEMS turn-on
             bias over temperature).
         yaw_rate_bias_walk_radps: gyro bias random walk, rad/s per sqrt(s): twice the ADIS16470's
