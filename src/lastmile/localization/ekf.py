@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
+from scipy.stats import chi2
 
 from lastmile.core.errors import MessageError
 from lastmile.core.geometry import SE2, wrap_angle_rad
@@ -32,6 +33,7 @@ from lastmile.core.sensor_frames import GnssInsFrame
 from lastmile.core.stamp import US_PER_S, Stamp
 from lastmile.core.vehicle_messages import LocalizationEstimate
 from lastmile.localization.ekf_config import PoseEkfConfig
+from lastmile.localization.landmark_localization import PoseMeasurement
 from lastmile.localization.reacquisition import ReacquisitionRule, RejectedFix
 
 __all__ = ["PoseEkf", "PoseEkfConfig", "PosePosterior"]
@@ -75,8 +77,8 @@ class PosePosterior:
     yaw_known: bool
 
 
-_ODOM, _IMU, _WHEEL, _GNSS_INS, _GNSS_POS = range(5)
-_Payload = tuple[float, float] | float | GnssInsFrame | GnssFix
+_ODOM, _IMU, _WHEEL, _GNSS_INS, _GNSS_POS, _POSE = range(6)
+_Payload = tuple[float, float] | float | GnssInsFrame | GnssFix | PoseMeasurement
 
 
 @dataclass(slots=True)
@@ -110,6 +112,8 @@ class PoseEkf:
         """Inputs older than the history, dropped."""
         self.resets = 0
         """Re-acquisitions: the filter re-initialised its position from consistent rejected fixes."""
+        self.rejected_pose_measurements = 0
+        """Pose measurements (landmarks, scan matches) beyond the chi-square gate."""
         self._reacquisition = ReacquisitionRule(
             c.reacquire_window_s, c.reacquire_min_fixes, c.reacquire_chi2_quantile
         )
@@ -216,6 +220,21 @@ class PoseEkf:
         fix.validate()
         return self._insert(int(fix.stamp), _GNSS_POS, fix)
 
+    def update_pose(self, measurement: PoseMeasurement) -> bool:
+        """Correct with a measurement of the planar pose (landmarks, a scan match), linearised here.
+
+        Used only once the filter has a position and heading; gated at the 0.999 chi-square quantile
+        of its dimension (rejections counted in ``rejected_pose_measurements``).
+
+        Returns:
+            True if it was used.
+        """
+        if measurement.stamp < 0:
+            raise MessageError(
+                f"PoseMeasurement.stamp: expected a non-negative stamp, got {measurement.stamp}"
+            )
+        return self._insert(int(measurement.stamp), _POSE, measurement)
+
     def estimate(self, stamp: Stamp) -> LocalizationEstimate:
         """The pose at ``stamp``, extrapolated from the newest posterior at or before it.
 
@@ -306,6 +325,8 @@ class PoseEkf:
             return self._wheel_update(snap, payload), True  # type: ignore[arg-type]
         if kind == _GNSS_INS:
             return self._fuse_ins(snap, payload, reset, first_time)  # type: ignore[arg-type]
+        if kind == _POSE:
+            return self._fuse_pose(snap, payload, first_time)  # type: ignore[arg-type]
         return self._fuse_position(snap, payload, reset, first_time)  # type: ignore[arg-type]
 
     # --- prediction ----------------------------------------------------------------------------
@@ -474,6 +495,24 @@ class PoseEkf:
             self._reacquisition.clear()
         return True
 
+    def _fuse_pose(self, snap: _Snap, measurement: PoseMeasurement, first_time: bool) -> tuple[_Snap, bool]:
+        if not (snap.initialised and snap.yaw_known):
+            return snap, False
+        lin = measurement.linearize(snap.s[:3].copy(), snap.p[:3, :3].copy())
+        if lin is None:
+            return snap, False
+        innovation, h3, r = lin
+        m = innovation.shape[0]
+        h = np.zeros((m, N_STATES))
+        h[:, :3] = h3
+        s_cov = h @ snap.p @ h.T + r
+        if float(innovation @ np.linalg.solve(s_cov, innovation)) > float(chi2.ppf(0.999, m)):
+            self.rejected_pose_measurements += first_time
+            return snap, False
+        s, p = _kalman(snap.s, snap.p, h, innovation, r)
+        s[_YAW] = wrap_angle_rad(s[_YAW])
+        return snap._replace(s=s, p=p), True
+
     # --- (re-)initialisation -------------------------------------------------------------------
     def _timing_cov(self, snap: _Snap) -> np.ndarray:
         """Along-track uncertainty of a fix from its epoch's timing uncertainty."""
@@ -564,14 +603,16 @@ class PoseEkf:
 def _kalman(
     s: np.ndarray, p: np.ndarray, h: np.ndarray, innovation: np.ndarray, r: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Kalman update of a 1- or 2-row measurement (closed-form inverse), kept symmetric."""
+    """Kalman update (closed-form inverse for 1 and 2 rows), kept symmetric."""
     ph = p @ h.T
     cov = h @ ph + r
     if cov.shape == (1, 1):
         inv = np.array([[1.0 / cov[0, 0]]])
-    else:
+    elif cov.shape == (2, 2):
         a, b, c, d = cov[0, 0], cov[0, 1], cov[1, 0], cov[1, 1]
         inv = np.array([[d, -b], [-c, a]]) / (a * d - b * c)
+    else:
+        inv = np.linalg.inv(cov)
     gain = ph @ inv
     new_p = p - gain @ ph.T
     return s + gain @ innovation, 0.5 * (new_p + new_p.T)
