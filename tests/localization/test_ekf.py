@@ -325,3 +325,16 @@ def test_the_update_is_the_kalman_update_and_keeps_the_covariance_positive(snap,
     assert np.allclose(s, snap.s + gain * innov)
     assert np.allclose(p, (np.eye(10) - np.outer(gain, h[0])) @ snap.p, atol=1e-9)
     assert np.linalg.eigvalsh(p).min() > -1e-9
+
+
+def test_the_estimate_uses_exactly_the_pose_block_of_the_full_prediction():
+    run = _run(12.0, outage=(6.0, 12.0))
+    for t in (11.98, 12.03, 11.5):
+        stamp = stamp_from_s(t)
+        est, post = run.ekf.estimate(stamp), run.ekf.posterior(stamp)
+        xy = post.covariance[:2, :2]
+        assert est.pos_std_m == pytest.approx(math.sqrt(np.linalg.eigvalsh(xy)[-1]), rel=1e-9)
+        assert est.yaw_std_rad == pytest.approx(math.sqrt(post.covariance[2, 2]), rel=1e-9)
+        assert (est.map_from_base.x_m, est.map_from_base.y_m) == pytest.approx(
+            tuple(post.state[:2]), abs=1e-12
+        )

@@ -43,6 +43,8 @@ N_STATES = 10
 _SPEED_PRIOR_STD_MPS = 10.0  # a shuttle's speed range: the speed is unknown until measured
 _NO_ACCEL = math.nan
 _EYE = np.eye(N_STATES)
+_DIAG = np.diag_indices(N_STATES)
+_DIAG3 = np.diag_indices(3)
 
 
 class _Snap(NamedTuple):
@@ -241,8 +243,8 @@ class PoseEkf:
         Nothing is stored. ``valid`` is False before the first fix, before the heading is known and
         while the position sigma exceeds ``max_pos_std_m``.
         """
-        snap = self._at(int(stamp))
-        s, p = snap.s, snap.p
+        snap = self._base_at(int(stamp))
+        s, p = self._propagate_pose(snap, int(stamp)) if snap.t_us >= 0 else (snap.s, snap.p[:3, :3])
         a, b, d = p[0, 0], p[0, 1], p[1, 1]
         pos_std = math.sqrt(0.5 * (a + d) + math.sqrt(0.25 * (a - d) ** 2 + b * b))
         return LocalizationEstimate(
@@ -267,7 +269,8 @@ class PoseEkf:
         )
 
     # --- history and replay --------------------------------------------------------------------
-    def _at(self, t_us: int) -> _Snap:
+    def _base_at(self, t_us: int) -> _Snap:
+        """The newest posterior at or before ``t_us`` (the oldest kept, for a stamp before the history)."""
         snap = self._latest
         events = self._events
         if events and t_us < snap.t_us:
@@ -275,6 +278,10 @@ class PoseEkf:
             while k > 0 and events[k].t_us > t_us:
                 k -= 1
             snap = events[k].snap
+        return snap
+
+    def _at(self, t_us: int) -> _Snap:
+        snap = self._base_at(t_us)
         return self._propagate(snap, t_us) if snap.t_us >= 0 else snap
 
     def _insert(self, t_us: int, kind: int, payload: _Payload) -> bool:
@@ -335,6 +342,37 @@ class PoseEkf:
         dt = (t_us - snap.t_us) / US_PER_S
         if dt == 0.0:
             return snap
+        s, f, q = self._motion(snap, dt)
+        p = f @ snap.p @ f.T
+        p[_DIAG] += q
+        if snap.gnss_quality is not None:
+            # The GNSS error is a Gauss-Markov process: it decorrelates, towards its datasheet sigma.
+            fade = math.exp(-abs(dt) / ERROR_CORRELATION_S)
+            p[7:9, :] *= fade
+            p[:, 7:9] *= fade
+            q_g = ACCURACY_FLOOR_M[snap.gnss_quality] ** 2 * (1.0 - fade * fade)
+            p[7, 7] += q_g
+            p[8, 8] += q_g
+            s[7:9] *= fade
+        return snap._replace(t_us=t_us, s=s, p=p)
+
+    def _propagate_pose(self, snap: _Snap, t_us: int) -> tuple[np.ndarray, np.ndarray]:
+        """The state and the (3, 3) pose block of the covariance at ``t_us``: what ``estimate`` needs.
+
+        The block is ``F[:3] P F[:3]^T + Q[:3, :3]``, exactly the top-left block of ``_propagate``'s
+        covariance, at a third of the cost of the whole product.
+        """
+        dt = (t_us - snap.t_us) / US_PER_S
+        if dt == 0.0:
+            return snap.s, snap.p[:3, :3]
+        s, f, q = self._motion(snap, dt)
+        top = f[:3]
+        p3 = top @ snap.p @ top.T
+        p3[_DIAG3] += q[:3]
+        return s, p3
+
+    def _motion(self, snap: _Snap, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The predicted state (GNSS error not yet faded), the Jacobian F and the process noise diagonal."""
         c = self.config
         x, y, yaw, v, bg, ba, k, ge, gn, gs = snap.s.tolist()
         has_accel = not math.isnan(snap.a_in)
@@ -362,29 +400,26 @@ class PoseEkf:
             f[3, 5] = -dt
         f[5, 5] = decay
         f[5, 3] = -math.copysign(1.0, v) * adt / c.road_grade_length_m * decay * ba
-        p = f @ snap.p @ f.T
         tau = c.turn_correlation_s
         q_pos = (c.pos_noise_mps**2 + (c.side_slip_ratio * v) ** 2 * tau) * adt
-        p[0, 0] += q_pos
-        p[1, 1] += q_pos
-        p[2, 2] += c.gyro_noise_radps**2 * adt
         if has_accel:
-            p[3, 3] += (c.accel_noise_mps2**2 + (c.pitch_gradient * acc) ** 2 * tau) * adt
+            q_v = (c.accel_noise_mps2**2 + (c.pitch_gradient * acc) ** 2 * tau) * adt
         else:
-            p[3, 3] += c.speed_walk_mps2**2 * adt
-        p[4, 4] += c.yaw_rate_bias_walk_radps**2 * adt
-        p[5, 5] += c.grade_accel_std_mps2**2 * (1.0 - decay * decay)
-        p[6, 6] += c.odom_scale_walk**2 * adt
-        if snap.gnss_quality is not None:
-            # The GNSS error is a Gauss-Markov process: it decorrelates, towards its datasheet sigma.
-            fade = math.exp(-adt / ERROR_CORRELATION_S)
-            f_g = np.diag([fade, fade])
-            p[7:9, :] = f_g @ p[7:9, :]
-            p[:, 7:9] = p[:, 7:9] @ f_g
-            q_g = ACCURACY_FLOOR_M[snap.gnss_quality] ** 2 * (1.0 - fade * fade)
-            p[7, 7] += q_g
-            p[8, 8] += q_g
-            ge, gn = ge * fade, gn * fade
+            q_v = c.speed_walk_mps2**2 * adt
+        q = np.array(
+            (
+                q_pos,
+                q_pos,
+                c.gyro_noise_radps**2 * adt,
+                q_v,
+                c.yaw_rate_bias_walk_radps**2 * adt,
+                c.grade_accel_std_mps2**2 * (1.0 - decay * decay),
+                c.odom_scale_walk**2 * adt,
+                0.0,
+                0.0,
+                0.0,
+            )
+        )
         s = np.array(
             (
                 x + vx * dt,
@@ -399,7 +434,7 @@ class PoseEkf:
                 gs,
             )
         )
-        return snap._replace(t_us=t_us, s=s, p=p)
+        return s, f, q
 
     # --- corrections ---------------------------------------------------------------------------
     def _wheel_update(self, snap: _Snap, speed_mps: float) -> _Snap:
