@@ -11,7 +11,8 @@ from lastmile.core.errors import ConfigError, MessageError
 from lastmile.core.gnss_messages import GnssQuality
 from lastmile.core.sensor_frames import GnssInsFrame
 from lastmile.core.stamp import Stamp, stamp_from_s
-from lastmile.localization.ekf import PoseEkf, PoseEkfConfig, _kalman, _Snap
+from lastmile.localization.ekf import PoseEkf, PoseEkfConfig, _Snap
+from lastmile.localization.ekf_model import kalman_update
 
 R, V = 40.0, 5.0
 W = V / R
@@ -320,7 +321,7 @@ def test_prediction_covariance_is_propagated_with_the_numerical_jacobian(snap, d
 def test_the_update_is_the_kalman_update_and_keeps_the_covariance_positive(snap, index, innov, r):
     h = np.zeros((1, 10))
     h[0, index] = 1.0
-    s, p = _kalman(snap.s, snap.p, h, np.array([innov]), np.array([[r]]))
+    s, p = kalman_update(snap.s, snap.p, h, np.array([innov]), np.array([[r]]))
     gain = snap.p @ h[0] / (h[0] @ snap.p @ h[0] + r)
     assert np.allclose(s, snap.s + gain * innov)
     assert np.allclose(p, (np.eye(10) - np.outer(gain, h[0])) @ snap.p, atol=1e-9)

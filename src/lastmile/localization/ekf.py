@@ -33,16 +33,27 @@ from lastmile.core.sensor_frames import GnssInsFrame
 from lastmile.core.stamp import US_PER_S, Stamp
 from lastmile.core.vehicle_messages import LocalizationEstimate
 from lastmile.localization.ekf_config import PoseEkfConfig
+from lastmile.localization.ekf_model import (
+    BG,
+    GE,
+    GN,
+    GS,
+    N_STATES,
+    YAW,
+    K,
+    V,
+    X,
+    Y,
+    kalman_update,
+    motion,
+)
 from lastmile.localization.landmark_localization import PoseMeasurement
 from lastmile.localization.reacquisition import ReacquisitionRule, RejectedFix
 
 __all__ = ["PoseEkf", "PoseEkfConfig", "PosePosterior"]
 
-_X, _Y, _YAW, _V, _BG, _BA, _K, _GE, _GN, _GS = range(10)
-N_STATES = 10
 _SPEED_PRIOR_STD_MPS = 10.0  # a shuttle's speed range: the speed is unknown until measured
 _NO_ACCEL = math.nan
-_EYE = np.eye(N_STATES)
 _DIAG = np.diag_indices(N_STATES)
 _DIAG3 = np.diag_indices(3)
 
@@ -150,7 +161,7 @@ class PoseEkf:
     @property
     def yaw_rate_bias_radps(self) -> float:
         """Current estimate of the gyro yaw-rate bias (subtracted from every IMU reading)."""
-        return float(self._latest.s[_BG])
+        return float(self._latest.s[BG])
 
     def predict(self, stamp: Stamp, speed_mps: float, yaw_rate_radps: float) -> None:
         """Move the filter to ``stamp`` and take a new wheel speed and IMU yaw rate.
@@ -249,11 +260,11 @@ class PoseEkf:
         pos_std = math.sqrt(0.5 * (a + d) + math.sqrt(0.25 * (a - d) ** 2 + b * b))
         return LocalizationEstimate(
             stamp=stamp,
-            map_from_base=SE2(float(s[_X]), float(s[_Y]), float(s[_YAW])),
-            speed_mps=float(s[_V]),
-            yaw_rate_radps=(snap.w_in - float(s[_BG])) * (1.0 - float(s[_GS])),
+            map_from_base=SE2(float(s[X]), float(s[Y]), float(s[YAW])),
+            speed_mps=float(s[V]),
+            yaw_rate_radps=(snap.w_in - float(s[BG])) * (1.0 - float(s[GS])),
             pos_std_m=pos_std,
-            yaw_std_rad=math.sqrt(p[_YAW, _YAW]),
+            yaw_std_rad=math.sqrt(p[YAW, YAW]),
             valid=snap.initialised and snap.yaw_known and pos_std <= self.config.max_pos_std_m,
         )
 
@@ -342,7 +353,7 @@ class PoseEkf:
         dt = (t_us - snap.t_us) / US_PER_S
         if dt == 0.0:
             return snap
-        s, f, q = self._motion(snap, dt)
+        s, f, q = motion(self.config, snap.s, snap.w_in, snap.a_in, dt)
         p = f @ snap.p @ f.T
         p[_DIAG] += q
         if snap.gnss_quality is not None:
@@ -365,85 +376,20 @@ class PoseEkf:
         dt = (t_us - snap.t_us) / US_PER_S
         if dt == 0.0:
             return snap.s, snap.p[:3, :3]
-        s, f, q = self._motion(snap, dt)
+        s, f, q = motion(self.config, snap.s, snap.w_in, snap.a_in, dt)
         top = f[:3]
         p3 = top @ snap.p @ top.T
         p3[_DIAG3] += q[:3]
         return s, p3
 
-    def _motion(self, snap: _Snap, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The predicted state (GNSS error not yet faded), the Jacobian F and the process noise diagonal."""
-        c = self.config
-        x, y, yaw, v, bg, ba, k, ge, gn, gs = snap.s.tolist()
-        has_accel = not math.isnan(snap.a_in)
-        # The gyro reads (1 + scale error) x rate + bias; to first order in the scale error:
-        w = (snap.w_in - bg) * (1.0 - gs)
-        acc = snap.a_in - ba if has_accel else 0.0
-        v_mid = v + 0.5 * acc * dt
-        mid = yaw + 0.5 * w * dt
-        cs, sn = math.cos(mid), math.sin(mid)
-        lever = c.zero_slip_offset_m
-        vx = v_mid * cs + w * lever * sn
-        vy = v_mid * sn - w * lever * cs
-        adt = abs(dt)
-        decay = math.exp(-abs(v) * adt / c.road_grade_length_m)
-        f = _EYE.copy()
-        f[0, 2], f[1, 2] = -vy * dt, vx * dt
-        f[0, 3], f[1, 3] = cs * dt, sn * dt
-        dx_dw = (-0.5 * vy * dt + lever * sn) * dt
-        dy_dw = (0.5 * vx * dt - lever * cs) * dt
-        dw_dbg, dw_dgs = -(1.0 - gs), -(snap.w_in - bg)
-        f[0, 4], f[1, 4], f[2, 4] = dx_dw * dw_dbg, dy_dw * dw_dbg, dt * dw_dbg
-        f[0, 9], f[1, 9], f[2, 9] = dx_dw * dw_dgs, dy_dw * dw_dgs, dt * dw_dgs
-        if has_accel:
-            f[0, 5], f[1, 5] = -0.5 * cs * dt * dt, -0.5 * sn * dt * dt
-            f[3, 5] = -dt
-        f[5, 5] = decay
-        f[5, 3] = -math.copysign(1.0, v) * adt / c.road_grade_length_m * decay * ba
-        tau = c.turn_correlation_s
-        q_pos = (c.pos_noise_mps**2 + (c.side_slip_ratio * v) ** 2 * tau) * adt
-        if has_accel:
-            q_v = (c.accel_noise_mps2**2 + (c.pitch_gradient * acc) ** 2 * tau) * adt
-        else:
-            q_v = c.speed_walk_mps2**2 * adt
-        q = np.array(
-            (
-                q_pos,
-                q_pos,
-                c.gyro_noise_radps**2 * adt,
-                q_v,
-                c.yaw_rate_bias_walk_radps**2 * adt,
-                c.grade_accel_std_mps2**2 * (1.0 - decay * decay),
-                c.odom_scale_walk**2 * adt,
-                0.0,
-                0.0,
-                0.0,
-            )
-        )
-        s = np.array(
-            (
-                x + vx * dt,
-                y + vy * dt,
-                wrap_angle_rad(yaw + w * dt),
-                v + acc * dt,
-                bg,
-                ba * decay,
-                k,
-                ge,
-                gn,
-                gs,
-            )
-        )
-        return s, f, q
-
     # --- corrections ---------------------------------------------------------------------------
     def _wheel_update(self, snap: _Snap, speed_mps: float) -> _Snap:
         """Wheel speed = speed x (1 + scale error)."""
-        v, k = float(snap.s[_V]), float(snap.s[_K])
+        v, k = float(snap.s[V]), float(snap.s[K])
         # H has two non-zeros (speed and scale): P H^T is two columns, no matrix product needed.
         p = snap.p
-        ph = p[:, _V] * (1.0 + k) + p[:, _K] * v
-        gain = ph / (ph[_V] * (1.0 + k) + ph[_K] * v + self._r_odom)
+        ph = p[:, V] * (1.0 + k) + p[:, K] * v
+        gain = ph / (ph[V] * (1.0 + k) + ph[K] * v + self._r_odom)
         new_p = p - np.outer(gain, ph)
         s = snap.s + gain * (speed_mps - v * (1.0 + k))
         return snap._replace(s=s, p=0.5 * (new_p + new_p.T))
@@ -454,8 +400,8 @@ class PoseEkf:
             snap = self._set_position(snap, fix.x_m, fix.y_m, r, fix.yaw_rad, fix.yaw_std_rad**2, False)
             return self._fuse_speed_yaw(snap, fix), self._count_accepted(first_time)
         h = np.zeros((2, N_STATES))
-        h[0, _X] = h[1, _Y] = 1.0
-        innovation = np.array([fix.x_m - snap.s[_X], fix.y_m - snap.s[_Y]])
+        h[0, X] = h[1, Y] = 1.0
+        innovation = np.array([fix.x_m - snap.s[X], fix.y_m - snap.s[Y]])
         used, snap = self._gated_update(snap, h, innovation, r, first_time)
         if used is None:
             pos = np.array([fix.x_m, fix.y_m])
@@ -467,11 +413,11 @@ class PoseEkf:
 
     def _fuse_speed_yaw(self, snap: _Snap, fix: GnssInsFrame) -> _Snap:
         h = np.zeros((2, N_STATES))
-        h[0, _YAW] = h[1, _V] = 1.0
-        innovation = np.array([wrap_angle_rad(fix.yaw_rad - snap.s[_YAW]), fix.speed_mps - snap.s[_V]])
+        h[0, YAW] = h[1, V] = 1.0
+        innovation = np.array([wrap_angle_rad(fix.yaw_rad - snap.s[YAW]), fix.speed_mps - snap.s[V]])
         r = np.diag([fix.yaw_std_rad**2, self.config.gnss_speed_std_mps**2])
-        s, p = _kalman(snap.s, snap.p, h, innovation, r)
-        s[_YAW] = wrap_angle_rad(s[_YAW])
+        s, p = kalman_update(snap.s, snap.p, h, innovation, r)
+        s[YAW] = wrap_angle_rad(s[YAW])
         return snap._replace(s=s, p=p)
 
     def _fuse_position(self, snap: _Snap, fix: GnssFix, reset: bool, first_time: bool) -> tuple[_Snap, bool]:
@@ -482,14 +428,14 @@ class PoseEkf:
         if not snap.initialised or not snap.yaw_known:
             return self._initialise_from_positions(snap, fix, r), self._count_accepted(first_time)
         lf, ll = self._lever
-        yaw = float(snap.s[_YAW])
+        yaw = float(snap.s[YAW])
         cs, sn = math.cos(yaw), math.sin(yaw)
         h = np.zeros((2, N_STATES))
-        h[0, _X] = h[1, _Y] = 1.0
-        h[0, _YAW], h[1, _YAW] = -sn * lf - cs * ll, cs * lf - sn * ll
-        h[0, _GE] = h[1, _GN] = 1.0
-        antenna = (snap.s[_X] + cs * lf - sn * ll, snap.s[_Y] + sn * lf + cs * ll)
-        predicted = (antenna[0] + snap.s[_GE], antenna[1] + snap.s[_GN])
+        h[0, X] = h[1, Y] = 1.0
+        h[0, YAW], h[1, YAW] = -sn * lf - cs * ll, cs * lf - sn * ll
+        h[0, GE] = h[1, GN] = 1.0
+        antenna = (snap.s[X] + cs * lf - sn * ll, snap.s[Y] + sn * lf + cs * ll)
+        predicted = (antenna[0] + snap.s[GE], antenna[1] + snap.s[GN])
         innovation = np.array([fix.x_m - predicted[0], fix.y_m - predicted[1]])
         if reset:
             return self._reset_to_fix(snap, fix, r), True
@@ -508,8 +454,8 @@ class PoseEkf:
             if first_time:
                 self._reacquisition.clear()
                 self.accepted_fixes += 1
-            s, p = _kalman(snap.s, snap.p, h, innovation, r)
-            s[_YAW] = wrap_angle_rad(s[_YAW])
+            s, p = kalman_update(snap.s, snap.p, h, innovation, r)
+            s[YAW] = wrap_angle_rad(s[YAW])
             return True, snap._replace(s=s, p=p)
         if not first_time:
             return False, snap
@@ -544,15 +490,15 @@ class PoseEkf:
         if float(innovation @ np.linalg.solve(s_cov, innovation)) > float(chi2.ppf(0.999, m)):
             self.rejected_pose_measurements += first_time
             return snap, False
-        s, p = _kalman(snap.s, snap.p, h, innovation, r)
-        s[_YAW] = wrap_angle_rad(s[_YAW])
+        s, p = kalman_update(snap.s, snap.p, h, innovation, r)
+        s[YAW] = wrap_angle_rad(s[YAW])
         return snap._replace(s=s, p=p), True
 
     # --- (re-)initialisation -------------------------------------------------------------------
     def _timing_cov(self, snap: _Snap) -> np.ndarray:
         """Along-track uncertainty of a fix from its epoch's timing uncertainty."""
-        v = float(snap.s[_V]) if snap.initialised else 0.0
-        yaw = float(snap.s[_YAW])
+        v = float(snap.s[V]) if snap.initialised else 0.0
+        yaw = float(snap.s[YAW])
         d = np.array([math.cos(yaw), math.sin(yaw)])
         return (v * self.config.fix_timing_std_s) ** 2 * np.outer(d, d)
 
@@ -581,8 +527,8 @@ class PoseEkf:
         error restarts at zero with its sigma, and the position takes that sigma on, anti-correlated.
         """
         s, p = snap.s.copy(), snap.p.copy()
-        s[_X], s[_Y] = x, y
-        rows = [_X, _Y] if yaw is None else [_X, _Y, _YAW]
+        s[X], s[Y] = x, y
+        rows = [X, Y] if yaw is None else [X, Y, YAW]
         p[rows, :] = 0.0
         p[:, rows] = 0.0
         p[:2, :2] = r
@@ -596,25 +542,25 @@ class PoseEkf:
             p[:2, 7:9] = p[7:9, :2] = -bias_var * eye
             p[7:9, 7:9] = bias_var * eye
         if yaw is not None and yaw_var is not None:
-            s[_YAW] = wrap_angle_rad(yaw)
-            p[_YAW, _YAW] = yaw_var
+            s[YAW] = wrap_angle_rad(yaw)
+            p[YAW, YAW] = yaw_var
         return snap._replace(initialised=True, yaw_known=snap.yaw_known or yaw is not None, s=s, p=p)
 
     def _reset_to_fix(self, snap: _Snap, fix: GnssFix, r: np.ndarray) -> _Snap:
         """Re-acquisition: the base from the antenna fix with the filter's yaw; yaw doubt enters r."""
         lf, ll = self._lever
-        yaw = float(snap.s[_YAW])
+        yaw = float(snap.s[YAW])
         cs, sn = math.cos(yaw), math.sin(yaw)
         x = fix.x_m - (cs * lf - sn * ll)
         y = fix.y_m - (sn * lf + cs * ll)
-        yaw_term = self._lever_sq * float(snap.p[_YAW, _YAW]) * np.eye(2)
+        yaw_term = self._lever_sq * float(snap.p[YAW, YAW]) * np.eye(2)
         return self._set_position(snap, x, y, r + yaw_term, None, None)
 
     def _initialise_from_positions(self, snap: _Snap, fix: GnssFix, r: np.ndarray) -> _Snap:
         """Position from each fix until two fixes far enough apart give the heading (their course)."""
         loose = r + self._lever_sq * np.eye(2)  # the antenna may be anywhere on the lever-arm circle
         anchor = snap.anchor
-        yaw_rel = float(snap.s[_YAW])
+        yaw_rel = float(snap.s[YAW])
         if anchor is None:
             snap = self._set_position(snap, fix.x_m, fix.y_m, loose, None, None)
             return snap._replace(anchor=(fix.x_m, fix.y_m, yaw_rel))
@@ -624,7 +570,7 @@ class PoseEkf:
             return self._set_position(snap, fix.x_m, fix.y_m, loose, None, None)
         # The course is the heading half-way (constant turn rate); the gyro gives the rest of the turn.
         turn = wrap_angle_rad(yaw_rel - anchor[2])
-        course = math.atan2(dy, dx) + (math.pi if snap.s[_V] < 0 else 0.0)
+        course = math.atan2(dy, dx) + (math.pi if snap.s[V] < 0 else 0.0)
         yaw = wrap_angle_rad(course + 0.5 * turn)
         yaw_var = 2.0 * float(np.trace(loose)) / dist**2 + (0.5 * turn) ** 2
         lf, ll = self._lever
@@ -633,24 +579,6 @@ class PoseEkf:
         base_x, base_y = fix.x_m - (cs * lf - sn * ll), fix.y_m - (sn * lf + cs * ll)
         snap = self._set_position(snap, base_x, base_y, r_base, yaw, yaw_var)
         return snap._replace(anchor=None)
-
-
-def _kalman(
-    s: np.ndarray, p: np.ndarray, h: np.ndarray, innovation: np.ndarray, r: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Kalman update (closed-form inverse for 1 and 2 rows), kept symmetric."""
-    ph = p @ h.T
-    cov = h @ ph + r
-    if cov.shape == (1, 1):
-        inv = np.array([[1.0 / cov[0, 0]]])
-    elif cov.shape == (2, 2):
-        a, b, c, d = cov[0, 0], cov[0, 1], cov[1, 0], cov[1, 1]
-        inv = np.array([[d, -b], [-c, a]]) / (a * d - b * c)
-    else:
-        inv = np.linalg.inv(cov)
-    gain = ph @ inv
-    new_p = p - gain @ ph.T
-    return s + gain @ innovation, 0.5 * (new_p + new_p.T)
 
 
 def _check_inputs(where: str, stamp: Stamp, **values: float) -> None:
