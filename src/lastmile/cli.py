@@ -437,6 +437,86 @@ def eval_tracking(
         json_out.write_text(json.dumps(report, indent=2))
 
 
+@eval_app.command("localization")
+def eval_localization(
+    inputs: Annotated[
+        list[Path],
+        typer.Argument(help="Drive files: RTKLIB .pos, NMEA, CSV, ROS 1 .bag, rosbag2 (.mcap/.db3/dir)."),
+    ],
+    outage: Annotated[
+        list[str] | None,
+        typer.Option(help="Drop GNSS from START for DURATION s (START:DURATION), repeatable."),
+    ] = None,
+    mode: Annotated[str, typer.Option(help="Localization mode: ekf or dead_reckoning.")] = "ekf",
+    lever_arm: Annotated[
+        str, typer.Option(help="GNSS antenna from the rear axle: FORWARD,LEFT in m.")
+    ] = "0,0",
+    imu_grade: Annotated[
+        str, typer.Option(help="IMU error model: consumer_mems or industrial_mems (datasheet figures).")
+    ] = "consumer_mems",
+    imu_forward_axis: Annotated[
+        str, typer.Option(help="IMU axis pointing forward in a bag: x, -y, ...")
+    ] = "x",
+    use_accel: Annotated[
+        bool | None,
+        typer.Option(help="Drive the speed with the accelerometer [default: only without wheel speed]."),
+    ] = None,
+    imu_topic: Annotated[
+        str | None, typer.Option(help="sensor_msgs/Imu topic when a bag has several.")
+    ] = None,
+    fix_topic: Annotated[str | None, typer.Option(help="sensor_msgs/NavSatFix topic when several.")] = None,
+    odom_topic: Annotated[str | None, typer.Option(help="nav_msgs/Odometry topic when several.")] = None,
+    json_out: Annotated[Path | None, typer.Option("--json", help="Write the scores as JSON here.")] = None,
+    tum_dir: Annotated[
+        Path | None, typer.Option(help="Write estimate.tum and reference.tum here (for evo_ape).")
+    ] = None,
+) -> None:
+    """Replay a recorded drive through a localization mode with GNSS outages; score it against the GNSS."""
+    import json
+
+    from rich.console import Console
+    from rich.table import Table
+
+    try:
+        from lastmile.localization.ekf import PoseEkfConfig
+        from lastmile.recorder.drive_reader import read_drive
+        from lastmile.recorder.drive_rosbag import BagTopics
+        from lastmile.runner import localization_replay as lr
+
+        modes = {m.value: m for m in lr.LocalizationMode}
+        if mode not in modes:
+            raise ConfigError(f"--mode: expected one of {', '.join(modes)}, got {mode!r}")
+        lever = lever_arm.split(",")
+        try:
+            lever_m = (float(lever[0]), float(lever[1])) if len(lever) == 2 else None
+        except ValueError:
+            lever_m = None
+        if lever_m is None:
+            raise ConfigError(f"--lever-arm: expected FORWARD,LEFT in metres, got {lever_arm!r}")
+        config = PoseEkfConfig(zero_slip_offset_m=0.0, antenna_lever_arm_m=lever_m).with_imu(imu_grade)
+        outages = tuple(lr.Outage.parse(o) for o in outage or ())
+        drive = read_drive(list(inputs), BagTopics(imu_topic, fix_topic, odom_topic), imu_forward_axis)
+        result = lr.replay_drive(drive, outages, modes[mode], config, use_accel)
+        if tum_dir is not None:
+            tum_dir.mkdir(parents=True, exist_ok=True)
+            lr.write_tum(tum_dir / "estimate.tum", result.t_s, result.estimate_xy, result.estimate_yaw_rad)
+            lr.write_tum(tum_dir / "reference.tum", result.t_s, result.reference_xy, result.estimate_yaw_rad)
+        if json_out is not None:
+            json_out.parent.mkdir(parents=True, exist_ok=True)
+            json_out.write_text(json.dumps(lr.result_json(result), indent=2))
+    except (LastmileError, OSError) as exc:
+        typer.echo(f"lastmile eval localization: {exc}", err=True)
+        raise typer.Exit(2) from None
+    table = Table(
+        title=f"{', '.join(drive.sources)}: {drive.duration_s:.0f} s, {len(drive.fixes)} GNSS fixes"
+    )
+    table.add_column("metric")
+    table.add_column("value")
+    for name, value in lr.summary_rows(result):
+        table.add_row(name, value)
+    Console(width=160).print(table)
+
+
 @app.command()
 def serve(
     host: Annotated[str, typer.Option(help="Address to listen on.")] = "127.0.0.1",

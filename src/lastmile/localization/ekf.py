@@ -1,128 +1,114 @@
-"""Pose EKF: wheel-odometry speed and IMU yaw rate drive a kinematic model, RTK GNSS/INS corrects it.
+"""Pose EKF: IMU (yaw rate, longitudinal acceleration) and wheel speed predict, GNSS corrects.
 
-State: rear-axle x_m, y_m, yaw_rad in the map frame, speed_mps and the IMU's yaw-rate bias. All
-algebra is written out on plain floats (a 5x5 symmetric covariance is 15 numbers): the filter runs
-at 50-100 Hz inside a loop that must be much faster than real time, where even tiny NumPy calls cost
-more than the arithmetic. A short history of inputs and posteriors lets late GNSS fixes (their
-latency exceeds the odometry's) be inserted at their own stamp and the newer inputs re-applied.
+State: rear-axle x_m, y_m, yaw_rad in the map frame, speed_mps, gyro yaw-rate bias, accelerometer
+bias (the road grade the accelerometer feels as gravity) and the wheel-odometry scale error. The
+prediction runs on whichever inputs exist: an IMU with an accelerometer drives the speed (a wheel speed,
+when present, is then a measurement of speed times scale); without an accelerometer the speed is a
+random walk held by the wheel speed. Process noise is a sensor error model (``PoseEkfConfig``) in which
+every correlated error grows with the time, angle or distance that excites it, so the covariance
+through a GNSS outage stays honest. GNSS fixes are gated by their own reported covariance; a filter
+proven wrong by consistent rejected fixes re-acquires within ``reacquire_window_s``. A short history of
+inputs and posteriors lets late inputs be inserted at their stamps and the newer ones re-applied.
 """
 
 from __future__ import annotations
 
 import math
-from collections import deque
 from dataclasses import dataclass
+from typing import NamedTuple
 
-from lastmile.core.errors import ConfigError, MessageError
+import numpy as np
+from scipy.stats import chi2
+
+from lastmile.core.errors import MessageError
 from lastmile.core.geometry import SE2, wrap_angle_rad
+from lastmile.core.gnss_messages import (
+    ACCURACY_FLOOR_M,
+    ERROR_CORRELATION_S,
+    GnssFix,
+    GnssQuality,
+    white_covariance_m2,
+)
 from lastmile.core.sensor_frames import GnssInsFrame
 from lastmile.core.stamp import US_PER_S, Stamp
 from lastmile.core.vehicle_messages import LocalizationEstimate
+from lastmile.localization.ekf_config import PoseEkfConfig
+from lastmile.localization.ekf_model import (
+    BG,
+    GE,
+    GN,
+    GS,
+    N_STATES,
+    YAW,
+    K,
+    V,
+    X,
+    Y,
+    kalman_update,
+    motion,
+)
+from lastmile.localization.landmark_localization import PoseMeasurement
+from lastmile.localization.reacquisition import ReacquisitionRule, RejectedFix
+
+__all__ = ["PoseEkf", "PoseEkfConfig", "PosePosterior"]
+
+_SPEED_PRIOR_STD_MPS = 10.0  # a shuttle's speed range: the speed is unknown until measured
+_NO_ACCEL = math.nan
+_DIAG = np.diag_indices(N_STATES)
+_DIAG3 = np.diag_indices(3)
+
+
+class _Snap(NamedTuple):
+    """Posterior after one input. ``t_us`` < 0 before the first input; arrays are never mutated."""
+
+    t_us: int
+    initialised: bool
+    yaw_known: bool
+    w_in: float
+    a_in: float
+    s: np.ndarray
+    p: np.ndarray
+    anchor: tuple[float, float, float] | None = None
+    gnss_quality: GnssQuality | None = None
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
-class PoseEkfConfig:
-    """Noise, gating, integrity and history parameters.
+class PosePosterior:
+    """The filter's state and covariance at a stamp.
 
     Attributes:
-        odom_speed_std_mps: wheel-odometry speed noise (one sigma), m/s.
-        gnss_speed_std_mps: noise of the INS speed fused with each accepted fix (one sigma), m/s.
-        accel_noise_mps2: unmodelled acceleration between inputs (white, density), m/s^2 per sqrt(Hz).
-        yaw_rate_noise_radps: IMU yaw-rate noise (white, density), rad/s per sqrt(Hz).
-        pos_noise_mps: unmodelled motion of the rear axle (tyre slip, bumps; white, density), m/s
-            per sqrt(Hz).
-        yaw_rate_bias_std_radps: prior one-sigma IMU yaw-rate bias, rad/s.
-        yaw_rate_bias_walk_radps: random walk of that bias: its sigma after one second, rad/s.
-        zero_slip_offset_m: distance ahead of the rear axle of the point whose velocity lies along the
-            heading, m: 0 for front-steer vehicles, half the wheelbase for opposite-phase all-wheel
-            steer, where the rear axle slides sideways at yaw rate times this (0.18 m/s on a 40 m
-            radius at 5 m/s: a metre of drift in a 5 s GNSS outage if ignored). The default is half
-            the default shuttle's 2.9 m wheelbase (``VehicleGeometry``, all-wheel steer).
-        gate_chi2: chi-square bound (2 dof, position) beyond which a fix is rejected as an outlier;
-            13.8 is the 0.999 quantile.
-        gross_chi2: a rejected fix beyond this bound (400: 20 sigma) is counted as gross as well: no
-            noise or model error of a healthy run reaches it, so one such fix is already a
-            receiver fault (multipath, a map misalignment), not bad luck.
-        reset_after_rejections: this many consecutive rejected fixes mean the filter, not the
-            receiver, is wrong: the next fix re-initialises it, provided the rejected fixes agree
-            with each other (a drifted filter sees one consistent offset; multipath jumps around).
-        reset_consistency_m: how far the rejected fixes' innovations may spread about their mean
-            for a reset, m. RTK noise is centimetres and a drifting filter's offset hardly changes in
-            3 s, while multipath jumping a few metres in a new direction every second can line up two
-            jumps within a metre by chance: hence 3 s of rejections and 0.3 m.
-        max_pos_std_m: the estimate is marked invalid while its position sigma (largest axis)
-            exceeds this, m.
-        history_s: how far back a late input is inserted at its own stamp, s; older ones are dropped.
+        state: (10,) float64: x_m, y_m, yaw_rad, speed_mps, gyro bias rad/s, accelerometer bias m/s^2,
+            wheel-odometry scale error, GNSS solution error east and north (m; its correlated part),
+            gyro scale error.
+        covariance: (10, 10) float64, same order.
     """
 
-    odom_speed_std_mps: float = 0.05
-    gnss_speed_std_mps: float = 0.1
-    accel_noise_mps2: float = 1.0
-    yaw_rate_noise_radps: float = 0.003
-    pos_noise_mps: float = 0.05
-    yaw_rate_bias_std_radps: float = 0.005
-    yaw_rate_bias_walk_radps: float = 1e-4
-    zero_slip_offset_m: float = 1.45
-    gate_chi2: float = 13.8
-    gross_chi2: float = 400.0
-    reset_after_rejections: int = 30
-    reset_consistency_m: float = 0.3
-    max_pos_std_m: float = 1.0
-    history_s: float = 1.0
-
-    def __post_init__(self) -> None:
-        for name in (
-            "odom_speed_std_mps",
-            "gnss_speed_std_mps",
-            "accel_noise_mps2",
-            "yaw_rate_noise_radps",
-            "pos_noise_mps",
-            "yaw_rate_bias_std_radps",
-            "gate_chi2",
-            "gross_chi2",
-            "max_pos_std_m",
-            "history_s",
-        ):
-            value = getattr(self, name)
-            if not (value > 0 and math.isfinite(value)):
-                raise ConfigError(f"PoseEkfConfig.{name}: expected a positive number, got {value}")
-        if not (self.yaw_rate_bias_walk_radps >= 0 and math.isfinite(self.zero_slip_offset_m)):
-            raise ConfigError(
-                "PoseEkfConfig: expected yaw_rate_bias_walk_radps >= 0 and a finite zero_slip_offset_m, "
-                f"got {self.yaw_rate_bias_walk_radps} and {self.zero_slip_offset_m}"
-            )
-        if self.gross_chi2 <= self.gate_chi2:
-            raise ConfigError(
-                f"PoseEkfConfig.gross_chi2: expected above gate_chi2 ({self.gate_chi2}), "
-                f"got {self.gross_chi2}"
-            )
-        if self.reset_after_rejections < 1:
-            raise ConfigError(
-                "PoseEkfConfig.reset_after_rejections: expected at least 1, "
-                f"got {self.reset_after_rejections}"
-            )
+    stamp: Stamp
+    state: np.ndarray
+    covariance: np.ndarray
+    initialised: bool
+    yaw_known: bool
 
 
-# The 5x5 covariance is packed as its upper triangle, row by row:
-# 00 01 02 03 04 11 12 13 14 22 23 24 33 34 44.
-_PAIRS = tuple((i, j) for i in range(5) for j in range(i, 5))
-_PACKED = tuple(tuple(_PAIRS.index((min(i, j), max(i, j))) for j in range(5)) for i in range(5))
-_X, _Y, _YAW, _V, _BIAS = range(5)
-_UNKNOWN_VAR = 1e6  # prior variance of position before the first fix (m^2) and of speed ((m/s)^2)
+_ODOM, _IMU, _WHEEL, _GNSS_INS, _GNSS_POS, _POSE = range(6)
+_Payload = tuple[float, float] | float | GnssInsFrame | GnssFix | PoseMeasurement
 
-# A snapshot is the posterior after one input: (t_us, initialised, yaw_rate_in, state, packed_cov);
-# t_us < 0 before the first input. Events are (t_us, kind, payload, snapshot).
-_Snapshot = tuple[int, bool, float, tuple[float, ...], tuple[float, ...]]
-_Payload = tuple[float, float] | GnssInsFrame  # (speed_mps, yaw_rate_radps) from odometry and IMU
-_ODOM, _GNSS, _GNSS_RESET = 0, 1, 2
+
+@dataclass(slots=True)
+class _Event:
+    t_us: int
+    kind: int
+    payload: _Payload
+    snap: _Snap
+    reset: bool = False
 
 
 class PoseEkf:
-    """Extended Kalman filter over (x, y, yaw, speed, yaw-rate bias) of the rear axle.
+    """Extended Kalman filter over (x, y, yaw, speed, gyro bias, accelerometer bias, odometry scale).
 
-    Inputs may arrive slightly out of order: one older than the newest input is inserted at its
-    stamp within ``history_s`` and every newer input is re-applied, so the result equals in-order
-    processing. ``estimate`` may also be asked for a past stamp (a radar frame's capture time).
+    Inputs may arrive slightly out of order: one older than the newest input is inserted at its stamp
+    within ``history_s`` and every newer input is re-applied, so the result equals in-order processing.
+    ``estimate`` may also be asked for a past stamp (a radar frame's capture time).
     """
 
     def __init__(self, config: PoseEkfConfig | None = None) -> None:
@@ -131,67 +117,90 @@ class PoseEkf:
         """Fixes rejected by the chi-square gate (each counted once, when it arrives)."""
         self.gross_rejections = 0
         """Of those, the fixes beyond ``gross_chi2``."""
+        self.accepted_fixes = 0
+        """Fixes used (initialisations and re-acquisitions included)."""
         self.max_rejected_chi2 = 0.0
         """The largest squared Mahalanobis distance of a rejected fix so far (for tuning reports)."""
         self.dropped_inputs = 0
         """Inputs older than the history, dropped."""
         self.resets = 0
-        """Re-initialisations after ``reset_after_rejections`` consecutive rejections."""
-        self._consecutive_rejections = 0
-        self._rejected_innovations: deque[tuple[float, float]] = deque(
-            maxlen=self.config.reset_after_rejections
+        """Re-acquisitions: the filter re-initialised its position from consistent rejected fixes."""
+        self.rejected_pose_measurements = 0
+        """Pose measurements (landmarks, scan matches) beyond the chi-square gate."""
+        self._reacquisition = ReacquisitionRule(
+            c.reacquire_window_s, c.reacquire_min_fixes, c.reacquire_chi2_quantile
         )
         self._reset_on_arrival = False
-        prior = [0.0] * 15
-        prior[_PACKED[_X][_X]] = prior[_PACKED[_Y][_Y]] = _UNKNOWN_VAR
-        prior[_PACKED[_YAW][_YAW]] = math.pi**2
-        prior[_PACKED[_V][_V]] = _UNKNOWN_VAR
-        prior[_PACKED[_BIAS][_BIAS]] = c.yaw_rate_bias_std_radps**2
-        self._latest: _Snapshot = (-1, False, 0.0, (0.0, 0.0, 0.0, 0.0, 0.0), tuple(prior))
-        self._events: list[tuple[int, int, _Payload, _Snapshot]] = []
+        prior = np.diag(
+            [
+                0.0,
+                0.0,
+                math.pi**2,
+                _SPEED_PRIOR_STD_MPS**2,
+                c.yaw_rate_bias_std_radps**2,
+                c.grade_accel_std_mps2**2,
+                c.odom_scale_std**2,
+                0.0,
+                0.0,
+                c.gyro_scale_error**2,
+            ]
+        )
+        self._latest = _Snap(-1, False, False, 0.0, _NO_ACCEL, np.zeros(N_STATES), prior)
+        self._events: list[_Event] = []
         self._history_us = round(c.history_s * US_PER_S)
-        self._q_pos = c.pos_noise_mps**2
-        self._q_yaw = c.yaw_rate_noise_radps**2
-        self._q_speed = c.accel_noise_mps2**2
-        self._q_bias = c.yaw_rate_bias_walk_radps**2
+        self._lever = c.antenna_lever_arm_m
+        self._lever_sq = c.antenna_lever_arm_m[0] ** 2 + c.antenna_lever_arm_m[1] ** 2
         self._r_odom = c.odom_speed_std_mps**2
-        self._r_gnss_speed = c.gnss_speed_std_mps**2
 
+    # --- public API ----------------------------------------------------------------------------
     @property
     def initialised(self) -> bool:
-        """Whether a GNSS fix has set the pose."""
-        return self._latest[1]
+        """Whether a GNSS fix has set the position."""
+        return self._latest.initialised
 
     @property
     def yaw_rate_bias_radps(self) -> float:
-        """Current estimate of the IMU yaw-rate bias (subtracted from every IMU reading)."""
-        return self._latest[3][_BIAS]
+        """Current estimate of the gyro yaw-rate bias (subtracted from every IMU reading)."""
+        return float(self._latest.s[BG])
 
     def predict(self, stamp: Stamp, speed_mps: float, yaw_rate_radps: float) -> None:
-        """Move the filter to ``stamp`` and take a new odometry speed and IMU yaw rate.
+        """Move the filter to ``stamp`` and take a new wheel speed and IMU yaw rate.
 
         The motion up to ``stamp`` uses the previous yaw rate (held since the last call); the speed
-        is a measurement of the speed state.
-
-        Args:
-            stamp: capture time of the odometry sample, µs.
-            speed_mps: wheel-odometry speed of the rear axle (forward positive).
-            yaw_rate_radps: latest IMU yaw rate (counter-clockwise positive), bias included.
+        is a measurement of the speed state. Equivalent to ``imu`` without an accelerometer followed
+        by ``wheel_speed``; the last accelerometer reading given to ``imu`` stays in use.
 
         Raises:
             MessageError: a non-finite input or a negative stamp.
         """
-        if not (math.isfinite(speed_mps) and math.isfinite(yaw_rate_radps)):
-            raise MessageError(
-                "PoseEkf.predict: expected finite speed_mps and yaw_rate_radps, "
-                f"got {speed_mps}, {yaw_rate_radps}"
-            )
-        if stamp < 0:
-            raise MessageError(f"PoseEkf.predict: expected a non-negative stamp, got {stamp}")
+        _check_inputs("PoseEkf.predict", stamp, speed_mps=speed_mps, yaw_rate_radps=yaw_rate_radps)
         self._insert(int(stamp), _ODOM, (speed_mps, yaw_rate_radps))
 
+    def imu(self, stamp: Stamp, yaw_rate_radps: float, accel_x_mps2: float | None = None) -> None:
+        """Move the filter to ``stamp`` on the held IMU reading, then hold this one.
+
+        Args:
+            stamp: capture time of the sample, µs.
+            yaw_rate_radps: yaw rate about the vehicle's up axis, counter-clockwise positive, bias
+                included.
+            accel_x_mps2: specific force along the vehicle's forward axis (gravity on a slope
+                included), or None when the IMU has no accelerometer: the speed is then a random walk
+                held by the wheel speed.
+
+        Raises:
+            MessageError: a non-finite input or a negative stamp.
+        """
+        accel = _NO_ACCEL if accel_x_mps2 is None else accel_x_mps2
+        _check_inputs("PoseEkf.imu", stamp, yaw_rate_radps=yaw_rate_radps, accel_x_mps2=accel_x_mps2 or 0.0)
+        self._insert(int(stamp), _IMU, (yaw_rate_radps, accel))
+
+    def wheel_speed(self, stamp: Stamp, speed_mps: float) -> None:
+        """Correct with a wheel-odometry speed (rear axle, forward positive) measured at ``stamp``."""
+        _check_inputs("PoseEkf.wheel_speed", stamp, speed_mps=speed_mps)
+        self._insert(int(stamp), _WHEEL, speed_mps)
+
     def update_gnss(self, frame: GnssInsFrame) -> bool:
-        """Correct with an RTK GNSS/INS fix (position, yaw and speed, with the frame's std devs).
+        """Correct with an RTK GNSS/INS solution (base position, yaw and speed, with its std devs).
 
         Returns:
             True if the fix was used; False when ``fix_ok`` is False, the chi-square gate rejected it
@@ -209,211 +218,372 @@ class PoseEkf:
             raise MessageError(f"GnssInsFrame.stamp: expected a non-negative stamp, got {frame.stamp}")
         if not frame.fix_ok:
             return False
-        return self._insert(int(frame.stamp), _GNSS, frame)
+        return self._insert(int(frame.stamp), _GNSS_INS, frame)
+
+    def update_position(self, fix: GnssFix) -> bool:
+        """Correct with a position-only GNSS fix of the antenna (``antenna_lever_arm_m`` from the base).
+
+        The fix's covariance is floored at its solution type's datasheet accuracy. Before the heading
+        is known (no INS), it is initialised from the course between fixes ``heading_init_distance_m``
+        apart; the estimate stays invalid until then.
+
+        Returns:
+            True if the fix was used (see ``update_gnss``).
+        """
+        fix.validate()
+        return self._insert(int(fix.stamp), _GNSS_POS, fix)
+
+    def update_pose(self, measurement: PoseMeasurement) -> bool:
+        """Correct with a measurement of the planar pose (landmarks, a scan match), linearised here.
+
+        Used only once the filter has a position and heading; gated at the 0.999 chi-square quantile
+        of its dimension (rejections counted in ``rejected_pose_measurements``).
+
+        Returns:
+            True if it was used.
+        """
+        if measurement.stamp < 0:
+            raise MessageError(
+                f"PoseMeasurement.stamp: expected a non-negative stamp, got {measurement.stamp}"
+            )
+        return self._insert(int(measurement.stamp), _POSE, measurement)
 
     def estimate(self, stamp: Stamp) -> LocalizationEstimate:
         """The pose at ``stamp``, extrapolated from the newest posterior at or before it.
 
-        Nothing is stored. A stamp older than the history is extrapolated backwards from its oldest
-        posterior. ``valid`` is False before the first fix and while the position sigma exceeds
-        ``max_pos_std_m``.
+        Nothing is stored. ``valid`` is False before the first fix, before the heading is known and
+        while the position sigma exceeds ``max_pos_std_m``.
         """
-        snap = self._latest
-        events = self._events
-        if events and stamp < snap[0]:
-            k = len(events) - 1
-            while k > 0 and events[k][0] > stamp:
-                k -= 1
-            snap = events[k][3]
-        if snap[0] >= 0:
-            snap = self._propagate(snap, int(stamp))
-        _, initialised, yaw_rate_in, s, p = snap
-        a, b, d = p[0], p[1], p[5]
+        snap = self._base_at(int(stamp))
+        s, p = self._propagate_pose(snap, int(stamp)) if snap.t_us >= 0 else (snap.s, snap.p[:3, :3])
+        a, b, d = p[0, 0], p[0, 1], p[1, 1]
         pos_std = math.sqrt(0.5 * (a + d) + math.sqrt(0.25 * (a - d) ** 2 + b * b))
         return LocalizationEstimate(
             stamp=stamp,
-            map_from_base=SE2(s[_X], s[_Y], s[_YAW]),
-            speed_mps=s[_V],
-            yaw_rate_radps=yaw_rate_in - s[_BIAS],
+            map_from_base=SE2(float(s[X]), float(s[Y]), float(s[YAW])),
+            speed_mps=float(s[V]),
+            yaw_rate_radps=(snap.w_in - float(s[BG])) * (1.0 - float(s[GS])),
             pos_std_m=pos_std,
-            yaw_std_rad=math.sqrt(p[9]),
-            valid=initialised and pos_std <= self.config.max_pos_std_m,
+            yaw_std_rad=math.sqrt(p[YAW, YAW]),
+            valid=snap.initialised and snap.yaw_known and pos_std <= self.config.max_pos_std_m,
         )
 
-    # --------------------------------------------------------------------------------------------
+    def posterior(self, stamp: Stamp) -> PosePosterior:
+        """State and full covariance at ``stamp`` (extrapolated like ``estimate``); copies."""
+        snap = self._at(int(stamp))
+        return PosePosterior(
+            stamp=stamp,
+            state=snap.s.copy(),
+            covariance=snap.p.copy(),
+            initialised=snap.initialised,
+            yaw_known=snap.yaw_known,
+        )
+
+    # --- history and replay --------------------------------------------------------------------
+    def _base_at(self, t_us: int) -> _Snap:
+        """The newest posterior at or before ``t_us`` (the oldest kept, for a stamp before the history)."""
+        snap = self._latest
+        events = self._events
+        if events and t_us < snap.t_us:
+            k = len(events) - 1
+            while k > 0 and events[k].t_us > t_us:
+                k -= 1
+            snap = events[k].snap
+        return snap
+
+    def _at(self, t_us: int) -> _Snap:
+        snap = self._base_at(t_us)
+        return self._propagate(snap, t_us) if snap.t_us >= 0 else snap
+
     def _insert(self, t_us: int, kind: int, payload: _Payload) -> bool:
         """Apply one input at its stamp, re-applying newer ones; returns whether it was used."""
         events = self._events
-        if not events or t_us >= events[-1][0]:
-            snap, used = self._apply(self._latest, t_us, kind, payload, first_time=True)
-            events.append((t_us, self._kind_to_replay(kind), payload, snap))
+        if not events or t_us >= events[-1].t_us:
+            snap, used = self._apply(self._latest, t_us, kind, payload, reset=False, first_time=True)
+            events.append(_Event(t_us, kind, payload, snap, self._take_reset()))
             self._latest = snap
             cutoff = t_us - self._history_us
-            if events[0][0] < cutoff:
+            if events[0].t_us < cutoff:
                 k = 0
-                while events[k][0] < cutoff and k < len(events) - 1:
+                while events[k].t_us < cutoff and k < len(events) - 1:
                     k += 1
                 del events[:k]
             return used
         k = len(events)
-        while k > 0 and events[k - 1][0] > t_us:
+        while k > 0 and events[k - 1].t_us > t_us:
             k -= 1
         if k == 0:
             self.dropped_inputs += 1
             return False
-        snap, used = self._apply(events[k - 1][3], t_us, kind, payload, first_time=True)
-        events.insert(k, (t_us, self._kind_to_replay(kind), payload, snap))
-        for j in range(k + 1, len(events)):
-            tj, kj, pj, _ = events[j]
-            snap, _ = self._apply(snap, tj, kj, pj, first_time=False)
-            events[j] = (tj, kj, pj, snap)
+        snap, used = self._apply(events[k - 1].snap, t_us, kind, payload, reset=False, first_time=True)
+        events.insert(k, _Event(t_us, kind, payload, snap, self._take_reset()))
+        for event in events[k + 1 :]:
+            # Replays never count, gate-reset or decide anything: a reset decided on arrival stays one.
+            snap, _ = self._apply(snap, event.t_us, event.kind, event.payload, event.reset, first_time=False)
+            event.snap = snap
         self._latest = snap
         return used
 
-    def _kind_to_replay(self, kind: int) -> int:
-        # A reset decided on arrival stays a reset on every replay (replays never count or decide).
-        if self._reset_on_arrival:
-            self._reset_on_arrival = False
-            return _GNSS_RESET
-        return kind
+    def _take_reset(self) -> bool:
+        reset, self._reset_on_arrival = self._reset_on_arrival, False
+        return reset
 
     def _apply(
-        self, snap: _Snapshot, t_us: int, kind: int, payload: _Payload, first_time: bool
-    ) -> tuple[_Snapshot, bool]:
-        snap = self._propagate(snap, t_us)
-        if isinstance(payload, GnssInsFrame):
-            return self._fuse_fix(snap, payload, reset=kind == _GNSS_RESET, first_time=first_time)
-        speed_mps, yaw_rate_radps = payload
-        s, p = self._scalar_update(snap[3], snap[4], _V, speed_mps - snap[3][_V], self._r_odom)
-        return (t_us, snap[1], yaw_rate_radps, s, p), True
+        self, snap: _Snap, t_us: int, kind: int, payload: _Payload, reset: bool, first_time: bool
+    ) -> tuple[_Snap, bool]:
+        snap = self._propagate(snap, t_us) if snap.t_us >= 0 else snap._replace(t_us=t_us)
+        if kind == _ODOM:
+            speed, yaw_rate = payload  # type: ignore[misc]
+            snap = snap._replace(w_in=yaw_rate)
+            return self._wheel_update(snap, speed), True
+        if kind == _IMU:
+            yaw_rate, accel = payload  # type: ignore[misc]
+            return snap._replace(w_in=yaw_rate, a_in=accel), True
+        if kind == _WHEEL:
+            return self._wheel_update(snap, payload), True  # type: ignore[arg-type]
+        if kind == _GNSS_INS:
+            return self._fuse_ins(snap, payload, reset, first_time)  # type: ignore[arg-type]
+        if kind == _POSE:
+            return self._fuse_pose(snap, payload, first_time)  # type: ignore[arg-type]
+        return self._fuse_position(snap, payload, reset, first_time)  # type: ignore[arg-type]
 
-    def _propagate(self, snap: _Snapshot, t_us: int) -> _Snapshot:
-        """Kinematic prediction to ``t_us`` (may be backwards for a look into the past)."""
-        t0, initialised, w_in, s, p = snap
-        if t0 < 0:
-            return (t_us, initialised, w_in, s, p)
-        dt = (t_us - t0) / US_PER_S
+    # --- prediction ----------------------------------------------------------------------------
+    def _propagate(self, snap: _Snap, t_us: int) -> _Snap:
+        """Kinematic prediction to ``t_us`` (may be backwards, for a look into the past)."""
+        dt = (t_us - snap.t_us) / US_PER_S
         if dt == 0.0:
             return snap
-        x, y, yaw, v, bias = s
-        p00, p01, p02, p03, p04, p11, p12, p13, p14, p22, p23, p24, p33, p34, p44 = p
-        lever = self.config.zero_slip_offset_m
-        w = w_in - bias
-        # Midpoint heading: exact for constant speed and yaw rate up to second order.
-        mid = yaw + 0.5 * w * dt
-        c, sn = math.cos(mid), math.sin(mid)
-        vx = v * c + w * lever * sn
-        vy = v * sn - w * lever * c
-        # Jacobian F = I + [[0,0,a,cx,e],[0,0,b,cy,g],[0,0,0,0,h],0,0].
-        a, b = -vy * dt, vx * dt
-        cx, cy = c * dt, sn * dt
-        e = -0.5 * a * dt - lever * sn * dt
-        g = -0.5 * b * dt + lever * c * dt
-        h = -dt
-        # M = F P (rows 0..2; rows 3 and 4 are unchanged), then F M^T, upper triangle only.
-        m00 = p00 + a * p02 + cx * p03 + e * p04
-        m01 = p01 + a * p12 + cx * p13 + e * p14
-        m02 = p02 + a * p22 + cx * p23 + e * p24
-        m03 = p03 + a * p23 + cx * p33 + e * p34
-        m04 = p04 + a * p24 + cx * p34 + e * p44
-        m11 = p11 + b * p12 + cy * p13 + g * p14
-        m12 = p12 + b * p22 + cy * p23 + g * p24
-        m13 = p13 + b * p23 + cy * p33 + g * p34
-        m14 = p14 + b * p24 + cy * p34 + g * p44
-        m22 = p22 + h * p24
-        m24 = p24 + h * p44
-        adt = abs(dt)
-        q_pos = self._q_pos * adt
-        return (
-            t_us,
-            initialised,
-            w_in,
-            (x + vx * dt, y + vy * dt, wrap_angle_rad(yaw + w * dt), v, bias),
-            (
-                m00 + a * m02 + cx * m03 + e * m04 + q_pos,
-                m01 + b * m02 + cy * m03 + g * m04,
-                m02 + h * m04,
-                m03,
-                m04,
-                m11 + b * m12 + cy * m13 + g * m14 + q_pos,
-                m12 + h * m14,
-                m13,
-                m14,
-                m22 + h * m24 + self._q_yaw * adt,
-                p23 + h * p34,
-                m24,
-                p33 + self._q_speed * adt,
-                p34,
-                p44 + self._q_bias * adt,
-            ),
-        )
+        s, f, q = motion(self.config, snap.s, snap.w_in, snap.a_in, dt)
+        p = f @ snap.p @ f.T
+        p[_DIAG] += q
+        if snap.gnss_quality is not None:
+            # The GNSS error is a Gauss-Markov process: it decorrelates, towards its datasheet sigma.
+            fade = math.exp(-abs(dt) / ERROR_CORRELATION_S)
+            p[7:9, :] *= fade
+            p[:, 7:9] *= fade
+            q_g = ACCURACY_FLOOR_M[snap.gnss_quality] ** 2 * (1.0 - fade * fade)
+            p[7, 7] += q_g
+            p[8, 8] += q_g
+            s[7:9] *= fade
+        return snap._replace(t_us=t_us, s=s, p=p)
 
-    @staticmethod
-    def _scalar_update(
-        s: tuple[float, ...], p: tuple[float, ...], index: int, innovation: float, r: float
-    ) -> tuple[tuple[float, ...], tuple[float, ...]]:
-        """Kalman update with one directly measured state component (H = e_index)."""
-        col = [p[k] for k in _PACKED[index]]
-        gain = [ci / (col[index] + r) for ci in col]
-        new_s = tuple(si + gi * innovation for si, gi in zip(s, gain, strict=True))
-        new_p = tuple(pk - gain[i] * col[j] for pk, (i, j) in zip(p, _PAIRS, strict=True))
-        return new_s, new_p
+    def _propagate_pose(self, snap: _Snap, t_us: int) -> tuple[np.ndarray, np.ndarray]:
+        """The state and the (3, 3) pose block of the covariance at ``t_us``: what ``estimate`` needs.
 
-    def _fuse_fix(
-        self, snap: _Snapshot, fix: GnssInsFrame, reset: bool, first_time: bool
-    ) -> tuple[_Snapshot, bool]:
-        t_us, initialised, w_in, s, p = snap
-        r_pos = fix.pos_std_m**2
-        if not initialised or reset:
-            return self._initialise(snap, fix), True
-        dx, dy = fix.x_m - s[_X], fix.y_m - s[_Y]
-        s00, s01, s11 = p[0] + r_pos, p[1], p[5] + r_pos
-        d2 = (s11 * dx * dx - 2.0 * s01 * dx * dy + s00 * dy * dy) / (s00 * s11 - s01 * s01)
-        if d2 > self.config.gate_chi2:
-            if first_time:
-                self.rejected_fixes += 1
-                self.gross_rejections += d2 > self.config.gross_chi2
-                self.max_rejected_chi2 = max(self.max_rejected_chi2, d2)
-                self._consecutive_rejections += 1
-                self._rejected_innovations.append((dx, dy))
-                if (
-                    self._consecutive_rejections >= self.config.reset_after_rejections
-                    and self._innovations_agree()
-                ):
-                    # The filter has been wrong for a while (long drift, a bad reset): trust the fix.
-                    self._consecutive_rejections = 0
-                    self._reset_on_arrival = True
-                    self.resets += 1
-                    return self._initialise(snap, fix), True
+        The block is ``F[:3] P F[:3]^T + Q[:3, :3]``, exactly the top-left block of ``_propagate``'s
+        covariance, at a third of the cost of the whole product.
+        """
+        dt = (t_us - snap.t_us) / US_PER_S
+        if dt == 0.0:
+            return snap.s, snap.p[:3, :3]
+        s, f, q = motion(self.config, snap.s, snap.w_in, snap.a_in, dt)
+        top = f[:3]
+        p3 = top @ snap.p @ top.T
+        p3[_DIAG3] += q[:3]
+        return s, p3
+
+    # --- corrections ---------------------------------------------------------------------------
+    def _wheel_update(self, snap: _Snap, speed_mps: float) -> _Snap:
+        """Wheel speed = speed x (1 + scale error)."""
+        v, k = float(snap.s[V]), float(snap.s[K])
+        # H has two non-zeros (speed and scale): P H^T is two columns, no matrix product needed.
+        p = snap.p
+        ph = p[:, V] * (1.0 + k) + p[:, K] * v
+        gain = ph / (ph[V] * (1.0 + k) + ph[K] * v + self._r_odom)
+        new_p = p - np.outer(gain, ph)
+        s = snap.s + gain * (speed_mps - v * (1.0 + k))
+        return snap._replace(s=s, p=0.5 * (new_p + new_p.T))
+
+    def _fuse_ins(self, snap: _Snap, fix: GnssInsFrame, reset: bool, first_time: bool) -> tuple[_Snap, bool]:
+        r = np.diag([fix.pos_std_m**2, fix.pos_std_m**2]) + self._timing_cov(snap)
+        if not snap.initialised or not snap.yaw_known or reset:
+            snap = self._set_position(snap, fix.x_m, fix.y_m, r, fix.yaw_rad, fix.yaw_std_rad**2, False)
+            return self._fuse_speed_yaw(snap, fix), self._count_accepted(first_time)
+        h = np.zeros((2, N_STATES))
+        h[0, X] = h[1, Y] = 1.0
+        innovation = np.array([fix.x_m - snap.s[X], fix.y_m - snap.s[Y]])
+        used, snap = self._gated_update(snap, h, innovation, r, first_time)
+        if used is None:
+            pos = np.array([fix.x_m, fix.y_m])
+            snap = self._set_position(snap, pos[0], pos[1], r, fix.yaw_rad, fix.yaw_std_rad**2, False)
+            used = True
+        if not used:
             return snap, False
+        return self._fuse_speed_yaw(snap, fix), True
+
+    def _fuse_speed_yaw(self, snap: _Snap, fix: GnssInsFrame) -> _Snap:
+        h = np.zeros((2, N_STATES))
+        h[0, YAW] = h[1, V] = 1.0
+        innovation = np.array([wrap_angle_rad(fix.yaw_rad - snap.s[YAW]), fix.speed_mps - snap.s[V]])
+        r = np.diag([fix.yaw_std_rad**2, self.config.gnss_speed_std_mps**2])
+        s, p = kalman_update(snap.s, snap.p, h, innovation, r)
+        s[YAW] = wrap_angle_rad(s[YAW])
+        return snap._replace(s=s, p=p)
+
+    def _fuse_position(self, snap: _Snap, fix: GnssFix, reset: bool, first_time: bool) -> tuple[_Snap, bool]:
+        xx, xy, yy = white_covariance_m2(fix)
+        r = np.array([[xx, xy], [xy, yy]]) + self._timing_cov(snap)
+        if snap.gnss_quality is not fix.quality:
+            snap = self._restart_gnss_error(snap, fix.quality)
+        if not snap.initialised or not snap.yaw_known:
+            return self._initialise_from_positions(snap, fix, r), self._count_accepted(first_time)
+        lf, ll = self._lever
+        yaw = float(snap.s[YAW])
+        cs, sn = math.cos(yaw), math.sin(yaw)
+        h = np.zeros((2, N_STATES))
+        h[0, X] = h[1, Y] = 1.0
+        h[0, YAW], h[1, YAW] = -sn * lf - cs * ll, cs * lf - sn * ll
+        h[0, GE] = h[1, GN] = 1.0
+        antenna = (snap.s[X] + cs * lf - sn * ll, snap.s[Y] + sn * lf + cs * ll)
+        predicted = (antenna[0] + snap.s[GE], antenna[1] + snap.s[GN])
+        innovation = np.array([fix.x_m - predicted[0], fix.y_m - predicted[1]])
+        if reset:
+            return self._reset_to_fix(snap, fix, r), True
+        used, snap = self._gated_update(snap, h, innovation, r, first_time)
+        if used is None:
+            return self._reset_to_fix(snap, fix, r), True
+        return snap, used
+
+    def _gated_update(
+        self, snap: _Snap, h: np.ndarray, innovation: np.ndarray, r: np.ndarray, first_time: bool
+    ) -> tuple[bool | None, _Snap]:
+        """Chi-square gate, then update. None: rejected, and the re-acquisition rule says reset."""
+        s_cov = h @ snap.p @ h.T + r
+        d2 = float(innovation @ np.linalg.solve(s_cov, innovation))
+        if d2 <= self.config.gate_chi2:
+            if first_time:
+                self._reacquisition.clear()
+                self.accepted_fixes += 1
+            s, p = kalman_update(snap.s, snap.p, h, innovation, r)
+            s[YAW] = wrap_angle_rad(s[YAW])
+            return True, snap._replace(s=s, p=p)
+        if not first_time:
+            return False, snap
+        self.rejected_fixes += 1
+        self.gross_rejections += d2 > self.config.gross_chi2
+        self.max_rejected_chi2 = max(self.max_rejected_chi2, d2)
+        rejected = RejectedFix(snap.t_us, innovation, r, snap.p[:2, :2].copy())
+        if self._reacquisition.reject(rejected, snap.p[:2, :2]):
+            self._reset_on_arrival = True
+            self.resets += 1
+            self.accepted_fixes += 1
+            return None, snap
+        return False, snap
+
+    def _count_accepted(self, first_time: bool) -> bool:
         if first_time:
-            self._consecutive_rejections = 0
-            self._rejected_innovations.clear()
-        s, p = self._scalar_update(s, p, _X, dx, r_pos)
-        s, p = self._scalar_update(s, p, _Y, fix.y_m - s[_Y], r_pos)
-        s, p = self._scalar_update(s, p, _YAW, wrap_angle_rad(fix.yaw_rad - s[_YAW]), fix.yaw_std_rad**2)
-        s, p = self._scalar_update(s, p, _V, fix.speed_mps - s[_V], self._r_gnss_speed)
-        return (t_us, True, w_in, (s[0], s[1], wrap_angle_rad(s[2]), s[3], s[4]), p), True
+            self.accepted_fixes += 1
+            self._reacquisition.clear()
+        return True
 
-    def _innovations_agree(self) -> bool:
-        inn = self._rejected_innovations
-        mx = sum(d[0] for d in inn) / len(inn)
-        my = sum(d[1] for d in inn) / len(inn)
-        spread = max(math.hypot(dx - mx, dy - my) for dx, dy in inn)
-        return spread <= self.config.reset_consistency_m
+    def _fuse_pose(self, snap: _Snap, measurement: PoseMeasurement, first_time: bool) -> tuple[_Snap, bool]:
+        if not (snap.initialised and snap.yaw_known):
+            return snap, False
+        lin = measurement.linearize(snap.s[:3].copy(), snap.p[:3, :3].copy())
+        if lin is None:
+            return snap, False
+        innovation, h3, r = lin
+        m = innovation.shape[0]
+        h = np.zeros((m, N_STATES))
+        h[:, :3] = h3
+        s_cov = h @ snap.p @ h.T + r
+        if float(innovation @ np.linalg.solve(s_cov, innovation)) > float(chi2.ppf(0.999, m)):
+            self.rejected_pose_measurements += first_time
+            return snap, False
+        s, p = kalman_update(snap.s, snap.p, h, innovation, r)
+        s[YAW] = wrap_angle_rad(s[YAW])
+        return snap._replace(s=s, p=p), True
 
-    def _initialise(self, snap: _Snapshot, fix: GnssInsFrame) -> _Snapshot:
-        """Pose from the fix; speed and bias (and their covariance) kept from the odometry so far."""
-        t_us, _, w_in, s, p = snap
-        r_pos = fix.pos_std_m**2
-        new_p = list(p)
-        for i in (_X, _Y, _YAW):
-            for j in range(5):
-                new_p[_PACKED[i][j]] = 0.0
-        new_p[_PACKED[_X][_X]] = new_p[_PACKED[_Y][_Y]] = r_pos
-        new_p[_PACKED[_YAW][_YAW]] = fix.yaw_std_rad**2
-        state: tuple[float, ...] = (fix.x_m, fix.y_m, wrap_angle_rad(fix.yaw_rad), s[_V], s[_BIAS])
-        state, packed = self._scalar_update(
-            state, tuple(new_p), _V, fix.speed_mps - s[_V], self._r_gnss_speed
-        )
-        return (t_us, True, w_in, state, packed)
+    # --- (re-)initialisation -------------------------------------------------------------------
+    def _timing_cov(self, snap: _Snap) -> np.ndarray:
+        """Along-track uncertainty of a fix from its epoch's timing uncertainty."""
+        v = float(snap.s[V]) if snap.initialised else 0.0
+        yaw = float(snap.s[YAW])
+        d = np.array([math.cos(yaw), math.sin(yaw)])
+        return (v * self.config.fix_timing_std_s) ** 2 * np.outer(d, d)
+
+    def _restart_gnss_error(self, snap: _Snap, quality: GnssQuality) -> _Snap:
+        """A new solution type is a new error process: zero mean, its datasheet sigma, uncorrelated."""
+        s, p = snap.s.copy(), snap.p.copy()
+        s[7:9] = 0.0
+        p[7:9, :] = 0.0
+        p[:, 7:9] = 0.0
+        p[7, 7] = p[8, 8] = ACCURACY_FLOOR_M[quality] ** 2
+        return snap._replace(s=s, p=p, gnss_quality=quality)
+
+    def _set_position(
+        self,
+        snap: _Snap,
+        x: float,
+        y: float,
+        r: np.ndarray,
+        yaw: float | None,
+        yaw_var: float | None,
+        position_fix: bool = True,
+    ) -> _Snap:
+        """Position (and yaw) from a fix; speed, biases and scale (with covariance) kept.
+
+        For a position-only fix the measured point is the position plus the GNSS error state: the
+        error restarts at zero with its sigma, and the position takes that sigma on, anti-correlated.
+        """
+        s, p = snap.s.copy(), snap.p.copy()
+        s[X], s[Y] = x, y
+        rows = [X, Y] if yaw is None else [X, Y, YAW]
+        p[rows, :] = 0.0
+        p[:, rows] = 0.0
+        p[:2, :2] = r
+        if position_fix and snap.gnss_quality is not None:
+            bias_var = ACCURACY_FLOOR_M[snap.gnss_quality] ** 2
+            s[7:9] = 0.0
+            p[7:9, :] = 0.0
+            p[:, 7:9] = 0.0
+            eye = np.eye(2)
+            p[:2, :2] += bias_var * eye
+            p[:2, 7:9] = p[7:9, :2] = -bias_var * eye
+            p[7:9, 7:9] = bias_var * eye
+        if yaw is not None and yaw_var is not None:
+            s[YAW] = wrap_angle_rad(yaw)
+            p[YAW, YAW] = yaw_var
+        return snap._replace(initialised=True, yaw_known=snap.yaw_known or yaw is not None, s=s, p=p)
+
+    def _reset_to_fix(self, snap: _Snap, fix: GnssFix, r: np.ndarray) -> _Snap:
+        """Re-acquisition: the base from the antenna fix with the filter's yaw; yaw doubt enters r."""
+        lf, ll = self._lever
+        yaw = float(snap.s[YAW])
+        cs, sn = math.cos(yaw), math.sin(yaw)
+        x = fix.x_m - (cs * lf - sn * ll)
+        y = fix.y_m - (sn * lf + cs * ll)
+        yaw_term = self._lever_sq * float(snap.p[YAW, YAW]) * np.eye(2)
+        return self._set_position(snap, x, y, r + yaw_term, None, None)
+
+    def _initialise_from_positions(self, snap: _Snap, fix: GnssFix, r: np.ndarray) -> _Snap:
+        """Position from each fix until two fixes far enough apart give the heading (their course)."""
+        loose = r + self._lever_sq * np.eye(2)  # the antenna may be anywhere on the lever-arm circle
+        anchor = snap.anchor
+        yaw_rel = float(snap.s[YAW])
+        if anchor is None:
+            snap = self._set_position(snap, fix.x_m, fix.y_m, loose, None, None)
+            return snap._replace(anchor=(fix.x_m, fix.y_m, yaw_rel))
+        dx, dy = fix.x_m - anchor[0], fix.y_m - anchor[1]
+        dist = math.hypot(dx, dy)
+        if dist < self.config.heading_init_distance_m:
+            return self._set_position(snap, fix.x_m, fix.y_m, loose, None, None)
+        # The course is the heading half-way (constant turn rate); the gyro gives the rest of the turn.
+        turn = wrap_angle_rad(yaw_rel - anchor[2])
+        course = math.atan2(dy, dx) + (math.pi if snap.s[V] < 0 else 0.0)
+        yaw = wrap_angle_rad(course + 0.5 * turn)
+        yaw_var = 2.0 * float(np.trace(loose)) / dist**2 + (0.5 * turn) ** 2
+        lf, ll = self._lever
+        cs, sn = math.cos(yaw), math.sin(yaw)
+        r_base = r + self._lever_sq * yaw_var * np.eye(2)
+        base_x, base_y = fix.x_m - (cs * lf - sn * ll), fix.y_m - (sn * lf + cs * ll)
+        snap = self._set_position(snap, base_x, base_y, r_base, yaw, yaw_var)
+        return snap._replace(anchor=None)
+
+
+def _check_inputs(where: str, stamp: Stamp, **values: float) -> None:
+    for name, value in values.items():
+        if not math.isfinite(value):
+            raise MessageError(f"{where}: expected a finite {name}, got {value}")
+    if stamp < 0:
+        raise MessageError(f"{where}: expected a non-negative stamp, got {stamp}")
