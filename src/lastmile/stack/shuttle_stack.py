@@ -66,13 +66,16 @@ from lastmile.decision.behaviour_fsm import BehaviourStateMachine
 from lastmile.decision.decision_config import DecisionConfig, DecisionInput
 from lastmile.decision.mission import MissionManager
 from lastmile.hdmap.layers import SLayerDatabase
-from lastmile.localization.ekf import PoseEkf, PoseEkfConfig
+from lastmile.localization.ekf import PoseEkf
+from lastmile.localization.ekf_config import PoseEkfConfig
+from lastmile.localization.odometry_ekf import OdometryEkf, OdometryEkfConfig
 from lastmile.planning.local_path import LocalPathConfig, LocalPathPlanner
 from lastmile.safety.reliability_config import ReliabilityConfig, default_sensor_specs
 from lastmile.stack.hmi import HmiComposer
 from lastmile.stack.module_guard import ModuleGuard
 from lastmile.stack.profiler import ModuleProfiler
 from lastmile.stack.raw_perception import RawPerception, RawPerceptionConfig
+from lastmile.stack.stack_settings import LocalizationMode
 from lastmile.stack.v2i import AnticipationConfig, CrossingAnticipation
 from lastmile.tracking.prediction import MapAwarePredictor, PredictionConfig
 from lastmile.tracking.radar_tracker import RadarObjectTracker, RadarTrackerConfig
@@ -115,7 +118,9 @@ class StackConfig:
     path: LocalPathConfig = field(default_factory=LocalPathConfig)
     longitudinal: LongitudinalConfig = field(default_factory=LongitudinalConfig)
     lateral: LateralConfig = field(default_factory=LateralConfig)
-    ekf: PoseEkfConfig = field(default_factory=PoseEkfConfig)
+    localization: LocalizationMode = LocalizationMode.EKF
+    ekf: OdometryEkfConfig = field(default_factory=OdometryEkfConfig)
+    inertial_ekf: PoseEkfConfig = field(default_factory=PoseEkfConfig)
     tracker: RadarTrackerConfig = field(default_factory=RadarTrackerConfig)
     reliability: ReliabilityConfig = field(default_factory=lambda: ReliabilityConfig(sensors=DEFAULT_SENSORS))
     v2i: AnticipationConfig = field(default_factory=AnticipationConfig)
@@ -184,7 +189,11 @@ class ShuttleStack:
         # The EKF's zero-slip point is where the body has no sideways velocity: mid-wheelbase when the
         # rear wheels steer opposite to the front, the rear axle otherwise. A property of the vehicle.
         zero_slip_m = geometry.wheelbase_m / 2.0 if geometry.all_wheel_steer else 0.0
-        self.ekf = PoseEkf(dataclasses.replace(config.ekf, zero_slip_offset_m=zero_slip_m))
+        self.ekf: OdometryEkf | PoseEkf = (
+            PoseEkf(dataclasses.replace(config.inertial_ekf, zero_slip_offset_m=zero_slip_m))
+            if config.localization is LocalizationMode.INERTIAL_EKF
+            else OdometryEkf(dataclasses.replace(config.ekf, zero_slip_offset_m=zero_slip_m))
+        )
         self.tracker = RadarObjectTracker(config.tracker)
         self.raw = (
             RawPerception(
@@ -370,10 +379,15 @@ class ShuttleStack:
 
     def _on_odometry(self, frame: WheelOdometryFrame) -> None:
         self._speed_mps = frame.speed_mps
-        self.ekf.predict(frame.stamp, frame.speed_mps, self._yaw_rate_radps)
+        if isinstance(self.ekf, PoseEkf):
+            self.ekf.wheel_speed(frame.stamp, frame.speed_mps)  # a measurement: the IMU predicts
+        else:
+            self.ekf.predict(frame.stamp, frame.speed_mps, self._yaw_rate_radps)
 
     def _on_imu(self, frame: ImuFrame) -> None:
         self._yaw_rate_radps = frame.yaw_rate_radps
+        if isinstance(self.ekf, PoseEkf):
+            self.ekf.imu(frame.stamp, frame.yaw_rate_radps, frame.accel_x_mps2)
 
     def _on_raw(self, frame: LidarSweep | CameraDetections | RadarFrame) -> None:
         assert self.raw is not None

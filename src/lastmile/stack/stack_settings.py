@@ -15,7 +15,8 @@ from lastmile.core.config import check_range
 from lastmile.core.errors import ConfigError
 from lastmile.core.perception_mode import PerceptionMode
 from lastmile.decision.decision_config import DecisionConfig
-from lastmile.localization.ekf import PoseEkfConfig
+from lastmile.localization.ekf_config import PoseEkfConfig
+from lastmile.localization.odometry_ekf import OdometryEkfConfig
 from lastmile.planning.local_path import LocalPathConfig
 from lastmile.safety.failsafe import FailSafeConfig
 from lastmile.safety.hardware_watchdog import HardwareWatchdogConfig
@@ -39,7 +40,12 @@ class LocalizationMode(StrEnum):
     """Localization modes by name."""
 
     EKF = "ekf"
-    """Pose EKF over RTK GNSS/INS, wheel odometry and IMU yaw rate, gated, with late-fix replay."""
+    """Pose EKF driven by wheel odometry and IMU yaw rate, corrected by gated RTK GNSS/INS fixes, with
+    late-fix replay (:mod:`lastmile.localization.odometry_ekf`)."""
+    INERTIAL_EKF = "inertial_ekf"
+    """The IMU-driven EKF of :mod:`lastmile.localization.ekf`: accelerometer and gyro prediction with
+    bias and scale states, wheel speed as a measurement, antenna lever arm, correlated GNSS error and
+    consistency-based re-acquisition after outages (built for real drives; see its README)."""
 
 
 _FAILSAFE = FailSafeConfig()
@@ -92,7 +98,8 @@ class StackSettings:
         longitudinal_controller, planner, localization: names of the registered implementations.
         cruise_speed_mps: the shuttle's cruise speed (None: decision's default, 20 km/h).
         serve_all_stops: timetable mode (every stop) instead of on request.
-        decision, path, longitudinal, lateral, ekf: the modules' parameters (their defaults).
+        decision, path, longitudinal, lateral: the modules' parameters (their defaults).
+        ekf, inertial_ekf: the parameters of the ``ekf`` and ``inertial_ekf`` localization modes.
         safety: the vehicle safety's parameters.
     """
 
@@ -107,7 +114,8 @@ class StackSettings:
     path: LocalPathConfig = field(default_factory=LocalPathConfig)
     longitudinal: LongitudinalConfig = field(default_factory=LongitudinalConfig)
     lateral: LateralConfig = field(default_factory=LateralConfig)
-    ekf: PoseEkfConfig = field(default_factory=PoseEkfConfig)
+    ekf: OdometryEkfConfig = field(default_factory=OdometryEkfConfig)
+    inertial_ekf: PoseEkfConfig = field(default_factory=PoseEkfConfig)
     safety: SafetySettings = field(default_factory=SafetySettings)
 
     def __post_init__(self) -> None:

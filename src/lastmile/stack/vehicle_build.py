@@ -81,6 +81,8 @@ def stack_config(settings: StackSettings, calibration: SensorCalibration, tick_u
         longitudinal=settings.longitudinal,
         lateral=settings.lateral,
         ekf=settings.ekf,
+        inertial_ekf=settings.inertial_ekf,
+        localization=settings.localization,
         perception_mode=settings.perception,
         lidar_mounts=calibration.lidar_mounts if raw else {},
         cameras=calibration.cameras if raw else (),
