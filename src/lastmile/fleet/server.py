@@ -31,10 +31,11 @@ from fastapi import (
 from fastapi import (
     Path as PathParam,
 )
-from fastapi.responses import FileResponse
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import FileResponse, JSONResponse
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from fastapi.staticfiles import StaticFiles
-from sqlalchemy import select
+from sqlalchemy import func, select
 
 from lastmile.fleet import api_models as api
 from lastmile.fleet import storage as db
@@ -42,6 +43,8 @@ from lastmile.fleet.auth import Principal, check_role
 from lastmile.fleet.dispatcher import Dispatcher
 from lastmile.fleet.live import Hub
 from lastmile.fleet.map_view import map_json
+from lastmile.fleet.rate_limit import RateLimit, TokenBuckets, default_limits
+from lastmile.fleet.request_guard import RequestGuard
 from lastmile.fleet.scheduling import LoopRoute, Planner, SchedulingConfig
 from lastmile.fleet.service_views import ride_view, vehicle_view
 from lastmile.hdmap.loader import load_campus_map
@@ -63,6 +66,10 @@ class ServerConfig:
             (kept as the load benchmark's baseline).
         timetable_lead_s: timetable runs are handed to a shuttle this long before they depart, by
             the server's local clock (0 turns the timetable clock off: operators assign runs).
+        max_body_bytes: largest request body accepted (413 beyond; the largest legitimate body of
+            the API is under 1 kB).
+        body_timeout_s: time a request body has to arrive in full (408 beyond).
+        rate_limits: requests per token, by the token's role (429 with Retry-After beyond).
     """
 
     db_url: str
@@ -71,6 +78,9 @@ class ServerConfig:
     scheduling: SchedulingConfig = field(default_factory=SchedulingConfig)
     commit_batch: int = 512
     timetable_lead_s: float = 600.0
+    max_body_bytes: int = 65_536
+    body_timeout_s: float = 10.0
+    rate_limits: dict[str, RateLimit] = field(default_factory=default_limits)
 
 
 def _principal(request: Request, creds: HTTPAuthorizationCredentials | None) -> Principal:
@@ -88,6 +98,7 @@ def role(*roles: str) -> Any:
     ) -> Principal:
         principal = _principal(request, creds)
         check_role(principal, roles)
+        request.app.state.buckets.check(principal)
         return principal
 
     return Depends(dep)
@@ -113,6 +124,17 @@ async def _timetable_clock(dispatcher: Dispatcher, config: ServerConfig) -> None
         except Exception:  # a failed write is retried on the next tick; the clock must keep going
             log.exception("timetable clock")
         await asyncio.sleep(15.0)
+
+
+async def _validation_error(_request: Request, exc: Exception) -> JSONResponse:
+    """422 with each error's location, message and type, never the input: a body is not echoed back
+    (a 20 MB document would be, and a NaN in it would make the answer itself unserialisable)."""
+    assert isinstance(exc, RequestValidationError)
+    errors = [
+        {"loc": list(e.get("loc", ())), "msg": str(e.get("msg", ""))[:200], "type": str(e.get("type", ""))}
+        for e in exc.errors()[:20]
+    ]
+    return JSONResponse({"detail": errors}, status_code=status.HTTP_422_UNPROCESSABLE_ENTITY)
 
 
 def create_app(config: ServerConfig) -> FastAPI:
@@ -155,6 +177,12 @@ def create_app(config: ServerConfig) -> FastAPI:
         description="Campus shuttle dispatch: rides, vehicles, timetable, live state.",
         lifespan=lifespan,
     )
+
+    app.state.buckets = TokenBuckets(config.rate_limits)
+    app.add_middleware(
+        RequestGuard, max_body_bytes=config.max_body_bytes, body_timeout_s=config.body_timeout_s
+    )
+    app.add_exception_handler(RequestValidationError, _validation_error)
 
     def disp(request: Request) -> Dispatcher:
         return request.app.state.dispatcher
@@ -257,6 +285,39 @@ def create_app(config: ServerConfig) -> FastAPI:
             if (state is None or r["state"] == state) and (who.role != "rider" or r["rider"] == who.subject)
         ]
         return [ride_view(r) for r in rides[-limit:]]
+
+    @app.get("/api/ride-log", tags=["rides"], response_model=api.RidePage)
+    def ride_log(
+        request: Request,
+        _who: Operator,
+        state: Annotated[
+            str | None, Query(pattern=r"^(waiting|assigned|picked_up|dropped_off|cancelled)$")
+        ] = None,
+        vehicle_id: Annotated[str | None, Query(max_length=64)] = None,
+        stop: Annotated[str | None, Query(max_length=16, description="origin or destination")] = None,
+        offset: Annotated[int, Query(ge=0, le=2**62)] = 0,
+        limit: Annotated[int, Query(ge=1, le=500)] = 50,
+    ) -> dict[str, Any]:
+        """Every ride ever requested, newest first, a page at a time; filtered by state, shuttle, stop."""
+        t = db.ride_requests
+        where = []
+        if state is not None:
+            where.append(t.c.state == state)
+        if vehicle_id is not None:
+            where.append(t.c.vehicle_id == vehicle_id)
+        if stop is not None:
+            where.append((t.c.origin == stop) | (t.c.destination == stop))
+        with disp(request).engine.connect() as conn:
+            total = conn.execute(select(func.count()).select_from(t).where(*where)).scalar_one()
+            rows = conn.execute(
+                select(t)
+                .where(*where)
+                .order_by(t.c.created_us.desc(), t.c.id.desc())
+                .offset(offset)
+                .limit(limit)
+            ).all()
+        rides = [ride_view(dict(r._mapping)) for r in rows]
+        return {"total": total, "offset": offset, "limit": limit, "rides": rides}
 
     # ----------------------------------------------------------------------------- operators
     @app.post("/api/vehicles", tags=["vehicles"], response_model=api.VehicleOut, status_code=201)
