@@ -148,6 +148,24 @@ tokens = Table(
 )
 
 
+def _legacy_ref_constraints(conn: Connection) -> list[str]:
+    """Names of unique constraints on ``client_ref`` alone (SQLite: its automatic index names)."""
+    if conn.dialect.name == "sqlite":
+        # The inspector misses a column's inline UNIQUE; SQLite's own index list names every one.
+        names = [
+            row[1]
+            for row in conn.exec_driver_sql("PRAGMA index_list(ride_requests)")
+            if row[2] and row[3] == "u"
+        ]
+        return [
+            n
+            for n in names
+            if [r[2] for r in conn.exec_driver_sql(f"PRAGMA index_info('{n}')")] == ["client_ref"]
+        ]
+    uniques = inspect(conn).get_unique_constraints("ride_requests")
+    return [str(u["name"]) for u in uniques if u["column_names"] == ["client_ref"]]
+
+
 def scope_idempotency_keys(conn: Connection) -> bool:
     """Databases made before keys were scoped per rider have ``client_ref`` unique on its own, which
     makes a second rider's request with the same key fail: replace that constraint by (rider,
@@ -156,22 +174,22 @@ def scope_idempotency_keys(conn: Connection) -> bool:
     insp = inspect(conn)
     if not insp.has_table("ride_requests"):
         return False
-    legacy = [u for u in insp.get_unique_constraints("ride_requests") if u["column_names"] == ["client_ref"]]
+    legacy = _legacy_ref_constraints(conn)
     if not legacy:
         return False
     log.warning("database: scoping ride idempotency keys per rider (one-time upgrade of ride_requests)")
     if conn.dialect.name == "sqlite":
+        indexes = [i["name"] for i in insp.get_indexes("ride_requests") if i["name"]]
         conn.exec_driver_sql("ALTER TABLE ride_requests RENAME TO ride_requests_legacy")
-        for index in insp.get_indexes("ride_requests"):
-            if index["name"]:
-                conn.exec_driver_sql(f'DROP INDEX IF EXISTS "{index["name"]}"')
+        for name in indexes:  # they moved with the table; their names are needed by the new one
+            conn.exec_driver_sql(f'DROP INDEX IF EXISTS "{name}"')
         ride_requests.create(conn)
         cols = ", ".join(c.name for c in ride_requests.columns)
         conn.exec_driver_sql(f"INSERT INTO ride_requests ({cols}) SELECT {cols} FROM ride_requests_legacy")
         conn.exec_driver_sql("DROP TABLE ride_requests_legacy")
         return True
-    for u in legacy:
-        conn.exec_driver_sql(f'ALTER TABLE ride_requests DROP CONSTRAINT "{u["name"]}"')
+    for name in legacy:
+        conn.exec_driver_sql(f'ALTER TABLE ride_requests DROP CONSTRAINT "{name}"')
     scoped = next(c for c in ride_requests.constraints if c.name == "uq_ride_requests_rider_ref")
     conn.execute(AddConstraint(scoped))
     return True
@@ -181,7 +199,7 @@ def redact_url(url: str) -> str:
     """``url`` with its password replaced by ``***`` (for logs, the start line and error messages)."""
     try:
         return make_url(url).render_as_string(hide_password=True)
-    except ArgumentError:
+    except (ArgumentError, ValueError):
         # Not parseable as a URL: still hide whatever sits between "user:" and "@".
         return re.sub(r"(//[^:/@]*:)[^@]*@", r"\1***@", url)
 
@@ -202,8 +220,8 @@ def make_engine(url: str) -> Engine:
     if url.startswith("sqlite"):
         try:
             engine = create_engine(url, connect_args={"check_same_thread": False, "timeout": 30})
-        except ArgumentError as exc:
-            raise ConfigError(f"database URL: expected sqlite:///PATH, got {shown!r} ({exc})") from None
+        except (ArgumentError, ValueError):
+            raise ConfigError(f"database URL: expected sqlite:///PATH, got {shown!r}") from None
 
         @event.listens_for(engine, "connect")
         def _pragmas(dbapi_conn: Any, _record: Any) -> None:
@@ -226,7 +244,7 @@ def make_engine(url: str) -> Engine:
                 f"database {shown!r}: expected the psycopg driver (pip install 'lastmile[postgres]'), "
                 f"got {exc}"
             ) from None
-        except ArgumentError:
+        except (ArgumentError, ValueError):
             raise ConfigError(
                 f"database URL: expected postgresql://USER:PASSWORD@HOST:PORT/DB, got {shown!r}"
             ) from None
