@@ -13,7 +13,7 @@ import sqlalchemy as sa
 from lastmile.fleet.scheduling import CAPACITY_SEATS, LoopRoute
 from lastmile.fleet.vehicle_client import VehicleClient
 from lastmile.hdmap.loader import load_campus_map
-from tests.fleet.conftest import ServerProcess
+from tests.fleet.conftest import ServerProcess, db_engine
 
 N_RIDES = 24
 STEP_M = 60.0  # metres the stand-in shuttle moves per 10 ms tick
@@ -65,8 +65,8 @@ class ScriptedShuttle:
             self.served_here = stop_id
 
 
-def test_three_shuttles_serve_every_ride_within_capacity(fresh_server: ServerProcess) -> None:
-    server = fresh_server
+def test_three_shuttles_serve_every_ride_within_capacity(durable_server: ServerProcess) -> None:
+    server = durable_server
     route = LoopRoute(load_campus_map())
     rng = np.random.default_rng(6)
 
@@ -119,7 +119,7 @@ def test_three_shuttles_serve_every_ride_within_capacity(fresh_server: ServerPro
     rides = asyncio.run(scenario())
     assert [r["state"] for r in rides] == ["dropped_off"] * N_RIDES
     assert all(r["picked_up_us"] < r["dropped_off_us"] for r in rides)  # type: ignore[operator]
-    engine = sa.create_engine(f"sqlite:///{server.out_dir / 'fleet.db'}")
+    engine = db_engine(server)
     with engine.connect() as conn:
         done = conn.execute(
             sa.text("SELECT kind, count(*) FROM trips WHERE state = 'done' GROUP BY kind ORDER BY kind")

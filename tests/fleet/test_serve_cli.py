@@ -12,7 +12,6 @@ import pytest
 import sqlalchemy as sa
 
 from lastmile.fleet import storage
-from lastmile.fleet.serve_main import listen_socket
 
 
 def _serve(tmp_path: Path, *args: str) -> subprocess.CompletedProcess[str]:
@@ -74,6 +73,8 @@ def test_redact_url_hides_only_the_password() -> None:
 
 
 def test_the_listening_socket_is_exactly_the_port_asked_for() -> None:
+    from lastmile.fleet.serve_main import listen_socket
+
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
