@@ -4,7 +4,6 @@ clear line, without a 5xx, without echoing the body, and without holding up othe
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import time
 from collections.abc import Iterator
 
@@ -32,11 +31,11 @@ def test_a_20_mb_body_is_refused_with_413_from_its_content_length(server: Server
 
 
 def test_a_chunked_20_mb_body_is_refused_while_it_streams(server: ServerProcess) -> None:
+    body = _big_body()
     sent = 0
 
     def chunks() -> Iterator[bytes]:
         nonlocal sent
-        body = _big_body()
         for k in range(0, len(body), 65_536):
             sent += 65_536
             yield body[k : k + 65_536]
@@ -44,36 +43,43 @@ def test_a_chunked_20_mb_body_is_refused_while_it_streams(server: ServerProcess)
     with server.client("rider") as rider:
         try:
             res = rider.post("/api/rides", content=chunks(), headers={"Content-Type": "application/json"})
-        except httpx.TransportError:
-            # The server may close the connection under a client still sending; what matters is it
-            # answered before reading the whole body (checked below) and stayed up.
-            res = None
-    if res is not None:
-        assert res.status_code == 413 and "got more than that" in res.json()["detail"]
-        assert len(res.content) < 500
-    with server.client("rider") as rider:
+        except (httpx.WriteError, httpx.RemoteProtocolError, httpx.ReadError):
+            # The server answered 413 and closed the connection under a client still sending: it
+            # stopped reading early (on main it read all 20 MB and answered after seconds, or timed out).
+            assert sent < len(body)
+        else:
+            assert res.status_code == 413 and "got more than that" in res.json()["detail"]
+            assert len(res.content) < 500
         assert rider.get("/api/stops").status_code == 200
 
 
 def test_other_clients_are_answered_while_a_large_body_arrives(server: ServerProcess) -> None:
     """On main a 20 MB body held the event loop for ~20 s and every ``GET /api/stops`` waited for it."""
 
-    async def scenario() -> tuple[int, float]:
+    async def scenario() -> tuple[int | None, float]:
         headers = {"Authorization": f"Bearer {server.tokens['rider']}", "Content-Type": "application/json"}
         async with httpx.AsyncClient(base_url=server.url, headers=headers, timeout=60) as http:
             big = asyncio.create_task(http.post("/api/rides", content=_big_body()))
-            await asyncio.sleep(0.05)
-            t0 = time.perf_counter()
-            stops = await http.get("/api/stops")
-            waited = time.perf_counter() - t0
-            with contextlib.suppress(httpx.TransportError):
-                await big
-            return stops.status_code, waited
+            worst_s = 0.0
+            # Poll while the big request is in flight (at most 30 s): the slowest answer is the stall.
+            for _ in range(300):
+                t0 = time.perf_counter()
+                assert (await http.get("/api/stops")).status_code == 200
+                worst_s = max(worst_s, time.perf_counter() - t0)
+                if big.done():
+                    break
+                await asyncio.sleep(0.1)
+            try:
+                status = (await big).status_code
+            except httpx.TransportError:
+                status = None
+            return status, worst_s
 
-    status, waited = asyncio.run(scenario())
-    assert status == 200
-    # Not a timing target: on main this waited ~20 s; anything near that means the loop was held.
-    assert waited < 5.0
+    status, worst_s = asyncio.run(scenario())
+    assert status in (413, None)
+    # Not a timing target: on main the slowest waited many seconds; anything near that means the loop
+    # was held by the body.
+    assert worst_s < 2.0
 
 
 @pytest.mark.parametrize(

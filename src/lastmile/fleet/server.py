@@ -386,10 +386,13 @@ def create_app(config: ServerConfig) -> FastAPI:
         _who: Operator,
         after: Annotated[int, Query(ge=0, le=2**62)] = 0,
         limit: Annotated[int, Query(ge=1, le=1000)] = 100,
+        newest_first: Annotated[bool, Query(description="the newest events (after `after`) first")] = False,
     ) -> list[dict[str, Any]]:
+        """Events with an id above ``after``: the oldest first, or the newest first (the dashboard)."""
+        order = db.events.c.id.desc() if newest_first else db.events.c.id
         with disp(request).engine.connect() as conn:
             rows = conn.execute(
-                select(db.events).where(db.events.c.id > after).order_by(db.events.c.id).limit(limit)
+                select(db.events).where(db.events.c.id > after).order_by(order).limit(limit)
             ).all()
         return [dict(r._mapping) for r in rows]
 
