@@ -85,13 +85,16 @@ def test_the_listening_socket_is_exactly_the_port_asked_for() -> None:
         sock.close()
 
 
-def test_an_old_database_gets_its_idempotency_keys_scoped_per_rider(tmp_path: Path) -> None:
-    """A database made before this change has client_ref unique on its own; it is upgraded at start."""
+@pytest.mark.parametrize("inline", [False, True])
+def test_an_old_database_gets_its_idempotency_keys_scoped_per_rider(tmp_path: Path, inline: bool) -> None:
+    """A database made before this change has client_ref unique on its own; it is upgraded at start.
+    SQLAlchemy wrote that constraint as ``UNIQUE (client_ref)``; a column's inline UNIQUE is the same."""
     engine = storage.make_engine(f"sqlite:///{tmp_path / 'old.db'}")
+    unique = " UNIQUE" if inline else ""
     cols = ", ".join(
-        f"{c.name} {c.type.compile(engine.dialect)}" + (" UNIQUE" if c.name == "client_ref" else "")
+        f"{c.name} {c.type.compile(engine.dialect)}" + (unique if c.name == "client_ref" else "")
         for c in storage.ride_requests.columns
-    )
+    ) + ("" if inline else ", UNIQUE (client_ref)")
     row = {c.name: None for c in storage.ride_requests.columns} | {
         "id": "r1",
         "client_ref": "k",

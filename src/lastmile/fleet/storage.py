@@ -39,7 +39,6 @@ from sqlalchemy import (
 )
 from sqlalchemy.engine import make_url
 from sqlalchemy.exc import ArgumentError, SQLAlchemyError
-from sqlalchemy.schema import AddConstraint
 
 from lastmile.core.errors import ConfigError
 
@@ -190,8 +189,11 @@ def scope_idempotency_keys(conn: Connection) -> bool:
         return True
     for name in legacy:
         conn.exec_driver_sql(f'ALTER TABLE ride_requests DROP CONSTRAINT "{name}"')
-    scoped = next(c for c in ride_requests.constraints if c.name == "uq_ride_requests_rider_ref")
-    conn.execute(AddConstraint(scoped))
+    # Plain DDL: SQLAlchemy's AddConstraint would mark the table's own constraint as added separately,
+    # and every later CREATE TABLE of ride_requests in this process would then leave it out.
+    conn.exec_driver_sql(
+        "ALTER TABLE ride_requests ADD CONSTRAINT uq_ride_requests_rider_ref UNIQUE (rider, client_ref)"
+    )
     return True
 
 
