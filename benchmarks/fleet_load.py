@@ -102,6 +102,11 @@ class Server:
         res.raise_for_status()
         return str(res.json()["token"])
 
+    def cpu_s(self) -> float:
+        """CPU seconds (user + system) the server process has used so far."""
+        fields = Path(f"/proc/{self.proc.pid}/stat").read_text().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
     def tracebacks(self) -> int:
         return (self.out / "server.log").read_text(errors="replace").count("Traceback")
 
@@ -231,16 +236,21 @@ async def closed_loop(url: str, tokens: list[str], seconds: float, prefix: str, 
 
 def abuse_phase(server: Server, rate: float, seconds: float, conns: int, tmp: Path) -> dict[str, Any]:
     """Well-behaved riders alone, then the same load while the abusers run (their own process)."""
+    cpu0 = server.cpu_s()
     calm = asyncio.run(open_loop(server.url, server.riders, rate, seconds, "calm-alone-", conns))
+    calm["server_cpu_s"] = server.cpu_s() - cpu0
     out = tmp / "abusers.json"
     script = Path(__file__).with_name("fleet_abusers.py")
     abusers = subprocess.Popen(
         [sys.executable, str(script), server.url, server.flooder, str(seconds + 3.0), str(out)]
     )
     time.sleep(1.5)  # the abusers are in full swing before the measured window opens
+    cpu0 = server.cpu_s()
     attacked = asyncio.run(open_loop(server.url, server.riders, rate, seconds, "calm-abused-", conns))
+    attacked["server_cpu_s"] = server.cpu_s() - cpu0
     abusers.wait(120)
-    tally: dict[str, dict[str, int]] = json.loads(out.read_text())
+    report = json.loads(out.read_text())
+    tally: dict[str, dict[str, int]] = report["tally"]
     for run, prefix in ((calm, "calm-alone-"), (attacked, "calm-abused-")):
         rows, distinct = server.rows(prefix)
         run |= {"db_rows": rows, "lost": run["sent"] - rows, "duplicated": rows - distinct}
@@ -257,6 +267,7 @@ def abuse_phase(server: Server, rate: float, seconds: float, conns: int, tmp: Pa
         "alone": calm,
         "with_abusers": attacked,
         "abusers": tally,
+        "abusers_cpu_s": report["cpu_s"],
         "flood_created": flood_created,
         "flood_db_rows": flood_rows,
         "flood_lost": flood_created - flood_rows,
@@ -284,7 +295,19 @@ def print_abuse(console: Console, a: dict[str, Any]) -> None:
     table = Table(
         title=f"well-behaved riders at {a['rate']:g}/s for {a['seconds']:g} s, alone and under abuse"
     )
-    for col in ("run", "requests", "201", "p50 ms", "p99 ms", "max ms", "lost", "dup", "p99 ratio"):
+    cols = (
+        "run",
+        "requests",
+        "201",
+        "p50 ms",
+        "p99 ms",
+        "max ms",
+        "lost",
+        "dup",
+        "server CPU s",
+        "p99 ratio",
+    )
+    for col in cols:
         table.add_column(col, justify="right")
     for name, r in (("alone", a["alone"]), ("with abusers", a["with_abusers"])):
         table.add_row(
@@ -296,6 +319,7 @@ def print_abuse(console: Console, a: dict[str, Any]) -> None:
             f"{r['max_ms']:.1f}",
             str(r["lost"]),
             str(r["duplicated"]),
+            f"{r['server_cpu_s']:.1f}",
             "1.00x" if name == "alone" else f"{a['p99_ratio_with_vs_without']:.2f}x",
         )
     console.print(table)
@@ -305,6 +329,7 @@ def print_abuse(console: Console, a: dict[str, Any]) -> None:
     for name, counts in sorted(a["abusers"].items()):
         abuse.add_row(name, ", ".join(f"{k}: {v}" for k, v in sorted(counts.items())))
     console.print(abuse)
+    console.print(f"abusers' own CPU: {a['abusers_cpu_s']:.1f} s (their process, on the same two cores)")
     console.print(
         f"flood: {a['flood_created']} accepted, {a['flood_db_rows']} in the database "
         f"(lost {a['flood_lost']}, duplicated {a['flood_duplicated']}); "
