@@ -103,6 +103,18 @@ def test_non_finite_or_huge_json_numbers_are_one_clear_422(
     assert "Traceback" not in server.log_text()
 
 
+def test_nan_without_a_content_type_is_refused_too(server: ServerProcess) -> None:
+    with server.client("rider") as rider:
+        res = rider.post("/api/rides", content=b'{"origin": "S1", "destination": "S2", "seats": NaN}')
+    assert res.status_code == 422 and "NaN" in res.json()["detail"]
+
+
+def test_a_long_ride_id_is_not_echoed_in_the_404(server: ServerProcess) -> None:
+    with server.client("rider") as rider:
+        res = rider.get("/api/rides/" + "z" * 5000)
+    assert res.status_code == 422 and "zzzz" not in res.text
+
+
 def test_a_validation_error_does_not_echo_the_input(server: ServerProcess) -> None:
     secret = "s3cr3t-" + "y" * 40_000
     with server.client("rider") as rider:

@@ -74,11 +74,12 @@ def check_strict_json(body: bytes) -> None:
 
 
 def _is_json(scope: Scope) -> bool:
+    """A JSON content type, or none at all (FastAPI parses a body without one as JSON too)."""
     for name, value in scope.get("headers", ()):
         if name == b"content-type":
             media = value.split(b";", 1)[0].strip().lower()
             return media == b"application/json" or media.endswith(b"+json")
-    return False
+    return True
 
 
 def _content_length(scope: Scope) -> int | None:

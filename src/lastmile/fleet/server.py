@@ -109,6 +109,8 @@ Rider = Annotated[Principal, role("rider", "operator")]
 Operator = Annotated[Principal, role("operator")]
 OperatorOrVehicle = Annotated[Principal, role("operator", "vehicle")]
 Infrastructure = Annotated[Principal, role("infrastructure", "operator")]
+# Ride ids are 26 hex characters; the bound keeps a 404's message from echoing a long path back.
+RideIdParam = Annotated[str, PathParam(min_length=1, max_length=64)]
 VehicleIdParam = Annotated[str, PathParam(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.-]+$")]
 
 
@@ -129,7 +131,8 @@ async def _timetable_clock(dispatcher: Dispatcher, config: ServerConfig) -> None
 async def _validation_error(_request: Request, exc: Exception) -> JSONResponse:
     """422 with each error's location, message and type, never the input: a body is not echoed back
     (a 20 MB document would be, and a NaN in it would make the answer itself unserialisable)."""
-    assert isinstance(exc, RequestValidationError)
+    if not isinstance(exc, RequestValidationError):
+        raise exc
     errors = [
         {"loc": list(e.get("loc", ())), "msg": str(e.get("msg", ""))[:200], "type": str(e.get("type", ""))}
         for e in exc.errors()[:20]
@@ -251,16 +254,16 @@ def create_app(config: ServerConfig) -> FastAPI:
         return view
 
     @app.get("/api/rides/{ride_id}", tags=["rides"], response_model=api.RideOut)
-    async def get_ride(request: Request, ride_id: str, who: Rider) -> dict[str, Any]:
+    async def get_ride(request: Request, ride_id: RideIdParam, who: Rider) -> dict[str, Any]:
         d = disp(request)
         return ride_view(d.ride_or_404(ride_id, who))
 
     @app.delete("/api/rides/{ride_id}", tags=["rides"], response_model=api.RideOut)
-    async def cancel_ride(request: Request, ride_id: str, who: Rider) -> dict[str, Any]:
+    async def cancel_ride(request: Request, ride_id: RideIdParam, who: Rider) -> dict[str, Any]:
         return await disp(request).cancel_ride(who, ride_id)
 
     @app.get("/api/rides/{ride_id}/vehicle", tags=["rides"], response_model=api.VehicleOut)
-    async def follow_shuttle(request: Request, ride_id: str, who: Rider) -> dict[str, Any]:
+    async def follow_shuttle(request: Request, ride_id: RideIdParam, who: Rider) -> dict[str, Any]:
         """Where the rider's shuttle is now."""
         d = disp(request)
         ride = d.ride_or_404(ride_id, who)
@@ -414,7 +417,7 @@ def create_app(config: ServerConfig) -> FastAPI:
         path = (root / name / rel).resolve()
         if not path.is_relative_to(root / name) or not (root / name).is_dir() or not path.exists():
             raise HTTPException(
-                status.HTTP_404_NOT_FOUND, f"no run file {name!r}/{rel!r} under the runs directory"
+                status.HTTP_404_NOT_FOUND, f"no run file {name[:80]!r}/{rel[:200]!r} under the runs directory"
             )
         return path
 
@@ -422,7 +425,7 @@ def create_app(config: ServerConfig) -> FastAPI:
     def download_run_file(name: str, rel: str, _who: Operator) -> FileResponse:
         path = run_path(name, rel)
         if not path.is_file():
-            raise HTTPException(status.HTTP_404_NOT_FOUND, f"{name!r}/{rel!r} is not a file")
+            raise HTTPException(status.HTTP_404_NOT_FOUND, f"{name[:80]!r}/{rel[:200]!r} is not a file")
         return FileResponse(path, filename=path.name)
 
     @app.get("/api/runs/{name}/archive", tags=["runs"])
