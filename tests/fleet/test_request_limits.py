@@ -202,3 +202,25 @@ def test_a_body_that_trickles_in_is_refused_with_408() -> None:
     asyncio.run(guard(scope, receive, send))  # type: ignore[arg-type]
     assert sent[0]["status"] == 408
     assert b"expected it complete within 0.2 s" in sent[1]["body"]  # type: ignore[operator]
+
+
+def test_a_token_bucket_refills_at_its_rate_and_names_the_wait() -> None:
+    from fastapi import HTTPException
+
+    from lastmile.fleet.auth import Principal
+    from lastmile.fleet.rate_limit import RateLimit, TokenBuckets
+
+    buckets = TokenBuckets({"rider": RateLimit(rate_per_s=2.0, burst=3)})
+    alice, bob = Principal("rider", "alice", "sha-a"), Principal("rider", "bob", "sha-b")
+    for _ in range(3):
+        buckets.check(alice, now_s=0.0)
+    with pytest.raises(HTTPException) as refused:
+        buckets.check(alice, now_s=0.1)
+    assert refused.value.status_code == 429
+    assert refused.value.headers == {"Retry-After": "1"}  # 0.4 s to the next request, rounded up
+    buckets.check(bob, now_s=0.1)  # another token has its own bucket
+    buckets.check(alice, now_s=0.6)  # 0.6 s at 2/s refilled one request
+    with pytest.raises(HTTPException):
+        buckets.check(alice, now_s=0.6)
+    assert buckets.refused == 2
+    TokenBuckets({"rider": RateLimit(rate_per_s=0.0, burst=0)}).check(alice)  # 0: no limit
