@@ -118,3 +118,23 @@ def test_an_old_database_gets_its_idempotency_keys_scoped_per_rider(tmp_path: Pa
     with pytest.raises(sa.exc.IntegrityError), engine.begin() as conn:
         conn.execute(storage.ride_requests.insert(), row | {"id": "r3"})
     engine.dispose()
+
+
+def test_log_records_holding_the_password_are_redacted() -> None:
+    import logging
+
+    from lastmile.fleet.serve_main import _RedactFilter
+
+    record = logging.LogRecord(
+        "x", logging.WARNING, __file__, 1, "connect to %s failed", ("u:Hunter2pw@h",), None
+    )
+    assert _RedactFilter("Hunter2pw").filter(record) is True
+    assert record.getMessage() == "connect to u:***@h failed"
+    try:
+        raise RuntimeError("auth failed for Hunter2pw")
+    except RuntimeError:
+        import sys
+
+        failed = logging.LogRecord("x", logging.ERROR, __file__, 1, "startup", None, sys.exc_info())
+    _RedactFilter("Hunter2pw").filter(failed)
+    assert failed.exc_info is None and "Hunter2pw" not in failed.getMessage()
