@@ -6,6 +6,7 @@ from __future__ import annotations
 import socket
 import subprocess
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
@@ -14,9 +15,32 @@ import sqlalchemy as sa
 from lastmile.fleet import storage
 
 
-def _serve(tmp_path: Path, *args: str) -> subprocess.CompletedProcess[str]:
+@dataclass(frozen=True, slots=True)
+class Outcome:
+    returncode: int
+    stdout: str
+    stderr: str
+
+
+def _serve(tmp_path: Path, *args: str) -> Outcome:
+    """``lastmile serve`` in this process (every case here fails before uvicorn would start)."""
+    from typer.testing import CliRunner
+
+    from lastmile.cli import app
+
+    result = CliRunner().invoke(app, ["serve", "--out", str(tmp_path), *args])
+    return Outcome(result.exit_code, result.stdout, result.stderr)
+
+
+def _serve_process(tmp_path: Path, *args: str) -> Outcome:
+    """``lastmile serve`` as its own process, for cases a broken check would turn into a server that
+    runs for ever (main listened on 4464 for --port 70000): still running after 30 s is a failure."""
     cmd = [sys.executable, "-c", "from lastmile.cli import main; main()", "serve", "--out", str(tmp_path)]
-    return subprocess.run(cmd + list(args), capture_output=True, text=True, timeout=60, check=False)
+    try:
+        res = subprocess.run(cmd + list(args), capture_output=True, text=True, timeout=30, check=False)
+    except subprocess.TimeoutExpired as exc:
+        return Outcome(-1, str(exc.stdout or ""), f"still running after 30 s: {exc.stderr!r}")
+    return Outcome(res.returncode, res.stdout, res.stderr)
 
 
 @pytest.mark.parametrize(
@@ -31,7 +55,7 @@ def _serve(tmp_path: Path, *args: str) -> subprocess.CompletedProcess[str]:
 def test_a_bad_port_or_address_is_one_line_and_exit_2(
     tmp_path: Path, args: tuple[str, ...], needle: str
 ) -> None:
-    res = _serve(tmp_path, *args)
+    res = _serve_process(tmp_path, *args)
     assert res.returncode == 2
     assert needle in res.stderr and len(res.stderr.strip().splitlines()) == 1, res.stderr
     assert res.stdout == ""
