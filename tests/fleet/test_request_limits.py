@@ -4,6 +4,7 @@ clear line, without a 5xx, without echoing the body, and without holding up othe
 from __future__ import annotations
 
 import asyncio
+import json
 import time
 from collections.abc import Iterator
 
@@ -224,3 +225,19 @@ def test_a_token_bucket_refills_at_its_rate_and_names_the_wait() -> None:
         buckets.check(alice, now_s=0.6)
     assert buckets.refused == 2
     TokenBuckets({"rider": RateLimit(rate_per_s=0.0, burst=0)}).check(alice)  # 0: no limit
+
+
+def test_a_vehicle_websocket_message_over_64_kib_closes_the_link(server: ServerProcess) -> None:
+    from websockets.exceptions import ConnectionClosed
+    from websockets.sync.client import connect
+
+    with server.client("operator") as op:
+        assert op.post("/api/vehicles", json={"id": "big-msgs"}).status_code in (200, 201)
+    url = server.url.replace("http", "ws") + "/ws/vehicle/big-msgs"
+    with connect(url, additional_headers={"Authorization": f"Bearer {server.tokens['vehicle']}"}) as ws:
+        while json.loads(ws.recv(timeout=5))["type"] != "resumed":
+            pass
+        ws.send(json.dumps({"type": "status", "x_m": 1.0, "y_m": 0.0, "behaviour": "x" * 100_000}))
+        with pytest.raises(ConnectionClosed) as closed:
+            ws.recv(timeout=5)
+    assert closed.value.rcvd is not None and closed.value.rcvd.code == 1009  # message too big
