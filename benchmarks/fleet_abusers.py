@@ -8,7 +8,10 @@ body every ``BIG_EVERY_S`` (each, 40 MB/s of loopback traffic together): back to
 bandwidth flood of ~600 MB/s, which saturates these two cores' memory copies whatever the server does
 and is a network's job to stop; what is tested here is that the server neither parses nor buffers them.
 
-Run by fleet_load.py: python benchmarks/fleet_abusers.py URL FLOOD_TOKEN SECONDS OUT.json
+Each abuser holds a rider token of its own (flood, numbers, big, slow), so each meets the per-token
+rate limit on its own: the flood and the NaN sender soon get 429 before their bodies are read.
+
+Run by fleet_load.py: python benchmarks/fleet_abusers.py URL FLOOD,NUMBERS,BIG,SLOW SECONDS OUT.json
 Writes, per abuser, the count of each HTTP status and of connections the server closed early.
 """
 
@@ -55,17 +58,19 @@ async def _post(http: aiohttp.ClientSession, tally: Tally, abuser: str, **kw: An
         tally.add(abuser, "closed_early")
 
 
-async def big_with_length(http: aiohttp.ClientSession, tally: Tally, t_end: float) -> None:
+def _json_auth(token: str) -> dict[str, str]:
+    return {"Authorization": f"Bearer {token}", "Content-Type": "application/json"}
+
+
+async def big_with_length(http: aiohttp.ClientSession, tally: Tally, t_end: float, token: str) -> None:
     body = _big_body()
     while time.perf_counter() < t_end:
         due = time.perf_counter() + BIG_EVERY_S
-        await _post(
-            http, tally, "20MB_content_length", data=body, headers={"Content-Type": "application/json"}
-        )
+        await _post(http, tally, "20MB_content_length", data=body, headers=_json_auth(token))
         await asyncio.sleep(max(0.0, due - time.perf_counter()))
 
 
-async def big_chunked(http: aiohttp.ClientSession, tally: Tally, t_end: float) -> None:
+async def big_chunked(http: aiohttp.ClientSession, tally: Tally, t_end: float, token: str) -> None:
     body = _big_body()
 
     async def stream() -> AsyncIterator[bytes]:
@@ -74,7 +79,7 @@ async def big_chunked(http: aiohttp.ClientSession, tally: Tally, t_end: float) -
 
     while time.perf_counter() < t_end:
         due = time.perf_counter() + BIG_EVERY_S
-        await _post(http, tally, "20MB_chunked", data=stream(), headers={"Content-Type": "application/json"})
+        await _post(http, tally, "20MB_chunked", data=stream(), headers=_json_auth(token))
         await asyncio.sleep(max(0.0, due - time.perf_counter()))
 
 
@@ -101,46 +106,46 @@ async def slow_body(url: str, token: str, tally: Tally, t_end: float) -> None:
             tally.add("slow_body", "closed_early")
 
 
-async def bad_numbers(http: aiohttp.ClientSession, tally: Tally, t_end: float) -> None:
+async def bad_numbers(http: aiohttp.ClientSession, tally: Tally, t_end: float, token: str) -> None:
     k = 0
     while time.perf_counter() < t_end:
         raw = b'{"origin": "S1", "destination": "S2", "seats": ' + BAD_NUMBERS[k % len(BAD_NUMBERS)] + b"}"
-        await _post(http, tally, "nan_inf_1e309", data=raw, headers={"Content-Type": "application/json"})
+        await _post(http, tally, "nan_inf_1e309", data=raw, headers=_json_auth(token))
         k += 1
 
 
-async def flood(http: aiohttp.ClientSession, tally: Tally, t_end: float, prefix: str) -> None:
+async def flood(http: aiohttp.ClientSession, tally: Tally, t_end: float, token: str, prefix: str) -> None:
     """One rider token, back to back: valid ride requests (each with its own client_ref)."""
     k = 0
     while time.perf_counter() < t_end:
         body = {"origin": "S1", "destination": "S3", "client_ref": f"{prefix}{k}"}
         k += 1
-        await _post(http, tally, "flood_one_rider", json=body)
+        await _post(http, tally, "flood_one_rider", json=body, headers=_json_auth(token))
 
 
-async def run(url: str, token: str, seconds: float) -> dict[str, Any]:
+async def run(url: str, tokens: dict[str, str], seconds: float) -> dict[str, Any]:
     tally = Tally()
     t_end = time.perf_counter() + seconds
-    headers = {"Authorization": f"Bearer {token}"}
     conn = aiohttp.TCPConnector(limit=0)
     timeout = aiohttp.ClientTimeout(total=60)
-    async with aiohttp.ClientSession(base_url=url, headers=headers, connector=conn, timeout=timeout) as http:
+    async with aiohttp.ClientSession(base_url=url, connector=conn, timeout=timeout) as http:
         tasks = [
-            big_with_length(http, tally, t_end),
-            big_chunked(http, tally, t_end),
-            bad_numbers(http, tally, t_end),
-            *(slow_body(url, token, tally, t_end) for _ in range(SLOW_CONNECTIONS)),
+            big_with_length(http, tally, t_end, tokens["big"]),
+            big_chunked(http, tally, t_end, tokens["big"]),
+            bad_numbers(http, tally, t_end, tokens["numbers"]),
+            *(slow_body(url, tokens["slow"], tally, t_end) for _ in range(SLOW_CONNECTIONS)),
         ]
         # Flood requests carry distinct client_refs so fleet_load can count them in the database.
-        tasks += [flood(http, tally, t_end, f"flood-{n}-") for n in range(FLOOD_CONNECTIONS)]
+        tasks += [flood(http, tally, t_end, tokens["flood"], f"flood-{n}-") for n in range(FLOOD_CONNECTIONS)]
         await asyncio.gather(*tasks)
     out: dict[str, Any] = {k: dict(v) for k, v in tally.by_abuser.items()}
     return out
 
 
 def main() -> None:
-    url, token, seconds, out = sys.argv[1], sys.argv[2], float(sys.argv[3]), Path(sys.argv[4])
-    tally = asyncio.run(run(url, token, seconds))
+    url, seconds, out = sys.argv[1], float(sys.argv[3]), Path(sys.argv[4])
+    tokens = dict(zip(("flood", "numbers", "big", "slow"), sys.argv[2].split(","), strict=True))
+    tally = asyncio.run(run(url, tokens, seconds))
     out.write_text(json.dumps({"tally": tally, "cpu_s": time.process_time()}, indent=2) + "\n")
 
 

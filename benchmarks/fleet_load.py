@@ -95,7 +95,8 @@ class Server:
                 self.url + f"/api/vehicles/bench-{k}/command", json={"command": "start_service"}, headers=op
             ).raise_for_status()
         self.riders = [self.issue(op, "rider", f"rider-{k}") for k in range(riders)]
-        self.flooder = self.issue(op, "rider", "flooder")
+        # One token per abuser (flood, numbers, big, slow): each meets its own rate limit.
+        self.abusers = [self.issue(op, "rider", f"abuser-{k}") for k in ("flood", "numbers", "big", "slow")]
 
     def issue(self, op: dict[str, str], role: str, subject: str) -> str:
         res = httpx.post(self.url + "/api/tokens", json={"role": role, "subject": subject}, headers=op)
@@ -242,7 +243,7 @@ def abuse_phase(server: Server, rate: float, seconds: float, conns: int, tmp: Pa
     out = tmp / "abusers.json"
     script = Path(__file__).with_name("fleet_abusers.py")
     abusers = subprocess.Popen(
-        [sys.executable, str(script), server.url, server.flooder, str(seconds + 3.0), str(out)]
+        [sys.executable, str(script), server.url, ",".join(server.abusers), str(seconds + 3.0), str(out)]
     )
     time.sleep(1.5)  # the abusers are in full swing before the measured window opens
     cpu0 = server.cpu_s()

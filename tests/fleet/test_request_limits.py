@@ -241,3 +241,12 @@ def test_a_vehicle_websocket_message_over_64_kib_closes_the_link(server: ServerP
         with pytest.raises(ConnectionClosed) as closed:
             ws.recv(timeout=5)
     assert closed.value.rcvd is not None and closed.value.rcvd.code == 1009  # message too big
+
+
+def test_a_token_sending_bad_bodies_is_rate_limited_before_they_are_read(server: ServerProcess) -> None:
+    with server.client("operator") as op:
+        tok = op.post("/api/tokens", json={"role": "rider", "subject": "nan-flood"}).json()["token"]
+    headers = {"Authorization": f"Bearer {tok}", "Content-Type": "application/json"}
+    with httpx.Client(base_url=server.url, headers=headers) as http:
+        codes = {http.post("/api/rides", content=b'{"seats": NaN}').status_code for _ in range(150)}
+    assert codes == {422, 429}

@@ -71,6 +71,10 @@ class TokenBook:
             )
         return self.authenticate_token(token.strip())
 
+    def lookup(self, token: str) -> Principal | None:
+        """The principal of a bare token, or None if it is unknown."""
+        return self._by_hash.get(token_hash(token))
+
     def authenticate_token(self, token: str) -> Principal:
         principal = self._by_hash.get(token_hash(token))
         if principal is None:

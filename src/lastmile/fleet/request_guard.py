@@ -33,12 +33,13 @@ converting a 60,000-digit literal, and no field of the API holds more."""
 
 
 class BodyRejectedError(Exception):
-    """A request body the guard refuses: an HTTP status and a one-line reason."""
+    """A request the guard refuses: an HTTP status, a one-line reason, extra headers."""
 
-    def __init__(self, status: int, detail: str) -> None:
+    def __init__(self, status: int, detail: str, headers: dict[str, str] | None = None) -> None:
         super().__init__(detail)
         self.status = status
         self.detail = detail
+        self.headers = headers or {}
 
 
 def _reject_constant(name: str) -> Any:
@@ -93,24 +94,36 @@ def _content_length(scope: Scope) -> int | None:
 
 
 class RequestGuard:
-    """ASGI middleware: size limit (413), body deadline (408), strict JSON numbers (422).
+    """ASGI middleware: admission (the per-token rate limit), size limit (413), body deadline (408),
+    strict JSON numbers (422), in that order: a request refused early costs nothing more.
 
     Args:
         app: the application behind the guard.
         max_body_bytes: largest body accepted (the API's largest legitimate body is under 1 kB).
         body_timeout_s: time allowed for the whole body to arrive.
+        admit: called with the scope before anything is read; raises ``BodyRejectedError`` to refuse.
     """
 
-    def __init__(self, app: ASGIApp, *, max_body_bytes: int, body_timeout_s: float) -> None:
+    def __init__(
+        self,
+        app: ASGIApp,
+        *,
+        max_body_bytes: int,
+        body_timeout_s: float,
+        admit: Callable[[Scope], None] | None = None,
+    ) -> None:
         self.app = app
         self.max_body_bytes = max_body_bytes
         self.body_timeout_s = body_timeout_s
+        self.admit = admit
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http":
             await self.app(scope, receive, send)
             return
         try:
+            if self.admit is not None:
+                self.admit(scope)
             body = await self._read_body(scope, receive)
             if body and _is_json(scope):
                 check_strict_json(body)
@@ -171,6 +184,7 @@ async def _send_error(send: Send, exc: BodyRejectedError) -> None:
         (b"content-type", b"application/json"),
         (b"content-length", str(len(payload)).encode()),
         (b"connection", b"close"),
+        *((k.lower().encode(), v.encode()) for k, v in exc.headers.items()),
     ]
     await send({"type": "http.response.start", "status": exc.status, "headers": headers})
     await send({"type": "http.response.body", "body": payload})

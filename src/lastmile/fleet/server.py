@@ -12,7 +12,7 @@ import io
 import json
 import logging
 import zipfile
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, MutableMapping
 from contextlib import asynccontextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -44,7 +44,7 @@ from lastmile.fleet.dispatcher import Dispatcher
 from lastmile.fleet.live import Hub
 from lastmile.fleet.map_view import map_json
 from lastmile.fleet.rate_limit import RateLimit, TokenBuckets, default_limits
-from lastmile.fleet.request_guard import RequestGuard
+from lastmile.fleet.request_guard import BodyRejectedError, RequestGuard
 from lastmile.fleet.scheduling import LoopRoute, Planner, SchedulingConfig
 from lastmile.fleet.service_views import ride_view, vehicle_view
 from lastmile.hdmap.loader import load_campus_map
@@ -98,7 +98,6 @@ def role(*roles: str) -> Any:
     ) -> Principal:
         principal = _principal(request, creds)
         check_role(principal, roles)
-        request.app.state.buckets.check(principal)
         return principal
 
     return Depends(dep)
@@ -126,6 +125,27 @@ async def _timetable_clock(dispatcher: Dispatcher, config: ServerConfig) -> None
         except Exception:  # a failed write is retried on the next tick; the clock must keep going
             log.exception("timetable clock")
         await asyncio.sleep(15.0)
+
+
+def _charge_token(scope: MutableMapping[str, Any]) -> None:
+    """Take one request from the bucket of the caller's bearer token, before its body is read: a
+    flood from one token (valid requests, 20 MB bodies or NaNs alike) is refused at the door. No or an
+    unknown token is left to the route (401)."""
+    state = scope["app"].state
+    dispatcher: Dispatcher | None = getattr(state, "dispatcher", None)
+    if dispatcher is None:
+        return
+    header = next((v for k, v in scope["headers"] if k == b"authorization"), None)
+    if header is None:
+        return
+    scheme, _, token = header.decode("latin-1").partition(" ")
+    principal = dispatcher.tokens.lookup(token.strip()) if scheme.lower() == "bearer" else None
+    if principal is None:
+        return
+    try:
+        state.buckets.check(principal)
+    except HTTPException as exc:
+        raise BodyRejectedError(exc.status_code, str(exc.detail), dict(exc.headers or {})) from None
 
 
 async def _validation_error(_request: Request, exc: Exception) -> JSONResponse:
@@ -183,7 +203,10 @@ def create_app(config: ServerConfig) -> FastAPI:
 
     app.state.buckets = TokenBuckets(config.rate_limits)
     app.add_middleware(
-        RequestGuard, max_body_bytes=config.max_body_bytes, body_timeout_s=config.body_timeout_s
+        RequestGuard,
+        max_body_bytes=config.max_body_bytes,
+        body_timeout_s=config.body_timeout_s,
+        admit=_charge_token,
     )
     app.add_exception_handler(RequestValidationError, _validation_error)
 
