@@ -16,12 +16,14 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Mapping
+from collections.abc import Mapping, MutableMapping
 from dataclasses import dataclass
+from typing import Any
 
 from fastapi import HTTPException, status
 
 from lastmile.fleet.auth import Principal
+from lastmile.fleet.request_guard import BodyRejectedError
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -80,3 +82,29 @@ class TokenBuckets:
                 headers={"Retry-After": str(max(1, math.ceil(wait_s)))},
             )
         self._buckets[principal.token_sha] = (left - 1.0, now)
+
+
+def charge_token(scope: MutableMapping[str, Any]) -> None:
+    """The request guard's admission: take one request from the bucket of the caller's bearer token
+    before its body is read, so a flood from one token (valid requests, 20 MB bodies or NaNs alike)
+    is refused at the door. No token or an unknown one is left to the route (401). Uses the app's
+    ``state.dispatcher.tokens`` (absent until start-up is done) and ``state.buckets``.
+
+    Raises:
+        BodyRejectedError: 429 with ``Retry-After``.
+    """
+    state = scope["app"].state
+    dispatcher = getattr(state, "dispatcher", None)
+    if dispatcher is None:
+        return
+    header = next((v for k, v in scope["headers"] if k == b"authorization"), None)
+    if header is None:
+        return
+    scheme, _, token = header.decode("latin-1").partition(" ")
+    principal = dispatcher.tokens.lookup(token.strip()) if scheme.lower() == "bearer" else None
+    if principal is None:
+        return
+    try:
+        state.buckets.check(principal)
+    except HTTPException as exc:
+        raise BodyRejectedError(exc.status_code, str(exc.detail), dict(exc.headers or {})) from None

@@ -12,7 +12,7 @@ import io
 import json
 import logging
 import zipfile
-from collections.abc import AsyncIterator, MutableMapping
+from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -32,7 +32,7 @@ from fastapi import (
     Path as PathParam,
 )
 from fastapi.exceptions import RequestValidationError
-from fastapi.responses import FileResponse, JSONResponse
+from fastapi.responses import FileResponse
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from fastapi.staticfiles import StaticFiles
 from sqlalchemy import func, select
@@ -43,8 +43,8 @@ from lastmile.fleet.auth import Principal, check_role
 from lastmile.fleet.dispatcher import Dispatcher
 from lastmile.fleet.live import Hub
 from lastmile.fleet.map_view import map_json
-from lastmile.fleet.rate_limit import RateLimit, TokenBuckets, default_limits
-from lastmile.fleet.request_guard import BodyRejectedError, RequestGuard
+from lastmile.fleet.rate_limit import RateLimit, TokenBuckets, charge_token, default_limits
+from lastmile.fleet.request_guard import RequestGuard, validation_error_without_input
 from lastmile.fleet.scheduling import LoopRoute, Planner, SchedulingConfig
 from lastmile.fleet.service_views import ride_view, vehicle_view
 from lastmile.hdmap.loader import load_campus_map
@@ -127,39 +127,6 @@ async def _timetable_clock(dispatcher: Dispatcher, config: ServerConfig) -> None
         await asyncio.sleep(15.0)
 
 
-def _charge_token(scope: MutableMapping[str, Any]) -> None:
-    """Take one request from the bucket of the caller's bearer token, before its body is read: a
-    flood from one token (valid requests, 20 MB bodies or NaNs alike) is refused at the door. No or an
-    unknown token is left to the route (401)."""
-    state = scope["app"].state
-    dispatcher: Dispatcher | None = getattr(state, "dispatcher", None)
-    if dispatcher is None:
-        return
-    header = next((v for k, v in scope["headers"] if k == b"authorization"), None)
-    if header is None:
-        return
-    scheme, _, token = header.decode("latin-1").partition(" ")
-    principal = dispatcher.tokens.lookup(token.strip()) if scheme.lower() == "bearer" else None
-    if principal is None:
-        return
-    try:
-        state.buckets.check(principal)
-    except HTTPException as exc:
-        raise BodyRejectedError(exc.status_code, str(exc.detail), dict(exc.headers or {})) from None
-
-
-async def _validation_error(_request: Request, exc: Exception) -> JSONResponse:
-    """422 with each error's location, message and type, never the input: a body is not echoed back
-    (a 20 MB document would be, and a NaN in it would make the answer itself unserialisable)."""
-    if not isinstance(exc, RequestValidationError):
-        raise exc
-    errors = [
-        {"loc": list(e.get("loc", ())), "msg": str(e.get("msg", ""))[:200], "type": str(e.get("type", ""))}
-        for e in exc.errors()[:20]
-    ]
-    return JSONResponse({"detail": errors}, status_code=status.HTTP_422_UNPROCESSABLE_ENTITY)
-
-
 def create_app(config: ServerConfig) -> FastAPI:
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
@@ -206,9 +173,9 @@ def create_app(config: ServerConfig) -> FastAPI:
         RequestGuard,
         max_body_bytes=config.max_body_bytes,
         body_timeout_s=config.body_timeout_s,
-        admit=_charge_token,
+        admit=charge_token,
     )
-    app.add_exception_handler(RequestValidationError, _validation_error)
+    app.add_exception_handler(RequestValidationError, validation_error_without_input)
 
     def disp(request: Request) -> Dispatcher:
         return request.app.state.dispatcher
