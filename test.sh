@@ -10,6 +10,7 @@ mypy
 lint-imports
 # The fleet dashboard's browser test drives Debian's Chromium; install it if this machine lacks it.
 bash scripts/ensure_chromium.sh
+bash scripts/ensure_postgres.sh
 set +e
 python -m pytest "$@"
 status=$?

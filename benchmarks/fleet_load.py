@@ -13,6 +13,19 @@ request sent must be there exactly once (each carries a unique ``client_ref``).
 Baseline, same run: the same server with one commit per request (``commit_batch=1``, the design one
 writes first), measured as the highest rate each sustains in a short closed-loop burst. Target of
 issue #6: >= 500 requests/s sustained for 60 s, none lost or duplicated, p99 printed.
+
+Riders: each request carries one of ``--riders`` rider tokens in turn (every token stays far under its
+rate limit of 20/s), as a campus of riders would.
+
+Abuse (issue #21): well-behaved riders at ``--abuse-rate`` for ``--abuse-seconds``, first alone and
+then while ``fleet_abusers.py`` (its own process) sends 20 MB bodies (with a Content-Length, and
+chunked), bodies that trickle in a byte at a time, NaN / Infinity / 1e309 numbers, and a flood of
+ride requests from one rider token over four connections. Target: no 5xx and no traceback anywhere,
+no ride lost or duplicated (the flood's accepted rides included), and the well-behaved riders' p99
+under 100 ms while it lasts; the ratio is their p99 with the abusers over their p99 alone. Control:
+the same abusers aimed at a second, identical server while the riders use the first, so the machine
+is as busy but the riders' server is not attacked: the gap between the two is what the attack itself
+costs the riders, the rest is the two cores' contention.
 """
 
 from __future__ import annotations
@@ -37,6 +50,7 @@ from rich.console import Console
 from rich.table import Table
 
 TARGET_RPS = 500.0
+ABUSE_P99_TARGET_MS = 100.0
 STOPS = ("S1", "S2", "S3", "S4")
 
 SERVER = """
@@ -57,7 +71,7 @@ def free_port() -> int:
 
 
 class Server:
-    def __init__(self, out: Path, commit_batch: int) -> None:
+    def __init__(self, out: Path, commit_batch: int, riders: int) -> None:
         self.out = out
         self.port = free_port()
         self.url = f"http://127.0.0.1:{self.port}"
@@ -83,6 +97,22 @@ class Server:
             httpx.post(
                 self.url + f"/api/vehicles/bench-{k}/command", json={"command": "start_service"}, headers=op
             ).raise_for_status()
+        self.riders = [self.issue(op, "rider", f"rider-{k}") for k in range(riders)]
+        # One token per abuser (flood, numbers, big, slow): each meets its own rate limit.
+        self.abusers = [self.issue(op, "rider", f"abuser-{k}") for k in ("flood", "numbers", "big", "slow")]
+
+    def issue(self, op: dict[str, str], role: str, subject: str) -> str:
+        res = httpx.post(self.url + "/api/tokens", json={"role": role, "subject": subject}, headers=op)
+        res.raise_for_status()
+        return str(res.json()["token"])
+
+    def cpu_s(self) -> float:
+        """CPU seconds (user + system) the server process has used so far."""
+        fields = Path(f"/proc/{self.proc.pid}/stat").read_text().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+    def tracebacks(self) -> int:
+        return (self.out / "server.log").read_text(errors="replace").count("Traceback")
 
     def rows(self, prefix: str) -> tuple[int, int]:
         """(rows whose client_ref starts with prefix, distinct such client_refs) in the database."""
@@ -119,8 +149,12 @@ def _by_second(timeline: list[tuple[float, float]]) -> list[float]:
     return [1e3 * sorted(v)[len(v) // 2] for _, v in sorted(buckets.items())]
 
 
+def _auth(tokens: list[str], i: int) -> dict[str, str]:
+    return {"Authorization": f"Bearer {tokens[i % len(tokens)]}"}
+
+
 async def open_loop(
-    url: str, token: str, rate: float, seconds: float, prefix: str, conns: int
+    url: str, tokens: list[str], rate: float, seconds: float, prefix: str, conns: int
 ) -> dict[str, Any]:
     """Send ``rate * seconds`` requests on schedule; latency from each request's due time."""
     n = int(rate * seconds)
@@ -129,16 +163,14 @@ async def open_loop(
     statuses: dict[int, int] = {}
     errors = 0
     connector = aiohttp.TCPConnector(limit=conns)
-    async with aiohttp.ClientSession(
-        base_url=url, headers={"Authorization": f"Bearer {token}"}, connector=connector
-    ) as http:
+    async with aiohttp.ClientSession(base_url=url, connector=connector) as http:
         t0 = time.perf_counter() + 0.2
 
         async def one(i: int) -> None:
             nonlocal errors
             due = t0 + i / rate
             try:
-                async with http.post("/api/rides", json=_body(i, prefix)) as res:
+                async with http.post("/api/rides", json=_body(i, prefix), headers=_auth(tokens, i)) as res:
                     await res.read()
                     statuses[res.status] = statuses.get(res.status, 0) + 1
             except aiohttp.ClientError:
@@ -173,14 +205,12 @@ async def open_loop(
     }
 
 
-async def closed_loop(url: str, token: str, seconds: float, prefix: str, conns: int) -> dict[str, Any]:
+async def closed_loop(url: str, tokens: list[str], seconds: float, prefix: str, conns: int) -> dict[str, Any]:
     """``conns`` clients each sending back to back: the highest rate the server sustains."""
     done = 0
     lat: list[float] = []
     connector = aiohttp.TCPConnector(limit=conns)
-    async with aiohttp.ClientSession(
-        base_url=url, headers={"Authorization": f"Bearer {token}"}, connector=connector
-    ) as http:
+    async with aiohttp.ClientSession(base_url=url, connector=connector) as http:
         t_end = time.perf_counter() + seconds
         counter = iter(range(10**9))
 
@@ -188,7 +218,8 @@ async def closed_loop(url: str, token: str, seconds: float, prefix: str, conns: 
             nonlocal done
             while time.perf_counter() < t_end:
                 t = time.perf_counter()
-                async with http.post("/api/rides", json=_body(next(counter), prefix)) as res:
+                i = next(counter)
+                async with http.post("/api/rides", json=_body(i, prefix), headers=_auth(tokens, i)) as res:
                     await res.read()
                     if res.status == 201:
                         done += 1
@@ -207,39 +238,156 @@ async def closed_loop(url: str, token: str, seconds: float, prefix: str, conns: 
     }
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--rate", type=float, default=TARGET_RPS, help="requests per second to sustain")
-    parser.add_argument("--seconds", type=float, default=60.0)
-    parser.add_argument("--burst-seconds", type=float, default=10.0, help="closed-loop capacity bursts")
-    parser.add_argument("--conns", type=int, default=32)
-    parser.add_argument("--json", type=Path, default=Path("benchmarks/results/fleet_load.json"))
-    args = parser.parse_args()
-    console = Console(width=150)
-    result: dict[str, Any] = {"cpus": os.cpu_count(), "rate": args.rate, "seconds": args.seconds}
-    with tempfile.TemporaryDirectory(prefix="fleet-load-") as tmp:
-        for name, batch in (("group_commit", 512), ("commit_per_request", 1)):
-            server = Server(Path(tmp) / name, batch)
-            try:
-                token = server.tokens["rider"]
-                burst = asyncio.run(
-                    closed_loop(server.url, token, args.burst_seconds, f"{name}-burst-", args.conns)
+def _start_abusers(target: Server, seconds: float, out: Path) -> subprocess.Popen[bytes]:
+    script = Path(__file__).with_name("fleet_abusers.py")
+    return subprocess.Popen(
+        [sys.executable, str(script), target.url, ",".join(target.abusers), str(seconds + 3.0), str(out)]
+    )
+
+
+def control_phase(
+    server: Server, decoy: Server, rate: float, seconds: float, conns: int, tmp: Path
+) -> dict[str, Any]:
+    """Control: the same abusers aimed at a second, identical server while the riders use the first.
+    The machine is as busy (abusers' process, a server answering them), the riders' server is not
+    attacked: what the riders' p99 rises by here is CPU contention, not the server's handling."""
+    abusers = _start_abusers(decoy, seconds, tmp / "abusers-control.json")
+    time.sleep(1.5)
+    run = asyncio.run(open_loop(server.url, server.riders, rate, seconds, "calm-control-", conns))
+    abusers.wait(120)
+    rows, distinct = server.rows("calm-control-")
+    return run | {"db_rows": rows, "lost": run["sent"] - rows, "duplicated": rows - distinct}
+
+
+def abuse_phase(server: Server, rate: float, seconds: float, conns: int, tmp: Path) -> dict[str, Any]:
+    """Well-behaved riders alone, then the same load while the abusers run (their own process)."""
+    cpu0 = server.cpu_s()
+    calm = asyncio.run(open_loop(server.url, server.riders, rate, seconds, "calm-alone-", conns))
+    calm["server_cpu_s"] = server.cpu_s() - cpu0
+    out = tmp / "abusers.json"
+    abusers = _start_abusers(server, seconds, out)
+    time.sleep(1.5)  # the abusers are in full swing before the measured window opens
+    cpu0 = server.cpu_s()
+    attacked = asyncio.run(open_loop(server.url, server.riders, rate, seconds, "calm-abused-", conns))
+    attacked["server_cpu_s"] = server.cpu_s() - cpu0
+    abusers.wait(120)
+    report = json.loads(out.read_text())
+    tally: dict[str, dict[str, int]] = report["tally"]
+    for run, prefix in ((calm, "calm-alone-"), (attacked, "calm-abused-")):
+        rows, distinct = server.rows(prefix)
+        run |= {"db_rows": rows, "lost": run["sent"] - rows, "duplicated": rows - distinct}
+    flood_rows, flood_distinct = server.rows("flood-")
+    flood_created = tally.get("flood_one_rider", {}).get("201", 0)
+    server_errors = sum(
+        n for run in (calm, attacked) for code, n in run["statuses"].items() if int(code) >= 500
+    ) + sum(
+        n for counts in tally.values() for code, n in counts.items() if code.isdigit() and int(code) >= 500
+    )
+    return {
+        "rate": rate,
+        "seconds": seconds,
+        "alone": calm,
+        "with_abusers": attacked,
+        "abusers": tally,
+        "abusers_cpu_s": report["cpu_s"],
+        "flood_created": flood_created,
+        "flood_db_rows": flood_rows,
+        "flood_lost": flood_created - flood_rows,
+        "flood_duplicated": flood_rows - flood_distinct,
+        "server_errors": server_errors,
+        "server_tracebacks": server.tracebacks(),
+        "p99_ratio_with_vs_without": attacked["p99_ms"] / calm["p99_ms"],
+    }
+
+
+def abuse_target_met(a: dict[str, Any]) -> bool:
+    runs = (a["alone"], a["with_abusers"])
+    return bool(
+        a["server_errors"] == 0
+        and a["server_tracebacks"] == 0
+        and all(r["lost"] == 0 and r["duplicated"] == 0 and r["transport_errors"] == 0 for r in runs)
+        and all(r["statuses"].get(201, 0) == r["sent"] for r in runs)
+        and a["flood_lost"] == 0
+        and a["flood_duplicated"] == 0
+        and a["with_abusers"]["p99_ms"] < ABUSE_P99_TARGET_MS
+    )
+
+
+def print_abuse(console: Console, a: dict[str, Any]) -> None:
+    table = Table(
+        title=f"well-behaved riders at {a['rate']:g}/s for {a['seconds']:g} s, alone and under abuse"
+    )
+    cols = (
+        "run",
+        "requests",
+        "201",
+        "p50 ms",
+        "p99 ms",
+        "max ms",
+        "lost",
+        "dup",
+        "server CPU s",
+        "p99 ratio",
+    )
+    for col in cols:
+        table.add_column(col, justify="right")
+    runs = [("alone", a["alone"]), ("with abusers", a["with_abusers"])]
+    runs.append(("control: abusers hit another server", a["control_abusers_elsewhere"]))
+    for name, r in runs:
+        table.add_row(
+            name,
+            str(r["sent"]),
+            str(r["statuses"].get(201, 0)),
+            f"{r['p50_ms']:.1f}",
+            f"{r['p99_ms']:.1f}",
+            f"{r['max_ms']:.1f}",
+            str(r["lost"]),
+            str(r["duplicated"]),
+            f"{r['server_cpu_s']:.1f}" if "server_cpu_s" in r else "",
+            f"{r['p99_ms'] / a['alone']['p99_ms']:.2f}x",
+        )
+    console.print(table)
+    abuse = Table(title="what the abusers got")
+    abuse.add_column("abuser")
+    abuse.add_column("outcomes (HTTP status or connection closed early: count)")
+    for name, counts in sorted(a["abusers"].items()):
+        abuse.add_row(name, ", ".join(f"{k}: {v}" for k, v in sorted(counts.items())))
+    console.print(abuse)
+    console.print(f"abusers' own CPU: {a['abusers_cpu_s']:.1f} s (their process, on the same two cores)")
+    console.print(
+        f"flood: {a['flood_created']} accepted, {a['flood_db_rows']} in the database "
+        f"(lost {a['flood_lost']}, duplicated {a['flood_duplicated']}); "
+        f"server 5xx {a['server_errors']}, tracebacks {a['server_tracebacks']}; "
+        f"target met (no 5xx, nothing lost or duplicated, p99 < "
+        f"{ABUSE_P99_TARGET_MS:g} ms): {a['target_met']}"
+    )
+
+
+def capacity_phases(args: argparse.Namespace, tmp: Path, result: dict[str, Any]) -> None:
+    for name, batch in (("group_commit", 512), ("commit_per_request", 1)):
+        server = Server(tmp / name, batch, args.riders)
+        try:
+            burst = asyncio.run(
+                closed_loop(server.url, server.riders, args.burst_seconds, f"{name}-burst-", args.conns)
+            )
+            entry: dict[str, Any] = {"capacity": burst}
+            rows, distinct = server.rows(f"{name}-burst-")
+            entry["capacity"]["db_rows"] = rows
+            if name == "group_commit":
+                run = asyncio.run(
+                    open_loop(server.url, server.riders, args.rate, args.seconds, "sustain-", args.conns)
                 )
-                entry: dict[str, Any] = {"capacity": burst}
-                rows, distinct = server.rows(f"{name}-burst-")
-                entry["capacity"]["db_rows"] = rows
-                if name == "group_commit":
-                    run = asyncio.run(
-                        open_loop(server.url, token, args.rate, args.seconds, "sustain-", args.conns)
-                    )
-                    rows, distinct = server.rows("sustain-")
-                    run |= {"db_rows": rows, "db_distinct": distinct}
-                    run["lost"] = run["sent"] - rows
-                    run["duplicated"] = rows - distinct
-                    entry["sustained"] = run
-                result[name] = entry
-            finally:
-                server.stop()
+                rows, distinct = server.rows("sustain-")
+                run |= {"db_rows": rows, "db_distinct": distinct}
+                run["lost"] = run["sent"] - rows
+                run["duplicated"] = rows - distinct
+                entry["sustained"] = run
+            result[name] = entry
+        finally:
+            server.stop()
+
+
+def print_capacity(console: Console, args: argparse.Namespace, result: dict[str, Any]) -> None:
     s = result["group_commit"]["sustained"]
     cap, base = result["group_commit"]["capacity"], result["commit_per_request"]["capacity"]
     result["capacity_ratio_vs_commit_per_request"] = cap["rps"] / base["rps"]
@@ -287,6 +435,49 @@ def main() -> None:
         f"sustained run: statuses {s['statuses']}, transport errors {s['transport_errors']}, last answer "
         f"{s['backlog_at_end_s']:.2f} s after the last request was due; target met: {result['target_met']}"
     )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--rate", type=float, default=TARGET_RPS, help="requests per second to sustain")
+    parser.add_argument("--seconds", type=float, default=60.0)
+    parser.add_argument("--burst-seconds", type=float, default=10.0, help="closed-loop capacity bursts")
+    parser.add_argument("--conns", type=int, default=32)
+    parser.add_argument("--riders", type=int, default=100, help="rider tokens the load is spread over")
+    parser.add_argument("--abuse-rate", type=float, default=100.0, help="well-behaved requests/s under abuse")
+    parser.add_argument("--abuse-seconds", type=float, default=30.0)
+    parser.add_argument("--only-abuse", action="store_true", help="skip the capacity and sustained runs")
+    parser.add_argument("--json", type=Path, default=Path("benchmarks/results/fleet_load.json"))
+    args = parser.parse_args()
+    console = Console(width=150)
+    load = os.getloadavg()
+    result: dict[str, Any] = {
+        "cpus": os.cpu_count(),
+        "load_average_at_start": load,
+        "rate": args.rate,
+        "seconds": args.seconds,
+    }
+    console.print(
+        f"{os.cpu_count()} cores, load average {load[0]:.1f} / {load[1]:.1f} / {load[2]:.1f} at start"
+    )
+    with tempfile.TemporaryDirectory(prefix="fleet-load-") as tmp:
+        if not args.only_abuse:
+            capacity_phases(args, Path(tmp), result)
+        server = Server(Path(tmp) / "abuse", 512, args.riders)
+        decoy = Server(Path(tmp) / "decoy", 512, 1)
+        try:
+            result["abuse"] = abuse_phase(server, args.abuse_rate, args.abuse_seconds, args.conns, Path(tmp))
+            result["abuse"]["control_abusers_elsewhere"] = control_phase(
+                server, decoy, args.abuse_rate, args.abuse_seconds, args.conns, Path(tmp)
+            )
+        finally:
+            server.stop()
+            decoy.stop()
+    result["abuse"]["target_met"] = abuse_target_met(result["abuse"])
+    result["load_average_at_end"] = os.getloadavg()
+    if not args.only_abuse:
+        print_capacity(console, args, result)
+    print_abuse(console, result["abuse"])
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(result, indent=2) + "\n")
     console.print(f"wrote {args.json}")

@@ -522,7 +522,12 @@ def serve(
     host: Annotated[str, typer.Option(help="Address to listen on.")] = "127.0.0.1",
     port: Annotated[int, typer.Option(help="TCP port.")] = 8080,
     db: Annotated[
-        str | None, typer.Option(help="SQLAlchemy URL (postgresql://...); default: SQLite in --out.")
+        str | None,
+        typer.Option(
+            envvar="LASTMILE_FLEET_DB",
+            help="SQLAlchemy URL (postgresql://...; the environment keeps a password out of ps); "
+            "default: SQLite in --out.",
+        ),
     ] = None,
     out: Annotated[Path, typer.Option(help="Directory for fleet.db and tokens.json.")] = Path("runs/serve"),
     runs: Annotated[Path, typer.Option(help="Recorded runs operators may browse.")] = Path("runs"),
@@ -532,27 +537,21 @@ def serve(
     ] = 600.0,
 ) -> None:
     """Run the dispatch server (HTTP + WebSocket API, web dashboard) until interrupted."""
-    import uvicorn
-
-    from lastmile.fleet.server import ServerConfig, create_app
-    from lastmile.fleet.storage import default_sqlite_url, make_engine
+    from lastmile.fleet.serve_main import serve as serve_forever
 
     try:
-        url = db or default_sqlite_url(out)
-        make_engine(url).dispose()  # a bad URL or a missing driver fails here, as one line
+        serve_forever(
+            host=host,
+            port=port,
+            db=db,
+            out=out,
+            runs=runs,
+            timetable_lead_s=timetable_lead,
+            announce=typer.echo,
+        )
     except LastmileError as exc:
         typer.echo(f"lastmile serve: {exc}", err=True)
         raise typer.Exit(2) from None
-    typer.echo(
-        f"lastmile serve: http://{host}:{port}/ (database {url}; first-start tokens in {out}/tokens.json)"
-    )
-    uvicorn.run(
-        create_app(ServerConfig(db_url=url, out_dir=out, runs_dir=runs, timetable_lead_s=timetable_lead)),
-        host=host,
-        port=port,
-        log_level="warning",
-        access_log=False,
-    )
 
 
 map_app = typer.Typer(no_args_is_help=True, help="Check maps and route files for a shuttle service.")

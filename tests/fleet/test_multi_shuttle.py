@@ -13,7 +13,7 @@ import sqlalchemy as sa
 from lastmile.fleet.scheduling import CAPACITY_SEATS, LoopRoute
 from lastmile.fleet.vehicle_client import VehicleClient
 from lastmile.hdmap.loader import load_campus_map
-from tests.fleet.conftest import ServerProcess
+from tests.fleet.conftest import ServerProcess, db_engine
 
 N_RIDES = 24
 STEP_M = 60.0  # metres the stand-in shuttle moves per 10 ms tick
@@ -65,8 +65,8 @@ class ScriptedShuttle:
             self.served_here = stop_id
 
 
-def test_three_shuttles_serve_every_ride_within_capacity(fresh_server: ServerProcess) -> None:
-    server = fresh_server
+def test_three_shuttles_serve_every_ride_within_capacity(durable_server: ServerProcess) -> None:
+    server = durable_server
     route = LoopRoute(load_campus_map())
     rng = np.random.default_rng(6)
 
@@ -98,11 +98,14 @@ def test_three_shuttles_serve_every_ride_within_capacity(fresh_server: ServerPro
                 assert res.status_code == 201, res.text
                 ids.append(res.json()["id"])
                 await asyncio.sleep(float(rng.exponential(0.05)))
+            # One ride-log page a poll (a rider token polling 24 rides every 50 ms would be rate limited).
+            op_headers = {"Authorization": f"Bearer {server.tokens['operator']}"}
             for _ in range(600):
-                rides = [(await http.get(f"/api/rides/{i}")).json() for i in ids]
-                if all(r["state"] == "dropped_off" for r in rides):
+                log = (await http.get("/api/ride-log?limit=100", headers=op_headers)).json()
+                if all(r["state"] == "dropped_off" for r in log["rides"] if r["id"] in ids):
                     break
                 await asyncio.sleep(0.05)
+            rides = [(await http.get(f"/api/rides/{i}")).json() for i in ids]
         for s in shuttles:
             s.running = False
         await asyncio.gather(*drivers)
@@ -116,7 +119,7 @@ def test_three_shuttles_serve_every_ride_within_capacity(fresh_server: ServerPro
     rides = asyncio.run(scenario())
     assert [r["state"] for r in rides] == ["dropped_off"] * N_RIDES
     assert all(r["picked_up_us"] < r["dropped_off_us"] for r in rides)  # type: ignore[operator]
-    engine = sa.create_engine(f"sqlite:///{server.out_dir / 'fleet.db'}")
+    engine = db_engine(server)
     with engine.connect() as conn:
         done = conn.execute(
             sa.text("SELECT kind, count(*) FROM trips WHERE state = 'done' GROUP BY kind ORDER BY kind")

@@ -1,61 +1,71 @@
-"""The same server on PostgreSQL: rides, trips and vehicles survive a SIGKILL and restart.
+"""PostgreSQL specifics. The restart, resume and three-shuttle tests run on both databases
+(``durable_server`` in conftest); here: the password of a real PostgreSQL URL never reaches the log,
+and an old database's idempotency constraint is upgraded on PostgreSQL too.
 
-Needs a server to point at: set LASTMILE_FLEET_PG_URL (e.g. postgresql://postgres@127.0.0.1:5432/fleet_test,
-a database this test may empty) and install the ``postgres`` extra; otherwise it is skipped."""
+The server is a private ``initdb`` cluster on a free loopback port with password authentication
+(``tests/fleet/pg_cluster.py``), or ``LASTMILE_FLEET_PG_URL``; skipped with the reason only if neither
+can be had."""
 
 from __future__ import annotations
 
-import asyncio
-import os
 from pathlib import Path
 
 import pytest
+import sqlalchemy as sa
 
-from lastmile.fleet.vehicle_client import VehicleClient
+from lastmile.fleet import storage
 from tests.fleet.conftest import ServerProcess
+from tests.fleet.pg_cluster import ExternalPg, PgCluster
 
-PG_URL = os.environ.get("LASTMILE_FLEET_PG_URL")
 
-
-def test_postgres_backend_keeps_everything_across_a_kill(tmp_path: Path) -> None:
-    if not PG_URL:
-        pytest.skip("LASTMILE_FLEET_PG_URL is not set: no PostgreSQL server to test against")
-    pytest.importorskip("psycopg", reason="the postgres extra (psycopg) is not installed")
-    from lastmile.fleet import storage
-
-    engine = storage.make_engine(PG_URL)
-    storage.metadata.drop_all(engine)
-    engine.dispose()
-    (tmp_path / "runs").mkdir()
-    (tmp_path / "serve").mkdir()
-    server = ServerProcess(out_dir=tmp_path / "serve", runs_dir=tmp_path / "runs", db_url=PG_URL).start()
+def test_the_database_password_is_hidden_in_the_start_line_and_log(
+    tmp_path: Path, postgres: PgCluster | ExternalPg
+) -> None:
+    if not postgres.password:
+        pytest.skip("LASTMILE_FLEET_PG_URL has no password to hide")
+    url = postgres.new_database()
+    server = ServerProcess(out_dir=tmp_path / "serve", runs_dir=tmp_path / "runs", db_url=url).start()
     try:
-
-        async def before() -> list[str]:
-            client = VehicleClient(server.url, "pg-1", server.tokens["vehicle"])
-            await client.register()
-            with server.client("operator") as op:
-                op.post("/api/vehicles/pg-1/command", json={"command": "start_service"}).raise_for_status()
-            await client.start()
-            with server.client("rider") as rider:
-                ids = [
-                    rider.post("/api/rides", json={"origin": "S2", "destination": "S4"}).json()["id"]
-                    for _ in range(3)
-                ]
-            await client.wait_for(lambda c: len(c.assignments) == 6)
-            pickup = next(a for a in client.assignments.values() if a.kind == "pickup")
-            assert await client.complete(pickup.id)
-            await client.stop()
-            return ids
-
-        ids = asyncio.run(before())
-        server.kill()
-        server.start()
-        with server.client("rider") as rider, server.client("operator") as op:
-            states = sorted(rider.get(f"/api/rides/{i}").json()["state"] for i in ids)
-            assert states == ["assigned", "assigned", "picked_up"]
-            assert op.get("/api/vehicles/pg-1").json()["service"] == "in_service"
-            kinds = [e["kind"] for e in op.get("/api/events?limit=1000").json()]
-            assert kinds.count("ride_requested") == 3 and kinds.count("picked_up") == 1
+        with server.client("rider") as rider:
+            assert rider.post("/api/rides", json={"origin": "S1", "destination": "S2"}).status_code == 201
     finally:
         server.stop()
+    log = server.log_text()
+    assert "lastmile serve: http://127.0.0.1" in log and ":***@127.0.0.1" in log
+    assert postgres.password not in log
+
+
+def test_an_old_postgres_database_gets_its_idempotency_keys_scoped_per_rider(
+    postgres: PgCluster | ExternalPg,
+) -> None:
+    engine = storage.make_engine(postgres.new_database())
+    legacy = sa.MetaData()
+    sa.Table(
+        "ride_requests",
+        legacy,
+        *[
+            sa.Column(c.name, c.type, primary_key=c.primary_key, unique=c.name == "client_ref")
+            for c in storage.ride_requests.columns
+        ],
+    )
+    legacy.create_all(engine)
+    row = {c.name: None for c in storage.ride_requests.columns} | {
+        "id": "r1",
+        "client_ref": "k",
+        "rider": "alice",
+        "origin": "S1",
+        "destination": "S2",
+        "seats": 1,
+        "state": "waiting",
+        "created_us": 1,
+    }
+    with engine.begin() as conn:
+        conn.execute(storage.ride_requests.insert(), row)
+    with engine.begin() as conn:
+        assert storage.scope_idempotency_keys(conn) is True
+    with engine.begin() as conn:
+        assert storage.scope_idempotency_keys(conn) is False
+        conn.execute(storage.ride_requests.insert(), row | {"id": "r2", "rider": "bob"})
+    with pytest.raises(sa.exc.IntegrityError), engine.begin() as conn:
+        conn.execute(storage.ride_requests.insert(), row | {"id": "r3"})
+    engine.dispose()

@@ -11,11 +11,11 @@ import sqlalchemy as sa
 
 from lastmile.core.errors import ConfigError
 from lastmile.fleet.vehicle_client import VehicleClient
-from tests.fleet.conftest import ServerProcess
+from tests.fleet.conftest import ServerProcess, db_engine
 
 
 def _db_rows(server: ServerProcess, sql: str) -> list[tuple[object, ...]]:
-    engine = sa.create_engine(f"sqlite:///{server.out_dir / 'fleet.db'}")
+    engine = db_engine(server)
     with engine.connect() as conn:
         rows = [tuple(r) for r in conn.execute(sa.text(sql))]
     engine.dispose()
@@ -37,9 +37,9 @@ async def _start_vehicle(server: ServerProcess, vehicle_id: str) -> VehicleClien
 
 
 def test_a_dropped_vehicle_link_resumes_with_pending_trips_once_and_no_duplicates(
-    fresh_server: ServerProcess,
+    durable_server: ServerProcess,
 ) -> None:
-    server = fresh_server
+    server = durable_server
 
     async def scenario() -> None:
         client = await _start_vehicle(server, "shuttle-1")
@@ -110,9 +110,9 @@ def test_operator_commands_reach_the_vehicle_and_suspension_requeues_its_riders(
 
 
 def test_a_killed_server_restarts_on_the_same_database_without_losing_anything(
-    fresh_server: ServerProcess,
+    durable_server: ServerProcess,
 ) -> None:
-    server = fresh_server
+    server = durable_server
 
     async def before() -> tuple[list[str], int]:
         client = await _start_vehicle(server, "shuttle-3")

@@ -46,6 +46,15 @@ class RideOut(BaseModel):
     reason: str | None
 
 
+class RidePage(BaseModel):
+    """A page of the ride log: ``total`` rides match the filters, ``rides`` are those from ``offset``."""
+
+    total: int
+    offset: int
+    limit: int
+    rides: list[RideOut]
+
+
 class VehicleIn(Strict):
     id: str = VehicleId
     name: str = Field(default="", max_length=128)

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import hashlib
 import secrets
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from fastapi import HTTPException, status
 
@@ -17,10 +17,14 @@ ROLES = ("rider", "operator", "vehicle", "infrastructure")
 
 @dataclass(frozen=True, slots=True)
 class Principal:
-    """Who is calling: ``subject`` is a rider's name, an operator's name, or a vehicle id ("*" = any)."""
+    """Who is calling: ``subject`` is a rider's name, an operator's name, or a vehicle id ("*" = any).
+
+    ``token_sha`` is the SHA-256 of the token used (the key of its rate limit); not part of equality.
+    """
 
     role: str
     subject: str
+    token_sha: str = field(default="", compare=False, repr=False)
 
 
 def new_token(role: str) -> str:
@@ -38,7 +42,7 @@ class TokenBook:
         self._by_hash: dict[str, Principal] = {}
 
     def add(self, sha256: str, role: str, subject: str) -> None:
-        self._by_hash[sha256] = Principal(role, subject)
+        self._by_hash[sha256] = Principal(role, subject, sha256)
 
     def revoke(self, sha256: str) -> None:
         self._by_hash.pop(sha256, None)
@@ -66,6 +70,10 @@ class TokenBook:
                 headers={"WWW-Authenticate": "Bearer"},
             )
         return self.authenticate_token(token.strip())
+
+    def lookup(self, token: str) -> Principal | None:
+        """The principal of a bare token, or None if it is unknown."""
+        return self._by_hash.get(token_hash(token))
 
     def authenticate_token(self, token: str) -> Principal:
         principal = self._by_hash.get(token_hash(token))

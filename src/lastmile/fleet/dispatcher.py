@@ -54,8 +54,9 @@ class Dispatcher(VehicleChannel):
                 status.HTTP_422_UNPROCESSABLE_ENTITY,
                 f"destination: expected a stop other than the origin, got {destination!r} for both",
             )
-        if client_ref is not None and client_ref in self.by_ref:
-            return ride_view(self.ride_or_404(self.by_ref[client_ref], principal)), False
+        key = (principal.subject, client_ref) if client_ref is not None else None
+        if key is not None and key in self.by_ref:
+            return self._replayed(self.ride_or_404(self.by_ref[key], principal), origin, destination, seats)
         ride: dict[str, Any] = {
             "id": self._ride_id(),
             "client_ref": client_ref,
@@ -73,8 +74,8 @@ class Dispatcher(VehicleChannel):
             "closed_us": None,
             "reason": "queued: no shuttle in service has free seats within the planning horizon",
         }
-        if client_ref is not None:
-            self.by_ref[client_ref] = ride["id"]
+        if key is not None:
+            self.by_ref[key] = ride["id"]
         new_trips, vehicle = self._assign(ride)
         if vehicle is None and not any(v.service == "in_service" for v in self.vehicles.values()):
             ride["reason"] = "queued: no shuttle is in service"
@@ -109,6 +110,21 @@ class Dispatcher(VehicleChannel):
             self.push(t.vehicle_id, {"type": "assignment", "trip": t.message()})
         self._touch()
         return ride_view(ride), True
+
+    @staticmethod
+    def _replayed(
+        ride: dict[str, Any], origin: str, destination: str, seats: int
+    ) -> tuple[dict[str, Any], bool]:
+        """A retry with a rider's earlier ``client_ref``: the same ride if it asks the same, else 409
+        (a key reused for another trip must not silently return the old ride)."""
+        if (ride["origin"], ride["destination"], ride["seats"]) != (origin, destination, seats):
+            raise HTTPException(
+                status.HTTP_409_CONFLICT,
+                f"client_ref {ride['client_ref']!r}: expected the same request as before "
+                f"({ride['origin']}->{ride['destination']}, {ride['seats']} seats), "
+                f"got {origin}->{destination}, {seats} seats; use a new client_ref for a new ride",
+            )
+        return ride_view(ride), False
 
     async def cancel_ride(self, principal: Principal, ride_id: str) -> dict[str, Any]:
         ride = self.ride_or_404(ride_id, principal)

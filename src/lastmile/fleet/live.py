@@ -94,7 +94,7 @@ async def handle_vehicle_message(d: Dispatcher, vehicle_id: str, raw: str) -> di
         return {"type": "error", "reason": f"bad {kind!r} message: {exc}".replace("\n", " ")[:300]}
     return {
         "type": "error",
-        "reason": f"unknown message type {kind!r}: expected status, ack, done, seat_button, ping",
+        "reason": f"unknown message type {str(kind)[:40]!r}: expected status, ack, done, seat_button, ping",
     }
 
 

@@ -31,10 +31,11 @@ from fastapi import (
 from fastapi import (
     Path as PathParam,
 )
+from fastapi.exceptions import RequestValidationError
 from fastapi.responses import FileResponse
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from fastapi.staticfiles import StaticFiles
-from sqlalchemy import select
+from sqlalchemy import func, select
 
 from lastmile.fleet import api_models as api
 from lastmile.fleet import storage as db
@@ -42,6 +43,8 @@ from lastmile.fleet.auth import Principal, check_role
 from lastmile.fleet.dispatcher import Dispatcher
 from lastmile.fleet.live import Hub
 from lastmile.fleet.map_view import map_json
+from lastmile.fleet.rate_limit import RateLimit, TokenBuckets, charge_token, default_limits
+from lastmile.fleet.request_guard import RequestGuard, validation_error_without_input
 from lastmile.fleet.scheduling import LoopRoute, Planner, SchedulingConfig
 from lastmile.fleet.service_views import ride_view, vehicle_view
 from lastmile.hdmap.loader import load_campus_map
@@ -63,6 +66,10 @@ class ServerConfig:
             (kept as the load benchmark's baseline).
         timetable_lead_s: timetable runs are handed to a shuttle this long before they depart, by
             the server's local clock (0 turns the timetable clock off: operators assign runs).
+        max_body_bytes: largest request body accepted (413 beyond; the largest legitimate body of
+            the API is under 1 kB).
+        body_timeout_s: time a request body has to arrive in full (408 beyond).
+        rate_limits: requests per token, by the token's role (429 with Retry-After beyond).
     """
 
     db_url: str
@@ -71,6 +78,9 @@ class ServerConfig:
     scheduling: SchedulingConfig = field(default_factory=SchedulingConfig)
     commit_batch: int = 512
     timetable_lead_s: float = 600.0
+    max_body_bytes: int = 65_536
+    body_timeout_s: float = 10.0
+    rate_limits: dict[str, RateLimit] = field(default_factory=default_limits)
 
 
 def _principal(request: Request, creds: HTTPAuthorizationCredentials | None) -> Principal:
@@ -98,6 +108,8 @@ Rider = Annotated[Principal, role("rider", "operator")]
 Operator = Annotated[Principal, role("operator")]
 OperatorOrVehicle = Annotated[Principal, role("operator", "vehicle")]
 Infrastructure = Annotated[Principal, role("infrastructure", "operator")]
+# Ride ids are 26 hex characters; the bound keeps a 404's message from echoing a long path back.
+RideIdParam = Annotated[str, PathParam(min_length=1, max_length=64)]
 VehicleIdParam = Annotated[str, PathParam(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.-]+$")]
 
 
@@ -155,6 +167,15 @@ def create_app(config: ServerConfig) -> FastAPI:
         description="Campus shuttle dispatch: rides, vehicles, timetable, live state.",
         lifespan=lifespan,
     )
+
+    app.state.buckets = TokenBuckets(config.rate_limits)
+    app.add_middleware(
+        RequestGuard,
+        max_body_bytes=config.max_body_bytes,
+        body_timeout_s=config.body_timeout_s,
+        admit=charge_token,
+    )
+    app.add_exception_handler(RequestValidationError, validation_error_without_input)
 
     def disp(request: Request) -> Dispatcher:
         return request.app.state.dispatcher
@@ -223,16 +244,16 @@ def create_app(config: ServerConfig) -> FastAPI:
         return view
 
     @app.get("/api/rides/{ride_id}", tags=["rides"], response_model=api.RideOut)
-    async def get_ride(request: Request, ride_id: str, who: Rider) -> dict[str, Any]:
+    async def get_ride(request: Request, ride_id: RideIdParam, who: Rider) -> dict[str, Any]:
         d = disp(request)
         return ride_view(d.ride_or_404(ride_id, who))
 
     @app.delete("/api/rides/{ride_id}", tags=["rides"], response_model=api.RideOut)
-    async def cancel_ride(request: Request, ride_id: str, who: Rider) -> dict[str, Any]:
+    async def cancel_ride(request: Request, ride_id: RideIdParam, who: Rider) -> dict[str, Any]:
         return await disp(request).cancel_ride(who, ride_id)
 
     @app.get("/api/rides/{ride_id}/vehicle", tags=["rides"], response_model=api.VehicleOut)
-    async def follow_shuttle(request: Request, ride_id: str, who: Rider) -> dict[str, Any]:
+    async def follow_shuttle(request: Request, ride_id: RideIdParam, who: Rider) -> dict[str, Any]:
         """Where the rider's shuttle is now."""
         d = disp(request)
         ride = d.ride_or_404(ride_id, who)
@@ -257,6 +278,39 @@ def create_app(config: ServerConfig) -> FastAPI:
             if (state is None or r["state"] == state) and (who.role != "rider" or r["rider"] == who.subject)
         ]
         return [ride_view(r) for r in rides[-limit:]]
+
+    @app.get("/api/ride-log", tags=["rides"], response_model=api.RidePage)
+    def ride_log(
+        request: Request,
+        _who: Operator,
+        state: Annotated[
+            str | None, Query(pattern=r"^(waiting|assigned|picked_up|dropped_off|cancelled)$")
+        ] = None,
+        vehicle_id: Annotated[str | None, Query(max_length=64)] = None,
+        stop: Annotated[str | None, Query(max_length=16, description="origin or destination")] = None,
+        offset: Annotated[int, Query(ge=0, le=2**62)] = 0,
+        limit: Annotated[int, Query(ge=1, le=500)] = 50,
+    ) -> dict[str, Any]:
+        """Every ride ever requested, newest first, a page at a time; filtered by state, shuttle, stop."""
+        t = db.ride_requests
+        where = []
+        if state is not None:
+            where.append(t.c.state == state)
+        if vehicle_id is not None:
+            where.append(t.c.vehicle_id == vehicle_id)
+        if stop is not None:
+            where.append((t.c.origin == stop) | (t.c.destination == stop))
+        with disp(request).engine.connect() as conn:
+            total = conn.execute(select(func.count()).select_from(t).where(*where)).scalar_one()
+            rows = conn.execute(
+                select(t)
+                .where(*where)
+                .order_by(t.c.created_us.desc(), t.c.id.desc())
+                .offset(offset)
+                .limit(limit)
+            ).all()
+        rides = [ride_view(dict(r._mapping)) for r in rows]
+        return {"total": total, "offset": offset, "limit": limit, "rides": rides}
 
     # ----------------------------------------------------------------------------- operators
     @app.post("/api/vehicles", tags=["vehicles"], response_model=api.VehicleOut, status_code=201)
@@ -325,10 +379,13 @@ def create_app(config: ServerConfig) -> FastAPI:
         _who: Operator,
         after: Annotated[int, Query(ge=0, le=2**62)] = 0,
         limit: Annotated[int, Query(ge=1, le=1000)] = 100,
+        newest_first: Annotated[bool, Query(description="the newest events (after `after`) first")] = False,
     ) -> list[dict[str, Any]]:
+        """Events with an id above ``after``: the oldest first, or the newest first (the dashboard)."""
+        order = db.events.c.id.desc() if newest_first else db.events.c.id
         with disp(request).engine.connect() as conn:
             rows = conn.execute(
-                select(db.events).where(db.events.c.id > after).order_by(db.events.c.id).limit(limit)
+                select(db.events).where(db.events.c.id > after).order_by(order).limit(limit)
             ).all()
         return [dict(r._mapping) for r in rows]
 
@@ -350,7 +407,7 @@ def create_app(config: ServerConfig) -> FastAPI:
         path = (root / name / rel).resolve()
         if not path.is_relative_to(root / name) or not (root / name).is_dir() or not path.exists():
             raise HTTPException(
-                status.HTTP_404_NOT_FOUND, f"no run file {name!r}/{rel!r} under the runs directory"
+                status.HTTP_404_NOT_FOUND, f"no run file {name[:80]!r}/{rel[:200]!r} under the runs directory"
             )
         return path
 
@@ -358,7 +415,7 @@ def create_app(config: ServerConfig) -> FastAPI:
     def download_run_file(name: str, rel: str, _who: Operator) -> FileResponse:
         path = run_path(name, rel)
         if not path.is_file():
-            raise HTTPException(status.HTTP_404_NOT_FOUND, f"{name!r}/{rel!r} is not a file")
+            raise HTTPException(status.HTTP_404_NOT_FOUND, f"{name[:80]!r}/{rel[:200]!r} is not a file")
         return FileResponse(path, filename=path.name)
 
     @app.get("/api/runs/{name}/archive", tags=["runs"])

@@ -44,7 +44,7 @@ class ServiceCore:
         self.tokens = TokenBook()
         self.vehicles: dict[str, VehicleState] = {}
         self.rides: dict[str, dict[str, Any]] = {}
-        self.by_ref: dict[str, str] = {}
+        self.by_ref: dict[tuple[str, str], str] = {}  # (rider, client_ref) -> ride id
         self.waiting: OrderedDict[str, None] = OrderedDict()
         self.trips: dict[int, TripState] = {}
         self.timetable: list[dict[str, Any]] = []
@@ -150,7 +150,7 @@ class ServiceCore:
         self.rides.pop(ride["id"], None)
         self.waiting.pop(ride["id"], None)
         if ride.get("client_ref"):
-            self.by_ref.pop(ride["client_ref"], None)
+            self.by_ref.pop((ride["rider"], ride["client_ref"]), None)
         for t in new_trips:
             self._drop_from_plan(t)
 

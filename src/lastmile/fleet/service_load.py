@@ -30,7 +30,7 @@ class LoadedService:
         timetable: the timetable rows, by run and call order.
         vehicles: every registered shuttle, with the plan of its open trips.
         rides: the active rides (waiting, assigned or picked up), oldest first.
-        by_ref: client reference -> ride id, of every ride ever made (idempotent re-requests).
+        by_ref: (rider, client reference) -> ride id, of every ride ever made (idempotent re-requests).
         trips: the open trips (pending or acknowledged), by id.
         next_trip: the id the next trip gets.
         runs_dispatched: (service date, run id) the timetable clock has handed out.
@@ -41,7 +41,7 @@ class LoadedService:
     timetable: list[dict[str, Any]] = field(default_factory=list)
     vehicles: dict[str, VehicleState] = field(default_factory=dict)
     rides: list[dict[str, Any]] = field(default_factory=list)
-    by_ref: dict[str, str] = field(default_factory=dict)
+    by_ref: dict[tuple[str, str], str] = field(default_factory=dict)
     trips: dict[int, TripState] = field(default_factory=dict)
     next_trip: int = 1
     runs_dispatched: set[tuple[str, str]] = field(default_factory=set)
@@ -79,7 +79,9 @@ def _seed(conn: Connection, route: LoopRoute, planner: Planner) -> dict[str, str
 
 
 def load_service(engine: Engine, route: LoopRoute, planner: Planner) -> LoadedService:
-    """Create the tables, seed what is empty, and read the service back (one transaction)."""
+    """Create (or upgrade) the tables, seed what is empty, and read the service back (one transaction)."""
+    with engine.begin() as conn:
+        db.scope_idempotency_keys(conn)
     db.metadata.create_all(engine)
     out = LoadedService()
     with engine.begin() as conn:
@@ -107,9 +109,9 @@ def load_service(engine: Engine, route: LoopRoute, planner: Planner) -> LoadedSe
                 .order_by(db.ride_requests.c.created_us)
             )
         ]
-        for r in conn.execute(select(db.ride_requests.c.id, db.ride_requests.c.client_ref)):
-            if r.client_ref:
-                out.by_ref[r.client_ref] = r.id
+        t = db.ride_requests
+        for r in conn.execute(select(t.c.id, t.c.rider, t.c.client_ref).where(t.c.client_ref.is_not(None))):
+            out.by_ref[(r.rider, r.client_ref)] = r.id
         out.next_trip = (conn.execute(select(func.max(db.trips.c.id))).scalar_one() or 0) + 1
         for r in conn.execute(select(db.events.c.detail).where(db.events.c.kind == "timetable_run_assigned")):
             if r.detail and r.detail.get("date"):

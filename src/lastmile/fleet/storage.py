@@ -13,6 +13,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import queue
+import re
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -31,9 +32,13 @@ from sqlalchemy import (
     MetaData,
     String,
     Table,
+    UniqueConstraint,
     create_engine,
     event,
+    inspect,
 )
+from sqlalchemy.engine import make_url
+from sqlalchemy.exc import ArgumentError, SQLAlchemyError
 
 from lastmile.core.errors import ConfigError
 
@@ -85,7 +90,8 @@ ride_requests = Table(
     "ride_requests",
     metadata,
     Column("id", String(32), primary_key=True),
-    Column("client_ref", String(64), unique=True),
+    # Idempotency key, unique per rider (two riders may pick the same key): see the constraint below.
+    Column("client_ref", String(64)),
     Column("rider", String(64), nullable=False),
     Column("origin", String(16), nullable=False),
     Column("destination", String(16), nullable=False),
@@ -99,6 +105,7 @@ ride_requests = Table(
     Column("dropped_off_us", BigInteger),
     Column("closed_us", BigInteger),
     Column("reason", String(256)),
+    UniqueConstraint("rider", "client_ref", name="uq_ride_requests_rider_ref"),
 )
 
 # A trip is one task handed to a vehicle: a pick-up, a drop-off, a timetable call or a seat-button stop.
@@ -140,6 +147,65 @@ tokens = Table(
 )
 
 
+def _legacy_ref_constraints(conn: Connection) -> list[str]:
+    """Names of unique constraints on ``client_ref`` alone (SQLite: its automatic index names)."""
+    if conn.dialect.name == "sqlite":
+        # The inspector misses a column's inline UNIQUE; SQLite's own index list names every one.
+        names = [
+            row[1]
+            for row in conn.exec_driver_sql("PRAGMA index_list(ride_requests)")
+            if row[2] and row[3] == "u"
+        ]
+        return [
+            n
+            for n in names
+            if [r[2] for r in conn.exec_driver_sql(f"PRAGMA index_info('{n}')")] == ["client_ref"]
+        ]
+    uniques = inspect(conn).get_unique_constraints("ride_requests")
+    return [str(u["name"]) for u in uniques if u["column_names"] == ["client_ref"]]
+
+
+def scope_idempotency_keys(conn: Connection) -> bool:
+    """Databases made before keys were scoped per rider have ``client_ref`` unique on its own, which
+    makes a second rider's request with the same key fail: replace that constraint by (rider,
+    client_ref). Returns whether anything changed. SQLite cannot drop a constraint, so the table is
+    rebuilt (rename, create, copy, drop) inside the caller's transaction."""
+    insp = inspect(conn)
+    if not insp.has_table("ride_requests"):
+        return False
+    legacy = _legacy_ref_constraints(conn)
+    if not legacy:
+        return False
+    log.warning("database: scoping ride idempotency keys per rider (one-time upgrade of ride_requests)")
+    if conn.dialect.name == "sqlite":
+        indexes = [i["name"] for i in insp.get_indexes("ride_requests") if i["name"]]
+        conn.exec_driver_sql("ALTER TABLE ride_requests RENAME TO ride_requests_legacy")
+        for name in indexes:  # they moved with the table; their names are needed by the new one
+            conn.exec_driver_sql(f'DROP INDEX IF EXISTS "{name}"')
+        ride_requests.create(conn)
+        cols = ", ".join(c.name for c in ride_requests.columns)
+        conn.exec_driver_sql(f"INSERT INTO ride_requests ({cols}) SELECT {cols} FROM ride_requests_legacy")
+        conn.exec_driver_sql("DROP TABLE ride_requests_legacy")
+        return True
+    for name in legacy:
+        conn.exec_driver_sql(f'ALTER TABLE ride_requests DROP CONSTRAINT "{name}"')
+    # Plain DDL: SQLAlchemy's AddConstraint would mark the table's own constraint as added separately,
+    # and every later CREATE TABLE of ride_requests in this process would then leave it out.
+    conn.exec_driver_sql(
+        "ALTER TABLE ride_requests ADD CONSTRAINT uq_ride_requests_rider_ref UNIQUE (rider, client_ref)"
+    )
+    return True
+
+
+def redact_url(url: str) -> str:
+    """``url`` with its password replaced by ``***`` (for logs, the start line and error messages)."""
+    try:
+        return make_url(url).render_as_string(hide_password=True)
+    except (ArgumentError, ValueError):
+        # Not parseable as a URL: still hide whatever sits between "user:" and "@".
+        return re.sub(r"(//[^:/@]*:)[^@]*@", r"\1***@", url)
+
+
 def default_sqlite_url(out_dir: Path) -> str:
     out_dir.mkdir(parents=True, exist_ok=True)
     return f"sqlite:///{(out_dir / 'fleet.db').resolve()}"
@@ -149,10 +215,15 @@ def make_engine(url: str) -> Engine:
     """An engine for ``url``: SQLite gets WAL and full fsync on commit; PostgreSQL needs psycopg.
 
     Raises:
-        ConfigError: the URL names neither SQLite nor PostgreSQL, or its driver is not installed.
+        ConfigError: the URL names neither SQLite nor PostgreSQL, is malformed, or its driver is not
+            installed (the message shows the URL with its password hidden).
     """
+    shown = redact_url(url)
     if url.startswith("sqlite"):
-        engine = create_engine(url, connect_args={"check_same_thread": False, "timeout": 30})
+        try:
+            engine = create_engine(url, connect_args={"check_same_thread": False, "timeout": 30})
+        except (ArgumentError, ValueError):
+            raise ConfigError(f"database URL: expected sqlite:///PATH, got {shown!r}") from None
 
         @event.listens_for(engine, "connect")
         def _pragmas(dbapi_conn: Any, _record: Any) -> None:
@@ -172,9 +243,34 @@ def make_engine(url: str) -> Engine:
             return create_engine(url, pool_pre_ping=True)
         except ModuleNotFoundError as exc:
             raise ConfigError(
-                f"database {url!r}: expected the psycopg driver (pip install 'lastmile[postgres]'), got {exc}"
-            ) from exc
-    raise ConfigError(f"database URL: expected sqlite:///PATH or postgresql://..., got {url!r}")
+                f"database {shown!r}: expected the psycopg driver (pip install 'lastmile[postgres]'), "
+                f"got {exc}"
+            ) from None
+        except (ArgumentError, ValueError):
+            raise ConfigError(
+                f"database URL: expected postgresql://USER:PASSWORD@HOST:PORT/DB, got {shown!r}"
+            ) from None
+    raise ConfigError(f"database URL: expected sqlite:///PATH or postgresql://..., got {shown!r}")
+
+
+def check_connection(engine: Engine) -> None:
+    """Connect once, so an unreachable server, a wrong password or a missing folder is one line at
+    start instead of a traceback at the first request.
+
+    Raises:
+        ConfigError: naming the database (password hidden) and the driver's reason.
+    """
+    try:
+        with engine.connect():
+            pass
+    except SQLAlchemyError as exc:
+        reason = str(getattr(exc, "orig", None) or exc).strip().splitlines()
+        password = engine.url.password
+        text = reason[0] if reason else type(exc).__name__
+        if password:
+            text = text.replace(str(password), "***")
+        shown = engine.url.render_as_string(hide_password=True)
+        raise ConfigError(f"database {shown!r}: expected to connect, got {text}") from None
 
 
 Op = Callable[[Connection], Any]

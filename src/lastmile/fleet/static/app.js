@@ -97,11 +97,34 @@ const Fleet = (() => {
     return new Date(us / 1000).toLocaleTimeString();
   }
 
-  function tokenBox(el, onSave) {
-    const input = el.querySelector("input");
-    input.value = token();
-    el.querySelector("button").onclick = () => { setToken(input.value); onSave(); };
+  // A full local date and time (the event log spans days): 2026-05-20 08:14:03.
+  function fmtStamp(us) {
+    const d = new Date(us / 1000), p = (n) => String(n).padStart(2, "0");
+    return `${d.getFullYear()}-${p(d.getMonth() + 1)}-${p(d.getDate())} ${p(d.getHours())}:${p(d.getMinutes())}:${p(d.getSeconds())}`;
   }
 
-  return { api, live, draw, token, setToken, fmtEta, tokenBox };
+  // The token is typed into a password field and never shown again: once accepted, the header says
+  // who it belongs to (role and subject), and "change token" brings an empty field back.
+  function tokenBox(el, onSave) {
+    const input = el.querySelector("#token"), save = el.querySelector("#save-token");
+    const change = el.querySelector("#change-token"), who = el.querySelector("#who");
+    const editing = (on) => { input.hidden = !on; save.hidden = !on; change.hidden = on; };
+    async function signedIn() {
+      input.value = "";
+      try {
+        const w = await api("GET", "/api/whoami");
+        who.textContent = `signed in as ${w.role} ${w.subject}`;
+        editing(false);
+      } catch (e) {
+        who.textContent = "token not accepted";
+        editing(true);
+      }
+    }
+    save.onclick = () => { setToken(input.value); signedIn(); onSave(); };
+    input.onkeydown = (ev) => { if (ev.key === "Enter") save.onclick(); };
+    change.onclick = () => { editing(true); input.focus(); };
+    if (token()) signedIn(); else editing(true);
+  }
+
+  return { api, live, draw, token, setToken, fmtEta, fmtStamp, tokenBox };
 })();
