@@ -11,7 +11,7 @@ from lastmile.core.predictions import PREDICTION_MODES
 from lastmile.core.sensor_frames import StopCallFrame
 from lastmile.core.stamp import Stamp
 from lastmile.core.vehicle import VehicleGeometry
-from lastmile.core.vehicle_messages import BehaviourState
+from lastmile.core.vehicle_messages import BehaviourState, StopReason
 from lastmile.decision.behaviour_fsm import BehaviourStateMachine
 from lastmile.decision.decision_config import DecisionInput
 from lastmile.decision.mission import MissionManager
@@ -104,6 +104,7 @@ def test_pedestrian_on_the_crosswalk_makes_the_shuttle_yield_before_it(straight_
     d = fsm.step(_inp(0.0, 60.0, v=5.0, tracks=ped))
     assert d.stop_at_s_m is not None and d.stop_at_s_m <= 98.0
     assert d.state == BehaviourState.NORMAL_DRIVING
+    assert d.stop_reason is StopReason.OBSTACLE  # standing in the lane: the in-path rule binds first
 
 
 def test_pedestrian_walking_to_the_crosswalk_is_yielded_to_before_reaching_the_kerb(straight_layers):
@@ -112,6 +113,7 @@ def test_pedestrian_walking_to_the_crosswalk_is_yielded_to_before_reaching_the_k
     walking_in = _tracks([(3, 100.0, 10.0, 0.0, -1.3, ObjectClass.PEDESTRIAN)])
     d = _fsm(straight_layers).step(_inp(0.0, 70.0, v=5.5, tracks=walking_in))
     assert d.stop_at_s_m is not None and d.stop_at_s_m <= 98.0
+    assert d.stop_reason is StopReason.CROSSWALK  # the cause, typed, for the fleet, HMI and reports
     # The same person walking away, or standing back from the kerb, is not crossing.
     for vy in (1.3, 0.0):
         other = _tracks([(3, 100.0, 10.0, 0.0, vy, ObjectClass.PEDESTRIAN)])
@@ -125,6 +127,7 @@ def test_obstacle_too_close_to_stop_comfortably_triggers_emergency_stop(straight
     goose = _tracks([(4, 57.0, 0.0, 0.0, 0.0, ObjectClass.ANIMAL)])
     d = fsm.step(_inp(0.0, 50.0, v=5.5, tracks=goose))
     assert d.state == BehaviourState.EMERGENCY_STOP and d.risk_track_id == 4
+    assert d.stop_reason is StopReason.EMERGENCY
     d = fsm.step(_inp(1.0, 51.0, v=0.0, tracks=goose))
     assert d.state == BehaviourState.EMERGENCY_STOP  # still blocked
     empty = _tracks([])
@@ -139,6 +142,7 @@ def test_distant_goose_in_lane_is_a_normal_stop_not_an_emergency(straight_layers
     d = fsm.step(_inp(0.0, 50.0, v=5.5, tracks=goose))
     assert d.state == BehaviourState.NORMAL_DRIVING
     assert d.risk_track_id == 4 and d.stop_at_s_m < 90.0
+    assert d.stop_reason is StopReason.OBSTACLE
 
 
 def test_a_slow_pedestrian_the_map_sends_to_the_crosswalk_is_yielded_to(straight_layers):

@@ -38,6 +38,32 @@ class BehaviourState(Enum):
     EMERGENCY_STOP = "emergency_stop"
 
 
+class StopReason(Enum):
+    """Why decision asks for a stop point, for consumers that act on the cause (fleet, HMI, reports)."""
+
+    NONE = "none"
+    OBSTACLE = "obstacle"
+    """A road user or object in the path ahead (followed as a lead while it moves)."""
+    CUT_IN = "cut_in"
+    """A car the prediction brings into the path ahead."""
+    CROSSWALK = "crosswalk"
+    """A pedestrian on, or about to step onto, a crosswalk ahead."""
+    TRAFFIC_LIGHT = "traffic_light"
+    STOP_LINE = "stop_line"
+    """An all-way stop's line (arrival order)."""
+    BUS_STOP = "bus_stop"
+    """The pull-over spot of a stop to serve."""
+    ONBOARDING = "onboarding"
+    REAR_TRAFFIC = "rear_traffic"
+    """Waiting at the curb for traffic behind to pass before merging."""
+    MINIMAL_RISK_MANOEUVRE = "minimal_risk_manoeuvre"
+    """The vehicle safety's minimal risk manoeuvre."""
+    EMERGENCY = "emergency"
+    """An emergency stop: held where the front is."""
+    INFRASTRUCTURE_CROSSING = "infrastructure_crossing"
+    """An infrastructure camera reports pedestrians on a crossing ahead (V2I anticipation)."""
+
+
 @dataclass(frozen=True, slots=True, kw_only=True)
 class BehaviourDecision:
     """What decision making asks of planning and control this cycle.
@@ -49,6 +75,7 @@ class BehaviourDecision:
         door_open: whether the door should be open.
         risk_track_id: the highest-risk obstacle the decision reacted to (-1: none).
         reason: a short human-readable reason, logged and shown on the HMI.
+        stop_reason: why ``stop_at_s_m`` is set (NONE when it is not).
     """
 
     stamp: Stamp
@@ -60,6 +87,7 @@ class BehaviourDecision:
     door_open: bool
     risk_track_id: int
     reason: str
+    stop_reason: StopReason = StopReason.NONE
 
 
 TRAJECTORY_COLUMNS = ("x_m", "y_m", "yaw_rad", "curvature_1pm", "s_m")
@@ -226,14 +254,6 @@ class SafetyVerdict:
     @property
     def takeover_request(self) -> bool:
         return self.directive.takeover_request
-
-
-class StopReason(Enum):
-    """Why decision asks for a stop point, for consumers that act on the cause (fleet, HMI, reports)."""
-
-    NONE = "none"
-    INFRASTRUCTURE_CROSSING = "infrastructure_crossing"
-    """An infrastructure camera reports pedestrians on a crossing ahead (V2I anticipation)."""
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

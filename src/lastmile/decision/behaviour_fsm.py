@@ -18,7 +18,7 @@ from lastmile.core.polyline import Polyline
 from lastmile.core.route_obstacles import route_obstacles
 from lastmile.core.safety_messages import FailSafeLevel
 from lastmile.core.vehicle import VehicleGeometry
-from lastmile.core.vehicle_messages import BehaviourDecision, BehaviourState
+from lastmile.core.vehicle_messages import BehaviourDecision, BehaviourState, StopReason
 from lastmile.decision.behaviour_memory import BehaviourMemory, Cycle, DecisionContext, Outcome
 from lastmile.decision.decision_config import DecisionConfig, DecisionInput
 from lastmile.decision.intersection_handling import AllWayStops, handle_intersection, next_all_way_stop_line
@@ -120,7 +120,9 @@ class BehaviourStateMachine:
         light_stop, light_why = self.lights.step(t_s, front_s, inp.speed_mps, inp.traffic_lights, ctx.ahead_m)
         if light_stop is not None:
             # Never an emergency stop for a light: a late red is braked for as hard as allowed, no harder.
-            constraints.append(StopConstraint(light_stop, light_why, emergency_ok=False))
+            constraints.append(
+                StopConstraint(light_stop, light_why, emergency_ok=False, reason=StopReason.TRAFFIC_LIGHT)
+            )
         sd = inp.safety
         if sd is not None and sd.level != FailSafeLevel.NONE and sd.emergency_stop:
             self.request_emergency(t_s, "safety: " + "; ".join(sd.reasons))
@@ -143,10 +145,11 @@ class BehaviourStateMachine:
             reason = f"{reason}; stop for {binding.kind}"
         stop_at: float | None
         if outcome.hold_still:
-            stop_at, risk = cy.front_s_m, outcome.risk_track_id
+            stop_at, risk, why = cy.front_s_m, outcome.risk_track_id, StopReason.EMERGENCY
         else:
             stop_at = None if binding is None else binding.stop_front_s_m
             risk = -1 if binding is None else binding.track_id
+            why = StopReason.NONE if binding is None else binding.reason
         return BehaviourDecision(
             stamp=cy.inp.stamp,
             state=self.memory.state,
@@ -157,6 +160,7 @@ class BehaviourStateMachine:
             door_open=outcome.door_open,
             risk_track_id=risk,
             reason=reason,
+            stop_reason=why,
         )
 
     # --- handlers of the states without a module of their own ------------------------------------

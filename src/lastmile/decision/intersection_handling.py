@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lastmile.core.vehicle_messages import BehaviourState
+from lastmile.core.vehicle_messages import BehaviourState, StopReason
 from lastmile.decision.behaviour_memory import BehaviourMemory, Cycle, DecisionContext, Outcome
 from lastmile.decision.right_of_way import ArrivalOrder, EntryLine
 from lastmile.decision.stop_constraints import StopConstraint
@@ -111,7 +111,9 @@ def _wait_at_line(
         visit.go = True
         return Outcome(cy.speed_cap_mps, "right of way: go")
     risk = inside if inside >= 0 else (owed[0] if owed else -1)
-    cy.constraints.append(StopConstraint(rl.s_m - c.stop_line_setback_m, "stop_line", risk, False))
+    cy.constraints.append(
+        StopConstraint(rl.s_m - c.stop_line_setback_m, "stop_line", risk, False, StopReason.STOP_LINE)
+    )
     why = (
         f"yield to {len(owed)} earlier arrivals" if owed else ("box occupied" if inside >= 0 else "full stop")
     )

@@ -11,6 +11,7 @@ from lastmile.core.predictions import PredictedPaths
 from lastmile.core.route_obstacles import RouteObstacle
 from lastmile.core.safety_messages import FailSafeLevel, SafetyDirective
 from lastmile.core.vehicle import VehicleGeometry
+from lastmile.core.vehicle_messages import StopReason
 from lastmile.decision.crosswalk_yield import crosswalk_yields
 from lastmile.decision.decision_config import DecisionConfig
 from lastmile.decision.vehicle_cut_in import predicted_cut_ins
@@ -34,6 +35,7 @@ class StopConstraint:
     kind: str
     track_id: int = -1
     emergency_ok: bool = True
+    reason: StopReason = StopReason.OBSTACLE
 
 
 def lead_stop_s_m(s_m: float, length_m: float, speed_along_mps: float, lead_decel_mps2: float) -> float:
@@ -73,7 +75,7 @@ def in_path_constraints(
         if o.ds_m < -c.behind_front_ignore_m and o.v_s_mps > 0.0:
             continue  # behind the front, moving with us: not ours to stop for
         stop_s = lead_stop_s_m(o.s_m, o.length_m, o.v_s_mps, c.lead_decel_mps2) - c.min_gap_m
-        out.append(StopConstraint(stop_s, o.cls.name.lower(), o.track_id))
+        out.append(StopConstraint(stop_s, o.cls.name.lower(), o.track_id, reason=StopReason.OBSTACLE))
     return out
 
 
@@ -108,6 +110,7 @@ def cut_in_constraints(
             "cut-in",
             k.track_id,
             emergency_ok=False,
+            reason=StopReason.CUT_IN,
         )
         for k in cut_ins
     ]
@@ -125,7 +128,7 @@ def crosswalk_constraints(
 ) -> list[StopConstraint]:
     """Yield at a crosswalk to the people ``crosswalk_yield`` finds there or about to be."""
     return [
-        StopConstraint(stop_s, "crosswalk", tid, emergency_ok=False)
+        StopConstraint(stop_s, "crosswalk", tid, emergency_ok=False, reason=StopReason.CROSSWALK)
         for stop_s, tid in crosswalk_yields(
             crosswalks,
             route,
@@ -156,5 +159,12 @@ def safety_constraints(
         cap_mps = min(cap_mps, directive.speed_cap_mps)
     if directive.level >= FailSafeLevel.MINIMAL_RISK_MANOEUVRE and directive.mrm_stop_s_m is not None:
         # A comfortable stop at the arbiter's point (never an emergency brake for it).
-        return cap_mps, [StopConstraint(directive.mrm_stop_s_m, "minimal risk manoeuvre", emergency_ok=False)]
+        return cap_mps, [
+            StopConstraint(
+                directive.mrm_stop_s_m,
+                "minimal risk manoeuvre",
+                emergency_ok=False,
+                reason=StopReason.MINIMAL_RISK_MANOEUVRE,
+            )
+        ]
     return cap_mps, []

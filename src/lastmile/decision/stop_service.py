@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 
 from lastmile.core.route_obstacles import RouteObstacle
-from lastmile.core.vehicle_messages import BehaviourState
+from lastmile.core.vehicle_messages import BehaviourState, StopReason
 from lastmile.decision.behaviour_memory import BehaviourMemory, Boarding, Cycle, DecisionContext, Outcome
 from lastmile.decision.pullover_spot import SpotRequest, choose_spot
 from lastmile.decision.stop_constraints import StopConstraint
@@ -33,7 +33,7 @@ def handle_pullover(ctx: DecisionContext, mem: BehaviourMemory, cy: Cycle) -> Ou
         if ctx.ahead_m(rs.s_end_m, cy.front_s_m) < 0.0:
             mem.finish_stop(cy.t_s, "stop blocked: no free spot")
         return Outcome(cy.speed_cap_mps, "stop blocked: no free spot, passing")
-    cy.constraints.append(StopConstraint(visit.spot_front_s_m, "spot", -1, False))
+    cy.constraints.append(StopConstraint(visit.spot_front_s_m, "spot", -1, False, StopReason.BUS_STOP))
     arrived = (
         abs(visit.spot_front_s_m - cy.front_s_m) < c.spot_arrival_m and cy.inp.speed_mps < c.standstill_mps
     )
@@ -80,7 +80,7 @@ def handle_onboarding(ctx: DecisionContext, mem: BehaviourMemory, cy: Cycle) -> 
     """Door open at least ``dwell_min_s`` and until the doorway has been clear ``doorway_clear_s``;
     MERGING once the door is closed (the stop then counts as served)."""
     c, b, inp, t_s = ctx.config, mem.boarding, cy.inp, cy.t_s
-    cy.constraints.append(StopConstraint(cy.front_s_m, "onboarding", -1, False))
+    cy.constraints.append(StopConstraint(cy.front_s_m, "onboarding", -1, False, StopReason.ONBOARDING))
     if b.door_closing:
         if not inp.door_open:
             if mem.stop.stop_index is not None:
@@ -121,7 +121,9 @@ def handle_merging(ctx: DecisionContext, mem: BehaviourMemory, cy: Cycle) -> Out
     if blocker >= 0 and (
         visit.merge_from_s_m is None or inp.route_s_m - visit.merge_from_s_m < c.merge_hold_m
     ):
-        cy.constraints.append(StopConstraint(cy.front_s_m, "rear_traffic", blocker, False))
+        cy.constraints.append(
+            StopConstraint(cy.front_s_m, "rear_traffic", blocker, False, StopReason.REAR_TRAFFIC)
+        )
         visit.merge_from_s_m = inp.route_s_m
         return Outcome(cap, "waiting: traffic from the rear")
     return Outcome(cap, "merging")

@@ -439,7 +439,7 @@ class ShuttleStack:
     def _anticipate(self, now: Stamp, route_s_m: float, speed_mps: float) -> None:
         """A crossing the infrastructure reports occupied: stop before it, unless a nearer stop binds."""
         d = self._decision
-        self._stop_reason = StopReason.NONE
+        self._stop_reason = d.stop_reason if d is not None else StopReason.NONE
         if d is None or d.state != BehaviourState.NORMAL_DRIVING or not self.v2i.reports:
             return
         front_s = route_s_m + self.geometry.front_from_rear_axle_m
@@ -449,6 +449,7 @@ class ShuttleStack:
                 d,
                 stop_at_s_m=stop,
                 reason=f"{d.reason}; stop for crosswalk (infrastructure reports pedestrians)",
+                stop_reason=StopReason.INFRASTRUCTURE_CROSSING,
             )
             self._stop_reason = StopReason.INFRASTRUCTURE_CROSSING
 
