@@ -123,3 +123,41 @@ def test_fleet_config_rejects_a_sync_period_off_the_tick() -> None:
         FleetConfig(sync_period_s=0.015)
     with pytest.raises(ConfigError, match="at least 1 shuttle"):
         FleetConfig(shuttles=0)
+
+
+def test_a_fleet_shuttle_whose_stack_hangs_is_stopped_by_its_watchdog_and_black_boxed(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Fleet runs use the single run's loop: watchdog events and black-box recordings per shuttle."""
+    from lastmile.recorder.run_log import RunLog
+    from lastmile.stack.shuttle_stack import ShuttleStack
+
+    stacks: list[ShuttleStack] = []
+    frozen: dict[int, object] = {}
+    real_init, real_tick = ShuttleStack.__init__, ShuttleStack.tick
+
+    def init(self, *args, **kwargs):  # type: ignore[no-untyped-def]
+        real_init(self, *args, **kwargs)
+        stacks.append(self)
+
+    def tick(self, now, frames, safety=None):  # type: ignore[no-untyped-def]
+        # The second shuttle's control loop freezes at 15 s: it keeps re-sending its last output.
+        if self is not stacks[1] or int(now) < 15_000_000:
+            frozen[id(self)] = real_tick(self, now, frames, safety)
+        return frozen[id(self)]
+
+    monkeypatch.setattr(ShuttleStack, "__init__", init)
+    monkeypatch.setattr(ShuttleStack, "tick", tick)
+    run_fleet(
+        FleetConfig(shuttles=2, minutes=0.4, seed=3, demand_per_pair_per_h=0.0, cameras=False), tmp_path
+    )
+    logs = [RunLog.load(tmp_path / f"shuttle-{k}") for k in range(2)]
+    assert not logs[0].events_of("hardware_watchdog") and not logs[0].events_of("recording")
+    (trip,) = logs[1].events_of("hardware_watchdog")
+    assert 15.09 <= trip.t_s <= 15.12, trip
+    t, v = logs[1].column("t_s"), logs[1].column("speed_mps")
+    assert v[t < 15.0].max() > 2.0 and v[-1] < 0.05  # the relay's brake stopped it
+    files = [e for e in logs[1].events_of("recording") if e.data["trigger"] == "watchdog"]
+    assert (
+        len(files) == 1 and Path(str(files[0].data["path"])).parent == tmp_path / "shuttle-1" / "recordings"
+    )

@@ -34,7 +34,7 @@ from lastmile.core.vehicle_messages import StackOutput
 from lastmile.recorder import foxglove_schemas as fx
 from lastmile.recorder import mcap_codec
 
-TRIGGERS = ("takeover", "emergency_stop", "collision", "crash", "sigterm", "manual")
+TRIGGERS = ("takeover", "emergency_stop", "collision", "crash", "watchdog", "sigterm", "manual")
 """Trigger kinds; ``crash`` and ``sigterm`` are written synchronously (the process is going away)."""
 
 EVENT_TOPIC = "/events"

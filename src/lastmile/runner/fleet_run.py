@@ -129,50 +129,7 @@ async def _run(
 ) -> dict[str, Any]:
     seeds = np.random.SeedSequence(config.seed).spawn(config.shuttles + 1)
     run_config = FLEET_RUN_CONFIG.with_cruise_speed(config.cruise_speed_mps)
-    shuttles: list[FleetShuttle] = []
-    loop_length_m: float | None = None
-    for k in range(config.shuttles):
-        seed_k = int(seeds[k].generate_state(1)[0])
-        # Start positions: evenly round the loop (loop length from the first shuttle's simulator).
-        start = 0.0 if loop_length_m is None else k * loop_length_m / config.shuttles
-        scenario = shuttle_scenario(config, k, seed_k, start)
-        loop = build_closed_loop(scenario, run_config)
-        loop_length_m = loop.world.service_route.length_m
-        meta = dataclasses.replace(
-            run_meta(scenario, run_config, loop.world.map_name),
-            duration_s=config.minutes * 60.0,
-            config={
-                "fleet": dataclasses.asdict(config),
-                "shuttle": k,
-                "start_route_s_m": start,
-                "run_config": run_meta(scenario, run_config, "").config["run_config"],
-            },
-        )
-        vid = f"sim-{k}"
-        writer = RunLogWriter(meta)
-        shuttle = FleetShuttle(
-            vid=vid,
-            loop=loop,
-            writer=writer,
-            client=VehicleClient(server.url, vid, server.tokens["vehicle"]),
-            timing=TimingCallback(),
-        )
-        loop.callbacks.extend(
-            [
-                RunLogCallback(writer, loop.world, scenario),
-                shuttle.timing,
-                BlackBoxCallback(
-                    black_box_config(
-                        out_dir / f"shuttle-{k}" / "recordings",
-                        run_config.loop.black_box_window_s,
-                        loop.world,
-                    ),
-                    writer,
-                ),
-                FleetLinkCallback(shuttle),
-            ]
-        )
-        shuttles.append(shuttle)
+    shuttles = _build_shuttles(config, run_config, seeds, server, out_dir)
     world_map = load_world_map(shuttles[0].world.scenario.map)
     stop_ids = [stop.id for stop in world_map.hdmap.stops]
     window_s = (config.demand_minutes if config.demand_minutes is not None else config.minutes) * 60.0
@@ -183,31 +140,7 @@ async def _run(
         config.max_seats,
         np.random.default_rng(seeds[-1]),
     )
-    for s in shuttles:
-        for other in shuttles:
-            if other is not s:
-                s.proxies[id(other)] = proxy_for(other, len(s.proxies))
-                s.world.add_road_user(s.proxies[id(other)])
-
-    # One set of pedestrians: they walk in shuttle 0's world and are mirrored into the others'.
-    owner = shuttles[0]
-    pedestrians = [a for a in owner.world.road_users if a.cls == ObjectClass.PEDESTRIAN]
-    for s in shuttles[1:]:
-        for j, a in enumerate(pedestrians):
-            proxy = Agent(
-                id=PEDESTRIAN_PROXY_BASE + j,
-                cls=ObjectClass.PEDESTRIAN,
-                x_m=a.x_m,
-                y_m=a.y_m,
-                yaw_rad=a.yaw_rad,
-                speed_mps=a.speed_mps,
-                length_m=a.length_m,
-                width_m=a.width_m,
-                rcs_dbsm=a.rcs_dbsm,
-                active=a.active,
-            )
-            s.pedestrian_proxies.append((a, proxy))
-            s.world.add_road_user(proxy)
+    pedestrians = _mirror_road_users(shuttles)
     route_crosswalks = world_map.layers(step_m=1.0).crosswalks if config.cameras else ()
     cameras = [
         _Camera(
@@ -306,6 +239,23 @@ async def _run(
             await s.client.stop()
     wall, cpu = time.perf_counter() - wall0, time.process_time() - cpu0
     duration_s = end_tick * tick_us / 1e6
+    metrics, records = _fleet_metrics(shuttles, riders, cameras, duration_s, wall, cpu, out_dir)
+    write_fleet_report(metrics, records, out_dir)
+    if progress is not None:
+        progress(config.minutes * 60.0, config.minutes * 60.0)
+    return metrics
+
+
+def _fleet_metrics(
+    shuttles: list[FleetShuttle],
+    riders: list[_Rider],
+    cameras: list[_Camera],
+    duration_s: float,
+    wall: float,
+    cpu: float,
+    out_dir: Path,
+) -> tuple[dict[str, Any], list[RideRecord]]:
+    """The fleet's metrics, and each shuttle's run directory written under ``out_dir/shuttle-<k>``."""
     records = [
         RideRecord(
             ref=r.ref,
@@ -361,10 +311,88 @@ async def _run(
     }
     timing = {"wall_s": wall, "cpu_s": cpu, "realtime_factor": duration_s / wall if wall > 0 else None}
     metrics["timing"] = timing
-    write_fleet_report(metrics, records, out_dir)
-    if progress is not None:
-        progress(config.minutes * 60.0, config.minutes * 60.0)
-    return metrics
+    return metrics, records
+
+
+def _build_shuttles(
+    config: FleetConfig,
+    run_config: RunConfig,
+    seeds: list[np.random.SeedSequence],
+    server: ServerProcess,
+    out_dir: Path,
+) -> list[FleetShuttle]:
+    """One closed loop per shuttle, spaced evenly round the loop, logged and black-boxed like a single
+    run, with its fleet link in the loop."""
+    shuttles: list[FleetShuttle] = []
+    loop_length_m: float | None = None
+    for k in range(config.shuttles):
+        seed_k = int(seeds[k].generate_state(1)[0])
+        # Start positions: evenly round the loop (loop length from the first shuttle's simulator).
+        start = 0.0 if loop_length_m is None else k * loop_length_m / config.shuttles
+        scenario = shuttle_scenario(config, k, seed_k, start)
+        loop = build_closed_loop(scenario, run_config)
+        loop_length_m = loop.world.service_route.length_m
+        meta = dataclasses.replace(
+            run_meta(scenario, run_config, loop.world.map_name),
+            duration_s=config.minutes * 60.0,
+            config={
+                "fleet": dataclasses.asdict(config),
+                "shuttle": k,
+                "start_route_s_m": start,
+                "run_config": run_meta(scenario, run_config, "").config["run_config"],
+            },
+        )
+        vid = f"sim-{k}"
+        writer = RunLogWriter(meta)
+        shuttle = FleetShuttle(
+            vid=vid,
+            loop=loop,
+            writer=writer,
+            client=VehicleClient(server.url, vid, server.tokens["vehicle"]),
+            timing=TimingCallback(),
+        )
+        box = black_box_config(
+            out_dir / f"shuttle-{k}" / "recordings", run_config.loop.black_box_window_s, loop.world
+        )
+        loop.callbacks.extend(
+            [
+                RunLogCallback(writer, loop.world, scenario),
+                shuttle.timing,
+                BlackBoxCallback(box, writer),
+                FleetLinkCallback(shuttle),
+            ]
+        )
+        shuttles.append(shuttle)
+    return shuttles
+
+
+def _mirror_road_users(shuttles: list[FleetShuttle]) -> list[Agent]:
+    """Every shuttle sees the others; shuttle 0's pedestrians are mirrored into the other worlds.
+    Returns those pedestrians."""
+    for s in shuttles:
+        for other in shuttles:
+            if other is not s:
+                s.proxies[id(other)] = proxy_for(other, len(s.proxies))
+                s.world.add_road_user(s.proxies[id(other)])
+    # One set of pedestrians: they walk in shuttle 0's world and are mirrored into the others'.
+    pedestrians = [a for a in shuttles[0].world.road_users if a.cls == ObjectClass.PEDESTRIAN]
+    for s in shuttles[1:]:
+        for j, a in enumerate(pedestrians):
+            proxy = Agent(
+                id=PEDESTRIAN_PROXY_BASE + j,
+                cls=ObjectClass.PEDESTRIAN,
+                x_m=a.x_m,
+                y_m=a.y_m,
+                yaw_rad=a.yaw_rad,
+                speed_mps=a.speed_mps,
+                length_m=a.length_m,
+                width_m=a.width_m,
+                rcs_dbsm=a.rcs_dbsm,
+                active=a.active,
+            )
+            s.pedestrian_proxies.append((a, proxy))
+            s.world.add_road_user(proxy)
+    return pedestrians
 
 
 async def _send_status(s: FleetShuttle) -> None:

@@ -112,12 +112,14 @@ class RunLogCallback(LoopCallback):
 
 class BlackBoxCallback(LoopCallback):
     """Keeps the black box's rolling window and makes it write on a takeover, a collision, an emergency
-    stop or a crash of the vehicle software; logs a ``recording`` event per file at the end."""
+    stop, a hardware-watchdog trip or a crash of the vehicle software; logs a ``recording`` event per
+    file at the end."""
 
     def __init__(self, config: BlackBoxConfig, writer: RunLogWriter) -> None:
         self.box = BlackBox(config)
         self.writer = writer
         self._failing = False
+        self._tripped = False
         self._state: BehaviourState | None = None
 
     def on_tick(self, record: TickRecord) -> None:
@@ -135,6 +137,9 @@ class BlackBoxCallback(LoopCallback):
             if record.state == BehaviourState.EMERGENCY_STOP:
                 box.trigger("emergency_stop", now_us, out.decision.reason)
             self._state = record.state
+        if record.verdict.watchdog_tripped and not self._tripped:
+            box.trigger("watchdog", now_us, "hardware watchdog: no fresh command from the stack")
+        self._tripped = record.verdict.watchdog_tripped
         for _, kind, data in record.events:
             if kind in BLACK_BOX_TRIGGERS:
                 box.trigger(kind, now_us, str(data))
