@@ -10,7 +10,7 @@ Both commands pass aUToronto's safety stage (7.2.5): steering range, steering ra
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -60,7 +60,7 @@ class MpsConfig:
         weight_decay: K_i proportional to decay**i (normalised to sum 1): far steps weigh less.
     """
 
-    stanley: StanleyConfig = StanleyConfig()
+    stanley: StanleyConfig = field(default_factory=StanleyConfig)
     step_s: float = 0.1
     horizon_max_steps: int = 10
     horizon_min_steps: int = 2
