@@ -15,7 +15,9 @@ to 60 m ahead of the vehicle, 0.5 m vertices), as the stack's planner does at 10
 50 Hz, the vehicle at 100 Hz. The speed loop is the stack's (WATonoBus eq. 1 law) for every controller
 except Snow Lion's MPC, whose own acceleration drives the car (it gets the same speed reference).
 Cross-track and heading errors are those of the wheelbase's centre against the reference (with
-front steer that point sits off the path by geometry for any controller that tracks an axle); lateral
+front steer that point sits off the path by geometry for any controller that tracks an axle; "own-ref"
+is the peak at the point each controller itself keeps on the path: front axle for Stanley and MPS, the
+centre for the MPC and with all-wheel steer, else the rear axle); lateral
 acceleration comes from its course rate, its jerk from 0.1 s window means as the evaluation's. Compute
 time is the thread CPU time (the machine is shared) of the controller's ``step`` call (the MPC's
 includes the discretisation, the matrix values and the OSQP solve); the reference operation beside it
@@ -117,6 +119,7 @@ def campus() -> Reference:
 @dataclass
 class RunResult:
     xte_m: list[float] = field(default_factory=list)
+    xte_own_m: list[float] = field(default_factory=list)
     heading_rad: list[float] = field(default_factory=list)
     lat_acc_mps2: list[float] = field(default_factory=list)
     call_ns: list[int] = field(default_factory=list)
@@ -135,6 +138,7 @@ class RunResult:
         return {
             "xte_peak_m": float(xte.max()),
             "xte_mean_m": float(xte.mean()),
+            "xte_own_ref_peak_m": float(np.abs(self.xte_own_m).max()),
             "heading_peak_rad": float(head.max()),
             "heading_mean_rad": float(head.mean()),
             "lat_accel_peak_mps2": float(np.abs(acc).max()),
@@ -148,6 +152,15 @@ class RunResult:
 
 def _mid(s: VehicleState, g: VehicleGeometry) -> SE2:
     return SE2(s.x_m, s.y_m, s.yaw_rad).compose(SE2(g.wheelbase_m / 2.0, 0.0, 0.0))
+
+
+def own_reference_m(name: LateralControllerName, g: VehicleGeometry) -> float:
+    """Distance ahead of the rear axle of the point the controller itself puts on the path."""
+    if name in (LateralControllerName.STANLEY, LateralControllerName.MODEL_PREDICTIVE_STANLEY):
+        return g.wheelbase_m  # the front axle
+    if name == LateralControllerName.SNOW_LION_MPC or g.all_wheel_steer:
+        return g.wheelbase_m / 2.0  # centre of gravity / the point all-wheel steer keeps on the path
+    return 0.0  # the rear axle
 
 
 def drive(ref: Reference, name: LateralControllerName, g: VehicleGeometry, compare_fresh: bool) -> RunResult:
@@ -165,7 +178,8 @@ def drive(ref: Reference, name: LateralControllerName, g: VehicleGeometry, compa
     lon = WatonobusLongitudinalController()
     lon.reset(v0)
     out = RunResult()
-    s_ref, travelled = 0.0, 0.0
+    s_ref, travelled, s_own = 0.0, 0.0, None
+    own = own_reference_m(name, g)
     total = ref.laps * ref.line.length_m - (0.0 if ref.line.closed else 12.0)
     path: Polyline | None = None
     prev_course: float | None = None
@@ -214,6 +228,11 @@ def drive(ref: Reference, name: LateralControllerName, g: VehicleGeometry, compa
         if prev_course is not None and step > 10:
             out.lat_acc_mps2.append(speed * wrap_angle_rad(course - prev_course) / CONTROL_DT_S)
             out.xte_m.append(f.d_m)
+            op = SE2(st.x_m, st.y_m, st.yaw_rad).compose(SE2(own, 0.0, 0.0))
+            hint = s_own if s_own is not None else s_ref
+            fo = ref.line.project(op.x_m, op.y_m, hint_s_m=hint, window_m=10.0)
+            s_own = fo.s_m
+            out.xte_own_m.append(fo.d_m)
             out.heading_rad.append(wrap_angle_rad(mid.yaw_rad - path_heading_rad(ref.line, f.s_m)))
         prev_course, prev_mid = course, new_mid
         step += 1
@@ -301,6 +320,7 @@ def main() -> None:
             "xte peak cm",
             "xte mean cm",
             "vs heading_pid",
+            "own-ref peak cm",
             "head peak deg",
             "head mean deg",
             "a_lat peak",
@@ -318,6 +338,7 @@ def main() -> None:
                 f"{100 * r['xte_peak_m']:.1f}",
                 f"{100 * r['xte_mean_m']:.1f}",
                 ratio,
+                f"{100 * r['xte_own_ref_peak_m']:.1f}",
                 f"{math.degrees(r['heading_peak_rad']):.2f}",
                 f"{math.degrees(r['heading_mean_rad']):.2f}",
                 f"{r['lat_accel_peak_mps2']:.2f}",
