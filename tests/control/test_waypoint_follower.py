@@ -71,6 +71,8 @@ def test_waypoint_file_read_projected_and_capped(tmp_path):
     assert wf.xy_m.shape == (30, 2)
     assert wf.xy_m[-1, 1] == pytest.approx(29.0)
     assert np.all(wf.speed_mps == 3.0)
+    assert wf.path().length_m == pytest.approx(29.0)
+    assert wf.speed_at_mps(10.5) == 3.0
 
 
 @pytest.mark.parametrize(

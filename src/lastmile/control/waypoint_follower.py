@@ -99,6 +99,17 @@ class WaypointFile:
     xy_m: np.ndarray
     speed_mps: np.ndarray
 
+    def path(self) -> Polyline:
+        """The waypoints as a path for the follower (``GemWaypointFollower.step``)."""
+        return Polyline(self.xy_m)
+
+    def speed_at_mps(self, s_m: float) -> float:
+        """The recorded (capped) speed of the last waypoint at or before station ``s_m`` of ``path()``:
+        GEM passes the target waypoint's speed to the twist controller."""
+        stations = self.path().s_m
+        i = int(np.clip(np.searchsorted(stations, s_m, side="right") - 1, 0, len(stations) - 1))
+        return float(self.speed_mps[i])
+
 
 def read_waypoint_file(
     path: str | Path, map_from_latlon: Callable[[float, float], tuple[float, float]]
