@@ -106,7 +106,9 @@ class WaypointFile:
     def speed_at_mps(self, s_m: float) -> float:
         """The recorded (capped) speed of the last waypoint at or before station ``s_m`` of ``path()``:
         GEM passes the target waypoint's speed to the twist controller."""
-        stations = self.path().s_m
+        # Stations of the waypoints themselves (the path drops repeated points; the file keeps them).
+        step = np.hypot(*np.diff(self.xy_m, axis=0).T)
+        stations = np.concatenate([[0.0], np.cumsum(step)])
         i = int(np.clip(np.searchsorted(stations, s_m, side="right") - 1, 0, len(stations) - 1))
         return float(self.speed_mps[i])
 
