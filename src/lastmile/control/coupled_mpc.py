@@ -221,13 +221,12 @@ class SnowLionMpcController:
 
         rows: list[np.ndarray] = []
         cols: list[np.ndarray] = []
-        # Slot ids: the constraint values are written per call in slot order, then permuted into CSC order.
-        slot_values: list[np.ndarray] = []
+        # Entries are numbered ("slots") in the order listed here; per call the values are written in
+        # slot order and permuted into OSQP's CSC order (``_perm``), so the pattern never changes.
         # (1) dynamics: x_{k+1} - Ad x_k - Bd u_k = w_k  (rows 6k .. 6k+5)
         k = np.arange(n)
         rows.append(np.repeat(NX * k, NX) + np.tile(np.arange(NX), n))
         cols.append(rows[-1].copy())
-        slot_values.append(np.ones(nxv))
         ad_r, ad_c = self._ad_pattern()
         for kk in range(1, n):
             rows.append(NX * kk + ad_r)
