@@ -94,3 +94,16 @@ def test_bad_waypoint_lines_are_named(tmp_path, line, message):
 def test_config_checked():
     with pytest.raises(ConfigError, match="switch_radius_m"):
         WaypointFollowerConfig(spacing_m=3.0, switch_radius_m=2.0)
+
+
+def test_gain_scales_down_below_the_reference_speed_and_gems_law_is_kept_on_request():
+    g = VehicleGeometry(all_wheel_steer=False, max_steer_rate_radps=1e6)
+    scaled = GemWaypointFollower(g)
+    published = GemWaypointFollower(g, WaypointFollowerConfig(gain_reference_speed_mps=None))
+    pose = SE2(0.0, 0.0, -0.05)
+    d_scaled, _ = scaled.step(0.02, pose, 1.0, STRAIGHT)
+    d_pub, _ = published.step(0.02, pose, 1.0, STRAIGHT)
+    theta = 0.05
+    assert d_pub == pytest.approx(math.atan(3.0 * theta * g.wheelbase_m / 1.0), abs=1e-6)
+    # Scaled: the wheel angle GEM's law gives at 3 m/s for the same bearing error.
+    assert d_scaled == pytest.approx(math.atan(3.0 * theta * g.wheelbase_m / 3.0), abs=1e-6)

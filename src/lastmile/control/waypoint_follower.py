@@ -39,12 +39,18 @@ class WaypointFollowerConfig:
             2 v / d at GEM's figure-8 speed (3 m/s) and its 2 m switch radius, the gain at which the law
             matches pure pursuit to the same point for small errors.
         steer_lowpass_tau_s: time constant of the steering command's low-pass filter.
+        gain_reference_speed_mps: below this speed the yaw-rate gain is scaled by v / this speed. GEM's
+            constant K_p asks for a wheel angle atan(K_p theta L / v) that grows without bound as the
+            shuttle slows (pulling into a bay, it saturated and oscillated off the road in our closed
+            loop); scaled, the wheel angle for a given bearing error stays what it is at GEM's 3 m/s.
+            None is GEM's law as published (constant K_p at every speed).
     """
 
     spacing_m: float = 1.0
     switch_radius_m: float = 2.0
     yaw_rate_gain_per_s: float = 3.0
     steer_lowpass_tau_s: float = 0.0
+    gain_reference_speed_mps: float | None = 3.0
 
     def __post_init__(self) -> None:
         if not (0.0 < self.spacing_m < self.switch_radius_m):
@@ -206,8 +212,11 @@ class GemWaypointFollower:
         ref = map_from_base.compose(SE2(g.wheelbase_m / 2.0, 0.0, 0.0)) if all_wheel else map_from_base
         tx, ty = self._target(path, ref)
         theta_error = wrap_angle_rad(math.atan2(ty - ref.y_m, tx - ref.x_m) - ref.yaw_rad)
-        omega = c.yaw_rate_gain_per_s * theta_error
         v = max(speed_mps, 0.5)  # the bicycle inversion is singular at rest
+        gain = c.yaw_rate_gain_per_s
+        if c.gain_reference_speed_mps is not None and v < c.gain_reference_speed_mps:
+            gain *= v / c.gain_reference_speed_mps
+        omega = gain * theta_error
         base = g.wheelbase_m / 2.0 if all_wheel else g.wheelbase_m
         delta = self._output.step(dt_s, math.atan(omega * base / v))
         return delta, (-delta if all_wheel else 0.0)
