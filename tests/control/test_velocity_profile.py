@@ -100,9 +100,10 @@ def test_cascaded_pi_cruises_and_stops_at_the_end_of_the_path_within_the_comfort
 
 def test_cascaded_pi_stops_at_a_stop_point_before_the_path_ends():
     ctl = CascadedPiSpeedController()
-    car, _, _ = _drive(ctl, _straight_trajectory(200.0), 5.0, 60.0, gap_at=80.0)
+    car, accel, _ = _drive(ctl, _straight_trajectory(200.0), 5.0, 60.0, gap_at=80.0)
     assert car.state.speed_mps == 0.0
     assert abs(car.state.x_m - 80.0) < 0.3  # the stop-gap tolerance of the stack's own tests
+    assert accel.min() >= -1.83 and np.abs(_jerk_10hz(accel)).max() <= 1.84
 
 
 def test_cascaded_pi_integral_removes_a_steady_drag():

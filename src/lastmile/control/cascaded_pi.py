@@ -40,6 +40,9 @@ class CascadedPiConfig:
             limit holds both ways; the emergency brake is a separate command).
         command_lowpass_tau_s: low-pass filter on the command.
         accel_estimate_tau_s: low-pass on the differentiated speed when no IMU acceleration is given.
+        stop_trigger_mps2: toward a stop point inside the path the reference starts slowing once
+            reaching it needs this deceleration (WATonoBus's brake trigger).
+        stop_margin_m: the ramp aims this far before the stop point (the loop's lag closes it).
         hold_decel_mps2: held once the profile asks for rest and the vehicle is stopped.
         hold_speed_mps: below this speed (with the profile at rest) the hold applies; low, so the
             last metres are closed by the speed loop gently rather than by the hold's step.
@@ -62,6 +65,8 @@ class CascadedPiConfig:
     brake_jerk_factor: float = 1.0
     command_lowpass_tau_s: float = 0.05
     accel_estimate_tau_s: float = 0.1
+    stop_trigger_mps2: float = 0.6
+    stop_margin_m: float = 0.2
     hold_decel_mps2: float = 1.0
     hold_speed_mps: float = 0.01
     preview_s: float = 0.5
@@ -138,11 +143,7 @@ class CascadedPiSpeedController:
         c = self.config
         v_ref, ff = v_ref_mps, self._ff_mps2
         if gap_to_stop_m is not None:
-            # The stop point ends the profile early: the same deceleration ramp toward it.
-            v_stop = math.sqrt(2.0 * c.profile.max_decel_mps2 * max(gap_to_stop_m, 0.0))
-            if v_stop < v_ref:
-                v_ref = v_stop
-                ff = -(speed_mps**2) / (2.0 * gap_to_stop_m) if gap_to_stop_m > 0.05 else 0.0
+            v_ref, ff = self._stop_ramp(dt_s, gap_to_stop_m, v_ref, ff)
         self.v_des_mps = v_ref
         a_meas = self._measured(dt_s, speed_mps, measured_accel_mps2)
         err = v_ref - speed_mps
@@ -166,6 +167,20 @@ class CascadedPiSpeedController:
         out = min(max(out, -c.max_decel_mps2), c.max_accel_mps2)
         self.accel_cmd_mps2 = self._lowpass.step(dt_s, self._rate.step(dt_s, out))
         return self.accel_cmd_mps2
+
+    def _stop_ramp(self, dt_s: float, gap_m: float, v_ref: float, ff: float) -> tuple[float, float]:
+        """A stop point inside the path ends the profile early. The reference slows as WATonoBus's
+        eqs. (2)-(3) do, a_req = -v_des^2 / (2 gap), once that needs at least ``stop_trigger_mps2``:
+        braking starts early and stays near-constant, and the reference integrates it (no step)."""
+        c = self.config
+        room = gap_m - c.stop_margin_m
+        if room <= 0.05:
+            return 0.0, 0.0
+        a_req = self.v_des_mps**2 / (2.0 * room)
+        if a_req < c.stop_trigger_mps2 and room >= 1.0:
+            return v_ref, ff
+        v_stop = max(0.0, self.v_des_mps - a_req * dt_s)
+        return (v_stop, -a_req) if v_stop < v_ref else (v_ref, ff)
 
     def _measured(self, dt_s: float, speed_mps: float, imu_mps2: float | None) -> float:
         last, self._last_speed = self._last_speed, speed_mps
