@@ -124,3 +124,11 @@ def test_longitudinal_registry_builds_both_and_names_the_choices():
     )
     with pytest.raises(ConfigError, match="cascaded_pi"):
         make_longitudinal_controller("bang_bang")
+
+
+def test_a_speed_estimate_a_hair_below_zero_at_rest_is_taken_as_rest():
+    # The stack's EKF reports -3e-7 m/s at a standstill; the profile must not reject it.
+    ctl = CascadedPiSpeedController()
+    ctl.reset(0.0)
+    ctl.step(DT, -3e-7, 0.0, 0.5)
+    assert ctl.reference_speed_mps(_straight_trajectory(50.0), 0.0, 5.0) >= 0.0

@@ -11,6 +11,7 @@ filter on the command.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 
@@ -87,6 +88,7 @@ class CascadedPiSpeedController:
         self._accel_i = 0.0
         self._ff_mps2 = 0.0
         self._last_speed: float | None = None
+        self._gap_m: float | None = None
         self._accel_est = LowPassFilter(c.accel_estimate_tau_s)
         self._rate = RateLimiter(c.max_jerk_mps3, c.brake_jerk_factor * c.max_jerk_mps3)
         self._lowpass = LowPassFilter(c.command_lowpass_tau_s)
@@ -96,6 +98,7 @@ class CascadedPiSpeedController:
     def reset(self, speed_mps: float) -> None:
         self._speed_i = self._accel_i = self._ff_mps2 = 0.0
         self._last_speed = speed_mps
+        self._gap_m = None
         self._accel_est.reset(0.0)
         self._rate.reset(0.0)
         self._lowpass.reset(0.0)
@@ -118,8 +121,18 @@ class CascadedPiSpeedController:
         # The profile starts where the vehicle is, at its current speed.
         s = np.concatenate([[path_s_m], pts[ahead, 4]])
         kappa = np.concatenate([[np.interp(path_s_m, pts[:, 4], pts[:, 3])], pts[ahead, 3]])
-        v0 = self._last_speed if self._last_speed is not None else 0.0
-        profile = trapezoidal_profile(s, kappa, speed_cap_mps, v0, self.config.profile)
+        # An estimated speed can dip a hair below zero at rest (filter noise); this shuttle never reverses.
+        v0 = max(self._last_speed, 0.0) if self._last_speed is not None else 0.0
+        # The decision's stop point (last step's gap: the stack asks for the reference first) truncates
+        # the profile there, as a truncated reference route ends it at rest.
+        stop_s = None if self._gap_m is None else path_s_m + max(self._gap_m - self.config.stop_margin_m, 0.0)
+        pc = self.config.profile
+        if stop_s is not None:
+            # Toward a stop point the profile plans the gentler trigger deceleration, leaving the loop
+            # the rest (up to max_decel_mps2) to absorb the drive's lag: planned at the profile's full
+            # deceleration, the shuttle overshot a bay's stop point by a metre.
+            pc = dataclasses.replace(pc, max_decel_mps2=min(pc.max_decel_mps2, self.config.stop_trigger_mps2))
+        profile = trapezoidal_profile(s, kappa, speed_cap_mps, v0, pc, stop_s_m=stop_s)
         # Read the profile ahead by the loop's reaction (drive lag plus the jerk-limited ramp), so the
         # feed-forward eases off before the plateau rather than overshooting it.
         reach = max(v0, 0.5)
@@ -142,6 +155,7 @@ class CascadedPiSpeedController:
             )
         c = self.config
         v_ref, ff = v_ref_mps, self._ff_mps2
+        self._gap_m = gap_to_stop_m
         if gap_to_stop_m is not None:
             v_ref, ff = self._stop_ramp(dt_s, gap_to_stop_m, v_ref, ff)
         self.v_des_mps = v_ref
@@ -178,7 +192,10 @@ class CascadedPiSpeedController:
             return 0.0, 0.0
         a_req = self.v_des_mps**2 / (2.0 * room)
         if a_req < c.stop_trigger_mps2 and room >= 1.0:
-            return v_ref, ff
+            # Not braking yet, but never faster than the speed from which the trigger deceleration
+            # still stops in time: the profile (which knows no stop point) must not accelerate into it.
+            v_cap = math.sqrt(2.0 * c.stop_trigger_mps2 * room)
+            return (v_cap, min(ff, 0.0)) if v_cap < v_ref else (v_ref, ff)
         v_stop = max(0.0, self.v_des_mps - a_req * dt_s)
         return (v_stop, -a_req) if v_stop < v_ref else (v_ref, ff)
 
