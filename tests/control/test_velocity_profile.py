@@ -30,7 +30,7 @@ def test_profile_is_a_trapezoid_within_its_limits_ending_at_rest():
     assert v.max() == pytest.approx(5.0)
     a = np.diff(v**2) / (2 * 0.5)
     assert a.max() <= c.max_accel_mps2 + 1e-9 and a.min() >= -c.max_decel_mps2 - 1e-9
-    cruise = np.flatnonzero(v == 5.0)
+    cruise = np.flatnonzero(np.isclose(v, 5.0, rtol=0.0, atol=1e-9))
     # Accelerate, cruise, decelerate: one contiguous plateau with ramps of the expected lengths.
     assert np.all(np.diff(cruise) == 1)
     assert s[cruise[0]] == pytest.approx(25.0 / (2 * c.max_accel_mps2), abs=0.5)

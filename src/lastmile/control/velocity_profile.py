@@ -97,15 +97,16 @@ def trapezoidal_profile(
     if c.stop_at_end:
         v[-1] = 0.0
     # Forward: reachable from the current speed at a_max (a vehicle already above the limit is given
-    # the limit: the speed loop then brakes toward it).
-    fwd = np.empty_like(v)
-    fwd[0] = min(v0_mps, v[0])
-    for i in range(1, len(v)):
-        fwd[i] = min(v[i], math.sqrt(fwd[i - 1] ** 2 + 2.0 * c.max_accel_mps2 * ds[i - 1]))
-    # Backward: able to slow to every later limit at d_max.
-    out = fwd
-    for i in range(len(v) - 2, -1, -1):
-        out[i] = min(out[i], math.sqrt(out[i + 1] ** 2 + 2.0 * c.max_decel_mps2 * ds[i]))
+    # the limit: the speed loop then brakes toward it). v_i^2 = min_j<=i (v_j^2 + 2 a (s_i - s_j)),
+    # a running minimum rather than a loop.
+    v2 = v * v
+    v2[0] = min(v0_mps, v[0]) ** 2
+    a2, d2 = 2.0 * c.max_accel_mps2, 2.0 * c.max_decel_mps2
+    fwd2 = np.minimum.accumulate(v2 - a2 * s) + a2 * s
+    # Backward: able to slow to every later limit at d_max: v_i^2 = min_j>=i (v_j^2 + 2 d (s_j - s_i)).
+    out2 = np.minimum.accumulate((fwd2 + d2 * s)[::-1])[::-1] - d2 * s
+    out = np.minimum(np.sqrt(np.maximum(out2, 0.0)), v)  # never above a limit by rounding
+    out[0] = min(out[0], v0_mps)
     accel = np.empty_like(out)
     accel[:-1] = (out[1:] ** 2 - out[:-1] ** 2) / (2.0 * ds)
     accel[-1] = accel[-2]
