@@ -44,6 +44,8 @@ class CascadedPiConfig:
         stop_trigger_mps2: toward a stop point inside the path the reference starts slowing once
             reaching it needs this deceleration (WATonoBus's brake trigger).
         stop_margin_m: the ramp aims this far before the stop point (the loop's lag closes it).
+        smooth_stop_speed_mps, smooth_stop_decel_per_s, smooth_stop_min_decel_mps2: below this speed,
+            approaching rest, the deceleration is at most min_decel + per_s * speed.
         hold_decel_mps2: held once the profile asks for rest and the vehicle is stopped.
         hold_speed_mps: below this speed (with the profile at rest) the hold applies; low, so the
             last metres are closed by the speed loop gently rather than by the hold's step.
@@ -68,6 +70,9 @@ class CascadedPiConfig:
     accel_estimate_tau_s: float = 0.1
     stop_trigger_mps2: float = 0.6
     stop_margin_m: float = 0.2
+    smooth_stop_speed_mps: float = 1.0
+    smooth_stop_decel_per_s: float = 0.5
+    smooth_stop_min_decel_mps2: float = 0.05
     hold_decel_mps2: float = 1.0
     hold_speed_mps: float = 0.01
     preview_s: float = 0.5
@@ -178,6 +183,11 @@ class CascadedPiSpeedController:
             # At rest where the profile ends: hold the brake rather than creep on a small error.
             out = min(out, -c.hold_decel_mps2)
             self._speed_i = min(self._speed_i, 0.0)
+        elif v_ref < c.smooth_stop_speed_mps and speed_mps < c.smooth_stop_speed_mps and out < 0.0:
+            # Smooth stop: the last half metre per second is shed with a deceleration falling with the
+            # speed, so the step to zero when the wheels stop is small (a full-rate stop there was a
+            # 10 m/s^3 jerk at every stop in the closed loop).
+            out = max(out, -(c.smooth_stop_min_decel_mps2 + c.smooth_stop_decel_per_s * speed_mps))
         out = min(max(out, -c.max_decel_mps2), c.max_accel_mps2)
         self.accel_cmd_mps2 = self._lowpass.step(dt_s, self._rate.step(dt_s, out))
         return self.accel_cmd_mps2
