@@ -13,7 +13,7 @@ from lastmile.core.polyline import Polyline
 from lastmile.core.vehicle import VehicleGeometry
 from lastmile.sim.vehicle_model import VehicleState
 
-from .conftest import circle_path, drive_lateral, start_on_circle
+from .loop_helpers import circle_path, drive_lateral, start_on_circle
 
 STRAIGHT = Polyline(np.array([[-10.0, 0.0], [400.0, 0.0]]))
 

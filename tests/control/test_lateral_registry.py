@@ -11,7 +11,7 @@ from lastmile.core.polyline import Polyline
 from lastmile.core.vehicle import VehicleGeometry
 from lastmile.sim.vehicle_model import VehicleState
 
-from .conftest import circle_path, drive_lateral, start_on_circle
+from .loop_helpers import circle_path, drive_lateral, start_on_circle
 
 
 def test_every_name_is_registered_and_plain_strings_are_accepted():

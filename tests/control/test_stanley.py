@@ -18,7 +18,7 @@ from lastmile.core.polyline import Polyline
 from lastmile.core.vehicle import VehicleGeometry
 from lastmile.sim.vehicle_model import ActuatorDynamics, KinematicBicycle, VehicleState
 
-from .conftest import circle_path
+from .loop_helpers import circle_path
 
 STRAIGHT = Polyline(np.array([[-10.0, 0.0], [400.0, 0.0]]))
 
