@@ -7,6 +7,7 @@ import pytest
 
 from lastmile.control.lateral import LATERAL_CONTROLLERS, LateralControllerName, make_lateral_controller
 from lastmile.core.errors import ConfigError
+from lastmile.core.geometry import SE2
 from lastmile.core.polyline import Polyline
 from lastmile.core.vehicle import VehicleGeometry
 from lastmile.sim.vehicle_model import VehicleState
@@ -54,8 +55,6 @@ def test_holds_a_15_m_circle_at_3_mps_within_10_cm(name):
 def test_rear_wheels_stay_straight_when_rear_steer_is_off():
     g = VehicleGeometry(all_wheel_steer=True)
     path = Polyline(np.array([[-10.0, 0.0], [400.0, 0.0]]))
-    from lastmile.core.geometry import SE2
-
     for name in LateralControllerName:
         lat = make_lateral_controller(name, g)
         front, rear = lat.step(0.02, SE2(0.0, 1.0, 0.0), 3.0, path, rear_steer=False)
