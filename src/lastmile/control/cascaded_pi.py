@@ -183,7 +183,17 @@ class CascadedPiSpeedController:
             # At rest where the profile ends: hold the brake rather than creep on a small error.
             out = min(out, -c.hold_decel_mps2)
             self._speed_i = min(self._speed_i, 0.0)
-        elif v_ref < c.smooth_stop_speed_mps and speed_mps < c.smooth_stop_speed_mps and out < 0.0:
+        elif (
+            v_ref < c.smooth_stop_speed_mps
+            and speed_mps < c.smooth_stop_speed_mps
+            and out < 0.0
+            # Only with room for it (v / k bounds the distance the capped braking needs): short of room,
+            # a stop point is not crept past for comfort (a crosswalk's, in the closed loop).
+            and (
+                gap_to_stop_m is None
+                or gap_to_stop_m - c.stop_margin_m >= speed_mps / c.smooth_stop_decel_per_s
+            )
+        ):
             # Smooth stop: the last half metre per second is shed with a deceleration falling with the
             # speed, so the step to zero when the wheels stop is small (a full-rate stop there was a
             # 10 m/s^3 jerk at every stop in the closed loop).
