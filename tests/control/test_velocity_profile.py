@@ -132,3 +132,17 @@ def test_a_speed_estimate_a_hair_below_zero_at_rest_is_taken_as_rest():
     ctl.reset(0.0)
     ctl.step(DT, -3e-7, 0.0, 0.5)
     assert ctl.reference_speed_mps(_straight_trajectory(50.0), 0.0, 5.0) >= 0.0
+
+
+def test_smooth_stop_gives_way_when_the_stop_point_leaves_no_room_for_it():
+    def brake_after(gap_m: float) -> float:
+        ctl = CascadedPiSpeedController()
+        ctl.reset(0.8)
+        a = 0.0
+        for _ in range(50):
+            a = ctl.step(DT, 0.8, 0.0, gap_m)
+        return a
+
+    cap = -(0.05 + 0.5 * 0.8)
+    assert brake_after(10.0) >= cap - 1e-9  # room: the smooth stop's gentle deceleration
+    assert brake_after(0.5) < cap - 0.2  # no room: brake harder rather than creep past the stop point
