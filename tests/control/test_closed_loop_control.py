@@ -74,4 +74,4 @@ def test_longitudinal_law_reaches_20_kmh_at_the_nominal_acceleration():
 
 def test_unknown_lateral_controller_names_the_choices():
     with pytest.raises(ConfigError, match="heading_pid"):
-        make_lateral_controller("stanley", VehicleGeometry())
+        make_lateral_controller("lqr", VehicleGeometry())

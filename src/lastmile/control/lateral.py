@@ -1,11 +1,23 @@
-"""Lateral control: WATonoBus's lookahead heading-error PID (all-wheel steer) and pure pursuit."""
+"""Lateral control: WATonoBus's lookahead heading-error PID (all-wheel steer), pure pursuit, and the
+registry of every lateral controller (Stanley, MPS, Snow Lion's MPC, GEM's waypoint follower)."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from enum import StrEnum
 from typing import Protocol
 
+from lastmile.control.coupled_mpc import CoupledMpcConfig, SnowLionMpcController
+from lastmile.control.stanley import (
+    ModelPredictiveStanleyController,
+    MpsConfig,
+    StanleyConfig,
+    StanleyController,
+)
+from lastmile.control.waypoint_follower import GemWaypointFollower, WaypointFollowerConfig
 from lastmile.core.errors import ConfigError
 from lastmile.core.geometry import SE2, wrap_angle_rad
 from lastmile.core.polyline import Polyline
@@ -22,6 +34,8 @@ class LateralConfig:
         kp, ki, kd: PID gains on the heading error to the lookahead point, scaled by
             wheelbase / lookahead so the loop gain stays constant as the lookahead grows.
         integral_limit_rad_s: anti-windup bound on the integral of the heading error.
+        nus_lookahead_m: NUS's fixed pure-pursuit lookahead (its golf car runs at most 2 m/s).
+        stanley, mps, mpc, waypoint: the parameters of the other registered controllers.
     """
 
     lookahead_min_m: float = 4.0
@@ -30,6 +44,11 @@ class LateralConfig:
     ki: float = 0.05
     kd: float = 0.05
     integral_limit_rad_s: float = 0.5
+    nus_lookahead_m: float = 3.0
+    stanley: StanleyConfig = field(default_factory=StanleyConfig)
+    mps: MpsConfig = field(default_factory=MpsConfig)
+    mpc: CoupledMpcConfig = field(default_factory=CoupledMpcConfig)
+    waypoint: WaypointFollowerConfig = field(default_factory=WaypointFollowerConfig)
 
 
 class LateralController(Protocol):
@@ -122,20 +141,44 @@ class PurePursuitController:
         return delta, (-delta if all_wheel else 0.0)
 
 
-LATERAL_CONTROLLERS: dict[str, type[LookaheadHeadingPid] | type[PurePursuitController]] = {
-    "heading_pid": LookaheadHeadingPid,
-    "pure_pursuit": PurePursuitController,
+class LateralControllerName(StrEnum):
+    """Registry names of the lateral controllers (the run configuration selects one)."""
+
+    HEADING_PID = "heading_pid"  # WATonoBus, the default
+    PURE_PURSUIT = "pure_pursuit"  # speed-scaled lookahead
+    NUS_PURE_PURSUIT = "nus_pure_pursuit"  # NUS: fixed 3 m lookahead
+    STANLEY = "stanley"  # aUToronto baseline
+    MODEL_PREDICTIVE_STANLEY = "model_predictive_stanley"  # aUToronto MPS
+    SNOW_LION_MPC = "snow_lion_mpc"  # Snow Lion coupled MPC (OSQP)
+    GEM_WAYPOINT = "gem_waypoint"  # GEM waypoint follower
+
+
+def _nus_pure_pursuit(geometry: VehicleGeometry, config: LateralConfig) -> PurePursuitController:
+    fixed = dataclasses.replace(config, lookahead_min_m=config.nus_lookahead_m, lookahead_time_s=0.0)
+    return PurePursuitController(geometry, fixed)
+
+
+LATERAL_CONTROLLERS: dict[
+    LateralControllerName, Callable[[VehicleGeometry, LateralConfig], LateralController]
+] = {
+    LateralControllerName.HEADING_PID: LookaheadHeadingPid,
+    LateralControllerName.PURE_PURSUIT: PurePursuitController,
+    LateralControllerName.NUS_PURE_PURSUIT: _nus_pure_pursuit,
+    LateralControllerName.STANLEY: lambda g, c: StanleyController(g, c.stanley),
+    LateralControllerName.MODEL_PREDICTIVE_STANLEY: lambda g, c: ModelPredictiveStanleyController(g, c.mps),
+    LateralControllerName.SNOW_LION_MPC: lambda g, c: SnowLionMpcController(g, c.mpc),
+    LateralControllerName.GEM_WAYPOINT: lambda g, c: GemWaypointFollower(g, c.waypoint),
 }
 
 
 def make_lateral_controller(
-    name: str, geometry: VehicleGeometry, config: LateralConfig | None = None
+    name: LateralControllerName | str, geometry: VehicleGeometry, config: LateralConfig | None = None
 ) -> LateralController:
-    """The lateral controller registered as ``name``."""
+    """The lateral controller registered as ``name`` (a plain string is checked against the names)."""
     try:
-        cls = LATERAL_CONTROLLERS[name]
-    except KeyError:
+        key = LateralControllerName(name)
+    except ValueError:
         raise ConfigError(
-            f"lateral controller: expected one of {sorted(LATERAL_CONTROLLERS)}, got {name!r}"
+            f"lateral controller: expected one of {[n.value for n in LateralControllerName]}, got {name!r}"
         ) from None
-    return cls(geometry, config)
+    return LATERAL_CONTROLLERS[key](geometry, config or LateralConfig())

@@ -1,12 +1,18 @@
-"""WATonoBus's longitudinal law (eqs. 1-3) with a curvature speed limit and a jerk-limited output."""
+"""WATonoBus's longitudinal law (eqs. 1-3) with a curvature speed limit and a jerk-limited output, and the
+registry of longitudinal controllers (with aUToronto's cascaded PI over its trapezoidal profile)."""
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from enum import StrEnum
+from typing import Protocol
 
 import numpy as np
 
+from lastmile.control.cascaded_pi import CascadedPiConfig, CascadedPiSpeedController
+from lastmile.core.errors import ConfigError
 from lastmile.core.vehicle_messages import Trajectory
 
 
@@ -21,6 +27,7 @@ class LongitudinalConfig:
         max_lateral_accel_mps2: comfort bound giving the curvature speed limit v = sqrt(a_lat / kappa).
         speed_gain_per_s: proportional gain from speed error to acceleration (the low-level loop).
         max_jerk_mps3: rate limit on the commanded acceleration (passenger comfort).
+        cascaded_pi: parameters of aUToronto's cascaded PI controller (registry name ``cascaded_pi``).
     """
 
     nominal_accel_mps2: float = 0.8
@@ -29,6 +36,7 @@ class LongitudinalConfig:
     max_lateral_accel_mps2: float = 1.0
     speed_gain_per_s: float = 1.2
     max_jerk_mps3: float = 1.8
+    cascaded_pi: CascadedPiConfig = field(default_factory=CascadedPiConfig)
 
 
 class WatonobusLongitudinalController:
@@ -96,3 +104,44 @@ def stopping_gap_m(stop_front_s_m: float | None, front_s_m: float) -> float | No
     if stop_front_s_m is None or not math.isfinite(stop_front_s_m):
         return None
     return stop_front_s_m - front_s_m
+
+
+class LongitudinalController(Protocol):
+    """Turns the reference speed and the stop gap into an acceleration command (m/s^2)."""
+
+    def reset(self, speed_mps: float) -> None: ...
+
+    def reference_speed_mps(
+        self, trajectory: Trajectory | None, path_s_m: float, speed_cap_mps: float
+    ) -> float: ...
+
+    def step(self, dt_s: float, speed_mps: float, v_ref_mps: float, gap_to_stop_m: float | None) -> float: ...
+
+
+class LongitudinalControllerName(StrEnum):
+    """Registry names of the longitudinal controllers (the run configuration selects one)."""
+
+    WATONOBUS = "watonobus"  # eqs. (1)-(3), the default
+    CASCADED_PI = "cascaded_pi"  # aUToronto: trapezoidal profile + cascaded PI with feed-forward
+
+
+LONGITUDINAL_CONTROLLERS: dict[
+    LongitudinalControllerName, Callable[[LongitudinalConfig], LongitudinalController]
+] = {
+    LongitudinalControllerName.WATONOBUS: WatonobusLongitudinalController,
+    LongitudinalControllerName.CASCADED_PI: lambda c: CascadedPiSpeedController(c.cascaded_pi),
+}
+
+
+def make_longitudinal_controller(
+    name: LongitudinalControllerName | str, config: LongitudinalConfig | None = None
+) -> LongitudinalController:
+    """The longitudinal controller registered as ``name`` (a plain string is checked against the names)."""
+    try:
+        key = LongitudinalControllerName(name)
+    except ValueError:
+        raise ConfigError(
+            f"longitudinal controller: expected one of {[n.value for n in LongitudinalControllerName]}, "
+            f"got {name!r}"
+        ) from None
+    return LONGITUDINAL_CONTROLLERS[key](config or LongitudinalConfig())

@@ -1,0 +1,94 @@
+"""aUToronto's Stanley law and Model Predictive Stanley."""
+
+import math
+
+import numpy as np
+import pytest
+
+from lastmile.control.stanley import (
+    ModelPredictiveStanleyController,
+    MpsConfig,
+    StanleyConfig,
+    StanleyController,
+    bicycle_step,
+)
+from lastmile.core.errors import ConfigError
+from lastmile.core.geometry import SE2
+from lastmile.core.polyline import Polyline
+from lastmile.core.vehicle import VehicleGeometry
+from lastmile.sim.vehicle_model import ActuatorDynamics, KinematicBicycle, VehicleState
+
+from .loop_helpers import circle_path
+
+STRAIGHT = Polyline(np.array([[-10.0, 0.0], [400.0, 0.0]]))
+
+
+def _unfiltered(all_wheel=False):
+    g = VehicleGeometry(all_wheel_steer=all_wheel, max_steer_rate_radps=1e6)
+    return g, StanleyController(g, StanleyConfig(steer_lowpass_tau_s=0.0))
+
+
+def test_law_is_heading_error_plus_arctan_of_the_cross_track_term():
+    g, c = _unfiltered()
+    # Front axle 0.4 m right of the path, heading 0.1 rad to the left of it.
+    pose = SE2(-g.wheelbase_m * math.cos(0.1), -0.4 - g.wheelbase_m * math.sin(0.1), 0.1)
+    delta, rear = c.step(0.02, pose, 3.0, STRAIGHT)
+    expected = -0.1 + math.atan(2.5 * 0.4 / (1.0 + 3.0))
+    assert delta == pytest.approx(expected, abs=1e-3)
+    assert rear == 0.0
+
+
+def test_softening_keeps_the_law_finite_at_rest():
+    g, c = _unfiltered()
+    delta, _ = c.step(0.02, SE2(-g.wheelbase_m, 0.05, 0.0), 0.0, STRAIGHT)
+    assert delta == pytest.approx(math.atan(-2.5 * 0.05 / 1.0), abs=1e-3)
+
+
+def test_output_is_rate_limited_to_the_actuator():
+    g = VehicleGeometry()
+    c = StanleyController(g)
+    c.step(0.02, SE2(0.0, 0.0, 0.0), 3.0, STRAIGHT)
+    delta, _ = c.step(0.02, SE2(0.0, 5.0, 0.0), 3.0, STRAIGHT)
+    assert abs(delta) <= g.max_steer_rate_radps * 0.02 + 1e-12
+
+
+def test_bicycle_step_matches_the_simulator():
+    g = VehicleGeometry()
+    car = KinematicBicycle(
+        g,
+        ActuatorDynamics(steer_lag_s=1e-9),
+        VehicleState(1.0, 2.0, 0.3, speed_mps=3.0, steer_front_rad=0.2, steer_rear_rad=-0.2),
+    )
+    g2 = VehicleGeometry(max_steer_rate_radps=1e6)
+    car.geometry = g2
+    car.dynamics = ActuatorDynamics(steer_lag_s=1e-9, rolling_decel_mps2=0.0)
+    car.step(0.01, 0.0, 0.2, -0.2, False)
+    ours = bicycle_step(SE2(1.0, 2.0, 0.3), 3.0, 0.2, -0.2, g.wheelbase_m, 0.01)
+    assert (ours.x_m, ours.y_m, ours.yaw_rad) == pytest.approx(
+        (car.state.x_m, car.state.y_m, car.state.yaw_rad), abs=1e-9
+    )
+
+
+def test_mps_horizon_shrinks_with_curvature_ahead():
+    g = VehicleGeometry()
+    mps = ModelPredictiveStanleyController(g)
+    c = mps.config
+    assert mps.horizon_steps(STRAIGHT, 0.0, 3.0) == c.horizon_max_steps
+    assert mps.horizon_steps(circle_path(5.0), 0.0, 3.0) == c.horizon_min_steps
+    mid = mps.horizon_steps(circle_path(12.0), 0.0, 3.0)
+    assert c.horizon_min_steps < mid < c.horizon_max_steps
+
+
+def test_mps_with_one_step_is_stanley():
+    g = VehicleGeometry()
+    one = ModelPredictiveStanleyController(g, MpsConfig(horizon_min_steps=1, horizon_max_steps=1))
+    st = StanleyController(g)
+    pose = SE2(0.0, 0.3, 0.05)
+    assert one.step(0.02, pose, 3.0, STRAIGHT) == pytest.approx(st.step(0.02, pose, 3.0, STRAIGHT))
+
+
+def test_mps_config_is_checked():
+    with pytest.raises(ConfigError, match="horizon_min_steps"):
+        MpsConfig(horizon_min_steps=5, horizon_max_steps=2)
+    with pytest.raises(ConfigError, match="curvature_straight_1pm"):
+        MpsConfig(curvature_straight_1pm=0.3)
