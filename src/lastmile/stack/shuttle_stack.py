@@ -24,8 +24,9 @@ from typing import Any
 
 import numpy as np
 
+from lastmile.control.coupled_mpc import SnowLionMpcController
 from lastmile.control.lateral import LateralConfig, make_lateral_controller
-from lastmile.control.longitudinal import LongitudinalConfig, WatonobusLongitudinalController, stopping_gap_m
+from lastmile.control.longitudinal import LongitudinalConfig, make_longitudinal_controller, stopping_gap_m
 from lastmile.core.camera_model import PinholeCamera
 from lastmile.core.errors import ConfigError, MessageError
 from lastmile.core.geometry import SE2, FloatArray
@@ -92,7 +93,7 @@ class StackConfig:
     Attributes:
         tick_us: base tick of the loop that calls ``tick``.
         planning_period_ticks, control_period_ticks: module rates as multiples of the tick.
-        lateral_controller: "heading_pid" (WATonoBus, default) or "pure_pursuit".
+        lateral_controller, longitudinal_controller: names in the registries of ``lastmile.control``.
         radar_mounts: base_from_sensor pose of each radar by sensor id.
         serve_all_stops: timetable mode (serve every stop) instead of on request.
         v2i: anticipation of crossings reported occupied by infrastructure cameras (``stack.v2i``).
@@ -112,6 +113,7 @@ class StackConfig:
     planning_period_ticks: int = 10
     control_period_ticks: int = 2
     lateral_controller: str = "heading_pid"
+    longitudinal_controller: str = "watonobus"
     radar_mounts: dict[str, SE2] = field(default_factory=dict)
     serve_all_stops: bool = False
     decision: DecisionConfig = field(default_factory=DecisionConfig)
@@ -223,7 +225,7 @@ class ShuttleStack:
             body_behind_m=geometry.rear_overhang_m,
             body_ahead_m=geometry.length_m - geometry.rear_overhang_m,
         )
-        self.longitudinal = WatonobusLongitudinalController(config.longitudinal)
+        self.longitudinal = make_longitudinal_controller(config.longitudinal_controller, config.longitudinal)
         self.lateral = make_lateral_controller(config.lateral_controller, geometry, config.lateral)
         self._tick = 0
         self._now = Stamp(0)
@@ -484,6 +486,8 @@ class ShuttleStack:
         path_s = path.project(pose.x_m, pose.y_m).s_m
         v_ref = self.longitudinal.reference_speed_mps(self._trajectory, path_s, d.speed_limit_mps)
         accel = self.longitudinal.step(dt, est.speed_mps, v_ref, gap)
+        if isinstance(self.lateral, SnowLionMpcController):
+            self.lateral.set_speed_reference(v_ref)  # the coupled model's longitudinal reference
         emergency = d.state == BehaviourState.EMERGENCY_STOP and est.speed_mps > 0.05
         # In a bay the rear wheels stay straight: counter-steering them would swing the tail into the
         # curb as the shuttle turns out of (or straightens into) the bay.

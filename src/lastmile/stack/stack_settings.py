@@ -9,10 +9,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from enum import StrEnum
 
-from lastmile.control.lateral import LATERAL_CONTROLLERS, LateralConfig
-from lastmile.control.longitudinal import LongitudinalConfig
+from lastmile.control.lateral import LateralConfig, LateralControllerName
+from lastmile.control.longitudinal import LongitudinalConfig, LongitudinalControllerName
 from lastmile.core.config import check_range
-from lastmile.core.errors import ConfigError
 from lastmile.core.perception_mode import PerceptionMode
 from lastmile.decision.decision_config import DecisionConfig
 from lastmile.localization.ekf_config import PoseEkfConfig
@@ -20,13 +19,6 @@ from lastmile.localization.odometry_ekf import OdometryEkfConfig
 from lastmile.planning.local_path import LocalPathConfig
 from lastmile.safety.failsafe import FailSafeConfig
 from lastmile.safety.hardware_watchdog import HardwareWatchdogConfig
-
-
-class LongitudinalControllerName(StrEnum):
-    """Longitudinal controllers by name."""
-
-    WATONOBUS = "watonobus"
-    """WATonoBus's longitudinal law (eqs. 1-3) with curvature and jerk limits."""
 
 
 class PlannerName(StrEnum):
@@ -94,8 +86,12 @@ class StackSettings:
 
     Attributes:
         perception: what the stack perceives through (default: the raw sensors).
-        lateral_controller: a name of :data:`lastmile.control.lateral.LATERAL_CONTROLLERS`.
-        longitudinal_controller, planner, localization: names of the registered implementations.
+        lateral_controller: heading_pid (WATonoBus, default), pure_pursuit, nus_pure_pursuit, stanley,
+            model_predictive_stanley, snow_lion_mpc (its speed reference is the longitudinal one),
+            gem_waypoint (:class:`lastmile.control.lateral.LateralControllerName`).
+        longitudinal_controller: watonobus (default) or cascaded_pi (aUToronto's trapezoidal profile
+            and cascaded PI).
+        planner, localization: names of the registered implementations.
         cruise_speed_mps: the shuttle's cruise speed (None: decision's default, 20 km/h).
         serve_all_stops: timetable mode (every stop) instead of on request.
         decision, path, longitudinal, lateral: the modules' parameters (their defaults).
@@ -104,7 +100,7 @@ class StackSettings:
     """
 
     perception: PerceptionMode = PerceptionMode.LIDAR_CAMERA_RADAR
-    lateral_controller: str = "heading_pid"
+    lateral_controller: LateralControllerName = LateralControllerName.HEADING_PID
     longitudinal_controller: LongitudinalControllerName = LongitudinalControllerName.WATONOBUS
     planner: PlannerName = PlannerName.POTENTIAL_FIELD_BEZIER
     localization: LocalizationMode = LocalizationMode.EKF
@@ -119,11 +115,6 @@ class StackSettings:
     safety: SafetySettings = field(default_factory=SafetySettings)
 
     def __post_init__(self) -> None:
-        if self.lateral_controller not in LATERAL_CONTROLLERS:
-            raise ConfigError(
-                f"stack.lateral_controller: expected one of {sorted(LATERAL_CONTROLLERS)}, "
-                f"got {self.lateral_controller!r}"
-            )
         if self.cruise_speed_mps is not None:
             # The shuttle's operating speeds: up to its 20 km/h top speed.
             check_range("stack.cruise_speed_mps", self.cruise_speed_mps, 0.5, 20.0 / 3.6 + 1e-9)
