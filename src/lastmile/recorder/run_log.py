@@ -57,6 +57,7 @@ from typing import Any
 import numpy as np
 
 from lastmile.core.errors import LastmileError
+from lastmile.core.run_events import EventKind
 
 EGO_COLUMNS = (
     "t_s",
@@ -88,34 +89,39 @@ AGENTS_FILE = "agents.npz"
 FORMAT_TAG = "lastmile.run_log"
 FORMAT_VERSION = 1
 
-EVENT_SCHEMAS: dict[str, dict[str, str]] = {
-    "collision": {"agent_id": "int", "agent_class": "str", "at_fault": "bool", "ego_speed_mps": "float"},
-    "takeover": {"reason": "str"},
-    "rule_violation": {"rule": "str", "detail": "str"},
-    "stop_served": {
+EVENT_SCHEMAS: dict[EventKind, dict[str, str]] = {
+    EventKind.COLLISION: {
+        "agent_id": "int",
+        "agent_class": "str",
+        "at_fault": "bool",
+        "ego_speed_mps": "float",
+    },
+    EventKind.TAKEOVER: {"reason": "str"},
+    EventKind.RULE_VIOLATION: {"rule": "str", "detail": "str"},
+    EventKind.STOP_SERVED: {
         "stop_id": "str",
         "curb_gap_m": "float",
         "longitudinal_error_m": "float",
         "boarded": "int",
         "alighted": "int",
     },
-    "stop_missed": {"stop_id": "str", "waiting": "int"},
-    "passenger_boarded": {"passenger_id": "int", "stop_id": "str", "wait_s": "float"},
-    "passenger_alighted": {"passenger_id": "int", "stop_id": "str", "ride_s": "float"},
-    "state_change": {"from": "str", "to": "str", "reason": "str"},
-    "emergency_stop": {"reason": "str"},
-    "hmi": {"screen": "str", "text": "str", "sound": "str", "light": "str", "cue": "str"},
-    "min_ttc": {"ttc_s": "float", "agent_id": "int"},
-    "intersection_entry": {"order_ok": "bool"},
-    "loop_completed": {"loop": "int"},
-    "fault_start": {"kind": "str", "target": "str"},
-    "fault_end": {"kind": "str", "target": "str"},
-    "stack_crash": {"error": "str"},
-    "safety": {"level": "str", "mrm": "str", "reason": "str"},
-    "hardware_watchdog": {"reason": "str"},
-    "operator_estop": {"state": "str"},
-    "operator_release": {"state": "str"},
-    "recording": {"path": "str", "trigger": "str"},
+    EventKind.STOP_MISSED: {"stop_id": "str", "waiting": "int"},
+    EventKind.PASSENGER_BOARDED: {"passenger_id": "int", "stop_id": "str", "wait_s": "float"},
+    EventKind.PASSENGER_ALIGHTED: {"passenger_id": "int", "stop_id": "str", "ride_s": "float"},
+    EventKind.STATE_CHANGE: {"from": "str", "to": "str", "reason": "str"},
+    EventKind.EMERGENCY_STOP: {"reason": "str"},
+    EventKind.HMI: {"screen": "str", "text": "str", "sound": "str", "light": "str", "cue": "str"},
+    EventKind.MIN_TTC: {"ttc_s": "float", "agent_id": "int"},
+    EventKind.INTERSECTION_ENTRY: {"order_ok": "bool"},
+    EventKind.LOOP_COMPLETED: {"loop": "int"},
+    EventKind.FAULT_START: {"kind": "str", "target": "str"},
+    EventKind.FAULT_END: {"kind": "str", "target": "str"},
+    EventKind.STACK_CRASH: {"error": "str"},
+    EventKind.SAFETY: {"level": "str", "mrm": "str", "reason": "str"},
+    EventKind.HARDWARE_WATCHDOG: {"reason": "str"},
+    EventKind.OPERATOR_ESTOP: {"state": "str"},
+    EventKind.OPERATOR_RELEASE: {"state": "str"},
+    EventKind.RECORDING: {"path": "str", "trigger": "str"},
 }
 """Required ``data`` fields (name -> "int" | "float" | "bool" | "str") of the known event kinds."""
 
@@ -166,7 +172,8 @@ def check_event(kind: str, data: Mapping[str, Any], where: str) -> None:
     """
     if not isinstance(kind, str) or not kind:
         raise RunLogError(f"{where}: expected a non-empty event kind string, got {kind!r}")
-    for name, expected in EVENT_SCHEMAS.get(kind, {}).items():
+    known = kind in EventKind.__members__.values()
+    for name, expected in (EVENT_SCHEMAS.get(EventKind(kind), {}) if known else {}).items():
         if name not in data:
             raise RunLogError(f"{where}: {kind} event expected field {name!r} ({expected}), got {dict(data)}")
         if not _type_ok(expected, data[name]):

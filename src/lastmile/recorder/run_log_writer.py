@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from lastmile.core.run_events import EventKind
 from lastmile.recorder.run_log import (
     EGO_COLUMNS,
     RunAgents,
@@ -95,7 +96,7 @@ class RunLogWriter:
         self._agent_ids.append(id_arr)
         self._agent_xy.append(xy_arr)
 
-    def add_event(self, t_s: float, kind: str, /, **data: Any) -> None:
+    def add_event(self, t_s: float, kind: EventKind, /, **data: Any) -> None:
         """Append an event; known kinds (:data:`EVENT_SCHEMAS`) must carry their fields.
 
         ``state_change`` has a field named ``from``: pass it as ``**{"from": ..., "to": ...}``.
@@ -103,7 +104,7 @@ class RunLogWriter:
         self._check_open()
         self._events.append(make_event(t_s, kind, data, "RunLogWriter.add_event"))
 
-    def add_events(self, events: Iterable[tuple[float, str, Mapping[str, Any]]]) -> None:
+    def add_events(self, events: Iterable[tuple[float, EventKind, Mapping[str, Any]]]) -> None:
         """Append ``(t_s, kind, data)`` triples, the form the simulator's referee collects."""
         self._check_open()
         for t_s, kind, data in events:

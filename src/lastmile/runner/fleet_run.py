@@ -46,6 +46,7 @@ from lastmile.core.geometry import PreparedPolygon
 from lastmile.core.object_class import ObjectClass
 from lastmile.core.perception_mode import PerceptionMode
 from lastmile.core.rng import component_rng
+from lastmile.core.run_events import EventKind
 from lastmile.core.stamp import Stamp
 from lastmile.evaluation.fleet_metrics import (
     RideRecord,
@@ -434,7 +435,7 @@ async def _report_done(s: FleetShuttle, by_request: dict[str, _Rider]) -> None:
     keep the seats on board within capacity."""
     for ev_t, stop_id in s.served_stops:
         if not s.client.plan or s.client.plan[0][0] != stop_id:
-            s.writer.add_event(ev_t, "fleet_unplanned_stop", stop_id=stop_id)
+            s.writer.add_event(ev_t, EventKind.FLEET_UNPLANNED_STOP, stop_id=stop_id)
             continue
         visit = s.client.plan[0][1]
         trips: list[Assignment] = [s.client.assignments[t] for t in visit if t in s.client.assignments]
@@ -452,7 +453,7 @@ async def _report_done(s: FleetShuttle, by_request: dict[str, _Rider]) -> None:
                     rider.dropped_off_s = ev_t
             s.writer.add_event(
                 ev_t,
-                "fleet_trip_done",
+                EventKind.FLEET_TRIP_DONE,
                 trip_id=trip.id,
                 trip_kind=trip.kind,
                 stop_id=trip.stop_id,

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from lastmile.core.object_class import ObjectClass
+from lastmile.core.run_events import EventKind
 from lastmile.core.sensor_frames import CrossingPresenceFrame, SensorFrame, StopCallFrame
 from lastmile.core.stamp import Stamp
 from lastmile.core.vehicle import VehicleGeometry
@@ -83,7 +84,7 @@ class FleetLinkCallback(LoopCallback):
             s.status = out.status
         anticipating = out is not None and out.stop_reason is StopReason.INFRASTRUCTURE_CROSSING
         if anticipating != s.anticipating:
-            s.writer.add_event(record.t_s, "v2i_anticipation", active=anticipating)
+            s.writer.add_event(record.t_s, EventKind.V2I_ANTICIPATION, active=anticipating)
             s.anticipating = anticipating
         for msg in out.hmi if out is not None else ():
             s.hmi[msg.screen] = msg.text

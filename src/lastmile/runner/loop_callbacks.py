@@ -11,6 +11,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from lastmile.core.run_events import EventKind
 from lastmile.core.safety_messages import FailSafeLevel
 from lastmile.core.vehicle_messages import BehaviourState
 from lastmile.recorder.black_box import BlackBox, BlackBoxConfig
@@ -38,8 +39,8 @@ class RunLogCallback(LoopCallback):
         # Injected faults are ground truth for the evaluation (when each began and ended), never for the
         # vehicle.
         self._fault_marks = sorted(
-            [(f.start_s, "fault_start", f.kind, f.target) for f in scenario.faults]
-            + [(f.end_s, "fault_end", f.kind, f.target) for f in scenario.faults]
+            [(f.start_s, EventKind.FAULT_START, f.kind, f.target) for f in scenario.faults]
+            + [(f.end_s, EventKind.FAULT_END, f.kind, f.target) for f in scenario.faults]
         )
         self._failing = False
         self._watchdog_logged = False
@@ -52,16 +53,22 @@ class RunLogCallback(LoopCallback):
             _, mark, kind, target = self._fault_marks.pop(0)
             w.add_event(t_s, mark, kind=kind, target=target)
         if record.failure and not self._failing:
-            w.add_event(t_s, "stack_crash", error=record.failure)
+            w.add_event(t_s, EventKind.STACK_CRASH, error=record.failure)
         self._failing = bool(record.failure)
         if record.verdict.watchdog_tripped and not self._watchdog_logged:
-            w.add_event(t_s, "hardware_watchdog", reason="no fresh command for 100 ms")
+            w.add_event(t_s, EventKind.HARDWARE_WATCHDOG, reason="no fresh command for 100 ms")
             self._watchdog_logged = True
         self._safety_level(record)
         self._state_change(record)
         for msg in record.output.hmi if record.output is not None else ():
             w.add_event(
-                t_s, "hmi", screen=msg.screen, text=msg.text, sound=msg.sound, light=msg.light, cue=msg.cue
+                t_s,
+                EventKind.HMI,
+                screen=msg.screen,
+                text=msg.text,
+                sound=msg.sound,
+                light=msg.light,
+                cue=msg.cue,
             )
         if record.tick % LOG_EVERY_TICKS == 0:
             s = self.world.ego_state
@@ -85,7 +92,7 @@ class RunLogCallback(LoopCallback):
         if directive.level != self._level:
             self.writer.add_event(
                 record.t_s,
-                "safety",
+                EventKind.SAFETY,
                 level=directive.level.name,
                 mrm=directive.mrm.name,
                 reason="; ".join(directive.reasons),
@@ -98,7 +105,7 @@ class RunLogCallback(LoopCallback):
             return
         self.writer.add_event(
             record.t_s,
-            "state_change",
+            EventKind.STATE_CHANGE,
             **{
                 "from": self._state.value if self._state else "",
                 "to": state.value,
@@ -106,7 +113,7 @@ class RunLogCallback(LoopCallback):
             },
         )
         if state == BehaviourState.EMERGENCY_STOP:
-            self.writer.add_event(record.t_s, "emergency_stop", reason=out.decision.reason)
+            self.writer.add_event(record.t_s, EventKind.EMERGENCY_STOP, reason=out.decision.reason)
         self._state = state
 
 
@@ -150,7 +157,9 @@ class BlackBoxCallback(LoopCallback):
             # blackbox_<trigger>_<t>s_<n>.mcap; the trigger may itself hold underscores (emergency_stop).
             head, t_text, _ = path.stem.rsplit("_", 2)
             trigger = head.removeprefix("blackbox_")
-            self.writer.add_event(float(t_text.rstrip("s")), "recording", path=str(path), trigger=trigger)
+            self.writer.add_event(
+                float(t_text.rstrip("s")), EventKind.RECORDING, path=str(path), trigger=trigger
+            )
 
 
 class ProgressCallback(LoopCallback):

@@ -14,12 +14,13 @@ import numpy as np
 from lastmile.core.geometry import PreparedPolygon, convex_polygons_overlap, rectangle_corners_m
 from lastmile.core.object_class import ObjectClass
 from lastmile.core.polyline import Polyline
+from lastmile.core.run_events import EventKind
 from lastmile.sim.arbiter import EGO_ID
 from lastmile.sim.passengers import PassengerModel, StopVisit
 from lastmile.sim.traffic_signals import SignalController
 from lastmile.sim.world import StopLineTruth, World
 
-Event = tuple[float, str, dict[str, object]]
+Event = tuple[float, EventKind, dict[str, object]]
 
 
 @dataclass(slots=True)
@@ -84,7 +85,7 @@ class Judge:
     def route_s_m(self) -> float:
         return self._route_s
 
-    def emit(self, kind: str, **data: object) -> None:
+    def emit(self, kind: EventKind, **data: object) -> None:
         self.events.append((round(self.world.t_s, 6), kind, data))
 
     def step(self) -> None:
@@ -120,7 +121,7 @@ class Judge:
                     # shuttle struck, or one hit from behind, is not.
                     at_fault = s.speed_mps > 0.3 and along > 0.0
                     self.emit(
-                        "collision",
+                        EventKind.COLLISION,
                         agent_id=a.id,
                         agent_class=a.cls.name.lower(),
                         at_fault=at_fault,
@@ -146,12 +147,12 @@ class Judge:
                 flashing_stop_ok = self.signals.stop_then_go() and st.stopped
                 if self.signals.must_stop(sig, w.t_s) and not flashing_stop_ok:
                     self.emit(
-                        "rule_violation",
+                        EventKind.RULE_VIOLATION,
                         rule="red_light",
                         detail=f"ran signal {sig} at stop line {line.id} ({shown})",
                     )
                 self.emit(
-                    "signal_entry",
+                    EventKind.SIGNAL_ENTRY,
                     stop_line_id=line.id,
                     signal_id=sig,
                     shown=shown,
@@ -189,16 +190,19 @@ class Judge:
                 st.stopped = True
             if crossed:
                 if not st.stopped:
-                    self.emit("rule_violation", rule="stop_line", detail=f"ran stop line {line.id}")
+                    self.emit(EventKind.RULE_VIOLATION, rule="stop_line", detail=f"ran stop line {line.id}")
                 owed = w.arbiter.earlier_than(EGO_ID) if EGO_ID in w.arbiter.queue else list(w.arbiter.queue)
                 inside = w.arbiter.box_occupied_by - {EGO_ID}
                 order_ok = not owed and not inside
                 self.emit(
-                    "intersection_entry", stop_line_id=line.id, order_ok=order_ok, waiting_before=len(owed)
+                    EventKind.INTERSECTION_ENTRY,
+                    stop_line_id=line.id,
+                    order_ok=order_ok,
+                    waiting_before=len(owed),
                 )
                 if not order_ok:
                     self.emit(
-                        "rule_violation",
+                        EventKind.RULE_VIOLATION,
                         rule="right_of_way",
                         detail=f"entered with {len(owed)} earlier arrivals waiting, {len(inside)} inside",
                     )
@@ -224,7 +228,7 @@ class Judge:
                     and math.hypot(a.x_m - ex, a.y_m - ey) < 6.0
                 ):
                     self.emit(
-                        "rule_violation",
+                        EventKind.RULE_VIOLATION,
                         rule="crosswalk_yield",
                         detail=f"crosswalk {cw_id}, pedestrian {a.id}",
                     )
@@ -237,7 +241,9 @@ class Judge:
             if self._speeding_since is None:
                 self._speeding_since = w.t_s
             if not self._speeding_logged and w.t_s - self._speeding_since >= c.speed_hold_s:
-                self.emit("rule_violation", rule="speed_limit", detail=f"{w.ego.state.speed_mps:.2f} m/s")
+                self.emit(
+                    EventKind.RULE_VIOLATION, rule="speed_limit", detail=f"{w.ego.state.speed_mps:.2f} m/s"
+                )
                 self._speeding_logged = True
         else:
             self._speeding_since, self._speeding_logged = None, False
@@ -246,7 +252,9 @@ class Judge:
         w = self.world
         off = not bool(np.all(w.hdmap.is_drivable(w.ego_corners())))
         if off and not self._off_road:
-            self.emit("rule_violation", rule="drivable_area", detail="a corner of the shuttle left the road")
+            self.emit(
+                EventKind.RULE_VIOLATION, rule="drivable_area", detail="a corner of the shuttle left the road"
+            )
         self._off_road = off
 
     @property
@@ -266,7 +274,7 @@ class Judge:
         loops = int(self._route_s_total // length)
         if loops > self._loops:
             self._loops = loops
-            self.emit("loop_completed", loop=loops)
+            self.emit(EventKind.LOOP_COMPLETED, loop=loops)
         # A stop counts as missed when riders waited there as the shuttle came within 40 m and it
         # drove past the platform without opening the door.
         for stop_id, (s0, s1) in self._stop_s.items():
@@ -277,7 +285,7 @@ class Judge:
             elif 0.5 < past_end < 5.0 and stop_id in self._approached:
                 waited = self._approached.pop(stop_id)
                 if waited and not self._served_recently(stop_id):
-                    self.emit("stop_missed", stop_id=stop_id, waiting=waited)
+                    self.emit(EventKind.STOP_MISSED, stop_id=stop_id, waiting=waited)
 
     def _served_recently(self, stop_id: str) -> bool:
         for t, kind, data in reversed(self.events):
@@ -322,7 +330,7 @@ class Judge:
     def _ttc(self) -> None:
         ttc, agent = self.time_to_collision()
         if ttc < self.config.ttc_log_s and ttc < self._ttc_min_logged - 0.05:
-            self.emit("min_ttc", ttc_s=round(ttc, 3), agent_id=agent)
+            self.emit(EventKind.MIN_TTC, ttc_s=round(ttc, 3), agent_id=agent)
             self._ttc_min_logged = ttc
 
     def time_to_collision(self) -> tuple[float, int]:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from lastmile.core.run_events import EventKind
 from lastmile.sim.judge import Judge
 
 
@@ -65,7 +66,7 @@ class OperatorModel:
         else:
             self._stopped_since = None
         if reason:
-            self.judge.emit("takeover", reason=reason)
+            self.judge.emit(EventKind.TAKEOVER, reason=reason)
             self.in_control_until_s = w.t_s + c.hold_s
             self._stopped_since = None
 

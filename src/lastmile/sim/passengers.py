@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from lastmile.core.errors import ConfigError
+from lastmile.core.run_events import EventKind
 from lastmile.hdmap.model import BusStop
 
 
@@ -99,9 +100,9 @@ class PassengerModel:
 
     def step_door(
         self, t_s: float, dt_s: float, door_cmd_open: bool, at_stop: str | None, stopped: bool
-    ) -> list[tuple[str, dict[str, object]]]:
+    ) -> list[tuple[EventKind, dict[str, object]]]:
         """Move the door and the riders; returns events (kind, data) for the run log."""
-        events: list[tuple[str, dict[str, object]]] = []
+        events: list[tuple[EventKind, dict[str, object]]] = []
         # The door interlock: it opens only at standstill.
         want_open = door_cmd_open and stopped
         rate = dt_s / self.config.door_s
@@ -122,7 +123,10 @@ class PassengerModel:
             self._transfer_left_s = self.config.board_s
             ride = t_s - (p.boarded_s or t_s)
             events.append(
-                ("passenger_alighted", {"passenger_id": p.id, "stop_id": at_stop, "ride_s": round(ride, 3)})
+                (
+                    EventKind.PASSENGER_ALIGHTED,
+                    {"passenger_id": p.id, "stop_id": at_stop, "ride_s": round(ride, 3)},
+                )
             )
             return events
         queue = self.waiting[at_stop]
@@ -135,7 +139,7 @@ class PassengerModel:
             self.new_calls.append((p.destination, "seat_button"))
             events.append(
                 (
-                    "passenger_boarded",
+                    EventKind.PASSENGER_BOARDED,
                     {"passenger_id": p.id, "stop_id": at_stop, "wait_s": round(t_s - p.arrived_s, 3)},
                 )
             )

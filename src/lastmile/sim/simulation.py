@@ -16,6 +16,7 @@ from lastmile.core.geometry import SE2
 from lastmile.core.object_class import ObjectClass
 from lastmile.core.polyline import Polyline
 from lastmile.core.rng import component_rng
+from lastmile.core.run_events import EventKind
 from lastmile.core.safety_messages import OperatorAction, OperatorInput
 from lastmile.core.sensor_frames import SensorFrame
 from lastmile.core.stamp import Stamp
@@ -208,7 +209,7 @@ class Simulation:
         if p.door_position == 0.0 and p.visit is not None:
             v = p.visit
             j.emit(
-                "stop_served",
+                EventKind.STOP_SERVED,
                 stop_id=v.stop_id,
                 curb_gap_m=v.curb_gap_m,
                 longitudinal_error_m=v.longitudinal_error_m,
@@ -240,10 +241,10 @@ class Simulation:
             self._operator_inputs.append(
                 OperatorInput(stamp=now, action=OperatorAction.EMERGENCY_STOP, reason=reason)
             )
-            self.judge.emit("operator_estop", state=state)
+            self.judge.emit(EventKind.OPERATOR_ESTOP, state=state)
         elif action == EStopAction.RELEASE:
             self._operator_inputs.append(OperatorInput(stamp=now, action=OperatorAction.RESET))
-            self.judge.emit("operator_release", state=state)
+            self.judge.emit(EventKind.OPERATOR_RELEASE, state=state)
 
 
 def _path_car(

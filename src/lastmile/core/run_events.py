@@ -1,0 +1,44 @@
+"""The kinds of event a run log holds: one enum, so that writers and readers cannot drift apart.
+
+The run log stores the value (a plain string in JSON); ``EventKind`` is a ``StrEnum``, so a kind read
+back from a file compares equal to its member. The required fields of each kind are in
+:data:`lastmile.recorder.run_log.EVENT_SCHEMAS`.
+"""
+
+from __future__ import annotations
+
+from enum import StrEnum
+
+
+class EventKind(StrEnum):
+    """Every event kind the loop, the referee, the operators and the fleet link write."""
+
+    # The referee (simulator ground truth; never seen by the vehicle).
+    COLLISION = "collision"
+    TAKEOVER = "takeover"
+    RULE_VIOLATION = "rule_violation"
+    STOP_SERVED = "stop_served"
+    STOP_MISSED = "stop_missed"
+    PASSENGER_BOARDED = "passenger_boarded"
+    PASSENGER_ALIGHTED = "passenger_alighted"
+    MIN_TTC = "min_ttc"
+    INTERSECTION_ENTRY = "intersection_entry"
+    SIGNAL_ENTRY = "signal_entry"
+    LOOP_COMPLETED = "loop_completed"
+    # The scenario's operators.
+    OPERATOR_ESTOP = "operator_estop"
+    OPERATOR_RELEASE = "operator_release"
+    # The loop: injected faults, the vehicle software and the vehicle safety.
+    FAULT_START = "fault_start"
+    FAULT_END = "fault_end"
+    STACK_CRASH = "stack_crash"
+    HARDWARE_WATCHDOG = "hardware_watchdog"
+    SAFETY = "safety"
+    STATE_CHANGE = "state_change"
+    EMERGENCY_STOP = "emergency_stop"
+    HMI = "hmi"
+    RECORDING = "recording"
+    # The fleet link.
+    V2I_ANTICIPATION = "v2i_anticipation"
+    FLEET_UNPLANNED_STOP = "fleet_unplanned_stop"
+    FLEET_TRIP_DONE = "fleet_trip_done"
