@@ -131,6 +131,12 @@ def run(
     except LastmileError as exc:
         typer.echo(f"lastmile run: {exc}", err=True)
         raise typer.Exit(2) from None
+    if log.timing.get("interrupted"):
+        typer.echo(
+            f"lastmile run: interrupted; wrote the {metrics['duration_s']:.0f} s simulated so far to {out}",
+            err=True,
+        )
+        raise typer.Exit(130)
     typer.echo(
         f"wrote {out}/report.md: {metrics['distance_m']:.0f} m, {metrics['stops_served']} stops served, "
         f"{metrics['collisions_total']} collisions, {metrics['takeovers']} takeovers, "

@@ -97,3 +97,18 @@ def test_the_lateral_controller_of_the_configuration_is_the_one_that_drives() ->
     scenario = Scenario(name="short", minutes=0.3)
     a, b = run_scenario(scenario, base), run_scenario(scenario, pursuit)
     assert (a.column("steer_front_rad") != b.column("steer_front_rad")).any()
+
+
+def test_ctrl_c_ends_the_run_early_and_keeps_what_was_done(tmp_path: Path) -> None:
+    def interrupt(done_s: float, total_s: float) -> None:
+        if done_s >= 5.0:
+            raise KeyboardInterrupt
+
+    config = RunConfig().with_perception(PerceptionMode.RADAR_TRACKING)
+    log = run_scenario(Scenario(name="short", minutes=0.5), config, progress=interrupt)
+    assert log.timing["interrupted"] is True
+    t = log.column("t_s")
+    assert 4.9 < t[-1] < 5.1  # the ticks up to the interrupt are all there
+    evaluate_run(log, tmp_path)
+    doc = json.loads((tmp_path / "metrics.json").read_text())
+    assert 4.9 < doc["duration_s"] <= 5.1 and (tmp_path / "report.md").exists()
