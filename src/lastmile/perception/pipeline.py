@@ -3,7 +3,8 @@
 compensation + merge -> crop (region of interest, ego body) -> ground -> weather noise filter ->
 curbs (boundary + obstacle reassignment) -> clustering -> cluster geometry -> snow surface (low, bright
 clusters on any mapped curb line are snow lying there, not objects; only with the map's curb lines).
-The stage times (wall: ``time.perf_counter``, CPU: ``time.thread_time``) are for reporting only; no result depends on them.
+The stage times (wall: ``time.perf_counter``, CPU: ``time.thread_time``) are for reporting only;
+no result depends on them.
 """
 
 from __future__ import annotations

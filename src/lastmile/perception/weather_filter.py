@@ -222,10 +222,8 @@ def azimuth_step_from_times(t_offset_us: npt.ArrayLike) -> float:
     # by column (the simulator's, most drivers') is sorted already: its distinct values need no
     # sort (~1.2 -> ~0.2 ms on a 55k-point sweep); ring by ring (KITTI) it needs one.
     t = t if t.dtype == np.float32 else t.astype(np.float64)
-    if len(t) > 1 and bool((t[1:] >= t[:-1]).all()):
-        t = t[np.r_[True, t[1:] != t[:-1]]]
-    else:
-        t = np.unique(t)
+    in_order = len(t) > 1 and bool((t[1:] >= t[:-1]).all())
+    t = t[np.r_[True, t[1:] != t[:-1]]] if in_order else np.unique(t)
     t = t.astype(np.float64)
     if len(t) < 2:
         return 0.0
