@@ -164,3 +164,37 @@ def test_scan_window_counts_equal_the_scan_neighbour_definition(seed, n, reach) 
         # are float sums on the key; the pipeline's bit identity is checked on real frames).
         edge = np.abs(d_az - width[me]) < 1e-9
         assert got[qi] >= np.count_nonzero(ok & ~edge) and got[qi] <= np.count_nonzero(ok | edge)
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 10_000), n=st.integers(1, 500), n_sec=st.sampled_from([8, 16, 32]))
+def test_ground_ring_kernels_equal_their_array_expressions(seed, n, n_sec) -> None:
+    from lastmile.perception.ground import AdaptiveGridConfig, _low_quantile
+    from lastmile.perception.ground_kernel import classify_ring, low_quantile, ring_points
+
+    cfg = AdaptiveGridConfig()
+    rng_ = np.random.default_rng(seed)
+    x, y = rng_.uniform(-40, 40, n), rng_.uniform(-40, 40, n)
+    z = rng_.normal(0, 0.3, n)
+    az = np.arctan2(y, x)
+    az[::4] = np.round(az[::4], 1)  # sector boundaries hit exactly
+    tol, road = rng_.uniform(0.1, 0.35, n), rng_.random(n) < 0.5
+    idx = np.sort(rng_.choice(n, size=max(1, n // 2), replace=False))
+    px, _, pz, window, region = ring_points(idx, x, y, z, az, tol, road, 2 * math.pi / n_sec, n_sec)
+    sec = np.floor((az[idx] + math.pi) / (2 * math.pi / n_sec)).astype(int) % n_sec
+    assert np.array_equal(region, sec * 2 + road[idx])
+    assert np.array_equal(px, x[idx]) and np.array_equal(pz, z[idx]) and np.array_equal(window, tol[idx])
+    res = rng_.normal(0, 0.3, len(idx))
+    res[::3] = np.round(res[::3], 2)  # on histogram bin edges
+    sane = (res >= -cfg.max_below_m) & (res <= cfg.seed_window_m)
+    low = low_quantile(res, region, 2 * n_sec, cfg.max_below_m, cfg.seed_window_m, 0.05, cfg.seed_quantile)
+    assert np.array_equal(low, _low_quantile(res[sane], region[sane], 2 * n_sec, cfg))
+    ground = np.zeros(n, dtype=bool)
+    classify_ring(idx, res, region, window, 2 * n_sec, cfg.smooth_floor_m, cfg.smooth_sigmas, ground)
+    inlier = np.abs(res) <= window
+    n_in = np.bincount(region[inlier], minlength=2 * n_sec)
+    ss = np.bincount(region[inlier], weights=res[inlier] ** 2, minlength=2 * n_sec)
+    smooth = np.maximum(cfg.smooth_floor_m, cfg.smooth_sigmas * np.sqrt(ss / np.maximum(n_in, 1)))
+    expected = np.zeros(n, dtype=bool)
+    expected[idx] = res <= np.minimum(window, smooth[region])
+    assert np.array_equal(ground, expected)

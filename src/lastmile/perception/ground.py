@@ -16,7 +16,13 @@ import numpy as np
 import numpy.typing as npt
 
 from lastmile.core.errors import ConfigError
-from lastmile.perception.ground_kernel import plane_residuals, weighted_sums
+from lastmile.perception.ground_kernel import (
+    classify_ring,
+    low_quantile,
+    plane_residuals,
+    ring_points,
+    weighted_sums,
+)
 from lastmile.perception.himmelsbach import HimmelsbachConfig, HimmelsbachGroundSegmenter
 from lastmile.perception.road_region import RoadMask
 
@@ -184,11 +190,8 @@ class AdaptiveGridGroundSegmenter:
             if len(idx) == 0:
                 prev_planes, prev_sectors = prior, n_sec
                 continue
-            sec = np.floor((az[idx] + math.pi) / (2 * math.pi / n_sec)).astype(int) % n_sec
-            region = sec * 2 + road[idx]
+            px, py, pz, window, region = ring_points(idx, x, y, z, az, tol, road, 2 * math.pi / n_sec, n_sec)
             planes = prior.reshape(-1, 3).copy()
-            px, py, pz = x[idx], y[idx], z[idx]
-            window = tol[idx]
             low = np.zeros(0)
             for it in range(cfg.iterations + 1):
                 # Compiled passes (ground_kernel): the same arithmetic as array expressions.
@@ -198,8 +201,10 @@ class AdaptiveGridGroundSegmenter:
                 if it == 0:
                     # Seeds: points within seed_band_m of the region's low quantile (not its
                     # minimum: the foot of a curb face or one deep noise return would win that).
-                    sane = (res >= -cfg.max_below_m) & (res <= cfg.seed_window_m)
-                    low = _low_quantile(res[sane], region[sane], 2 * n_sec, cfg)
+                    low = low_quantile(
+                        res, region, 2 * n_sec, cfg.max_below_m, cfg.seed_window_m, _HIST_BIN_M,
+                        cfg.seed_quantile,
+                    )  # fmt: skip
                 # Weight 1 for the seeds, then Tukey weights: points near the surface count most,
                 # snow and object feet least. Only weighted points enter the sums.
                 sums = weighted_sums(
@@ -208,11 +213,7 @@ class AdaptiveGridGroundSegmenter:
                 )  # fmt: skip
                 planes = _fit_planes(sums, prior.reshape(-1, 3), cfg)
             # Tolerance per region: the range-dependent one, tightened where the fit is smooth.
-            inlier = np.abs(res) <= window
-            n_in = np.bincount(region[inlier], minlength=2 * n_sec)
-            ss = np.bincount(region[inlier], weights=res[inlier] ** 2, minlength=2 * n_sec)
-            smooth = np.maximum(cfg.smooth_floor_m, cfg.smooth_sigmas * np.sqrt(ss / np.maximum(n_in, 1)))
-            ground[idx] = res <= np.minimum(window, smooth[region])
+            classify_ring(idx, res, region, window, 2 * n_sec, cfg.smooth_floor_m, cfg.smooth_sigmas, ground)
             prev_planes, prev_sectors = planes.reshape(n_sec, 2, 3), n_sec
         return ground
 
