@@ -134,21 +134,20 @@ def low_quantile(
         r = res[i]
         if not (r >= -max_below_m and r <= seed_window_m):
             continue
-        b = np.int64((r + max_below_m) / bin_m)
-        b = min(max(b, 0), n_bins - 1)
-        hist[region[i], b] += 1
+        cell = min(max(int((r + max_below_m) / bin_m), 0), n_bins - 1)  # truncation, as astype
+        hist[region[i], cell] += 1
     out = np.empty(n_regions)
     for g in range(n_regions):
         total = 0
-        for b in range(n_bins):
-            total += hist[g, b]
+        for j in range(n_bins):
+            total += int(hist[g, j])
         target = max(total * quantile, 1.0)
         cum = 0
         k = 0
-        for b in range(n_bins):
-            cum += hist[g, b]
+        for j in range(n_bins):
+            cum += int(hist[g, j])
             if cum >= target:
-                k = b
+                k = j
                 break
         out[g] = (k + 0.5) * bin_m - max_below_m
     return out
