@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Protocol
 
 import numpy as np
@@ -72,6 +72,12 @@ class AdaptiveGridConfig:
             returns off a goose's body 0.10-0.13 m up pass as ground. 4 sigma keeps the road's
             own returns ground; the 0.10 m floor keeps road texture, ruts and a ring grazing a
             bird's feet ground whatever the fit.
+        level_change_fallback, fallback: where a region's own plane is rejected while at least
+            ``min_fit_points`` of its points lie more than ``max_below_m`` below the plane it
+            kept (the road continues below a level change: an underpass, a lower street beyond a
+            wall or a ramp), its points take the labels of Himmelsbach's line fit per segment
+            (``fallback``), which follows the lower surface; the grid alone would call everything
+            below its kept plane ground (a pedestrian standing 1.7 m below it included).
     """
 
     ring_edges_m: tuple[float, ...] = (0.0, 6.0, 12.0, 20.0, 30.0, 45.0, 65.0, 120.0)
@@ -90,6 +96,8 @@ class AdaptiveGridConfig:
     iterations: int = 2
     smooth_sigmas: float = 4.0
     smooth_floor_m: float = 0.10
+    level_change_fallback: bool = True
+    fallback: HimmelsbachConfig = field(default_factory=HimmelsbachConfig)
 
     def __post_init__(self) -> None:
         e = self.ring_edges_m
@@ -151,9 +159,11 @@ class AdaptiveGridGroundSegmenter:
 
     def __init__(self, config: AdaptiveGridConfig | None = None) -> None:
         self.config = config or AdaptiveGridConfig()
+        self._himmelsbach = HimmelsbachGroundSegmenter(self.config.fallback)
 
     def segment(self, xyz_m: npt.ArrayLike, road_mask: RoadMask | None = None) -> BoolArray:
         cfg = self.config
+        fallback: np.ndarray | None = None
         p = np.asarray(xyz_m, dtype=np.float64).reshape(-1, 3)
         n = len(p)
         ground = np.zeros(n, dtype=bool)
@@ -192,6 +202,7 @@ class AdaptiveGridGroundSegmenter:
                 continue
             px, py, pz, window, region = ring_points(idx, x, y, z, az, tol, road, 2 * math.pi / n_sec, n_sec)
             planes = prior.reshape(-1, 3).copy()
+            fitted = np.ones(2 * n_sec, dtype=bool)
             low = np.zeros(0)
             for it in range(cfg.iterations + 1):
                 # Compiled passes (ground_kernel): the same arithmetic as array expressions.
@@ -211,11 +222,26 @@ class AdaptiveGridGroundSegmenter:
                     px, py, pz, res, region, 2 * n_sec, it == 0, low, window,
                     cfg.max_below_m, cfg.seed_window_m, cfg.seed_band_m,
                 )  # fmt: skip
-                planes = _fit_planes(sums, prior.reshape(-1, 3), cfg)
+                planes, fitted = _fit_planes(sums, prior.reshape(-1, 3), cfg)
             # Tolerance per region: the range-dependent one, tightened where the fit is smooth.
             classify_ring(idx, res, region, window, 2 * n_sec, cfg.smooth_floor_m, cfg.smooth_sigmas, ground)
+            poor = self._poor_points(res, region, fitted) if cfg.level_change_fallback else None
+            if poor is not None:
+                if fallback is None:  # one Himmelsbach pass (~3.5 ms on 120k points) when needed
+                    fallback = self._himmelsbach.segment(p, road_mask)
+                ground[idx[poor]] = fallback[idx[poor]]
             prev_planes, prev_sectors = planes.reshape(n_sec, 2, 3), n_sec
         return ground
+
+    def _poor_points(self, res: np.ndarray, region: np.ndarray, fitted: np.ndarray) -> np.ndarray | None:
+        """(M,) bool points of the ring in a region whose own plane was rejected while
+        ``min_fit_points`` of its points lie more than ``max_below_m`` below the plane it kept (a
+        surface the grid cannot reach from its prior: the road beyond a level change); None when
+        there is none."""
+        cfg = self.config
+        below = np.bincount(region[res < -cfg.max_below_m], minlength=len(fitted))
+        poor_region = below >= cfg.min_fit_points
+        return poor_region[region] if poor_region.any() else None
 
 
 _HIST_BIN_M = 0.05
@@ -232,9 +258,12 @@ def _low_quantile(res: np.ndarray, region: np.ndarray, n_regions: int, cfg: Adap
     return (k + 0.5) * _HIST_BIN_M - cfg.max_below_m
 
 
-def _fit_planes(sums: np.ndarray, prior: np.ndarray, cfg: AdaptiveGridConfig) -> np.ndarray:
+def _fit_planes(
+    sums: np.ndarray, prior: np.ndarray, cfg: AdaptiveGridConfig
+) -> tuple[np.ndarray, np.ndarray]:
     """Weighted least-squares planes per region from their sums (``ground_kernel.weighted_sums``),
-    regularised toward the prior; rejects bad fits."""
+    regularised toward the prior; rejects bad fits. Returns the planes (R, 3) and (R,) whether
+    each region kept its own fit."""
     sw, sx, sy, sz, sxx, sxy, syy, sxz, syz, count = sums.T
     A = np.stack(
         [np.stack([sw, sx, sy], -1), np.stack([sx, sxx, sxy], -1), np.stack([sy, sxy, syy], -1)], axis=1
@@ -259,7 +288,7 @@ def _fit_planes(sums: np.ndarray, prior: np.ndarray, cfg: AdaptiveGridConfig) ->
     okp = ok.reshape(-1, 2)
     pair[:, 0] = np.where((~okp[:, 0] & okp[:, 1])[:, None], pair[:, 1], pair[:, 0])
     pair[:, 1] = np.where((~okp[:, 1] & okp[:, 0])[:, None], pair[:, 0], pair[:, 1])
-    return pair.reshape(-1, 3)
+    return pair.reshape(-1, 3), ok
 
 
 GROUND_SEGMENTERS: dict[str, type] = {
