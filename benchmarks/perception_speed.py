@@ -90,12 +90,15 @@ def _kdtree_components(xyz: np.ndarray) -> np.ndarray:
     return canonical_labels(connected_components(g, directed=False)[1])
 
 
-def _rig_frame(seed: int) -> tuple[list[LidarSweep], dict[str, np.ndarray], PoseTrajectory, np.ndarray]:
+def _rig_frame(
+    seed: int, snowflakes: int = 300
+) -> tuple[list[LidarSweep], dict[str, np.ndarray], PoseTrajectory, np.ndarray]:
     rng = np.random.default_rng(seed)
     scene = synthetic.campus_scene(rng)
     rig = synthetic.default_rig()
     sweeps = [
-        synthetic.sweep(scene, lidar, 0, rng, ego_speed_mps=SPEED_MPS, snowflakes=300)[0] for lidar in rig
+        synthetic.sweep(scene, lidar, 0, rng, ego_speed_mps=SPEED_MPS, snowflakes=snowflakes)[0]
+        for lidar in rig
     ]
     ts = np.arange(-50_000, 200_001, 10_000)
     traj = PoseTrajectory(
@@ -268,6 +271,27 @@ def _sim_rig_frames(weather_name: str, n: int) -> list[Frame]:
     return frames
 
 
+def dror_vs_clutter(runs: int) -> list[dict[str, object]]:
+    """The weather filter's CPU ms on the synthetic rig frame with more and more snowflakes per unit:
+    its cost per flake must stay bounded (each flake's search is local: its 27 grid cells and its
+    scan windows), not grow with the clutter."""
+    out = []
+    pipe = LidarPipeline()
+    for flakes in (0, 300, 1000, 3000):
+        frame = _rig_frame(0, snowflakes=flakes)
+        pipe.process(frame[0], frame[1], frame[2], None, frame[3])
+        results = [pipe.process(frame[0], frame[1], frame[2], None, frame[3]) for _ in range(runs)]
+        out.append(
+            {
+                "flakes_per_unit": flakes,
+                "noise_points": int(results[0].noise.sum()),
+                "dror_cpu_ms": statistics.median(r.stage_cpu_ms["weather_filter"] for r in results),
+                "total_cpu_ms": statistics.median(r.stage_cpu_ms["total"] for r in results),
+            }
+        )
+    return out
+
+
 def _sensor() -> LidarSensorConfig:
     """KITTI's HDL-64E as ``lastmile perceive`` configures it by default."""
     return load_perceive_config(None).sensor
@@ -414,6 +438,32 @@ def main() -> None:
             "yes" if r["target_met"] else "NO",
         )
     console.print(t)
+    clutter = dror_vs_clutter(args.frames)
+    t = Table(title="(e) the weather filter (DROR) against clutter: synthetic rig frame, snowflakes per unit")
+    for col in (
+        "flakes per unit",
+        "points removed",
+        "DROR CPU ms",
+        "pipeline CPU ms",
+        "DROR us per extra point removed",
+    ):
+        t.add_column(col, justify="right")
+    base_ms = float(clutter[0]["dror_cpu_ms"])  # type: ignore[arg-type]
+    base_removed = int(clutter[0]["noise_points"])  # type: ignore[call-overload]
+    for c in clutter:
+        removed = int(c["noise_points"])  # type: ignore[call-overload]
+        extra = removed - base_removed
+        # Extra DROR time per extra point removed, against the frame without snow.
+        per = (float(c["dror_cpu_ms"]) - base_ms) / extra * 1e3 if extra > 0 else float("nan")  # type: ignore[arg-type]
+        c["dror_us_per_extra_removed"] = per
+        t.add_row(
+            str(c["flakes_per_unit"]),
+            str(removed),
+            f"{c['dror_cpu_ms']:.1f}",
+            f"{c['total_cpu_ms']:.1f}",
+            f"{per:.1f}",
+        )
+    console.print(t)
     for r in rows_p:
         if "read_cpu_ms" in r:
             console.print(f"{r['frame']}: reading the file took {r['read_cpu_ms']:.1f} ms CPU (not in CPU)")
@@ -435,6 +485,7 @@ def main() -> None:
                 "eps_m": EPS_M,
                 "clustering": rows,
                 "pipeline": rows_p,
+                "dror_vs_clutter": clutter,
                 "load_average_before": load_before,
                 "load_average_after": load_after,
                 "targets": {"clustering_ratio": TARGET_RATIO, "pipeline_ms": TARGET_PIPELINE_MS},
