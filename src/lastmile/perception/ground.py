@@ -163,7 +163,7 @@ class AdaptiveGridGroundSegmenter:
 
     def segment(self, xyz_m: npt.ArrayLike, road_mask: RoadMask | None = None) -> BoolArray:
         cfg = self.config
-        fallback: np.ndarray | None = None
+        fallback_idx: list[np.ndarray] = []
         p = np.asarray(xyz_m, dtype=np.float64).reshape(-1, 3)
         n = len(p)
         ground = np.zeros(n, dtype=bool)
@@ -227,11 +227,27 @@ class AdaptiveGridGroundSegmenter:
             classify_ring(idx, res, region, window, 2 * n_sec, cfg.smooth_floor_m, cfg.smooth_sigmas, ground)
             poor = self._poor_points(res, region, fitted) if cfg.level_change_fallback else None
             if poor is not None:
-                if fallback is None:  # one Himmelsbach pass (~3.5 ms on 120k points) when needed
-                    fallback = self._himmelsbach.segment(p, road_mask)
-                ground[idx[poor]] = fallback[idx[poor]]
+                fallback_idx.append(idx[poor])
             prev_planes, prev_sectors = planes.reshape(n_sec, 2, 3), n_sec
+        if fallback_idx:
+            self._apply_fallback(p, az, np.concatenate(fallback_idx), road_mask, ground)
         return ground
+
+    def _apply_fallback(
+        self, p: np.ndarray, az: np.ndarray, points: np.ndarray, road_mask: RoadMask | None, ground: BoolArray
+    ) -> None:
+        """Himmelsbach's labels for ``points``, from one pass over the points of their segments
+        only: a segment's labels depend on its own points alone, so a subset made of whole
+        segments gets the labels the whole cloud would."""
+        n_seg = self._himmelsbach.config.n_segments
+        # Himmelsbach's own segment formula on the same arctan2 values.
+        segment = (np.floor((az + math.pi) / (2 * math.pi) * n_seg).astype(np.int64)) % n_seg
+        need = np.zeros(n_seg, dtype=bool)
+        need[segment[points]] = True
+        members = np.flatnonzero(need[segment])
+        labels = np.zeros(len(p), dtype=bool)
+        labels[members] = self._himmelsbach.segment(p[members], road_mask)
+        ground[points] = labels[points]
 
     def _poor_points(self, res: np.ndarray, region: np.ndarray, fitted: np.ndarray) -> np.ndarray | None:
         """(M,) bool points of the ring in a region whose own plane was rejected while
