@@ -198,3 +198,12 @@ def test_ground_ring_kernels_equal_their_array_expressions(seed, n, n_sec) -> No
     expected = np.zeros(n, dtype=bool)
     expected[idx] = res <= np.minimum(window, smooth[region])
     assert np.array_equal(ground, expected)
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 10_000), n=st.integers(0, 2000), bits=st.sampled_from([1, 8, 16, 17, 33, 62]))
+def test_radix_argsort_is_a_stable_argsort(seed, n, bits) -> None:
+    from lastmile.perception.clustering_kernel import radix_argsort
+
+    key = np.random.default_rng(seed).integers(0, 2**bits, n, dtype=np.int64)
+    assert np.array_equal(radix_argsort(key), np.argsort(key, kind="stable"))
