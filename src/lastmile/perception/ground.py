@@ -264,7 +264,10 @@ _HIST_BIN_M = 0.05
 
 
 def _low_quantile(res: np.ndarray, region: np.ndarray, n_regions: int, cfg: AdaptiveGridConfig) -> np.ndarray:
-    """Per-region ``seed_quantile`` of residuals, from a 5 cm histogram (no per-region sort)."""
+    """Per-region ``seed_quantile`` of residuals, from a 5 cm histogram (no per-region sort).
+
+    The array form of ``ground_kernel.low_quantile`` (which the segmenter calls), kept as the
+    reference the kernel is tested against."""
     n_bins = math.ceil((cfg.max_below_m + cfg.seed_window_m) / _HIST_BIN_M) + 1
     b = np.clip(((res + cfg.max_below_m) / _HIST_BIN_M).astype(np.int64), 0, n_bins - 1)
     hist = np.bincount(region * n_bins + b, minlength=n_regions * n_bins).reshape(n_regions, n_bins)
