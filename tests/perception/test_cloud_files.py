@@ -140,7 +140,9 @@ def test_bare_mcap_pointcloud2_is_read(tmp_path, scan):
 def test_perceive_config_is_strict(tmp_path):
     cfg = tmp_path / "c.toml"
     cfg.write_text('[sensor]\nsensor_id = "top"\nring = "sideways"\n')
-    with pytest.raises(ConfigError, match=r"sensor\.ring: expected one of \['auto', 'field', 'elevation'\]"):
+    with pytest.raises(
+        ConfigError, match=r"sensor\.ring: expected one of \['auto', 'field', 'elevation', 'scan_order'\]"
+    ):
         load_perceive_config(cfg)
     cfg.write_text("[sensor.mount]\nz_m = 1.5\nheight_m = 2\n")
     with pytest.raises(ConfigError, match=r"sensor\.mount: unknown key 'height_m'"):
@@ -193,3 +195,18 @@ def test_perceive_cli_reports_a_bad_file_in_one_line(tmp_path):
     assert result.exit_code == 2
     assert result.output.strip().startswith("lastmile perceive: ")
     assert "x.pcd: expected a PCD file" in result.output and "Traceback" not in result.output
+
+
+def test_ring_from_scan_order_recovers_the_beams_of_a_cloud_listed_beam_by_beam(scan):
+    from lastmile.perception.lidar_model import ring_from_scan_order
+
+    xyz = _xyz(scan)
+    # Beam by beam, top beam first, each in firing order (clockwise from behind, as the model says).
+    order = np.lexsort((scan["time"], -scan["ring"].astype(np.int64)))
+    got = ring_from_scan_order(xyz[order], VLP16.model, "beams.bin")
+    np.testing.assert_array_equal(got, scan["ring"][order])
+    # Listed column by column instead: one "beam" spanning every elevation.
+    with pytest.raises(MessageError, match=r"columns\.bin: expected each beam's returns listed together"):
+        ring_from_scan_order(xyz, VLP16.model, "columns.bin")
+    with pytest.raises(MessageError, match=r"shuffled\.bin: expected at most 16 beams"):
+        ring_from_scan_order(xyz[np.random.default_rng(0).permutation(len(xyz))], VLP16.model, "shuffled.bin")

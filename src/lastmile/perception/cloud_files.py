@@ -32,6 +32,7 @@ from lastmile.perception.lidar_model import (
     RingSource,
     TimeSource,
     ring_from_elevation,
+    ring_from_scan_order,
     time_from_azimuth,
 )
 
@@ -298,7 +299,9 @@ def sweep_from_cloud(cloud: RawCloud, sensor: LidarSensorConfig) -> tuple[LidarS
     n = len(cloud.xyz_m)
     if sensor.ring is RingSource.FIELD and cloud.ring is None:
         raise MessageError(f"{cloud.name}: expected a 'ring' field (sensor.ring = 'field'), got none")
-    if cloud.ring is not None and sensor.ring is not RingSource.ELEVATION:
+    if sensor.ring is RingSource.SCAN_ORDER:
+        ring, ring_from = ring_from_scan_order(cloud.xyz_m, sensor.model, cloud.name), "scan order"
+    elif cloud.ring is not None and sensor.ring is not RingSource.ELEVATION:
         ring, ring_from = cloud.ring, "file"
     else:
         ring, ring_from = ring_from_elevation(cloud.xyz_m, sensor.model, cloud.name), "elevation"

@@ -53,6 +53,8 @@ class RingSource(enum.Enum):
     AUTO = "auto"  # the file's ring field when it has one, else from the elevation
     FIELD = "field"  # the file's ring field (an error when absent)
     ELEVATION = "elevation"  # the model's beam nearest the point's elevation (or its elevation bin)
+    SCAN_ORDER = "scan_order"  # the file lists its returns beam by beam (KITTI's .bin): a new ring
+    # starts where the angle turned since the sweep start wraps around
 
 
 class TimeSource(enum.Enum):
@@ -271,3 +273,59 @@ def time_from_azimuth(xyz_m: npt.ArrayLike, model: LidarModel) -> np.ndarray:
     # last column it is still this sweep's.
     column = np.minimum(np.round(turned / step), n_columns - 1)
     return column * (model.period_us / n_columns)
+
+
+def ring_from_scan_order(xyz_m: npt.ArrayLike, model: LidarModel, where: str = "cloud") -> np.ndarray:
+    """(N,) int64 ring of each point of a cloud listed beam by beam, each beam in firing order.
+
+    A beam's returns turn once around from ``sweep_start_azimuth_deg`` in the spin direction; a new
+    beam starts where that angle drops by more than 180 deg after the current beam has turned more
+    than 180 deg (jitter at the seam does not start one). Beams are numbered by their median
+    elevation, 0 the lowest. KITTI's ``.bin`` files list the HDL-64E's 64 lasers this way
+    (counter-clockwise from the front: ``clockwise = false``, ``sweep_start_azimuth_deg = 0``).
+
+    Raises:
+        MessageError: more beams than the model has (or its ``rings``), or a beam spanning more
+            than a quarter of the field of view in elevation: the cloud is not listed beam by
+            beam, or the model's spin or start is not the file's.
+    """
+    p = np.asarray(xyz_m, dtype=np.float64).reshape(-1, 3)
+    az = np.degrees(np.arctan2(p[:, 1], p[:, 0]))
+    turned = (model.sweep_start_azimuth_deg - az) if model.clockwise else (az - model.sweep_start_azimuth_deg)
+    turned = np.mod(turned, 360.0)
+    drops = np.flatnonzero(np.diff(turned) < -180.0) + 1
+    starts = [0]
+    for d in drops:  # at most a few per beam
+        if turned[starts[-1] : d].max() - turned[starts[-1] : d].min() > 180.0:
+            starts.append(int(d))
+    beams = len(model.elevations_deg) or model.rings
+    if len(starts) > beams:
+        raise MessageError(
+            f"{where}: expected at most {beams} beams listed one after another (the {model.name} "
+            f"model, {'clockwise' if model.clockwise else 'counter-clockwise'} from "
+            f"{model.sweep_start_azimuth_deg} deg), got {len(starts)}: not in scan order, or another spin"
+        )
+    segment = np.zeros(len(p), dtype=np.int64)
+    segment[starts[1:]] = 1
+    segment = np.cumsum(segment)
+    elev = np.degrees(np.arctan2(p[:, 2], np.hypot(p[:, 0], p[:, 1])))
+    bounds = list(zip(starts, [*starts[1:], len(p)], strict=True))
+    # A beam keeps to its cone: a "beam" spanning a quarter of the field of view in elevation is
+    # several beams (a cloud listed column by column turns once around as one "beam").
+    beams_deg = model.elevations_deg
+    fov = (
+        (beams_deg[-1] - beams_deg[0])
+        if len(beams_deg)
+        else model.max_elevation_deg - model.min_elevation_deg
+    )
+    for k, (a, b) in enumerate(bounds):
+        lo, hi = np.percentile(elev[a:b], [10, 90])
+        if hi - lo > fov / 4:
+            raise MessageError(
+                f"{where}: expected each beam's returns listed together, got beam {k} (points {a}..{b - 1}) "
+                f"spanning {hi - lo:.1f} deg of elevation (10-90 %): not listed beam by beam"
+            )
+    medians = np.array([np.median(elev[a:b]) for a, b in bounds])
+    rank = np.empty(len(starts), dtype=np.int64)
+    rank[np.argsort(medians, kind="stable")] = np.arange(len(starts))
+    return rank[segment]

@@ -11,7 +11,7 @@ Configuration (TOML, unknown keys rejected)::
     topic = "/points"            # bags: the PointCloud2 topic (default: the only one)
     [sensor]
     sensor_id = "velodyne"
-    ring = "auto"                # auto | field | elevation
+    ring = "auto"                # auto | field | elevation | scan_order
     time = "auto"                # auto | field | azimuth | sweep
     intensity_scale = 1.0
     [sensor.model]
