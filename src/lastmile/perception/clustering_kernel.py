@@ -201,7 +201,8 @@ def radix_argsort(key: np.ndarray) -> np.ndarray:
     tmp = np.empty(n, np.int64)
     count = np.zeros(65_537, np.int64)
     shift = 0
-    while shift == 0 or (top >> shift) > 0:
+    # Passes while the largest key has bits left (a shift by 64 is undefined: stop at 48).
+    while shift == 0 or (shift < 64 and (top >> shift) > 0):
         count[:] = 0
         for q in range(n):
             count[((key[order[q]] >> shift) & 0xFFFF) + 1] += 1
