@@ -588,5 +588,30 @@ def map_check(
         raise typer.Exit(code)
 
 
+@app.command()
+def perceive(
+    files: Annotated[
+        list[Path], typer.Argument(help="KITTI .bin, .pcd, .mcap files or rosbag2 directories.")
+    ],
+    config: Annotated[
+        Path | None, typer.Option(help="TOML: [sensor] model, mount, fields; [pipeline]; topic.")
+    ] = None,
+    out: Annotated[Path, typer.Option(help="Directory for labels/, objects.mcap, timing.json.")] = Path(
+        "runs/perceive"
+    ),
+) -> None:
+    """Run the LiDAR pipeline on point-cloud files: KITTI object labels, a Foxglove MCAP, timing."""
+    from lastmile.perception.perceive import load_perceive_config, perceive_files, summary_lines
+
+    try:
+        frames = perceive_files(files, load_perceive_config(config), out)
+    except (LastmileError, OSError) as exc:
+        typer.echo(f"lastmile perceive: {exc}", err=True)
+        raise typer.Exit(2) from None
+    for line in summary_lines(frames):
+        typer.echo(line)
+    typer.echo(f"wrote {out / 'labels'}/, {out / 'objects.mcap'} and {out / 'timing.json'}")
+
+
 def main() -> None:
     app()

@@ -133,3 +133,42 @@ def test_a_grazed_goose_body_on_a_smooth_road_is_not_ground_but_road_texture_is(
     rough = np.c_[xy, rng.normal(0.0, 0.04, len(xy))]
     g2 = AdaptiveGridGroundSegmenter().segment(rough)
     assert g2.mean() > 0.995
+
+
+def _level_change_scan(ped_x_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """A VLP-32C 1.9 m up over a road that drops 1.7 m at x = 15 m (a wall face below the edge),
+    a pedestrian (0.5 x 0.5 x 1.7 m) standing on the lower road; ray cast (shadow behind the edge
+    included). Returns the (N, 3) points and which are the pedestrian's."""
+    from lastmile.perception.lidar_model import VLP32C_ELEVATIONS_DEG
+
+    height, edge, drop = 1.9, 15.0, 1.7
+    az, el = np.meshgrid(np.radians(np.arange(-180, 180, 0.2)), np.radians(VLP32C_ELEVATIONS_DEG))
+    d = np.stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)], -1).reshape(-1, 3)
+    down = d[:, 2] < -1e-6
+    t_upper = np.where(down, height / np.maximum(-d[:, 2], 1e-9), np.inf)
+    upper = down & (t_upper * d[:, 0] < edge)
+    t = np.where(upper, t_upper, np.where(down, (height + drop) / np.maximum(-d[:, 2], 1e-9), np.inf))
+    lo = np.array([ped_x_m, -0.25, -drop - height])
+    hi = np.array([ped_x_m + 0.5, 0.25, -drop - height + 1.7])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t1, t2 = lo / d, hi / d
+    t_in, t_out = np.nanmax(np.minimum(t1, t2), 1), np.nanmin(np.maximum(t1, t2), 1)
+    ped = (t_in <= t_out) & (t_in > 0) & (t_in < t)
+    t = np.where(ped, t_in, t)
+    keep = np.isfinite(t) & (t < 60.0)
+    return d[keep] * t[keep][:, None] + [0.0, 0.0, height], ped[keep]
+
+
+@pytest.mark.parametrize("ped_x_m", [30.0, 35.0])
+def test_a_pedestrian_below_a_level_change_is_not_ground(ped_x_m):
+    xyz, ped = _level_change_scan(ped_x_m)
+    lower_road = (xyz[:, 0] > 15.0) & ~ped
+    ground = AdaptiveGridGroundSegmenter().segment(xyz)
+    assert ground[~ped].mean() > 0.99 and ground[lower_road].mean() > 0.99
+    # The pedestrian's lowest visible row is its bin's prototype (Himmelsbach's line runs through
+    # it; the shadow of the edge hides the feet); every row above it is not ground.
+    above = ped & (xyz[:, 2] > xyz[ped, 2].min() + 0.1)
+    assert above.sum() >= 15 and not ground[above].any()
+    # The grid alone keeps the plane of the upper road, and everything below it is ground.
+    plain = AdaptiveGridGroundSegmenter(AdaptiveGridConfig(level_change_fallback=False)).segment(xyz)
+    assert plain[ped].all()

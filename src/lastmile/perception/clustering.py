@@ -18,7 +18,7 @@ import numpy as np
 import numpy.typing as npt
 
 from lastmile.core.errors import MessageError
-from lastmile.perception.clustering_kernel import grid_cell_keys, grid_cluster_labels
+from lastmile.perception.clustering_kernel import grid_cell_keys, grid_cluster_labels, radix_argsort
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -68,6 +68,8 @@ def euclidean_cluster_labels(xyz_m: npt.ArrayLike, eps_m: float) -> IntArray:
     # Contiguous columns: the compiled kernel reads them one element at a time.
     cols = [np.ascontiguousarray(pts[:, i]) for i in range(3)]
     key, ny, nz = grid_cell_keys(cols[0], cols[1], cols[2], side)
-    order = np.argsort(key)  # order inside a cell is irrelevant: labels are numbered by first point
+    # Cells as contiguous runs (order inside a cell is irrelevant: labels are numbered by first
+    # point): a radix sort of the non-negative keys, linear where argsort's is N log N.
+    order = radix_argsort(key)
     labels: IntArray = grid_cluster_labels(cols[0], cols[1], cols[2], key, order, ny, nz, eps_m * eps_m)
     return labels

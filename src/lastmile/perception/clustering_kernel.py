@@ -187,3 +187,31 @@ def _cells_linked(
             if dx * dx + dy * dy + dz * dz <= eps2:
                 return True
     return False
+
+
+@njit(cache=True, nogil=True)
+def radix_argsort(key: np.ndarray) -> np.ndarray:
+    """(N,) int64 permutation sorting the non-negative int64 ``key`` (stable LSD radix sort, 16 bits
+    a pass, as many passes as the largest key needs): O(N) where a comparison sort is O(N log N)."""
+    n = key.shape[0]
+    order = np.arange(n)
+    if n == 0:
+        return order
+    top = key.max()
+    tmp = np.empty(n, np.int64)
+    count = np.zeros(65_537, np.int64)
+    shift = 0
+    # Passes while the largest key has bits left (a shift by 64 is undefined: stop at 48).
+    while shift == 0 or (shift < 64 and (top >> shift) > 0):
+        count[:] = 0
+        for q in range(n):
+            count[((key[order[q]] >> shift) & 0xFFFF) + 1] += 1
+        for c in range(65_536):
+            count[c + 1] += count[c]
+        for q in range(n):
+            d = (key[order[q]] >> shift) & 0xFFFF
+            tmp[count[d]] = order[q]
+            count[d] += 1
+        order, tmp = tmp, order
+        shift += 16
+    return order

@@ -17,6 +17,9 @@ from numba import njit
 # counted into buckets: a sparse pool spread far would make the bucket array larger than it saves.
 _CELLS_PER_POINT = 16
 _CELLS_SPARE = 65_536
+# Cell-column offsets (x, y) of the neighbour search, the point's own first.
+_RUN_ORDER_X = np.array([0, -1, -1, -1, 0, 0, 1, 1, 1], dtype=np.int64)
+_RUN_ORDER_Y = np.array([0, -1, 0, 1, -1, 1, -1, 0, 1], dtype=np.int64)
 
 
 @njit(cache=True, nogil=True)
@@ -95,14 +98,21 @@ def enough_neighbours(
         iy = np.int64(np.floor((yi - lo1) / side)) + 1
         iz = np.int64(np.floor((zi - lo2) / side)) + 1
         count = 0  # the point itself is counted too (distance 0), so k others make k + 1
-        for ox in range(-1, 2):
-            for oy in range(-1, 2):
-                c0 = ((ix + ox) * ny + iy + oy) * nz + iz - 1
+        # The point's own cell first, then the rest of its column and the 8 columns around it,
+        # stopping at the (k + 1)-th point within radius: the answer does not depend on the order,
+        # and on a dense surface (where most tested points pass) the own cell holds them. A point
+        # never costs more than the points of its 27 cells.
+        for o in range(9):
+            ox = _RUN_ORDER_X[o]
+            oy = _RUN_ORDER_Y[o]
+            c0 = ((ix + ox) * ny + iy + oy) * nz + iz - 1
+            # The three cells along z, the point's own level first.
+            for dz_cell in (1, 0, 2):
                 if bucketed:
-                    q0, q1 = first[c0], first[c0 + 3]  # the three cells along z are one run
+                    q0, q1 = first[c0 + dz_cell], first[c0 + dz_cell + 1]
                 else:
-                    q0 = np.searchsorted(skey, c0)
-                    q1 = np.searchsorted(skey, c0 + 3)
+                    q0 = np.searchsorted(skey, c0 + dz_cell)
+                    q1 = np.searchsorted(skey, c0 + dz_cell + 1)
                 for q in range(q0, q1):
                     dx = xi - px[q]
                     dy = yi - py[q]
@@ -110,6 +120,8 @@ def enough_neighbours(
                     d2 = dx * dx + dy * dy + dz * dz
                     if d2 < r_max2 and np.sqrt(d2) <= ri:
                         count += 1
+                        if count > k:
+                            break
                 if count > k:
                     break
             if count > k:
@@ -167,3 +179,95 @@ def scan_line_sure(
     for i in range(n):
         sure[i] = count[i] >= k
     return sure
+
+
+@njit(cache=True, nogil=True)
+def scan_window_counts(
+    skey: np.ndarray,
+    spool: np.ndarray,
+    line: np.ndarray,
+    ring: np.ndarray,
+    azimuth: np.ndarray,
+    rng: np.ndarray,
+    z: np.ndarray,
+    radius: np.ndarray,
+    width: np.ndarray,
+    query: np.ndarray,
+    ring_reach: int,
+    tan_spacing: float,
+) -> np.ndarray:
+    """(Q,) scan-pattern neighbours of each ``query`` point (the scan-pattern test of DROR).
+
+    For each of the ``2 ring_reach + 1`` scan lines around the query's, the pool points whose key
+    ``line * 10 + azimuth + pi`` lies in the query's azimuth window (three windows: the +-pi seam)
+    are found by binary search in ``skey`` and tested for range and height; the work per query is
+    bounded by the points in its windows, whatever the rest of the cloud holds.
+
+    Args:
+        skey: (P,) float64 sorted keys of the pool points; ``spool`` (P,) int64 their indices.
+        line, ring: (N,) int64 scan line (sensor-major) and ring of every point.
+        azimuth, rng, z, radius, width: (N,) float64 per point (rad, m, m, m, rad).
+        query: (Q,) int64 points to count for.
+        ring_reach: rings either side searched.
+        tan_spacing: tan of the ring spacing (height one ring apart may reach per metre of range).
+    """
+    two_pi = 2.0 * np.pi
+    out = np.zeros(query.shape[0], np.int64)
+    for qi in range(query.shape[0]):
+        me = query[qi]
+        q_az = azimuth[me] + np.pi
+        q_w = width[me]
+        r_me, z_me, rad_me, ring_me = rng[me], z[me], radius[me], ring[me]
+        count = 0
+        for dr in range(-ring_reach, ring_reach + 1):
+            base = np.float64(line[me] + dr) * 10.0
+            for s in range(3):
+                shift = (s - 1) * two_pi
+                lo = min(max(q_az - q_w + shift, 0.0), two_pi)
+                hi = min(max(q_az + q_w + shift, 0.0), two_pi)
+                if not hi > lo:
+                    continue
+                a = np.searchsorted(skey, base + lo, side="left")
+                b = np.searchsorted(skey, base + hi, side="right")
+                for t in range(a, b):
+                    c = spool[t]
+                    if c == me or not abs(rng[c] - r_me) <= rad_me:
+                        continue
+                    tall = abs(ring[c] - ring_me) * r_me * tan_spacing + rad_me
+                    if abs(z[c] - z_me) <= tall:
+                        count += 1
+        out[qi] = count
+    return out
+
+
+@njit(cache=True, nogil=True)
+def first_of_each_value(bits: np.ndarray) -> np.ndarray:
+    """Indices of the first occurrence of each distinct value of ``bits`` (uint64), in order of
+    appearance, by open-addressing hashing: one pass, whatever the order of the input.
+
+    A sweep's firing times take a few thousand distinct values (its columns) over ~10^5 points;
+    sorting them all to find those values costs ~10x this pass.
+    """
+    n = bits.shape[0]
+    size = 1
+    while size < 2 * n:
+        size *= 2
+    shift = np.uint64(64 - int(np.log2(size)))
+    table = np.full(size, -1, np.int64)
+    first = np.empty(n, np.int64)
+    m = 0
+    mult = np.uint64(0x9E3779B97F4A7C15)
+    mask = size - 1
+    for i in range(n):
+        h = np.int64((bits[i] * mult) >> shift)
+        while True:
+            j = table[h]
+            if j < 0:
+                table[h] = i
+                first[m] = i
+                m += 1
+                break
+            if bits[j] == bits[i]:
+                break
+            h = (h + 1) & mask
+    return first[:m]

@@ -9,14 +9,20 @@ from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Protocol
 
 import numpy as np
 import numpy.typing as npt
 
 from lastmile.core.errors import ConfigError
-from lastmile.perception.ground_kernel import plane_residuals, weighted_sums
+from lastmile.perception.ground_kernel import (
+    classify_ring,
+    low_quantile,
+    plane_residuals,
+    ring_points,
+    weighted_sums,
+)
 from lastmile.perception.himmelsbach import HimmelsbachConfig, HimmelsbachGroundSegmenter
 from lastmile.perception.road_region import RoadMask
 
@@ -66,6 +72,12 @@ class AdaptiveGridConfig:
             returns off a goose's body 0.10-0.13 m up pass as ground. 4 sigma keeps the road's
             own returns ground; the 0.10 m floor keeps road texture, ruts and a ring grazing a
             bird's feet ground whatever the fit.
+        level_change_fallback, fallback: where a region's own plane is rejected while at least
+            ``min_fit_points`` of its points lie more than ``max_below_m`` below the plane it
+            kept (the road continues below a level change: an underpass, a lower street beyond a
+            wall or a ramp), its points take the labels of Himmelsbach's line fit per segment
+            (``fallback``), which follows the lower surface; the grid alone would call everything
+            below its kept plane ground (a pedestrian standing 1.7 m below it included).
     """
 
     ring_edges_m: tuple[float, ...] = (0.0, 6.0, 12.0, 20.0, 30.0, 45.0, 65.0, 120.0)
@@ -84,6 +96,8 @@ class AdaptiveGridConfig:
     iterations: int = 2
     smooth_sigmas: float = 4.0
     smooth_floor_m: float = 0.10
+    level_change_fallback: bool = True
+    fallback: HimmelsbachConfig = field(default_factory=HimmelsbachConfig)
 
     def __post_init__(self) -> None:
         e = self.ring_edges_m
@@ -145,9 +159,11 @@ class AdaptiveGridGroundSegmenter:
 
     def __init__(self, config: AdaptiveGridConfig | None = None) -> None:
         self.config = config or AdaptiveGridConfig()
+        self._himmelsbach = HimmelsbachGroundSegmenter(self.config.fallback)
 
     def segment(self, xyz_m: npt.ArrayLike, road_mask: RoadMask | None = None) -> BoolArray:
         cfg = self.config
+        fallback_idx: list[np.ndarray] = []
         p = np.asarray(xyz_m, dtype=np.float64).reshape(-1, 3)
         n = len(p)
         ground = np.zeros(n, dtype=bool)
@@ -184,11 +200,9 @@ class AdaptiveGridGroundSegmenter:
             if len(idx) == 0:
                 prev_planes, prev_sectors = prior, n_sec
                 continue
-            sec = np.floor((az[idx] + math.pi) / (2 * math.pi / n_sec)).astype(int) % n_sec
-            region = sec * 2 + road[idx]
+            px, py, pz, window, region = ring_points(idx, x, y, z, az, tol, road, 2 * math.pi / n_sec, n_sec)
             planes = prior.reshape(-1, 3).copy()
-            px, py, pz = x[idx], y[idx], z[idx]
-            window = tol[idx]
+            fitted = np.ones(2 * n_sec, dtype=bool)
             low = np.zeros(0)
             for it in range(cfg.iterations + 1):
                 # Compiled passes (ground_kernel): the same arithmetic as array expressions.
@@ -198,30 +212,62 @@ class AdaptiveGridGroundSegmenter:
                 if it == 0:
                     # Seeds: points within seed_band_m of the region's low quantile (not its
                     # minimum: the foot of a curb face or one deep noise return would win that).
-                    sane = (res >= -cfg.max_below_m) & (res <= cfg.seed_window_m)
-                    low = _low_quantile(res[sane], region[sane], 2 * n_sec, cfg)
+                    low = low_quantile(
+                        res, region, 2 * n_sec, cfg.max_below_m, cfg.seed_window_m, _HIST_BIN_M,
+                        cfg.seed_quantile,
+                    )  # fmt: skip
                 # Weight 1 for the seeds, then Tukey weights: points near the surface count most,
                 # snow and object feet least. Only weighted points enter the sums.
                 sums = weighted_sums(
                     px, py, pz, res, region, 2 * n_sec, it == 0, low, window,
                     cfg.max_below_m, cfg.seed_window_m, cfg.seed_band_m,
                 )  # fmt: skip
-                planes = _fit_planes(sums, prior.reshape(-1, 3), cfg)
+                planes, fitted = _fit_planes(sums, prior.reshape(-1, 3), cfg)
             # Tolerance per region: the range-dependent one, tightened where the fit is smooth.
-            inlier = np.abs(res) <= window
-            n_in = np.bincount(region[inlier], minlength=2 * n_sec)
-            ss = np.bincount(region[inlier], weights=res[inlier] ** 2, minlength=2 * n_sec)
-            smooth = np.maximum(cfg.smooth_floor_m, cfg.smooth_sigmas * np.sqrt(ss / np.maximum(n_in, 1)))
-            ground[idx] = res <= np.minimum(window, smooth[region])
+            classify_ring(idx, res, region, window, 2 * n_sec, cfg.smooth_floor_m, cfg.smooth_sigmas, ground)
+            poor = self._poor_points(res, region, fitted) if cfg.level_change_fallback else None
+            if poor is not None:
+                fallback_idx.append(idx[poor])
             prev_planes, prev_sectors = planes.reshape(n_sec, 2, 3), n_sec
+        if fallback_idx:
+            self._apply_fallback(p, az, np.concatenate(fallback_idx), road_mask, ground)
         return ground
+
+    def _apply_fallback(
+        self, p: np.ndarray, az: np.ndarray, points: np.ndarray, road_mask: RoadMask | None, ground: BoolArray
+    ) -> None:
+        """Himmelsbach's labels for ``points``, from one pass over the points of their segments
+        only: a segment's labels depend on its own points alone, so a subset made of whole
+        segments gets the labels the whole cloud would."""
+        n_seg = self._himmelsbach.config.n_segments
+        # Himmelsbach's own segment formula on the same arctan2 values.
+        segment = (np.floor((az + math.pi) / (2 * math.pi) * n_seg).astype(np.int64)) % n_seg
+        need = np.zeros(n_seg, dtype=bool)
+        need[segment[points]] = True
+        members = np.flatnonzero(need[segment])
+        labels = np.zeros(len(p), dtype=bool)
+        labels[members] = self._himmelsbach.segment(p[members], road_mask)
+        ground[points] = labels[points]
+
+    def _poor_points(self, res: np.ndarray, region: np.ndarray, fitted: np.ndarray) -> np.ndarray | None:
+        """(M,) bool points of the ring in a region whose own plane was rejected while
+        ``min_fit_points`` of its points lie more than ``max_below_m`` below the plane it kept (a
+        surface the grid cannot reach from its prior: the road beyond a level change); None when
+        there is none."""
+        cfg = self.config
+        below = np.bincount(region[res < -cfg.max_below_m], minlength=len(fitted))
+        poor_region = below >= cfg.min_fit_points
+        return poor_region[region] if poor_region.any() else None
 
 
 _HIST_BIN_M = 0.05
 
 
 def _low_quantile(res: np.ndarray, region: np.ndarray, n_regions: int, cfg: AdaptiveGridConfig) -> np.ndarray:
-    """Per-region ``seed_quantile`` of residuals, from a 5 cm histogram (no per-region sort)."""
+    """Per-region ``seed_quantile`` of residuals, from a 5 cm histogram (no per-region sort).
+
+    The array form of ``ground_kernel.low_quantile`` (which the segmenter calls), kept as the
+    reference the kernel is tested against."""
     n_bins = math.ceil((cfg.max_below_m + cfg.seed_window_m) / _HIST_BIN_M) + 1
     b = np.clip(((res + cfg.max_below_m) / _HIST_BIN_M).astype(np.int64), 0, n_bins - 1)
     hist = np.bincount(region * n_bins + b, minlength=n_regions * n_bins).reshape(n_regions, n_bins)
@@ -231,9 +277,12 @@ def _low_quantile(res: np.ndarray, region: np.ndarray, n_regions: int, cfg: Adap
     return (k + 0.5) * _HIST_BIN_M - cfg.max_below_m
 
 
-def _fit_planes(sums: np.ndarray, prior: np.ndarray, cfg: AdaptiveGridConfig) -> np.ndarray:
+def _fit_planes(
+    sums: np.ndarray, prior: np.ndarray, cfg: AdaptiveGridConfig
+) -> tuple[np.ndarray, np.ndarray]:
     """Weighted least-squares planes per region from their sums (``ground_kernel.weighted_sums``),
-    regularised toward the prior; rejects bad fits."""
+    regularised toward the prior; rejects bad fits. Returns the planes (R, 3) and (R,) whether
+    each region kept its own fit."""
     sw, sx, sy, sz, sxx, sxy, syy, sxz, syz, count = sums.T
     A = np.stack(
         [np.stack([sw, sx, sy], -1), np.stack([sx, sxx, sxy], -1), np.stack([sy, sxy, syy], -1)], axis=1
@@ -258,7 +307,7 @@ def _fit_planes(sums: np.ndarray, prior: np.ndarray, cfg: AdaptiveGridConfig) ->
     okp = ok.reshape(-1, 2)
     pair[:, 0] = np.where((~okp[:, 0] & okp[:, 1])[:, None], pair[:, 1], pair[:, 0])
     pair[:, 1] = np.where((~okp[:, 1] & okp[:, 0])[:, None], pair[:, 0], pair[:, 1])
-    return pair.reshape(-1, 3)
+    return pair.reshape(-1, 3), ok
 
 
 GROUND_SEGMENTERS: dict[str, type] = {

@@ -83,3 +83,97 @@ def weighted_sums(
         if w > 0:
             out[g, 9] += 1.0
     return out
+
+
+@njit(cache=True, nogil=True)
+def ring_points(
+    idx: np.ndarray,
+    x: np.ndarray,
+    y: np.ndarray,
+    z: np.ndarray,
+    az: np.ndarray,
+    tol: np.ndarray,
+    road: np.ndarray,
+    sector_rad: float,
+    n_sec: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """One ring's points gathered in one pass: x, y, z, tolerance, and region ``2 * sector + road``
+    with ``sector = floor((az + pi) / sector_rad) mod n_sec`` (the array expression's arithmetic)."""
+    m = idx.shape[0]
+    px = np.empty(m)
+    py = np.empty(m)
+    pz = np.empty(m)
+    window = np.empty(m)
+    region = np.empty(m, np.int64)
+    for q in range(m):
+        i = idx[q]
+        px[q] = x[i]
+        py[q] = y[i]
+        pz[q] = z[i]
+        window[q] = tol[i]
+        sec = np.int64(np.floor((az[i] + np.pi) / sector_rad)) % n_sec
+        region[q] = sec * 2 + (1 if road[i] else 0)
+    return px, py, pz, window, region
+
+
+@njit(cache=True, nogil=True)
+def low_quantile(
+    res: np.ndarray,
+    region: np.ndarray,
+    n_regions: int,
+    max_below_m: float,
+    seed_window_m: float,
+    bin_m: float,
+    quantile: float,
+) -> np.ndarray:
+    """(R,) per-region ``quantile`` of the residuals within ``[-max_below_m, seed_window_m]``, from a
+    histogram of ``bin_m`` bins (the bin's centre), as the array version computes it."""
+    n_bins = int(np.ceil((max_below_m + seed_window_m) / bin_m)) + 1
+    hist = np.zeros((n_regions, n_bins), np.int64)
+    for i in range(res.shape[0]):
+        r = res[i]
+        if not (r >= -max_below_m and r <= seed_window_m):
+            continue
+        cell = min(max(int((r + max_below_m) / bin_m), 0), n_bins - 1)  # truncation, as astype
+        hist[region[i], cell] += 1
+    out = np.empty(n_regions)
+    for g in range(n_regions):
+        total = 0
+        for j in range(n_bins):
+            total += int(hist[g, j])
+        target = max(total * quantile, 1.0)
+        cum = 0
+        k = 0
+        for j in range(n_bins):
+            cum += int(hist[g, j])
+            if cum >= target:
+                k = j
+                break
+        out[g] = (k + 0.5) * bin_m - max_below_m
+    return out
+
+
+@njit(cache=True, nogil=True)
+def classify_ring(
+    idx: np.ndarray,
+    res: np.ndarray,
+    region: np.ndarray,
+    window: np.ndarray,
+    n_regions: int,
+    smooth_floor_m: float,
+    smooth_sigmas: float,
+    ground: np.ndarray,
+) -> None:
+    """Marks ``ground[idx[q]]`` where the residual is within the point's tolerance, tightened per
+    region to ``max(smooth_floor_m, smooth_sigmas * rms)`` of the region's inlier residuals."""
+    n_in = np.zeros(n_regions)
+    ss = np.zeros(n_regions)
+    for q in range(res.shape[0]):
+        if abs(res[q]) <= window[q]:
+            n_in[region[q]] += 1.0
+            ss[region[q]] += res[q] * res[q]
+    smooth = np.empty(n_regions)
+    for g in range(n_regions):
+        smooth[g] = max(smooth_floor_m, smooth_sigmas * np.sqrt(ss[g] / max(n_in[g], 1.0)))
+    for q in range(res.shape[0]):
+        ground[idx[q]] = res[q] <= min(window[q], smooth[region[q]])
