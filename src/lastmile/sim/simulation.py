@@ -234,7 +234,9 @@ class Simulation:
         if self._operator_had_control and not self.operator.in_control:
             self._operator_inputs.append(OperatorInput(stamp=now, action=OperatorAction.RESET))
         self._operator_had_control = self.operator.in_control
-        action = self.estop_operator.step(self.world.t_s, reported_state, self.world.ego.state.speed_mps)
+        # The operator's timer counts in the loop's integer microseconds (tick * dt_s rounds differently).
+        t_s = self._tick * self.tick_us / 1e6
+        action = self.estop_operator.step(t_s, reported_state, self.world.ego.state.speed_mps)
         state = self.scenario.estop_in_state
         if action == EStopAction.PRESS:
             reason = f"operator e-stop in {state}"
