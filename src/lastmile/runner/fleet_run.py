@@ -76,7 +76,7 @@ from lastmile.runner.loop_callbacks import (
     TimingCallback,
     black_box_config,
 )
-from lastmile.runner.run_config import RunConfig
+from lastmile.runner.run_config import RunConfig, run_config_dict
 from lastmile.sim.agents import Agent
 from lastmile.sim.infrastructure import CrossingCamera, CrossingCameraConfig
 
@@ -340,7 +340,7 @@ def _build_shuttles(
                 "fleet": dataclasses.asdict(config),
                 "shuttle": k,
                 "start_route_s_m": start,
-                "run_config": run_meta(scenario, run_config, "").config["run_config"],
+                "run_config": run_config_dict(run_config),
             },
         )
         vid = f"sim-{k}"
