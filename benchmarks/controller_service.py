@@ -3,16 +3,15 @@
 Run: python benchmarks/controller_service.py [--minutes 4] [--seeds 0] [--weather clear snow]
          [--pairs heading_pid:watonobus heading_pid:cascaded_pi ...] [--json out.json]
 
-Until the run configuration selects controllers (issue 20), this builds the default service with
-``runner.closed_loop.build_closed_loop`` and swaps the stack's lateral and longitudinal controllers for
-the registered ones named in each pair (``stack.lateral``, ``stack.longitudinal``); everything else is
-the default stack (radar-tracking perception). The loop is the runner's tick order without the safety
-supervisor's extras. Reported per run: the referee's takeovers, rule violations and collisions, stops
-served (and missed) with their curb gaps, route progress, and the comfort figures as the evaluation
-measures them (the shuttle's acceleration averaged over 0.1 s windows; jerk from adjacent windows)
-against Snow Lion's measured envelope (-1.83..1.12 m/s^2, |jerk| <= 1.84 m/s^3), outside emergencies
-as the evaluation counts them (the emergency-stop state or brake and the 3 s after, with their count).
-The reference is the default pair (``heading_pid:watonobus``) in the same run: progress as a ratio.
+Each pair is selected in the run configuration (``[stack] lateral_controller`` and
+``longitudinal_controller``) and run on the loop engine, vehicle safety included; everything else is
+the default stack with radar-tracking perception. Reported per run: the referee's takeovers, rule
+violations and collisions, stops served (and missed) with their curb gaps, route progress, and the
+comfort figures as the evaluation measures them (the shuttle's acceleration averaged over 0.1 s
+windows; jerk from adjacent windows) against Snow Lion's measured envelope (-1.83..1.12 m/s^2,
+|jerk| <= 1.84 m/s^3), outside emergencies as the evaluation counts them (the emergency-stop state or
+brake and the 3 s after, with their count). The reference is the default pair
+(``heading_pid:watonobus``) in the same run: progress as a ratio.
 One core, BLAS one thread.
 """
 
@@ -33,11 +32,13 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from lastmile.control.lateral import make_lateral_controller
-from lastmile.control.longitudinal import make_longitudinal_controller
-from lastmile.core.stamp import Stamp
+from lastmile.control.lateral import LateralControllerName
+from lastmile.control.longitudinal import LongitudinalControllerName
+from lastmile.core.perception_mode import PerceptionMode
+from lastmile.core.run_events import EventKind
 from lastmile.core.vehicle_messages import BehaviourState
-from lastmile.runner.closed_loop import TICK_US, build_closed_loop
+from lastmile.runner.closed_loop import build_closed_loop
+from lastmile.runner.run_config import RunConfig
 from lastmile.sim.scenario import default_service
 
 COMFORT = (-1.83, 1.12, 1.84)
@@ -56,28 +57,28 @@ DEFAULT_PAIRS = (
 def run(pair: str, seed: int, minutes: float, weather: str) -> dict[str, object]:
     lat, lon = pair.split(":")
     scenario = dataclasses.replace(default_service(seed=seed, weather=weather), minutes=minutes)
-    _, sim, stack = build_closed_loop(scenario, "radar_tracking")
-    stack.lateral = make_lateral_controller(lat, stack.geometry, stack.config.lateral)
-    stack.longitudinal = make_longitudinal_controller(lon, stack.config.longitudinal)
-    accel, emergency = [], []
+    stack = dataclasses.replace(
+        RunConfig().stack,
+        perception=PerceptionMode.RADAR_TRACKING,
+        lateral_controller=LateralControllerName(lat),
+        longitudinal_controller=LongitudinalControllerName(lon),
+    )
+    loop = build_closed_loop(scenario, RunConfig(stack=stack))
+    sim = loop.world
+    accel, emergency, events = [], [], []
     cpu0 = time.process_time()
-    for tick in range(round(minutes * 60e6 / TICK_US)):
-        now = Stamp(tick * TICK_US)
-        sim.advance_world(tick)
-        out = stack.tick(now, sim.sensor_frames(tick))
-        sim.apply_command(out.command)
-        sim.referee(out.takeover_request)
-        accel.append(sim.world.ego.state.accel_mps2)
-        d = stack._decision  # the benchmark reads the stack's state for the exemption
+    for record in loop.ticks(round(minutes * 60e6 / loop.tick_us)):
+        accel.append(sim.ego_state.accel_mps2)
         emergency.append(
-            out.command.emergency_brake or (d is not None and d.state == BehaviourState.EMERGENCY_STOP)
+            record.verdict.command.emergency_brake or record.state == BehaviourState.EMERGENCY_STOP
         )
+        events += record.events
     a = np.asarray(accel)
-    per = round(100_000 / TICK_US)
+    per = round(100_000 / loop.tick_us)
     k = len(a) // per * per
     # As the evaluation: rows in an emergency stop and the 3 s after it are exempt from comfort.
     e = np.asarray(emergency)
-    after = round(3.0e6 / TICK_US)
+    after = round(3.0e6 / loop.tick_us)
     exempt = np.convolve(e.astype(float), np.ones(after + 1))[: len(e)] > 0.0
     windows = a[:k].reshape(-1, per).mean(axis=1)
     win_exempt = exempt[:k].reshape(-1, per).any(axis=1)
@@ -86,8 +87,8 @@ def run(pair: str, seed: int, minutes: float, weather: str) -> dict[str, object]
     kept = windows[~win_exempt]
     jerk = jerk[jerk_ok]
     episodes = int(np.count_nonzero(e[1:] & ~e[:-1]) + int(e[0]))
-    kinds = collections.Counter(k for _, k, _ in sim.judge.events)
-    gaps = [float(d["curb_gap_m"]) for _, k, d in sim.judge.events if k == "stop_served"]
+    kinds = collections.Counter(k for _, k, _ in events)
+    gaps = [float(d["curb_gap_m"]) for _, k, d in events if k == EventKind.STOP_SERVED]
     return {
         "pair": pair,
         "seed": seed,
@@ -98,7 +99,7 @@ def run(pair: str, seed: int, minutes: float, weather: str) -> dict[str, object]
         "stops_served": len(gaps),
         "stops_missed": kinds.get("stop_missed", 0),
         "curb_gap_max_m": max(gaps) if gaps else None,
-        "progress_m": float(sim.judge.route_s_m),
+        "progress_m": float(sim.route_progress_m),
         "emergency_episodes": episodes,
         "accel_min_mps2": float(kept.min()),
         "accel_max_mps2": float(kept.max()),

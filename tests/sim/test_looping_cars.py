@@ -8,6 +8,7 @@ import math
 from lastmile.core.vehicle import VehicleGeometry
 from lastmile.hdmap.loader import load_campus_map
 from lastmile.hdmap.routing import campus_shuttle_loop, route_polyline
+from lastmile.runner.loop import parked_ticks
 from lastmile.sim.agents import PathCar
 from lastmile.sim.scenario import RingCar, Scenario
 from lastmile.sim.simulation import Simulation
@@ -28,9 +29,8 @@ def test_a_car_behind_the_standing_shuttle_across_the_loop_seam_stops_behind_it(
     # The shuttle stands at route s = 0; the car comes from 40 m behind, near the end of its loop.
     sim, car = _sim(RingCar(direction="ccw", start_s_m=0.0, speed_mps=7.0))
     car.s_m = car.path.length_m - 40.0
-    for tick in range(1500):
-        sim.advance_world(tick)
-        sim.apply_command(None)
+    for _ in parked_ticks(sim, range(1500)):
+        pass
     assert not [e for e in sim.judge.events if e[1] == "collision"]
     ex, ey = sim.world.ego_centre()
     gap_m = math.hypot(car.x_m - ex, car.y_m - ey) - (car.length_m + sim.world.geometry.length_m) / 2.0
@@ -44,13 +44,11 @@ def test_a_lapping_car_stops_at_the_all_way_stop_again_on_its_next_lap() -> None
     length_m = car.path.length_m
     car.s_m = line.s_m + 5.0  # just past the line: it has gone through it on this lap
     slowest_at_line_mps = math.inf
-    tick = 0
-    while car.s_m < line.s_m + length_m + 10.0 and tick < 60_000:
-        sim.advance_world(tick)
-        sim.apply_command(None)
+    for _ in parked_ticks(sim, range(60_000)):
+        if car.s_m >= line.s_m + length_m + 10.0:
+            break
         to_line_m = line.s_m + length_m - car.s_m - car.length_m / 2.0
         if -1.0 <= to_line_m <= 3.0:
             slowest_at_line_mps = min(slowest_at_line_mps, car.speed_mps)
-        tick += 1
     assert car.s_m >= line.s_m + length_m + 10.0, "the car went round and through the stop"
     assert slowest_at_line_mps < 0.2

@@ -34,6 +34,7 @@ from lastmile.core.vehicle import VehicleGeometry
 from lastmile.hdmap.loader import load_campus_map
 from lastmile.hdmap.routing import campus_shuttle_loop, route_polyline
 from lastmile.perception.pipeline import LidarPipeline, LidarPipelineResult
+from lastmile.runner.loop import parked_ticks
 from lastmile.sim.lidar_rig import LidarSpec
 from lastmile.sim.raw_sensors import RawSensorRig
 from lastmile.sim.scenario import CrosswalkPedestrians, RingCar, Scenario, SideRoadCar, Walker
@@ -209,8 +210,7 @@ def record(seed: int, seconds: float, weather: str, *, lidar: bool = False) -> R
     pipeline = LidarPipeline()
     extrinsics = {spec.sensor_id: base_from_lidar(spec) for spec in rig.lidar_specs} if rig else {}
     out = Recording(messages=[], seconds=seconds)
-    for tick in range(int(seconds * 1e6 / TICK_US) + 1):
-        sim.advance_world(tick)
+    for tick in parked_ticks(sim, range(int(seconds * 1e6 / TICK_US) + 1)):  # no stack: the brake holds
         sim.sensors.sample(tick)
         e = sim.world.ego.state
         map_from_base = SE2(e.x_m, e.y_m, e.yaw_rad)
@@ -232,7 +232,6 @@ def record(seed: int, seconds: float, weather: str, *, lidar: bool = False) -> R
                 np.array([a.id for a in agents], np.int64),
                 np.array([(a.x_m, a.y_m) for a in agents], np.float64).reshape(-1, 2),
             )
-        sim.apply_command(None)  # no stack: the shuttle holds its brake
     out.ego_xy_m = (sim.world.ego.state.x_m, sim.world.ego.state.y_m)
     return out
 

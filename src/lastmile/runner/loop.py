@@ -9,7 +9,7 @@ and report. Nothing else in the code base writes a tick loop.
 from __future__ import annotations
 
 import time
-from collections.abc import Awaitable, Callable, Iterator, Sequence
+from collections.abc import Awaitable, Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any, Generic, Protocol, TypeVar
 
@@ -201,3 +201,13 @@ async def run_lockstep(
             for callback in loop.callbacks:
                 callback.on_end(loop, done)
     return done
+
+
+def parked_ticks(world: World, ticks: Iterable[int]) -> Iterator[int]:
+    """The world alone, with the vehicle parked (its default brake, no software): for tests of the
+    world's own agents and sensors. Yields each tick after the world has advanced and before the
+    vehicle model is actuated, so the caller reads the world's state at that point of the tick."""
+    for tick in ticks:
+        world.advance_world(tick)
+        yield tick
+        world.apply_command(None)
