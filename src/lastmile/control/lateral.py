@@ -11,6 +11,7 @@ from enum import StrEnum
 from typing import Protocol
 
 from lastmile.control.coupled_mpc import CoupledMpcConfig, SnowLionMpcController
+from lastmile.control.speed_reference import SteersFromPathAlone
 from lastmile.control.stanley import (
     ModelPredictiveStanleyController,
     MpsConfig,
@@ -58,6 +59,10 @@ class LateralController(Protocol):
         self, dt_s: float, map_from_base: SE2, speed_mps: float, path: Polyline, rear_steer: bool = True
     ) -> tuple[float, float]: ...
 
+    def set_speed_reference(self, speed_mps: float | None, accel_mps2: float = 0.0) -> None:
+        """The longitudinal controller's speed (and its rate) for the next step; None holds the speed."""
+        ...
+
 
 def _reference_pose(map_from_base: SE2, geometry: VehicleGeometry, all_wheel: bool) -> SE2:
     """The point that follows the path: the rear axle with front steer, mid-wheelbase with all-wheel steer."""
@@ -88,7 +93,7 @@ def _aim(
     return error, max(math.hypot(lx - ref.x_m, ly - ref.y_m), 1e-3), lookahead
 
 
-class LookaheadHeadingPid:
+class LookaheadHeadingPid(SteersFromPathAlone):
     """WATonoBus: PID on the heading error to a lookahead point; rear = -delta with all-wheel steer."""
 
     def __init__(self, geometry: VehicleGeometry, config: LateralConfig | None = None) -> None:
@@ -118,7 +123,7 @@ class LookaheadHeadingPid:
         return delta, (-delta if all_wheel else 0.0)
 
 
-class PurePursuitController:
+class PurePursuitController(SteersFromPathAlone):
     """Pure pursuit (NUS golf car): the arc through the lookahead point, front steer or all-wheel steer."""
 
     def __init__(self, geometry: VehicleGeometry, config: LateralConfig | None = None) -> None:

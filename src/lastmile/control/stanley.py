@@ -16,6 +16,7 @@ import numpy as np
 
 from lastmile.control.command_filters import SteeringOutput
 from lastmile.control.path_errors import PathTracker, check_speed, curvature_profile, path_errors, point_ahead
+from lastmile.control.speed_reference import SteersFromPathAlone
 from lastmile.core.errors import ConfigError
 from lastmile.core.geometry import SE2, wrap_angle_rad
 from lastmile.core.polyline import Polyline
@@ -115,7 +116,7 @@ def bicycle_step(
     return SE2(cx - half * math.cos(yaw), cy - half * math.sin(yaw), yaw)
 
 
-class StanleyController:
+class StanleyController(SteersFromPathAlone):
     """aUToronto's baseline: eq. (2) at the front axle; rear = -delta with all-wheel steer."""
 
     def __init__(self, geometry: VehicleGeometry, config: StanleyConfig | None = None) -> None:
@@ -142,7 +143,7 @@ class StanleyController:
         return delta, (-delta if all_wheel else 0.0)
 
 
-class ModelPredictiveStanleyController:
+class ModelPredictiveStanleyController(SteersFromPathAlone):
     """aUToronto's MPS (eq. 3) with the horizon scheduled by the curvature ahead."""
 
     def __init__(self, geometry: VehicleGeometry, config: MpsConfig | None = None) -> None:

@@ -19,6 +19,7 @@ import numpy as np
 
 from lastmile.control.command_filters import SteeringOutput
 from lastmile.control.path_errors import PathTracker, check_speed
+from lastmile.control.speed_reference import SteersFromPathAlone
 from lastmile.core.errors import ConfigError, MessageError
 from lastmile.core.geometry import SE2, wrap_angle_rad
 from lastmile.core.polyline import Polyline
@@ -161,7 +162,7 @@ def read_waypoint_file(
     return WaypointFile(xy_m=xy, speed_mps=speeds)
 
 
-class GemWaypointFollower:
+class GemWaypointFollower(SteersFromPathAlone):
     """GEM: omega_c = K_p theta_error toward the current waypoint, delta from the bicycle model.
 
     Controllers receive a new path each planning cycle: its waypoints are the path sampled every

@@ -24,7 +24,6 @@ from typing import Any
 
 import numpy as np
 
-from lastmile.control.coupled_mpc import SnowLionMpcController
 from lastmile.control.lateral import LateralConfig, make_lateral_controller
 from lastmile.control.longitudinal import LongitudinalConfig, make_longitudinal_controller, stopping_gap_m
 from lastmile.core.camera_model import PinholeCamera
@@ -486,8 +485,7 @@ class ShuttleStack:
         path_s = path.project(pose.x_m, pose.y_m).s_m
         v_ref = self.longitudinal.reference_speed_mps(self._trajectory, path_s, d.speed_limit_mps)
         accel = self.longitudinal.step(dt, est.speed_mps, v_ref, gap)
-        if isinstance(self.lateral, SnowLionMpcController):
-            self.lateral.set_speed_reference(v_ref)  # the coupled model's longitudinal reference
+        self.lateral.set_speed_reference(v_ref)  # a coupled lateral model predicts with it
         emergency = d.state == BehaviourState.EMERGENCY_STOP and est.speed_mps > 0.05
         # In a bay the rear wheels stay straight: counter-steering them would swing the tail into the
         # curb as the shuttle turns out of (or straightens into) the bay.
