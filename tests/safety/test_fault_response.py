@@ -17,6 +17,7 @@ from lastmile.safety.health_monitor import HealthMonitor, ModuleSpec
 from lastmile.safety.reliability_config import ReliabilityConfig, SensorSpec
 from lastmile.safety.reliability_monitor import ReliabilityMonitor
 from lastmile.safety.supervisor import SafetySupervisor
+from lastmile.stack.module_guard import ModuleGuard
 
 TICK = 10_000
 FAULT_AT = 5_000_000
@@ -60,6 +61,7 @@ def _supervisor() -> SafetySupervisor:
 
 def _run(fault: Fault) -> tuple[int, FailSafeLevel, ActuatorCommand]:
     sup = _supervisor()
+    guard = ModuleGuard()
     rng = np.random.default_rng(1)
     for tick in range(int(8e6 // TICK)):
         now = tick * TICK
@@ -89,7 +91,7 @@ def _run(fault: Fault) -> tuple[int, FailSafeLevel, ActuatorCommand]:
         beats: list[Heartbeat] = []
         if now % 100_000 == 0:
             if not (broken and fault.name == "planning_freezes"):
-                sup.health.guarded_call("planning", now, lambda: None)
+                guard.call("planning", Stamp(now), lambda: None)
             ok = not (broken and fault.name == "tracking_unhealthy")
             beats.append(
                 Heartbeat(
@@ -102,7 +104,8 @@ def _run(fault: Fault) -> tuple[int, FailSafeLevel, ActuatorCommand]:
                 if fail:
                     raise FloatingPointError("steering law diverged")
 
-            sup.health.guarded_call("control", now, control, broken and fault.name == "control_raises")
+            guard.call("control", Stamp(now), control, broken and fault.name == "control_raises")
+        beats += guard.drain()  # the modules' calls end as heartbeats, as the stack sends them
         est = None
         if now % 100_000 == 0:
             est = LocalizationEstimate(

@@ -8,7 +8,8 @@ from lastmile.core.errors import ConfigError
 from lastmile.core.safety_messages import FailSafeLevel, MalfunctionKind
 from lastmile.core.stamp import Stamp
 from lastmile.core.vehicle_messages import Heartbeat
-from lastmile.safety.health_monitor import GUARD_FAILED, HealthMonitor, HealthMonitorConfig, ModuleSpec
+from lastmile.safety.health_monitor import HealthMonitor, HealthMonitorConfig, ModuleSpec
+from lastmile.stack.module_guard import ModuleGuard
 
 TICK_US = 10_000
 
@@ -71,8 +72,9 @@ def test_raising_module_is_contained_and_reported_with_its_exception() -> None:
     def broken_planner(x: int) -> int:
         raise ZeroDivisionError(f"division by zero at {x}")
 
-    result = mon.guarded_call("planning", 10_000, broken_planner, 7)
-    assert result is GUARD_FAILED
+    guard = ModuleGuard()
+    assert guard.call("planning", Stamp(10_000), broken_planner, 7) is None
+    mon.pulse_all(guard.drain())
     health = mon.check(10_000)
     planning = next(m for m in health.modules if m.module == "planning")
     assert not planning.healthy and not planning.silent
@@ -82,7 +84,8 @@ def test_raising_module_is_contained_and_reported_with_its_exception() -> None:
     assert signal.level == FailSafeLevel.MINIMAL_RISK_MANOEUVRE
     assert "ZeroDivisionError" in signal.reason
     # The next successful call is a healthy pulse again.
-    assert mon.guarded_call("planning", 20_000, lambda: 42) == 42
+    assert guard.call("planning", Stamp(20_000), lambda: 42) == 42
+    mon.pulse_all(guard.drain())
     assert mon.check(20_000).healthy
 
 

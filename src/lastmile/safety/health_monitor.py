@@ -2,9 +2,8 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from typing import Any, Final
 
 from lastmile.core.errors import ConfigError
 from lastmile.core.safety_messages import (
@@ -18,27 +17,6 @@ from lastmile.core.stamp import Stamp
 from lastmile.core.vehicle_messages import Heartbeat
 
 
-class _GuardFailed:
-    """Marker returned by :meth:`HealthMonitor.guarded_call` when the call raised."""
-
-    _instance: _GuardFailed | None = None
-
-    def __new__(cls) -> _GuardFailed:
-        if cls._instance is None:
-            cls._instance = super().__new__(cls)
-        return cls._instance
-
-    def __repr__(self) -> str:
-        return "GUARD_FAILED"
-
-    def __bool__(self) -> bool:
-        return False
-
-
-GUARD_FAILED: Final = _GuardFailed()
-"""What :meth:`HealthMonitor.guarded_call` returns instead of a result when the module raised."""
-
-
 @dataclass(frozen=True, slots=True, kw_only=True)
 class ModuleSpec:
     """One watched module.
@@ -47,14 +25,11 @@ class ModuleSpec:
         name: module name as it appears in its heartbeats.
         period_us: how often the module is expected to pulse, > 0.
         failure_level: fail-safe level asked for while the module is unhealthy or silent.
-        pulse_on_return: a :meth:`HealthMonitor.guarded_call` that returns counts as a healthy pulse
-            (set False for modules that judge their own inputs and pulse themselves).
     """
 
     name: str
     period_us: int
     failure_level: FailSafeLevel = FailSafeLevel.MINIMAL_RISK_MANOEUVRE
-    pulse_on_return: bool = True
 
     def __post_init__(self) -> None:
         if not self.name:
@@ -153,29 +128,6 @@ class HealthMonitor:
     def pulse_all(self, beats: Iterable[Heartbeat]) -> None:
         for beat in beats:
             self.pulse(beat)
-
-    def guarded_call(
-        self, module: str, now_us: int, fn: Callable[..., Any], /, *args: Any, **kwargs: Any
-    ) -> Any:
-        """Call ``fn(*args, **kwargs)`` for ``module``; contain anything it raises.
-
-        Returns:
-            ``fn``'s result, or :data:`GUARD_FAILED` if it raised an ``Exception``: the exception is
-            recorded as an unhealthy pulse ("TypeError: ...") and does not reach the loop. A return
-            counts as a healthy pulse when the module's spec has ``pulse_on_return``.
-        """
-        m = self._get(module)
-        try:
-            result = fn(*args, **kwargs)
-        except Exception as exc:  # containment is the point: any module failure becomes a signal
-            m.last_beat_us = max(m.last_beat_us, int(now_us))
-            m.healthy = False
-            m.reason = f"{type(exc).__name__}: {exc}"
-            m.exception = True
-            return GUARD_FAILED
-        if m.spec.pulse_on_return:
-            self.pulse(Heartbeat(stamp=Stamp(int(now_us)), module=module, healthy=True))
-        return result
 
     def check(self, now_us: int) -> SystemHealth:
         """Run the watchdogs at ``now_us`` and return the aggregate health."""
