@@ -12,22 +12,12 @@ import math
 from dataclasses import dataclass
 from typing import Literal
 
-import numpy as np
-
 from lastmile.core import frame_kinds
 from lastmile.core.config import check_range
 from lastmile.core.errors import ConfigError
 from lastmile.core.rng import component_rng
-from lastmile.core.sensor_frames import (
-    CameraDetections,
-    DoorSensorFrame,
-    GnssInsFrame,
-    ImuFrame,
-    LidarSweep,
-    RadarFrame,
-    SensorFrame,
-    WheelOdometryFrame,
-)
+from lastmile.core.sensor_frames import GnssInsFrame, SensorFrame
+from lastmile.sim.frame_corruption import blind, garbage, nan_values
 
 FaultKind = Literal[
     "dropout",
@@ -187,11 +177,11 @@ class FaultInjector:
             # affected frame on. (A delay of a few ms would be no fault at all: nothing swaps.)
             return frame, latency_us + round(float(rng.uniform(0.5 * f.jitter_ms, f.jitter_ms)) * 1000.0)
         if f.kind == "blind":
-            return _blind(frame), latency_us
+            return blind(frame), latency_us
         if f.kind == "nan":
-            return _nan(frame), latency_us
+            return nan_values(frame), latency_us
         if f.kind == "garbage":
-            return _garbage(frame, rng), latency_us
+            return garbage(frame, rng), latency_us
         if not isinstance(frame, GnssInsFrame):
             return frame, latency_us
         if f.kind == "gnss_outage":
@@ -221,66 +211,3 @@ class FaultInjector:
             )
         # map_misalignment: the map and the INS frame disagree by a constant offset (x east).
         return dataclasses.replace(frame, x_m=frame.x_m + f.offset_m), latency_us
-
-
-def _blind(frame: SensorFrame) -> SensorFrame:
-    if isinstance(frame, RadarFrame):
-        # A blocked radome: no reflections at all, clutter included (the radar still cycles).
-        return dataclasses.replace(frame, objects=np.zeros((0, frame.objects.shape[1])), raw_detections=0)
-    if isinstance(frame, LidarSweep):
-        return dataclasses.replace(frame, points=np.zeros((0, frame.points.shape[1]), np.float32))
-    if isinstance(frame, CameraDetections):
-        return dataclasses.replace(frame, boxes=np.zeros((0, frame.boxes.shape[1]), np.float32))
-    if isinstance(frame, GnssInsFrame):
-        return dataclasses.replace(frame, fix_ok=False)
-    if isinstance(frame, WheelOdometryFrame):
-        return dataclasses.replace(frame, speed_mps=0.0)
-    if isinstance(frame, ImuFrame):
-        return dataclasses.replace(frame, yaw_rate_radps=0.0, accel_x_mps2=0.0, accel_y_mps2=0.0)
-    if isinstance(frame, DoorSensorFrame):
-        return dataclasses.replace(frame, person_in_doorway=False)
-    return frame
-
-
-def _nan(frame: SensorFrame) -> SensorFrame:
-    nan = float("nan")
-    if isinstance(frame, GnssInsFrame):
-        return dataclasses.replace(frame, x_m=nan, y_m=nan)
-    if isinstance(frame, ImuFrame):
-        return dataclasses.replace(frame, yaw_rate_radps=nan)
-    if isinstance(frame, WheelOdometryFrame):
-        return dataclasses.replace(frame, speed_mps=nan)
-    return frame
-
-
-def _garbage(frame: SensorFrame, rng: np.random.Generator) -> SensorFrame:
-    """Finite but physically implausible values, as a corrupted bus or a failing unit sends."""
-    if isinstance(frame, GnssInsFrame):
-        return dataclasses.replace(
-            frame,
-            x_m=frame.x_m + float(rng.uniform(-2000.0, 2000.0)),
-            y_m=frame.y_m + float(rng.uniform(-2000.0, 2000.0)),
-            yaw_rad=float(rng.uniform(-math.pi, math.pi)),
-        )
-    if isinstance(frame, ImuFrame):
-        return dataclasses.replace(frame, yaw_rate_radps=float(rng.uniform(-20.0, 20.0)))
-    if isinstance(frame, WheelOdometryFrame):
-        return dataclasses.replace(frame, speed_mps=float(rng.uniform(0.0, 80.0)))
-    if isinstance(frame, DoorSensorFrame):
-        return dataclasses.replace(
-            frame, door_open=bool(rng.integers(2)), person_in_doorway=bool(rng.integers(2))
-        )
-    if isinstance(frame, RadarFrame):
-        n = int(rng.integers(20, 60))
-        objects = np.column_stack(
-            [
-                rng.uniform(-300.0, 300.0, n),
-                rng.uniform(-300.0, 300.0, n),
-                rng.uniform(-150.0, 150.0, n),
-                rng.uniform(-150.0, 150.0, n),
-                rng.uniform(-60.0, 60.0, n),
-                rng.uniform(-150.0, 150.0, n),
-            ]
-        )
-        return dataclasses.replace(frame, objects=objects)
-    return frame
