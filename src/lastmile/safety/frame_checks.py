@@ -1,10 +1,13 @@
 """What the reliability monitor checks in a single sensor frame: which stream it belongs to, whether
-it repeats its predecessor (a frozen driver), and whether its content is usable at all."""
+it repeats its predecessor (a frozen driver), and whether its content is usable at all. The content
+checks dispatch on the frame's type (``functools.singledispatch``): a new frame type registers its own
+digest or plausibility check beside the generic one."""
 
 from __future__ import annotations
 
 import math
 from dataclasses import fields
+from functools import singledispatch
 
 import numpy as np
 
@@ -24,18 +27,13 @@ def sensor_key(frame: SensorFrame) -> str | None:
     return frame_kinds.stream_key(frame)
 
 
+@singledispatch
 def payload_digest(frame: SensorFrame) -> tuple[object, ...] | None:
-    """Everything but the stamp, hashable; None when there is no content to compare (empty lists, or
-    odometry at standstill without an alive counter, which legitimately repeats; moving, wheel-speed
-    noise makes every frame differ, so a repeat there is a frozen driver). An alive counter or a
-    radar's cycle counter makes every healthy frame differ, standing still or not."""
-    if isinstance(frame, WheelOdometryFrame) and frame.cycle >= 0:
-        return (frame.cycle, frame.speed_mps, frame.steer_front_rad, frame.steer_rear_rad)
-    if isinstance(frame, WheelOdometryFrame) and frame.speed_mps < 0.1:
-        return None
-    if isinstance(frame, RadarFrame) and frame.cycle >= 0:
-        # The cycle counter advances with every healthy list, empty or not.
-        return (frame.cycle, hash(frame.objects.tobytes()))
+    """Everything but the stamp, hashable; None when there is no content to compare (empty lists).
+
+    Types whose healthy frames may legitimately repeat, or carry a counter that makes every healthy
+    frame differ, register their own digest below.
+    """
     parts: list[object] = []
     for f in fields(frame):
         if f.name == "stamp":
@@ -48,6 +46,26 @@ def payload_digest(frame: SensorFrame) -> tuple[object, ...] | None:
         else:
             parts.append(value)
     return tuple(parts)
+
+
+@payload_digest.register
+def _(frame: WheelOdometryFrame) -> tuple[object, ...] | None:
+    # An alive counter makes every healthy frame differ, standing still or not. Without one, odometry
+    # at standstill legitimately repeats (no content to compare); moving, wheel-speed noise makes every
+    # frame differ, so a repeat there is a frozen driver.
+    if frame.cycle >= 0:
+        return (frame.cycle, frame.speed_mps, frame.steer_front_rad, frame.steer_rear_rad)
+    if frame.speed_mps < 0.1:
+        return None
+    return payload_digest.dispatch(object)(frame)
+
+
+@payload_digest.register
+def _(frame: RadarFrame) -> tuple[object, ...] | None:
+    # The cycle counter advances with every healthy list, empty or not.
+    if frame.cycle >= 0:
+        return (frame.cycle, hash(frame.objects.tobytes()))
+    return payload_digest.dispatch(object)(frame)
 
 
 PLAUSIBLE_SPEED_MPS = 15.0  # odometry or GNSS speed: a 20 km/h shuttle never reaches it
@@ -70,21 +88,43 @@ def garbage_reason(frame: SensorFrame) -> str:
     return _implausible(frame)
 
 
+@singledispatch
 def _implausible(frame: SensorFrame) -> str:
     """Finite values a working sensor cannot report on this vehicle (a corrupt bus or a failing unit)."""
-    if isinstance(frame, WheelOdometryFrame) and not 0.0 <= frame.speed_mps <= PLAUSIBLE_SPEED_MPS:
+    return ""
+
+
+@_implausible.register
+def _(frame: WheelOdometryFrame) -> str:
+    if not 0.0 <= frame.speed_mps <= PLAUSIBLE_SPEED_MPS:
         return f"odometry speed {frame.speed_mps:.1f} m/s outside [0, {PLAUSIBLE_SPEED_MPS}]"
-    if isinstance(frame, GnssInsFrame) and abs(frame.speed_mps) > PLAUSIBLE_SPEED_MPS:
+    return ""
+
+
+@_implausible.register
+def _(frame: GnssInsFrame) -> str:
+    if abs(frame.speed_mps) > PLAUSIBLE_SPEED_MPS:
         return f"GNSS speed {frame.speed_mps:.1f} m/s above {PLAUSIBLE_SPEED_MPS}"
-    if isinstance(frame, ImuFrame) and (
+    return ""
+
+
+@_implausible.register
+def _(frame: ImuFrame) -> str:
+    if (
         abs(frame.yaw_rate_radps) > PLAUSIBLE_YAW_RATE_RADPS
         or max(abs(frame.accel_x_mps2), abs(frame.accel_y_mps2)) > PLAUSIBLE_ACCEL_MPS2
     ):
         return f"IMU yaw rate {frame.yaw_rate_radps:.2f} rad/s or acceleration beyond physical limits"
-    if isinstance(frame, RadarFrame) and len(frame.objects):
-        obj = frame.objects
-        far = float(np.hypot(obj[:, 0], obj[:, 1]).max())
-        fast = float(np.hypot(obj[:, 2], obj[:, 3]).max())
-        if far > PLAUSIBLE_RADAR_RANGE_M or fast > PLAUSIBLE_RADAR_SPEED_MPS:
-            return f"radar objects at {far:.0f} m or {fast:.0f} m/s: beyond the sensor's physics"
+    return ""
+
+
+@_implausible.register
+def _(frame: RadarFrame) -> str:
+    if not len(frame.objects):
+        return ""
+    obj = frame.objects
+    far = float(np.hypot(obj[:, 0], obj[:, 1]).max())
+    fast = float(np.hypot(obj[:, 2], obj[:, 3]).max())
+    if far > PLAUSIBLE_RADAR_RANGE_M or fast > PLAUSIBLE_RADAR_SPEED_MPS:
+        return f"radar objects at {far:.0f} m or {fast:.0f} m/s: beyond the sensor's physics"
     return ""
