@@ -12,7 +12,9 @@ lint-imports
 bash scripts/ensure_chromium.sh
 bash scripts/ensure_postgres.sh
 set +e
-python -m pytest "$@"
+# One worker per core, whole files per worker: a file's module-level fixtures and cached runs (the
+# default service's five seeds) are computed once, as in a serial run. "-n 0" runs serially.
+python -m pytest -n auto --dist loadfile "$@"
 status=$?
 set -e
 if [ "$status" -eq 5 ]; then
