@@ -43,6 +43,7 @@ def test_the_example_configuration_loads_and_round_trips_through_toml(tmp_path: 
     [
         ("[stack]\nplanner_speed = 3\n", "unknown key 'planner_speed'"),
         ('[stack]\nlateral_controller = "stanley_typo"\n', "stack.lateral_controller: expected one of"),
+        ('[stack]\nplanner = "lattice_typo"\n', "stack.planner: expected one of"),
         ('[stack]\nperception = "oracle"\n', "expected one of ['lidar_camera_radar', 'radar_tracking']"),
         ("[loop]\ntick_us = 3000\n", "loop.tick_us: expected a divisor of 10000"),
         ("[stack.safety]\nmrm_decel_mps2 = 9.0\n", "stack.safety.mrm_decel_mps2: expected a value in"),

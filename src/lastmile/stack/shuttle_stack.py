@@ -69,7 +69,8 @@ from lastmile.hdmap.layers import SLayerDatabase
 from lastmile.localization.ekf import PoseEkf
 from lastmile.localization.ekf_config import PoseEkfConfig
 from lastmile.localization.odometry_ekf import OdometryEkf, OdometryEkfConfig
-from lastmile.planning.local_path import LocalPathConfig, LocalPathPlanner
+from lastmile.planning.local_path import LocalPathConfig
+from lastmile.planning.planners import PlannerInputs, PlannerName, make_path_planner
 from lastmile.safety.reliability_config import ReliabilityConfig, default_sensor_specs
 from lastmile.stack.hmi import HmiComposer
 from lastmile.stack.module_guard import ModuleGuard
@@ -113,6 +114,7 @@ class StackConfig:
     control_period_ticks: int = 2
     lateral_controller: str = "heading_pid"
     longitudinal_controller: str = "watonobus"
+    planner: PlannerName = PlannerName.POTENTIAL_FIELD_BEZIER
     radar_mounts: dict[str, SE2] = field(default_factory=dict)
     serve_all_stops: bool = False
     decision: DecisionConfig = field(default_factory=DecisionConfig)
@@ -216,13 +218,16 @@ class ShuttleStack:
         self.fsm = BehaviourStateMachine(
             layers=layers, geometry=geometry, mission=self.mission, config=config.decision
         )
-        self.planner = LocalPathPlanner(
-            self.route,
-            geometry.width_m / 2.0,
+        self.planner = make_path_planner(
+            config.planner,
+            PlannerInputs(
+                route=self.route,
+                half_width_m=geometry.width_m / 2.0,
+                curb_right_d_m=self._curb_right_d_m,
+                body_behind_m=geometry.rear_overhang_m,
+                body_ahead_m=geometry.length_m - geometry.rear_overhang_m,
+            ),
             config.path,
-            curb_right_d_m=self._curb_right_d_m,
-            body_behind_m=geometry.rear_overhang_m,
-            body_ahead_m=geometry.length_m - geometry.rear_overhang_m,
         )
         self.longitudinal = make_longitudinal_controller(config.longitudinal_controller, config.longitudinal)
         self.lateral = make_lateral_controller(config.lateral_controller, geometry, config.lateral)
@@ -362,14 +367,13 @@ class ShuttleStack:
     def _frame_handlers(self) -> dict[type, Callable[[Any], object]]:
         """Which module each frame type feeds: one table, so a new frame type is one entry."""
         handlers: dict[type, Callable[[Any], object]] = {
-            WheelOdometryFrame: self._on_odometry,
-            ImuFrame: self._on_imu,
             GnssInsFrame: self.ekf.update_gnss,
             RadarFrame: self._on_radar,
             DoorSensorFrame: self._on_door,
             StopCallFrame: self.mission.on_call,
             CrossingPresenceFrame: self.v2i.on_frame,
         }
+        handlers.update(self._localization_handlers())
         if self.raw is not None:
             # Raw perception fuses the radar objects with the LiDAR clusters (no separate radar tracker).
             for kind in (LidarSweep, CameraDetections, RadarFrame):
@@ -378,17 +382,35 @@ class ShuttleStack:
             handlers[TrafficLightDetections] = self._on_lights
         return handlers
 
-    def _on_odometry(self, frame: WheelOdometryFrame) -> None:
-        self._speed_mps = frame.speed_mps
-        if isinstance(self.ekf, PoseEkf):
-            self.ekf.wheel_speed(frame.stamp, frame.speed_mps)  # a measurement: the IMU predicts
-        else:
-            self.ekf.predict(frame.stamp, frame.speed_mps, self._yaw_rate_radps)
+    def _localization_handlers(self) -> dict[type, Callable[[Any], object]]:
+        """The motion inputs of the localization mode, bound once: the inertial EKF predicts from the
+        IMU and takes wheel speed as a measurement; the odometry EKF predicts from wheel speed and the
+        latest yaw rate."""
+        ekf = self.ekf
 
-    def _on_imu(self, frame: ImuFrame) -> None:
-        self._yaw_rate_radps = frame.yaw_rate_radps
-        if isinstance(self.ekf, PoseEkf):
-            self.ekf.imu(frame.stamp, frame.yaw_rate_radps, frame.accel_x_mps2)
+        def odometry(frame: WheelOdometryFrame) -> None:
+            self._speed_mps = frame.speed_mps
+
+        def imu(frame: ImuFrame) -> None:
+            self._yaw_rate_radps = frame.yaw_rate_radps
+
+        if isinstance(ekf, PoseEkf):
+
+            def inertial_odometry(frame: WheelOdometryFrame) -> None:
+                odometry(frame)
+                ekf.wheel_speed(frame.stamp, frame.speed_mps)
+
+            def inertial_imu(frame: ImuFrame) -> None:
+                imu(frame)
+                ekf.imu(frame.stamp, frame.yaw_rate_radps, frame.accel_x_mps2)
+
+            return {WheelOdometryFrame: inertial_odometry, ImuFrame: inertial_imu}
+
+        def odometry_predicts(frame: WheelOdometryFrame) -> None:
+            odometry(frame)
+            ekf.predict(frame.stamp, frame.speed_mps, self._yaw_rate_radps)
+
+        return {WheelOdometryFrame: odometry_predicts, ImuFrame: imu}
 
     def _on_raw(self, frame: LidarSweep | CameraDetections | RadarFrame) -> None:
         assert self.raw is not None

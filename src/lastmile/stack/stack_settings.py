@@ -17,15 +17,9 @@ from lastmile.decision.decision_config import DecisionConfig
 from lastmile.localization.ekf_config import PoseEkfConfig
 from lastmile.localization.odometry_ekf import OdometryEkfConfig
 from lastmile.planning.local_path import LocalPathConfig
+from lastmile.planning.planners import PlannerName
 from lastmile.safety.failsafe import FailSafeConfig
 from lastmile.safety.hardware_watchdog import HardwareWatchdogConfig
-
-
-class PlannerName(StrEnum):
-    """Local path planners by name."""
-
-    POTENTIAL_FIELD_BEZIER = "potential_field_bezier"
-    """WATonoBus: potential-field nudge inside the lane, Bezier pull-over and merge curves."""
 
 
 class LocalizationMode(StrEnum):

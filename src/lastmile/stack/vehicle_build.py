@@ -74,6 +74,7 @@ def stack_config(settings: StackSettings, calibration: SensorCalibration, tick_u
         tick_us=tick_us,
         lateral_controller=settings.lateral_controller,
         longitudinal_controller=settings.longitudinal_controller,
+        planner=settings.planner,
         radar_mounts=calibration.radar_mounts,
         light_cameras=calibration.light_cameras,
         serve_all_stops=settings.serve_all_stops,

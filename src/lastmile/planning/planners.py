@@ -1,0 +1,85 @@
+"""Local path planners by name: the run configuration's ``[stack] planner`` selects one here.
+
+Every planner is built with the same inputs (the route, the vehicle's half-width and body extent,
+the curb lookup) and answers :class:`PathPlanner`'s ``plan`` each planning cycle.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from enum import StrEnum
+from typing import Protocol
+
+from lastmile.core.errors import ConfigError
+from lastmile.core.polyline import Polyline
+from lastmile.core.route_obstacles import RouteObstacle
+from lastmile.core.stamp import Stamp
+from lastmile.core.vehicle_messages import BehaviourDecision, Trajectory
+from lastmile.planning.local_path import CurbLookup, LocalPathConfig, LocalPathPlanner
+
+
+class PlannerName(StrEnum):
+    """Local path planners by name."""
+
+    POTENTIAL_FIELD_BEZIER = "potential_field_bezier"
+    """WATonoBus: potential-field nudge inside the lane, Bezier pull-over and merge curves."""
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class PlannerInputs:
+    """What every path planner is built with.
+
+    Attributes:
+        route: the service route's centreline.
+        half_width_m: half the vehicle's width.
+        curb_right_d_m: route s -> signed curb offset (NaN where there is none).
+        body_behind_m, body_ahead_m: the body's extent behind and ahead of the path point.
+    """
+
+    route: Polyline
+    half_width_m: float
+    curb_right_d_m: CurbLookup | None = None
+    body_behind_m: float = 0.0
+    body_ahead_m: float = 0.0
+
+
+class PathPlanner(Protocol):
+    """Plans the geometric path each planning cycle."""
+
+    def plan(
+        self,
+        stamp: Stamp,
+        ego_s_m: float,
+        ego_d_m: float,
+        decision: BehaviourDecision,
+        obstacles: list[RouteObstacle],
+    ) -> Trajectory: ...
+
+
+def _potential_field_bezier(inputs: PlannerInputs, config: LocalPathConfig) -> PathPlanner:
+    return LocalPathPlanner(
+        inputs.route,
+        inputs.half_width_m,
+        config,
+        curb_right_d_m=inputs.curb_right_d_m,
+        body_behind_m=inputs.body_behind_m,
+        body_ahead_m=inputs.body_ahead_m,
+    )
+
+
+PATH_PLANNERS: dict[PlannerName, Callable[[PlannerInputs, LocalPathConfig], PathPlanner]] = {
+    PlannerName.POTENTIAL_FIELD_BEZIER: _potential_field_bezier,
+}
+
+
+def make_path_planner(
+    name: PlannerName | str, inputs: PlannerInputs, config: LocalPathConfig | None = None
+) -> PathPlanner:
+    """The planner registered as ``name`` (a plain string is checked against the names)."""
+    try:
+        key = PlannerName(name)
+    except ValueError:
+        known = [n.value for n in PlannerName]
+        raise ConfigError(f"planner: expected one of {known}, got {name!r}") from None
+    return PATH_PLANNERS[key](inputs, config or LocalPathConfig())
