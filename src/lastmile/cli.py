@@ -336,24 +336,33 @@ def experiment_v2i(
 def replay(
     file: Annotated[Path, typer.Argument(help="Black-box MCAP file (or a spool directory of chunks).")],
     render: Annotated[
-        Path | None, typer.Option(help="Render a top-down PNG sequence into this directory.")
+        Path | None,
+        typer.Option(help="Draw the scene top-down: FILE.png for one picture, else a directory of frames."),
+    ] = None,
+    at: Annotated[
+        float | None, typer.Option(help="Time (s) of the one picture [default: the first trigger].")
     ] = None,
     fps: Annotated[float, typer.Option(help="Frames per second of recorded time when rendering.")] = 10.0,
 ) -> None:
-    """Summarise a black-box recording (channels, counts, time span, events); optionally render PNGs."""
+    """Summarise a recording (channels, counts, time span, events); optionally render it top-down."""
     from rich.console import Console
     from rich.table import Table
 
-    from lastmile.recorder.replay import read_recording, render_png_sequence
+    from lastmile.recorder.replay import read_recording
+    from lastmile.recorder.replay_render import render_png, render_png_sequence
 
     try:
         if not fps > 0:
             raise ConfigError(f"--fps: expected a positive rate, got {fps}")
+        if render is not None and render.exists() and not render.is_dir():
+            raise ConfigError(f"--render: expected a new file, got {render}, which exists (not overwritten)")
         rec = read_recording(file)
     except LastmileError as exc:
         typer.echo(f"lastmile replay: {exc}", err=True)
         raise typer.Exit(2) from None
-    console = Console()
+    if rec.warning is not None:
+        typer.echo(f"lastmile replay: warning: {rec.warning}", err=True)
+    console = Console(width=140)
     first, last = rec.span_us
     table = Table(title=f"{file}: {len(rec.messages)} messages, {first / 1e6:.2f} s to {last / 1e6:.2f} s")
     for col in ("topic", "schema", "messages", "first [s]", "last [s]"):
@@ -369,9 +378,22 @@ def replay(
         )
     summary = rec.operator_summary
     console.print(f"operator summary: {summary}" if summary is not None else "operator summary: (none yet)")
-    if render is not None:
-        paths = render_png_sequence(rec, render, fps=fps)
-        console.print(f"wrote {len(paths)} frames to {render}")
+    if render is None:
+        return
+    try:
+        if render.suffix.lower() == ".png":
+            shot = render_png(rec, render, at_us=None if at is None else round(at * 1e6))
+            console.print(
+                f"wrote {render}: t = {shot.t_us / 1e6:.2f} s in {shot.fixed_frame}, ego "
+                f"{'drawn' if shot.ego else 'unknown'}, {shot.boxes} boxes, {shot.cloud_points} points, "
+                f"{shot.lines} path lines"
+            )
+        else:
+            paths = render_png_sequence(rec, render, fps=fps)
+            console.print(f"wrote {len(paths)} frames to {render}")
+    except LastmileError as exc:
+        typer.echo(f"lastmile replay: {exc}", err=True)
+        raise typer.Exit(2) from None
 
 
 # --- lastmile eval: scoring against real data (self-contained block) --------------------------------

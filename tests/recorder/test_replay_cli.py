@@ -14,9 +14,9 @@ from tests.recorder.stream import record_ticks
 def _recording(tmp_path: Path) -> Path:
     bb = BlackBox(BlackBoxConfig(out_dir=tmp_path, window_us=2_000_000))
     last = max(record_ticks(bb, 0, 300, lidar_points=50))
-    path = bb.trigger("emergency_stop", last, "goose on the road").result(timeout=60)
-    bb.close()
-    return path
+    future = bb.trigger("emergency_stop", last, "goose on the road")
+    bb.close()  # the last tick: close writes the dump still merging
+    return future.result(timeout=60)
 
 
 def test_replay_prints_channels_counts_span_and_events(tmp_path: Path) -> None:

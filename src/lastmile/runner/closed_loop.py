@@ -123,7 +123,9 @@ def run_scenario(
         timing = TimingCallback()
         callbacks: list[LoopCallback] = [RunLogCallback(writer, world, scenario), timing]
         if black_box_dir is not None and config.loop.black_box:
-            box = black_box_config(black_box_dir, config.loop.black_box_window_s, world)
+            box = black_box_config(
+                black_box_dir, config.loop.black_box_window_s, world, sensor_calibration(world)
+            )
             callbacks.append(BlackBoxCallback(box, writer))
         if progress is not None:
             callbacks.append(ProgressCallback(progress, scenario.minutes * 60.0))
