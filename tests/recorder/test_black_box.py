@@ -13,7 +13,9 @@ import pytest
 from foxglove import messages as fm
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
+from typer.testing import CliRunner
 
+from lastmile.cli import app
 from lastmile.core.errors import ConfigError
 from lastmile.core.objects import TrackedObjects
 from lastmile.core.sensor_frames import LidarSweep
@@ -229,3 +231,74 @@ def test_a_documented_schema_names_each_field_with_its_type_and_description() ->
     assert tracks["properties"]["table"]["properties"]["$array"]["contentEncoding"] == "base64"
     with pytest.raises(jsonschema.ValidationError):
         jsonschema.validate({"$type": "LocalizationEstimate", "valid": "yes"}, doc)
+
+
+def test_triggers_close_in_time_share_one_file_with_all_their_events(tmp_path: Path) -> None:
+    bb = BlackBox(BlackBoxConfig(out_dir=tmp_path, window_us=3_000_000, merge_us=1_000_000))
+    ticks = record_ticks(bb, 0, 220, lidar_points=20)
+    for _ in range(220):
+        now = next(ticks)
+        if now == 1_000_000:
+            takeover = bb.trigger("takeover", now, "operator took over")
+            mrm = bb.trigger("mrm", now, "front radar silent")  # the same tick
+        if now == 1_090_000:
+            estop = bb.trigger("emergency_stop", now, "operator e-stop")  # 90 ms later
+    assert takeover is mrm is estop
+    path = takeover.result(timeout=60)  # written once the merge time passed (the loop went on)
+    late = bb.trigger("collision", 2_190_000, "contact")  # after the merge time: a new incident
+    bb.close()
+    assert late.result(timeout=60) != path
+    rec = read_recording(path)
+    assert [(e["trigger"], e["time_us"]) for e in rec.events] == [
+        ("takeover", "1000000"),
+        ("mrm", "1000000"),
+        ("emergency_stop", "1090000"),
+    ]
+    assert rec.span_us == (0, 2_000_000)  # from window before the first trigger to the merge time after
+    assert bb.dump_triggers[path] == ("takeover", "mrm", "emergency_stop")
+    assert len(list(tmp_path.glob("*.mcap"))) == 2
+
+
+def test_a_crash_dump_takes_the_events_of_a_dump_still_merging(tmp_path: Path) -> None:
+    bb = BlackBox(BlackBoxConfig(out_dir=tmp_path, merge_us=2_000_000))
+    last = max(record_ticks(bb, 0, 100, lidar_points=20))
+    pending = bb.trigger("takeover", last - 50_000, "operator took over")
+    crash = bb.dump("crash", "stack raised")
+    assert pending.result(timeout=1) == crash
+    assert [e["trigger"] for e in read_recording(crash).events] == ["takeover", "crash"]
+    bb.close()
+    assert list(tmp_path.glob("*.mcap")) == [crash]
+
+
+def _stock_reader_count(data: bytes) -> int:
+    """Messages the stock ``mcap`` stream reader yields before it stops on the damage."""
+    import io
+
+    from mcap import records
+    from mcap.stream_reader import StreamReader
+
+    n = 0
+    try:
+        for rec in StreamReader(io.BytesIO(data), record_size_limit=None).records:
+            n += isinstance(rec, records.Message)
+    except Exception:
+        pass
+    return n
+
+
+def test_a_file_cut_short_is_read_as_far_as_it_goes_with_one_warning(
+    dumped: tuple[Path, BlackBox, list], tmp_path: Path
+) -> None:
+    data = dumped[0].read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: len(data) * 2 // 5])
+    rec = read_recording(cut)
+    stock = _stock_reader_count(cut.read_bytes())
+    n = sum(c.count for c in rec.channels)
+    assert 0 < n == stock < sum(c.count for c in read_recording(dumped[0]).channels)
+    assert rec.warning is not None and "cut short" in rec.warning and f"{n} messages" in rec.warning
+    assert rec.messages and all(m.log_time_us <= rec.span_us[1] for m in rec.messages)
+    result = CliRunner().invoke(app, ["replay", str(cut)])
+    assert result.exit_code == 0, result.output
+    warnings = [ln for ln in result.output.splitlines() if "warning" in ln]
+    assert len(warnings) == 1 and warnings[0].startswith("lastmile replay: warning: ")
