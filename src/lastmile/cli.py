@@ -343,6 +343,9 @@ def replay(
         float | None, typer.Option(help="Time (s) of the one picture [default: the first trigger].")
     ] = None,
     fps: Annotated[float, typer.Option(help="Frames per second of recorded time when rendering.")] = 10.0,
+    through_stack: Annotated[
+        bool, typer.Option(help="Re-run the stack on the recorded inputs; say where its output differs.")
+    ] = False,
 ) -> None:
     """Summarise a recording (channels, counts, time span, events); optionally render it top-down."""
     from rich.console import Console
@@ -378,9 +381,13 @@ def replay(
         )
     summary = rec.operator_summary
     console.print(f"operator summary: {summary}" if summary is not None else "operator summary: (none yet)")
-    if render is None:
-        return
     try:
+        if through_stack:
+            from lastmile.runner.replay_through_stack import describe, replay_through_stack
+
+            console.print(describe(replay_through_stack(rec)))
+        if render is None:
+            return
         if render.suffix.lower() == ".png":
             shot = render_png(rec, render, at_us=None if at is None else round(at * 1e6))
             console.print(

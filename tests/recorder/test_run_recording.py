@@ -23,6 +23,7 @@ from lastmile.recorder.replay_render import render_png
 from lastmile.recorder.run_log import RunLog
 from lastmile.runner.closed_loop import build_closed_loop, run_scenario, sensor_calibration
 from lastmile.runner.loop_callbacks import sensor_frame_mounts
+from lastmile.runner.replay_through_stack import replay_through_stack
 from lastmile.runner.run_config import RunConfig
 from lastmile.sim.scenario import RingCar, default_service
 from tests.closed_loop.harness import RADAR
@@ -182,3 +183,28 @@ def test_replay_render_draws_ego_tracks_and_path_and_never_overwrites(
     result = CliRunner().invoke(app, ["replay", str(path), "--render", str(png)])
     lines = [ln for ln in result.output.splitlines() if ln.strip()]
     assert result.exit_code == 2 and len(lines) == 1 and "exists (not overwritten)" in lines[0], result.output
+
+
+def test_through_the_stack_the_recorded_inputs_give_the_recorded_commands(
+    estop_run: tuple[Path, RunLog],
+) -> None:
+    # The file starts at t = 0, so a fresh stack fed its frames and the safety's directives (the
+    # operator's e-stop among them) must reproduce every command and behaviour state exactly.
+    path = _recordings(estop_run)[0]
+    rec = read_recording(path)
+    diff = replay_through_stack(rec)
+    assert diff.ticks == len(rec.on("/stack/command")) > 300 and diff.compared == diff.ticks, diff
+    assert any(d.emergency_stop for d in rec.on("/safety/directive"))  # the e-stop is in the replay
+    assert diff.identical, diff
+    result = CliRunner().invoke(app, ["replay", str(path), "--through-stack"])
+    assert result.exit_code == 0 and "identical commands and behaviour states" in result.output, result.output
+
+
+def test_through_the_stack_a_window_cut_mid_drive_says_where_it_differs(
+    estop_run: tuple[Path, RunLog],
+) -> None:
+    rec = read_recording(_recordings(estop_run)[0])
+    start = 3_000_000  # drop the first 3 s: the fresh stack starts without a pose, mid-drive
+    cut = dataclasses.replace(rec, messages=tuple(m for m in rec.messages if m.log_time_us >= start))
+    diff = replay_through_stack(cut)
+    assert diff.differing > 0 and diff.first_diff_us is not None and diff.first_diff_us >= start, diff

@@ -78,6 +78,7 @@ class BlackBoxConfig:
         ``radar_rear``, ``camera_front``, ``light_camera_front``), published on ``/tf``.
     map_lines: HD-map polylines ((N, 2), map frame) written around the window's poses on ``/map``.
     route: the service route's centre line ((N, 2), map frame) written on ``/route``.
+    metadata: metadata records written into every file (name -> string map), e.g. what produced the run.
     """
 
     out_dir: Path
@@ -89,6 +90,7 @@ class BlackBoxConfig:
     sensor_mounts: Mapping[str, np.ndarray] = field(default_factory=dict)
     map_lines: tuple[np.ndarray, ...] = ()
     route: np.ndarray | None = None
+    metadata: Mapping[str, Mapping[str, str]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if self.window_us <= 0:
@@ -309,6 +311,7 @@ class BlackBox:
             entries,
             views=c.views(),
             events=[{**ev, **bounds} for ev in events],
+            metadata={k: dict(v) for k, v in c.metadata.items()},
             compression=c.compression,
             yield_gil=background,
         )
@@ -358,7 +361,8 @@ class BlackBox:
 
     def _write_chunk(self, path: Path, entries: Sequence[Entry]) -> Path:
         c = self.config
-        write_mcap(path, entries, views=c.views(), compression=c.compression, yield_gil=True)
+        meta = {k: dict(v) for k, v in c.metadata.items()}
+        write_mcap(path, entries, views=c.views(), metadata=meta, compression=c.compression, yield_gil=True)
         # Chunks wholly older than the window are of no more use.
         horizon = entries[-1][0] - self.config.window_us - (self.config.spool_chunk_us or 0)
         for old in sorted(self.spool_dir.glob("chunk_*.mcap")):

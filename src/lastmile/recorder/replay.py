@@ -13,7 +13,7 @@ from collections import Counter
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 from mcap import records as mcap_records
@@ -22,6 +22,7 @@ from mcap.reader import make_reader
 from mcap.stream_reader import StreamReader
 from mcap_protobuf.decoder import DecoderFactory
 
+from lastmile.core.frame_kinds import FRAME_KINDS
 from lastmile.core.sensor_frames import LidarSweep, SensorFrame
 from lastmile.core.stamp import Stamp
 from lastmile.recorder import mcap_codec
@@ -29,17 +30,8 @@ from lastmile.recorder.black_box import SUMMARY_METADATA
 from lastmile.recorder.mcap_codec import RecordingError
 from lastmile.recorder.mcap_dump import EVENT_SCHEMA, PROFILE
 
-_SENSOR_TYPES = (
-    "GnssInsFrame",
-    "ImuFrame",
-    "WheelOdometryFrame",
-    "RadarFrame",
-    "DoorSensorFrame",
-    "StopCallFrame",
-    "LidarSweep",
-    "CameraDetections",
-    "TrafficLightDetections",
-)
+_SENSOR_TYPES = tuple(FRAME_KINDS)
+"""Every frame type the loop delivers to the stack (the operator's input and V2I reports among them)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -114,8 +106,8 @@ class Recording:
         """
         grouped: dict[int, list[SensorFrame]] = {}
         for m in self.messages:
-            if type(m.message).__name__ in _SENSOR_TYPES:
-                grouped.setdefault(m.log_time_us, []).append(m.message)
+            if isinstance(m.message, _SENSOR_TYPES):
+                grouped.setdefault(m.log_time_us, []).append(cast(SensorFrame, m.message))
         if tick_us is None:
             for now in sorted(grouped):
                 yield Stamp(now), tuple(grouped[now])
@@ -128,7 +120,7 @@ class Recording:
 
     def frames_in_capture_order(self) -> list[SensorFrame]:
         """Every sensor frame sorted by capture stamp (stable for equal stamps)."""
-        frames = [m.message for m in self.messages if type(m.message).__name__ in _SENSOR_TYPES]
+        frames = [cast(SensorFrame, m.message) for m in self.messages if isinstance(m.message, _SENSOR_TYPES)]
         return sorted(frames, key=lambda f: int(f.stamp))
 
 

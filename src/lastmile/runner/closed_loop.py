@@ -124,7 +124,11 @@ def run_scenario(
         callbacks: list[LoopCallback] = [RunLogCallback(writer, world, scenario), timing]
         if black_box_dir is not None and config.loop.black_box:
             box = black_box_config(
-                black_box_dir, config.loop.black_box_window_s, world, sensor_calibration(world)
+                black_box_dir,
+                config.loop.black_box_window_s,
+                world,
+                sensor_calibration(world),
+                run=(scenario, config),
             )
             callbacks.append(BlackBoxCallback(box, writer))
         if progress is not None:

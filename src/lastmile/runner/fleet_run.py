@@ -363,6 +363,7 @@ def _build_shuttles(
             run_config.loop.black_box_window_s,
             loop.world,
             sensor_calibration(loop.world),
+            run=(scenario, run_config),
         )
         loop.callbacks.extend(
             [

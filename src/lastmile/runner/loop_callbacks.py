@@ -22,7 +22,8 @@ from lastmile.recorder.foxglove_views import planar_matrix
 from lastmile.recorder.run_log import STATE_NAMES
 from lastmile.recorder.run_log_writer import RunLogWriter
 from lastmile.runner.loop import ClosedLoop, LoopCallback, TickRecord
-from lastmile.sim.scenario import Scenario
+from lastmile.runner.run_config import RunConfig, run_config_to_toml
+from lastmile.sim.scenario import Scenario, scenario_to_toml
 from lastmile.sim.simulation import Simulation
 from lastmile.stack.vehicle_build import SensorCalibration
 
@@ -226,20 +227,37 @@ class TimingCallback(LoopCallback):
             self.timing["raw_perception"] = dict(report.perception)
 
 
+RUN_METADATA = "lastmile_run"
+"""The metadata record of every black-box file that says what produced the run (scenario and run
+configuration as TOML): ``lastmile replay --through-stack`` rebuilds the stack from it."""
+
+
 def black_box_config(
-    out_dir: Path, window_s: float, world: Simulation, calibration: SensorCalibration
+    out_dir: Path,
+    window_s: float,
+    world: Simulation,
+    calibration: SensorCalibration,
+    run: tuple[Scenario, RunConfig] | None = None,
 ) -> BlackBoxConfig:
     """The black box of a run writing into ``out_dir``, keeping ``window_s`` seconds.
 
     Its ``/tf`` places every sensor at its true mount (the vehicle's calibration: the simulated
-    sensors' own), and it draws the HD map the vehicle drives on and its service route.
+    sensors' own), and it draws the HD map the vehicle drives on and its service route. With ``run``
+    (the scenario and the run configuration), each file says what produced it (:data:`RUN_METADATA`).
     """
+    metadata = {}
+    if run is not None:
+        metadata[RUN_METADATA] = {
+            "scenario_toml": scenario_to_toml(run[0]),
+            "run_config_toml": run_config_to_toml(run[1]),
+        }
     return BlackBoxConfig(
         out_dir=out_dir,
         window_us=round(window_s * 1e6),
         sensor_mounts=sensor_frame_mounts(calibration),
         map_lines=map_polylines(world.world.hdmap),
         route=np.asarray(world.service_route.xy_m),
+        metadata=metadata,
     )
 
 
