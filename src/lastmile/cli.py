@@ -80,6 +80,10 @@ def run(
         Path | None,
         typer.Option(help="Route file (TOML): serve its stops on its Lanelet2 map instead of the campus."),
     ] = None,
+    live: Annotated[
+        bool, typer.Option(help="Serve the run live to Foxglove (WebSocket), paced to the wall clock.")
+    ] = False,
+    live_port: Annotated[int, typer.Option(help="--live: the WebSocket port (on 127.0.0.1).")] = 8765,
 ) -> None:
     """Simulate the shuttle service in closed loop and write a run directory with report.md."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
@@ -126,6 +130,8 @@ def run(
                 run_config,
                 progress=lambda done, total: bar.update(task, completed=done),
                 black_box_dir=out / "recordings",
+                live=("127.0.0.1", live_port) if live else None,
+                on_live=lambda port: bar.console.print(f"live: connect Foxglove to ws://127.0.0.1:{port}"),
             )
         metrics = evaluate_run(log, out, hdmap=load_world_map(spec.map).hdmap)
     except LastmileError as exc:

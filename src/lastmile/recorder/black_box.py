@@ -14,7 +14,7 @@ import os
 import signal
 import threading
 from collections import deque
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,10 +25,7 @@ import numpy as np
 from mcap.reader import make_reader
 from mcap.writer import Writer
 
-from lastmile.core import frame_kinds
 from lastmile.core.errors import ConfigError
-from lastmile.core.sensor_frames import SensorFrame
-from lastmile.core.vehicle_messages import StackOutput
 from lastmile.recorder import foxglove_views as fv
 from lastmile.recorder.mcap_dump import (
     EVENT_METADATA,
@@ -38,6 +35,7 @@ from lastmile.recorder.mcap_dump import (
     Entry,
     write_mcap,
 )
+from lastmile.recorder.topic_recorder import TopicRecorder, sensor_topic
 
 __all__ = [
     "EVENT_METADATA",
@@ -49,6 +47,7 @@ __all__ = [
     "BlackBoxConfig",
     "Entry",
     "install_sigterm_handler",
+    "sensor_topic",
     "write_mcap",
 ]
 
@@ -117,11 +116,6 @@ class BlackBoxConfig:
         return fv.ViewBuilder(sensor_mounts=self.sensor_mounts, map_lines=self.map_lines, route=self.route)
 
 
-def sensor_topic(frame: SensorFrame) -> str:
-    """The topic a sensor frame is recorded on."""
-    return frame_kinds.frame_topic(frame)
-
-
 @dataclass(slots=True)
 class _OpenDump:
     """A dump whose merge time has not passed yet: triggers still join it."""
@@ -133,7 +127,7 @@ class _OpenDump:
     future: Future[Path]
 
 
-class BlackBox:
+class BlackBox(TopicRecorder):
     """Rolling window of the stack's inputs, decisions and outputs; dumps it to MCAP on triggers.
 
     Wiring (one call per tick from the loop, after the stack and the safety gate; see README.md):
@@ -144,6 +138,7 @@ class BlackBox:
     """
 
     def __init__(self, config: BlackBoxConfig) -> None:
+        super().__init__()
         self.config = config
         self._window: deque[Entry] = deque()
         self._newest_us = 0
@@ -152,7 +147,6 @@ class BlackBox:
         self._executor.submit(lambda: None).result()
         self._pending: list[Future[Path]] = []
         self._open: _OpenDump | None = None
-        self._last_decision: object = None
         self._last_written: dict[str, tuple[int, Future[Path]]] = {}
         self._count = 0
         self._lock = threading.Lock()  # only around the counter and pending list (both threads touch them)
@@ -182,34 +176,6 @@ class BlackBox:
         window.append(entry)
         if self.config.spool_chunk_us is not None:
             self._spool(entry)
-
-    def record_frames(self, now_us: int, frames: Iterable[SensorFrame]) -> None:
-        """The sensor frames delivered to the stack at ``now_us``."""
-        for frame in frames:
-            self.record(now_us, sensor_topic(frame), frame)
-
-    def record_output(self, now_us: int, output: StackOutput) -> None:
-        """What one stack tick returned: command, status, decision (when new), HMI, heartbeats, and on
-        planning cycles the localization estimate, the tracks and the planned trajectory."""
-        if output.command is not None:
-            self.record(now_us, "/stack/command", output.command)
-        if output.status is not None:
-            self.record(now_us, "/stack/status", output.status)
-        if output.decision is not None and output.decision is not self._last_decision:
-            # The stack hands back its current decision every tick; a new one is a new object.
-            self._last_decision = output.decision
-            self.record(now_us, "/decision/behaviour", output.decision)
-        for hmi in output.hmi:
-            self.record(now_us, "/stack/hmi", hmi)
-        for beat in output.heartbeats:
-            self.record(now_us, "/safety/heartbeat", beat)
-        diag = output.diagnostics
-        if diag is not None and diag.estimate is not None:
-            self.record(now_us, "/localization/estimate", diag.estimate)
-        if output.tracks is not None:
-            self.record(now_us, "/tracking/tracks", output.tracks)
-        if output.trajectory is not None:
-            self.record(now_us, "/planning/trajectory", output.trajectory)
 
     def window(self) -> tuple[Entry, ...]:
         """A snapshot of the window: the entries of the last ``window_us`` (references only)."""

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import base64
 import dataclasses
+import functools
 import json
 import math
 from dataclasses import dataclass
@@ -171,8 +172,26 @@ class ChannelSpec:
 
 def foxglove_spec(message: Any) -> ChannelSpec:
     """The channel of a ``foxglove.messages`` object: the SDK's own schema, protobuf."""
-    sch = type(message).get_schema()
+    cls: type = type(message)
+    return _foxglove_type_spec(cls)
+
+
+@functools.cache
+def _foxglove_type_spec(cls: type) -> ChannelSpec:
+    sch = cls.get_schema()  # type: ignore[attr-defined]
     return ChannelSpec(sch.name, sch.encoding, bytes(sch.data), "protobuf")
+
+
+LIDAR_SPEC = _foxglove_type_spec(fv.fm.PointCloud)
+"""The channel of a LiDAR sweep's lossless record: a Foxglove ``PointCloud``."""
+
+
+def json_spec(message: Any) -> ChannelSpec:
+    """The channel of a core message's lossless JSON record, with its documented schema."""
+    cls: type = type(message)
+    if CLASSES.get(cls.__name__) is not cls:
+        raise RecordingError(f"encode: expected a message class of lastmile.core, got {cls.__qualname__}")
+    return ChannelSpec(f"lastmile.{cls.__name__}", "jsonschema", record_schemas.schema_for(cls), "json")
 
 
 def lossless_record(message: Any) -> tuple[ChannelSpec, bytes]:
@@ -185,12 +204,5 @@ def lossless_record(message: Any) -> tuple[ChannelSpec, bytes]:
         cloud = fv.point_cloud(
             message.stamp, f"lidar_{message.sensor_id}", fv.LIDAR_FIELD_NAMES, message.points
         )
-        return foxglove_spec(cloud), cloud.encode()
-    name = type(message).__name__
-    if CLASSES.get(name) is not type(message):
-        raise RecordingError(
-            f"encode: expected a message class of lastmile.core, got {type(message).__qualname__}"
-        )
-    cls: type = type(message)
-    spec = ChannelSpec(f"lastmile.{name}", "jsonschema", record_schemas.schema_for(cls), "json")
-    return spec, encode_message(message)
+        return LIDAR_SPEC, cloud.encode()
+    return json_spec(message), encode_message(message)

@@ -19,6 +19,7 @@ from lastmile.core.vehicle_messages import BehaviourState
 from lastmile.hdmap.model import HDMap
 from lastmile.recorder.black_box import BlackBox, BlackBoxConfig
 from lastmile.recorder.foxglove_views import planar_matrix
+from lastmile.recorder.live_view import LiveView, LiveViewConfig
 from lastmile.recorder.run_log import STATE_NAMES
 from lastmile.recorder.run_log_writer import RunLogWriter
 from lastmile.runner.loop import ClosedLoop, LoopCallback, TickRecord
@@ -177,6 +178,40 @@ class BlackBoxCallback(LoopCallback):
             )
 
 
+class LiveViewCallback(LoopCallback):
+    """Serves the run live (Foxglove WebSocket): the black box's channels, as each tick happens.
+
+    With ``realtime`` the loop waits for the wall clock whenever it runs ahead of it, so a viewer sees
+    the run at its own pace (waiting only: a loop slower than real time is never hurried).
+    """
+
+    def __init__(self, live: LiveView, realtime: bool = True) -> None:
+        self.live = live
+        self.realtime = realtime
+        self._wall0 = 0.0
+        self._level: FailSafeLevel | None = None
+
+    def on_start(self, loop: ClosedLoop[Any]) -> None:
+        self._wall0 = time.perf_counter()
+
+    def on_tick(self, record: TickRecord) -> None:
+        live, now_us = self.live, int(record.now)
+        live.record_frames(now_us, record.frames)
+        if record.output is not None:
+            live.record_output(now_us, record.output)
+        directive = record.verdict.directive
+        if directive.level != self._level:
+            live.record(now_us, "/safety/directive", directive)
+            self._level = directive.level
+        if self.realtime:
+            ahead_s = record.t_s - (time.perf_counter() - self._wall0)
+            if ahead_s > 0:
+                time.sleep(ahead_s)
+
+    def on_end(self, loop: ClosedLoop[Any], ticks_run: int) -> None:
+        self.live.close()
+
+
 class ProgressCallback(LoopCallback):
     """Reports simulated progress every :data:`PROGRESS_EVERY_TICKS` ticks and at the end."""
 
@@ -288,3 +323,16 @@ def map_polylines(hdmap: HDMap) -> tuple[np.ndarray, ...]:
         poly = np.asarray(cw.polygon)[:, :2]
         out.append(np.vstack([poly, poly[:1]]))
     return tuple(out)
+
+
+def live_view_config(
+    host: str, port: int, world: Simulation, calibration: SensorCalibration
+) -> LiveViewConfig:
+    """The live view of a run: the black box's sensor mounts, map and route, served at ``host:port``."""
+    return LiveViewConfig(
+        host=host,
+        port=port,
+        sensor_mounts=sensor_frame_mounts(calibration),
+        map_lines=map_polylines(world.world.hdmap),
+        route=np.asarray(world.service_route.xy_m),
+    )
