@@ -373,7 +373,8 @@ def replay(
         typer.echo(f"lastmile replay: warning: {rec.warning}", err=True)
     console = Console(width=140)
     first, last = rec.span_us
-    table = Table(title=f"{file}: {len(rec.messages)} messages, {first / 1e6:.2f} s to {last / 1e6:.2f} s")
+    total = sum(ch.count for ch in rec.channels)
+    table = Table(title=f"{file}: {total} messages, {first / 1e6:.2f} s to {last / 1e6:.2f} s")
     for col in ("topic", "schema", "messages", "first [s]", "last [s]"):
         table.add_column(col, justify="right" if col in ("messages", "first [s]", "last [s]") else "left")
     for ch in rec.channels:

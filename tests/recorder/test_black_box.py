@@ -12,18 +12,20 @@ import numpy as np
 import pytest
 from foxglove import messages as fm
 from mcap.reader import make_reader
+from mcap.records import Schema
 from mcap_protobuf.decoder import DecoderFactory
 from typer.testing import CliRunner
 
 from lastmile.cli import app
 from lastmile.core.errors import ConfigError
+from lastmile.core.object_class import ObjectClass
 from lastmile.core.objects import TrackedObjects
-from lastmile.core.sensor_frames import LidarSweep
+from lastmile.core.sensor_frames import CameraDetections, LidarSweep
 from lastmile.core.stamp import Stamp
 from lastmile.core.vehicle_messages import ActuatorCommand, LocalizationEstimate
 from lastmile.recorder import record_schemas
 from lastmile.recorder.black_box import BlackBox, BlackBoxConfig
-from lastmile.recorder.foxglove_views import planar_matrix
+from lastmile.recorder.foxglove_views import ViewBuilder, planar_matrix
 from lastmile.recorder.mcap_codec import RecordingError, encode_message
 from lastmile.recorder.replay import read_recording
 from lastmile.recorder.replay_render import render_png_sequence
@@ -302,3 +304,15 @@ def test_a_file_cut_short_is_read_as_far_as_it_goes_with_one_warning(
     assert result.exit_code == 0, result.output
     warnings = [ln for ln in result.output.splitlines() if "warning" in ln]
     assert len(warnings) == 1 and warnings[0].startswith("lastmile replay: warning: ")
+
+
+def test_camera_boxes_become_image_annotations_with_class_and_score() -> None:
+    boxes = np.array([[100, 50, 180, 200, int(ObjectClass.PEDESTRIAN), 0.9]], dtype=np.float32)
+    det = CameraDetections(stamp=Stamp(2_000_000), camera_id="front", boxes=boxes)
+    views = list(ViewBuilder(sensor_mounts={}).views(2_000_000, "/sensors/camera/front", det))
+    assert [(t, type(m).__name__) for t, m in views] == [("/viz/sensors/camera/front", "ImageAnnotations")]
+    schema = fm.ImageAnnotations.get_schema()
+    record = Schema(id=1, name=schema.name, encoding=schema.encoding, data=schema.data)
+    back = DecoderFactory().decoder_for("protobuf", record)(views[0][1].encode())  # type: ignore[misc]
+    assert [(p.x, p.y) for p in back.points[0].points] == [(100, 50), (180, 50), (180, 200), (100, 200)]
+    assert back.texts[0].text == "pedestrian 0.90"

@@ -109,6 +109,7 @@ def test_every_channel_uses_a_foxglove_schema_or_a_documented_one_of_ours(
         "/route": "foxglove.SceneUpdate",
         "/map": "foxglove.SceneUpdate",
         "/log": "foxglove.Log",
+        "/viz/sensors/traffic_lights/front": "foxglove.ImageAnnotations",
     }
     assert {t: schemas.get(t) for t in expected} == expected
     foxglove_share = sum(s.startswith("foxglove.") for s in schemas.values())

@@ -69,15 +69,16 @@ def compression_type(name: str) -> CompressionType:
     return {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}[name]
 
 
-class _Channels:
-    """Registers each (topic, schema) once on a writer."""
+class _Out:
+    """Adds messages to a writer, registering each (topic, schema) once and numbering them in order."""
 
     def __init__(self, writer: Writer) -> None:
         self.w = writer
         self.schemas: dict[str, int] = {}
         self.channels: dict[tuple[str, str], int] = {}
+        self.seq = 0
 
-    def id(self, topic: str, spec: ChannelSpec) -> int:
+    def _id(self, topic: str, spec: ChannelSpec) -> int:
         key = (topic, spec.schema)
         cid = self.channels.get(key)
         if cid is None:
@@ -90,6 +91,29 @@ class _Channels:
             cid = self.w.register_channel(topic=topic, message_encoding=spec.message_encoding, schema_id=sid)
             self.channels[key] = cid
         return cid
+
+    def add(self, topic: str, spec: ChannelSpec, data: bytes, log_us: int, publish_us: int) -> None:
+        self.w.add_message(
+            self._id(topic, spec),
+            log_time=log_us * 1000,
+            data=data,
+            publish_time=max(publish_us, 0) * 1000,  # MCAP times are unsigned
+            sequence=self.seq,
+        )
+        self.seq += 1
+
+    def add_view(self, topic: str, msg: Any, log_us: int, publish_us: int) -> None:
+        self.add(topic, mcap_codec.foxglove_spec(msg), msg.encode(), log_us, publish_us)
+
+    def add_event(self, ev: dict[str, Any]) -> None:
+        """A trigger: its ``/events`` record, a ``/log`` line and a ``black_box_event`` metadata record."""
+        t_us = int(ev["time_us"])
+        self.add(EVENT_TOPIC, _EVENT_SPEC, json.dumps(ev).encode(), t_us, t_us)
+        severe = ev["trigger"] in ("crash", "collision", "emergency_stop")
+        level = fv.fm.LogLevel.Error if severe else fv.fm.LogLevel.Warning
+        text = f"black box trigger {ev['trigger']}: {ev['reason']}"
+        self.add_view(fv.LOG_TOPIC, fv.log(t_us, level, "black_box", text), t_us, t_us)
+        self.w.add_metadata(EVENT_METADATA, {k: str(v) for k, v in ev.items()})
 
 
 def poses_xy(entries: Iterable[Entry]) -> np.ndarray:
@@ -132,49 +156,24 @@ def write_mcap(
     with open(tmp, "wb") as fh:
         w = Writer(fh, compression=compression_type(compression))
         w.start(profile=PROFILE, library="lastmile")
-        ch = _Channels(w)
-        seq = 0
-
-        def add(topic: str, spec: ChannelSpec, data: bytes, log_us: int, publish_us: int) -> None:
-            nonlocal seq
-            w.add_message(
-                ch.id(topic, spec),
-                log_time=log_us * 1000,
-                data=data,
-                publish_time=max(publish_us, 0) * 1000,  # MCAP times are unsigned
-                sequence=seq,
-            )
-            seq += 1
-
-        def add_view(topic: str, msg: Any, log_us: int, publish_us: int) -> None:
-            add(topic, mcap_codec.foxglove_spec(msg), msg.encode(), log_us, publish_us)
-
+        out = _Out(w)
         if views is not None and entries:
             t0 = entries[0][0]
             for topic, msg in views.opening(t0, poses_xy(entries)):
-                add_view(topic, msg, t0, t0)
+                out.add_view(topic, msg, t0, t0)
         last_yield = time.perf_counter()
         for log_us, topic, msg in entries:
             stamp_us = int(getattr(msg, "stamp", log_us))
             spec, data = mcap_codec.lossless_record(msg)
-            add(topic, spec, data, log_us, stamp_us)
+            out.add(topic, spec, data, log_us, stamp_us)
             if views is not None:
                 for view_topic, view in views.views(log_us, topic, msg):
-                    add_view(view_topic, view, log_us, stamp_us)
+                    out.add_view(view_topic, view, log_us, stamp_us)
             if yield_gil and time.perf_counter() - last_yield > _YIELD_EVERY_S:
                 time.sleep(0)
                 last_yield = time.perf_counter()
         for ev in events:
-            t_us = int(ev["time_us"])
-            add(EVENT_TOPIC, _EVENT_SPEC, json.dumps(ev).encode(), t_us, t_us)
-            level = (
-                fv.fm.LogLevel.Error if ev["trigger"] in ("crash", "collision", "emergency_stop") else None
-            )
-            text = f"black box trigger {ev['trigger']}: {ev['reason']}"
-            add_view(
-                fv.LOG_TOPIC, fv.log(t_us, level or fv.fm.LogLevel.Warning, "black_box", text), t_us, t_us
-            )
-            w.add_metadata(EVENT_METADATA, {k: str(v) for k, v in ev.items()})
+            out.add_event(ev)
         for meta_name, meta in (metadata or {}).items():
             w.add_metadata(meta_name, meta)
         for att in attachments:

@@ -78,9 +78,11 @@ class Recording:
 
     @property
     def span_us(self) -> tuple[int, int]:
-        if not self.messages:
+        """(first, last) log time of the lossless records, or of the views in a file that has none."""
+        msgs = self.messages or self.views
+        if not msgs:
             return (0, 0)
-        return self.messages[0].log_time_us, self.messages[-1].log_time_us
+        return msgs[0].log_time_us, msgs[-1].log_time_us
 
     @property
     def operator_summary(self) -> str | None:
