@@ -352,6 +352,12 @@ def replay(
     through_stack: Annotated[
         bool, typer.Option(help="Re-run the stack on the recorded inputs; say where its output differs.")
     ] = False,
+    summary: Annotated[
+        str | None, typer.Option(help="Attach the operator's written summary to the file (MCAP attachment).")
+    ] = None,
+    audio: Annotated[
+        Path | None, typer.Option(help="--summary: attach the spoken summary too (.wav, .mp3, .ogg, .flac).")
+    ] = None,
 ) -> None:
     """Summarise a recording (channels, counts, time span, events); optionally render it top-down."""
     from rich.console import Console
@@ -365,6 +371,10 @@ def replay(
             raise ConfigError(f"--fps: expected a positive rate, got {fps}")
         if render is not None and render.exists() and not render.is_dir():
             raise ConfigError(f"--render: expected a new file, got {render}, which exists (not overwritten)")
+        if summary is not None or audio is not None:
+            from lastmile.recorder.black_box import attach_operator_summary
+
+            attach_operator_summary(file, summary, audio)
         rec = read_recording(file)
     except LastmileError as exc:
         typer.echo(f"lastmile replay: {exc}", err=True)

@@ -399,6 +399,34 @@ def _copy_records(reader: Any, w: Writer) -> None:
         w.add_attachment(att.create_time, att.log_time, att.name, att.media_type, att.data)
 
 
+AUDIO_MEDIA_TYPES = {".wav": "audio/wav", ".mp3": "audio/mpeg", ".ogg": "audio/ogg", ".flac": "audio/flac"}
+
+
+def attach_operator_summary(path: Path, text: str | None, audio: Path | None = None) -> Path:
+    """Check the operator's summary (text, optional sound file) and attach it to the dump at ``path``.
+
+    Raises:
+        ConfigError: no text, an audio file that is missing or of an unknown kind.
+    """
+    if not text or not text.strip():
+        raise ConfigError(f"--summary: expected the operator's summary text, got {text!r}")
+    data = None
+    media_type = "audio/wav"
+    if audio is not None:
+        media_type = AUDIO_MEDIA_TYPES.get(audio.suffix.lower(), "")
+        if not media_type:
+            kinds = ", ".join(AUDIO_MEDIA_TYPES)
+            raise ConfigError(
+                f"--audio: expected a {kinds} file, got {audio} ({audio.suffix or 'no suffix'})"
+            )
+        if not audio.is_file():
+            raise ConfigError(f"--audio: expected a sound file, got {audio} (no such file)")
+        data = audio.read_bytes()
+    if not Path(path).is_file():
+        raise ConfigError(f"--summary: expected a black-box MCAP file, got {path} (no such file)")
+    return BlackBox.add_operator_summary(Path(path), text.strip(), audio=data, audio_media_type=media_type)
+
+
 def install_sigterm_handler(black_box: BlackBox, on_exit: Callable[[], None] | None = None) -> None:
     """On SIGTERM: finish pending writes, dump the window synchronously, then exit with status 143.
 

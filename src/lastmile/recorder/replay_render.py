@@ -164,7 +164,7 @@ class _Painter:
             if "radar" in topic:
                 self.ax.scatter(xy[:, 0], xy[:, 1], s=14, marker="x", c="tab:purple", zorder=3)
             else:
-                self.ax.scatter(xy[:, 0], xy[:, 1], s=0.4, c="0.35", zorder=2)
+                self.ax.scatter(xy[:, 0], xy[:, 1], s=0.2, c="0.45", alpha=0.5, linewidths=0, zorder=2)
 
     def scenes(self, scene: _Scene) -> None:
         from matplotlib.patches import Polygon
