@@ -8,6 +8,7 @@ on any MCAP with Foxglove schemas: without a ``map`` frame (``lastmile perceive`
 
 from __future__ import annotations
 
+import bisect
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -208,15 +209,27 @@ class _Painter:
         return float(m[0, 3]), float(m[1, 3])
 
 
-def _title(recording: Recording, t_us: int) -> str:
-    decision = cmd = None
-    for msg in recording.messages:
-        if msg.log_time_us > t_us:
-            break
-        if isinstance(msg.message, BehaviourDecision):
-            decision = msg.message
-        elif isinstance(msg.message, ActuatorCommand):
-            cmd = msg.message
+class _Titles:
+    """The title of a picture at a time: the latest behaviour state and e-brake flag by then."""
+
+    def __init__(self, recording: Recording) -> None:
+        self.decisions = [
+            (m.log_time_us, m.message) for m in recording.messages if isinstance(m.message, BehaviourDecision)
+        ]
+        self.commands = [
+            (m.log_time_us, m.message) for m in recording.messages if isinstance(m.message, ActuatorCommand)
+        ]
+
+    @staticmethod
+    def _latest(items: list[tuple[int, Any]], t_us: int) -> Any:
+        k = bisect.bisect_right(items, t_us, key=lambda item: item[0])
+        return items[k - 1][1] if k else None
+
+    def at(self, t_us: int) -> str:
+        return _title(self._latest(self.decisions, t_us), self._latest(self.commands, t_us), t_us)
+
+
+def _title(decision: BehaviourDecision | None, cmd: ActuatorCommand | None, t_us: int) -> str:
     title = f"t = {t_us / 1e6:.2f} s"
     if decision is not None:
         title += f"  {decision.state.value}"
@@ -240,6 +253,7 @@ def _render(recording: Recording, times: list[int], paths: list[Path], view_m: f
 
     views = recording.views
     scene = _Scene(fixed=fixed_frame_of(views))
+    titles = _Titles(recording)
     out: list[RenderSummary] = []
     i = 0
     fig, ax = plt.subplots(figsize=(7.0, 7.0), dpi=100)
@@ -259,7 +273,7 @@ def _render(recording: Recording, times: list[int], paths: list[Path], view_m: f
             ax.set_aspect("equal")
             ax.set_xlabel(f"x [m] ({scene.fixed} frame)")
             ax.set_ylabel("y [m]")
-            ax.set_title(_title(recording, t), fontsize=9)
+            ax.set_title(titles.at(t), fontsize=9)
             fig.savefig(path)
             out.append(RenderSummary(path, t, scene.fixed, centre is not None, p.boxes, p.points, p.lines))
     finally:
