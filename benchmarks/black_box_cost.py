@@ -207,19 +207,16 @@ def run_sync_mcap(ticks: list[Tick], out_dir: Path) -> dict[str, float]:
         channels: dict[str, int] = {}
 
         def write(now: int, topic: str, msg: Any) -> None:
+            spec, data = mcap_codec.lossless_record(msg)
             if topic not in channels:
-                name, data = mcap_codec.schema_of(msg)
-                if name not in schemas:
-                    schemas[name] = w.register_schema(name=name, encoding="jsonschema", data=data)
+                if spec.schema not in schemas:
+                    schemas[spec.schema] = w.register_schema(
+                        name=spec.schema, encoding=spec.schema_encoding, data=spec.schema_data
+                    )
                 channels[topic] = w.register_channel(
-                    topic=topic, message_encoding="json", schema_id=schemas[name]
+                    topic=topic, message_encoding=spec.message_encoding, schema_id=schemas[spec.schema]
                 )
-            w.add_message(
-                channels[topic],
-                log_time=now * 1000,
-                data=mcap_codec.lossless_payload(msg),
-                publish_time=now * 1000,
-            )
+            w.add_message(channels[topic], log_time=now * 1000, data=data, publish_time=now * 1000)
 
         for now, frames, out, extra in ticks:
             t0 = clock()

@@ -80,6 +80,10 @@ def run(
         Path | None,
         typer.Option(help="Route file (TOML): serve its stops on its Lanelet2 map instead of the campus."),
     ] = None,
+    live: Annotated[
+        bool, typer.Option(help="Serve the run live to Foxglove (WebSocket), paced to the wall clock.")
+    ] = False,
+    live_port: Annotated[int, typer.Option(help="--live: the WebSocket port (on 127.0.0.1).")] = 8765,
 ) -> None:
     """Simulate the shuttle service in closed loop and write a run directory with report.md."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
@@ -126,6 +130,8 @@ def run(
                 run_config,
                 progress=lambda done, total: bar.update(task, completed=done),
                 black_box_dir=out / "recordings",
+                live=("127.0.0.1", live_port) if live else None,
+                on_live=lambda port: bar.console.print(f"live: connect Foxglove to ws://127.0.0.1:{port}"),
             )
         metrics = evaluate_run(log, out, hdmap=load_world_map(spec.map).hdmap)
     except LastmileError as exc:
@@ -336,26 +342,49 @@ def experiment_v2i(
 def replay(
     file: Annotated[Path, typer.Argument(help="Black-box MCAP file (or a spool directory of chunks).")],
     render: Annotated[
-        Path | None, typer.Option(help="Render a top-down PNG sequence into this directory.")
+        Path | None,
+        typer.Option(help="Draw the scene top-down: FILE.png for one picture, else a directory of frames."),
+    ] = None,
+    at: Annotated[
+        float | None, typer.Option(help="Time (s) of the one picture [default: the first trigger].")
     ] = None,
     fps: Annotated[float, typer.Option(help="Frames per second of recorded time when rendering.")] = 10.0,
+    through_stack: Annotated[
+        bool, typer.Option(help="Re-run the stack on the recorded inputs; say where its output differs.")
+    ] = False,
+    summary: Annotated[
+        str | None, typer.Option(help="Attach the operator's written summary to the file (MCAP attachment).")
+    ] = None,
+    audio: Annotated[
+        Path | None, typer.Option(help="--summary: attach the spoken summary too (.wav, .mp3, .ogg, .flac).")
+    ] = None,
 ) -> None:
-    """Summarise a black-box recording (channels, counts, time span, events); optionally render PNGs."""
+    """Summarise a recording (channels, counts, time span, events); optionally render it top-down."""
     from rich.console import Console
     from rich.table import Table
 
-    from lastmile.recorder.replay import read_recording, render_png_sequence
+    from lastmile.recorder.replay import read_recording
+    from lastmile.recorder.replay_render import render_png, render_png_sequence
 
     try:
         if not fps > 0:
             raise ConfigError(f"--fps: expected a positive rate, got {fps}")
+        if render is not None and render.exists() and not render.is_dir():
+            raise ConfigError(f"--render: expected a new file, got {render}, which exists (not overwritten)")
+        if summary is not None or audio is not None:
+            from lastmile.recorder.black_box import attach_operator_summary
+
+            attach_operator_summary(file, summary, audio)
         rec = read_recording(file)
     except LastmileError as exc:
         typer.echo(f"lastmile replay: {exc}", err=True)
         raise typer.Exit(2) from None
-    console = Console()
+    if rec.warning is not None:
+        typer.echo(f"lastmile replay: warning: {rec.warning}", err=True)
+    console = Console(width=140)
     first, last = rec.span_us
-    table = Table(title=f"{file}: {len(rec.messages)} messages, {first / 1e6:.2f} s to {last / 1e6:.2f} s")
+    total = sum(ch.count for ch in rec.channels)
+    table = Table(title=f"{file}: {total} messages, {first / 1e6:.2f} s to {last / 1e6:.2f} s")
     for col in ("topic", "schema", "messages", "first [s]", "last [s]"):
         table.add_column(col, justify="right" if col in ("messages", "first [s]", "last [s]") else "left")
     for ch in rec.channels:
@@ -369,9 +398,26 @@ def replay(
         )
     summary = rec.operator_summary
     console.print(f"operator summary: {summary}" if summary is not None else "operator summary: (none yet)")
-    if render is not None:
-        paths = render_png_sequence(rec, render, fps=fps)
-        console.print(f"wrote {len(paths)} frames to {render}")
+    try:
+        if through_stack:
+            from lastmile.runner.replay_through_stack import describe, replay_through_stack
+
+            console.print(describe(replay_through_stack(rec)))
+        if render is None:
+            return
+        if render.suffix.lower() == ".png":
+            shot = render_png(rec, render, at_us=None if at is None else round(at * 1e6))
+            console.print(
+                f"wrote {render}: t = {shot.t_us / 1e6:.2f} s in {shot.fixed_frame}, ego "
+                f"{'drawn' if shot.ego else 'unknown'}, {shot.boxes} boxes, {shot.cloud_points} points, "
+                f"{shot.lines} path lines"
+            )
+        else:
+            paths = render_png_sequence(rec, render, fps=fps)
+            console.print(f"wrote {len(paths)} frames to {render}")
+    except LastmileError as exc:
+        typer.echo(f"lastmile replay: {exc}", err=True)
+        raise typer.Exit(2) from None
 
 
 # --- lastmile eval: scoring against real data (self-contained block) --------------------------------

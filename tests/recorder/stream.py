@@ -46,7 +46,7 @@ def tick_messages(
         )
     if tick % 5 == 0:
         frames.append(
-            RadarFrame(stamp=Stamp(now - 45_000), sensor_id="radar_front", objects=rng.normal(size=(2, 6)))
+            RadarFrame(stamp=Stamp(now - 45_000), sensor_id="front", objects=rng.normal(size=(2, 6)))
         )
     if tick % 10 == 0:
         frames.append(
@@ -63,7 +63,7 @@ def tick_messages(
         frames.append(
             LidarSweep(
                 stamp=Stamp(now - 50_000),
-                sensor_id="lidar_top",
+                sensor_id="top",
                 points=rng.normal(size=(lidar_points, 6)).astype(np.float32),
             )
         )

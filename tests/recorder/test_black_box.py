@@ -7,18 +7,28 @@ import json
 from collections import deque
 from pathlib import Path
 
+import jsonschema
 import numpy as np
 import pytest
+from foxglove import messages as fm
 from mcap.reader import make_reader
+from mcap.records import Schema
+from mcap_protobuf.decoder import DecoderFactory
+from typer.testing import CliRunner
 
+from lastmile.cli import app
 from lastmile.core.errors import ConfigError
-from lastmile.core.geometry import SE2
-from lastmile.core.sensor_frames import LidarSweep
+from lastmile.core.object_class import ObjectClass
+from lastmile.core.objects import TrackedObjects
+from lastmile.core.sensor_frames import CameraDetections, LidarSweep
 from lastmile.core.stamp import Stamp
-from lastmile.core.vehicle_messages import ActuatorCommand
+from lastmile.core.vehicle_messages import ActuatorCommand, LocalizationEstimate
+from lastmile.recorder import record_schemas
 from lastmile.recorder.black_box import BlackBox, BlackBoxConfig
+from lastmile.recorder.foxglove_views import ViewBuilder, planar_matrix
 from lastmile.recorder.mcap_codec import RecordingError, encode_message
-from lastmile.recorder.replay import read_recording, render_png_sequence
+from lastmile.recorder.replay import read_recording
+from lastmile.recorder.replay_render import render_png_sequence
 from tests.recorder.stream import TICK_US, record_ticks
 
 WINDOW_US = 30_000_000
@@ -62,7 +72,9 @@ def test_a_dump_interrupting_a_record_call_never_holds_more_than_the_window(tmp_
 @pytest.fixture(scope="module")
 def dumped(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, BlackBox, list]:
     out = tmp_path_factory.mktemp("bb")
-    bb = BlackBox(BlackBoxConfig(out_dir=out, sensor_mounts={"lidar_top": SE2(1.2, 0.0, 0.0)}))
+    mounts = {"lidar_top": planar_matrix(1.2, 0.0, 0.0, 1.9), "radar_front": planar_matrix(3.75, 0.0, 0.0)}
+    # merge_us=0: the file is written at the trigger, so the ticks after it cannot leak in.
+    bb = BlackBox(BlackBoxConfig(out_dir=out, sensor_mounts=mounts, merge_us=0))
     last = max(record_ticks(bb, 0, 3500))  # 35 s of ticks
     snapshot = list(bb.window())
     future = bb.trigger("takeover", last, "operator braked for a pedestrian")
@@ -87,14 +99,17 @@ def test_trigger_writes_the_window_with_foxglove_schemas(dumped: tuple[Path, Bla
     for name in (
         "foxglove.PointCloud",
         "foxglove.PoseInFrame",
-        "foxglove.FrameTransform",
+        "foxglove.FrameTransforms",
         "foxglove.SceneUpdate",
+        "foxglove.Log",
     ):
-        assert schemas[name] == "jsonschema"
-    assert channel_topics["/sensors/lidar/lidar_top"] == "foxglove.PointCloud"
-    assert channel_topics["/tf"] == "foxglove.FrameTransform"
+        assert schemas[name] == "protobuf"
+    assert channel_topics["/sensors/lidar/top"] == "foxglove.PointCloud"
+    assert channel_topics["/viz/sensors/radar/front"] == "foxglove.PointCloud"
+    assert channel_topics["/tf"] == "foxglove.FrameTransforms"
+    assert channel_topics["/pose"] == "foxglove.PoseInFrame"
     assert channel_topics["/viz/tracking/tracks"] == "foxglove.SceneUpdate"
-    assert channel_topics["/tf_static"] == "foxglove.FrameTransform"  # base_link -> lidar_top
+    assert channel_topics["/viz/planning/trajectory"] == "foxglove.SceneUpdate"
     assert stats.message_start_time == (34_990_000 - WINDOW_US + TICK_US) * 1000  # (newest - 30 s, newest]
     assert stats.message_end_time == 34_990_000 * 1000
     ev = meta["black_box_event"]
@@ -138,7 +153,10 @@ def test_operator_summary_is_added_to_a_finished_dump(
     )
     after = read_recording(copy)
     assert after.operator_summary == "Pedestrian stepped out behind the van."
-    assert after.attachments == (("operator_summary", "audio/wav", b"RIFF....WAVE"),)
+    assert after.attachments == (
+        ("operator_summary.txt", "text/plain; charset=utf-8", b"Pedestrian stepped out behind the van."),
+        ("operator_summary", "audio/wav", b"RIFF....WAVE"),
+    )
     assert len(after.messages) == len(before.messages) and after.events == before.events
 
 
@@ -170,46 +188,131 @@ def test_a_file_that_is_not_mcap_is_one_clear_error(tmp_path: Path) -> None:
         read_recording(tmp_path / "missing.mcap")
 
 
-def _conforms(schema: dict, value: object, where: str) -> None:
-    """The parts of JSON Schema our Foxglove schemas use: object, array, required, number/integer/string."""
-    kind = schema.get("type")
-    if kind == "object":
-        assert isinstance(value, dict), where
-        for name in schema.get("required", []):
-            assert name in value, f"{where}: missing {name}"
-        for name, sub in schema.get("properties", {}).items():
-            if name in value:
-                _conforms(sub, value[name], f"{where}.{name}")
-    elif kind == "array":
-        assert isinstance(value, list), where
-        for i, item in enumerate(value):
-            _conforms(schema["items"], item, f"{where}[{i}]")
-    elif kind == "integer":
-        assert isinstance(value, int) and not isinstance(value, bool), where
-    elif kind == "number":
-        assert isinstance(value, int | float) and not isinstance(value, bool), where
-    elif kind == "string":
-        assert isinstance(value, str), where
-    elif "oneOf" in schema:
-        assert value in [c["const"] for c in schema["oneOf"]], where
-
-
-def test_every_foxglove_message_has_the_fields_its_schema_requires(
+def test_every_channel_has_the_sdks_schema_or_a_documented_one_its_messages_validate_against(
     dumped: tuple[Path, BlackBox, list],
 ) -> None:
-    seen = set()
+    decoders = DecoderFactory()
+    seen: set[str] = set()
+    validators: dict[int, jsonschema.protocols.Validator] = {}
     with open(dumped[0], "rb") as fh:
         for schema, channel, message in make_reader(fh).iter_messages():
-            assert (
-                schema is not None and schema.encoding == "jsonschema" and channel.message_encoding == "json"
-            )
-            if schema.name.startswith("foxglove.") and schema.name not in seen:
-                seen.add(schema.name)
-                _conforms(json.loads(schema.data), json.loads(message.data), schema.name)
-    assert seen == {
+            assert schema is not None
+            if schema.name.startswith("foxglove."):
+                sdk = getattr(fm, schema.name.removeprefix("foxglove.")).get_schema()
+                assert (schema.encoding, schema.data) == (sdk.encoding, sdk.data), schema.name
+                decoder = decoders.decoder_for(channel.message_encoding, schema)
+                assert decoder is not None and decoder(message.data) is not None
+            else:
+                assert schema.encoding == "jsonschema" and channel.message_encoding == "json"
+                if schema.id not in validators:
+                    doc = json.loads(schema.data)
+                    assert doc["title"] == schema.name and doc["description"], schema.name
+                    jsonschema.Draft202012Validator.check_schema(doc)
+                    validators[schema.id] = jsonschema.Draft202012Validator(doc)
+                validators[schema.id].validate(json.loads(message.data))
+            seen.add(schema.name)
+    assert {
         "foxglove.PointCloud",
         "foxglove.PoseInFrame",
-        "foxglove.FrameTransform",
+        "foxglove.FrameTransforms",
         "foxglove.SceneUpdate",
         "foxglove.Log",
-    }
+        "lastmile.ActuatorCommand",
+        "lastmile.TrackedObjects",
+        "lastmile.BlackBoxEvent",
+    } <= seen
+
+
+def test_a_documented_schema_names_each_field_with_its_type_and_description() -> None:
+    doc = json.loads(record_schemas.schema_for(LocalizationEstimate))
+    props = doc["properties"]
+    assert props["valid"]["type"] == "boolean" and props["stamp"]["type"] == "integer"
+    assert props["map_from_base"] == {"$ref": "#/$defs/SE2"} and "x_m" in doc["$defs"]["SE2"]["properties"]
+    tracks = json.loads(record_schemas.schema_for(TrackedObjects))
+    assert "track ids" in tracks["properties"]["ids"]["description"]
+    assert tracks["properties"]["table"]["properties"]["$array"]["contentEncoding"] == "base64"
+    with pytest.raises(jsonschema.ValidationError):
+        jsonschema.validate({"$type": "LocalizationEstimate", "valid": "yes"}, doc)
+
+
+def test_triggers_close_in_time_share_one_file_with_all_their_events(tmp_path: Path) -> None:
+    bb = BlackBox(BlackBoxConfig(out_dir=tmp_path, window_us=3_000_000, merge_us=1_000_000))
+    ticks = record_ticks(bb, 0, 220, lidar_points=20)
+    for _ in range(220):
+        now = next(ticks)
+        if now == 1_000_000:
+            takeover = bb.trigger("takeover", now, "operator took over")
+            mrm = bb.trigger("mrm", now, "front radar silent")  # the same tick
+        if now == 1_090_000:
+            estop = bb.trigger("emergency_stop", now, "operator e-stop")  # 90 ms later
+    assert takeover is mrm is estop
+    path = takeover.result(timeout=60)  # written once the merge time passed (the loop went on)
+    late = bb.trigger("collision", 2_190_000, "contact")  # after the merge time: a new incident
+    bb.close()
+    assert late.result(timeout=60) != path
+    rec = read_recording(path)
+    assert [(e["trigger"], e["time_us"]) for e in rec.events] == [
+        ("takeover", "1000000"),
+        ("mrm", "1000000"),
+        ("emergency_stop", "1090000"),
+    ]
+    assert rec.span_us == (0, 2_000_000)  # from window before the first trigger to the merge time after
+    assert bb.dump_triggers[path] == ("takeover", "mrm", "emergency_stop")
+    assert len(list(tmp_path.glob("*.mcap"))) == 2
+
+
+def test_a_crash_dump_takes_the_events_of_a_dump_still_merging(tmp_path: Path) -> None:
+    bb = BlackBox(BlackBoxConfig(out_dir=tmp_path, merge_us=2_000_000))
+    last = max(record_ticks(bb, 0, 100, lidar_points=20))
+    pending = bb.trigger("takeover", last - 50_000, "operator took over")
+    crash = bb.dump("crash", "stack raised")
+    assert pending.result(timeout=1) == crash
+    assert [e["trigger"] for e in read_recording(crash).events] == ["takeover", "crash"]
+    bb.close()
+    assert list(tmp_path.glob("*.mcap")) == [crash]
+
+
+def _stock_reader_count(data: bytes) -> int:
+    """Messages the stock ``mcap`` stream reader yields before it stops on the damage."""
+    import io
+
+    from mcap import records
+    from mcap.stream_reader import StreamReader
+
+    n = 0
+    try:
+        for rec in StreamReader(io.BytesIO(data), record_size_limit=None).records:
+            n += isinstance(rec, records.Message)
+    except Exception:
+        pass
+    return n
+
+
+def test_a_file_cut_short_is_read_as_far_as_it_goes_with_one_warning(
+    dumped: tuple[Path, BlackBox, list], tmp_path: Path
+) -> None:
+    data = dumped[0].read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: len(data) * 2 // 5])
+    rec = read_recording(cut)
+    stock = _stock_reader_count(cut.read_bytes())
+    n = sum(c.count for c in rec.channels)
+    assert 0 < n == stock < sum(c.count for c in read_recording(dumped[0]).channels)
+    assert rec.warning is not None and "cut short" in rec.warning and f"{n} messages" in rec.warning
+    assert rec.messages and all(m.log_time_us <= rec.span_us[1] for m in rec.messages)
+    result = CliRunner().invoke(app, ["replay", str(cut)])
+    assert result.exit_code == 0, result.output
+    warnings = [ln for ln in result.output.splitlines() if "warning" in ln]
+    assert len(warnings) == 1 and warnings[0].startswith("lastmile replay: warning: ")
+
+
+def test_camera_boxes_become_image_annotations_with_class_and_score() -> None:
+    boxes = np.array([[100, 50, 180, 200, int(ObjectClass.PEDESTRIAN), 0.9]], dtype=np.float32)
+    det = CameraDetections(stamp=Stamp(2_000_000), camera_id="front", boxes=boxes)
+    views = list(ViewBuilder(sensor_mounts={}).views(2_000_000, "/sensors/camera/front", det))
+    assert [(t, type(m).__name__) for t, m in views] == [("/viz/sensors/camera/front", "ImageAnnotations")]
+    schema = fm.ImageAnnotations.get_schema()
+    record = Schema(id=1, name=schema.name, encoding=schema.encoding, data=schema.data)
+    back = DecoderFactory().decoder_for("protobuf", record)(views[0][1].encode())  # type: ignore[misc]
+    assert [(p.x, p.y) for p in back.points[0].points] == [(100, 50), (180, 50), (180, 200), (100, 200)]
+    assert back.texts[0].text == "pedestrian 0.90"

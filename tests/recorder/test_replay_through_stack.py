@@ -31,8 +31,9 @@ def test_recorded_frames_replayed_through_a_fresh_stack_give_the_recorded_comman
         assert record.output is not None and record.verdict.directive.level == FailSafeLevel.NONE
         bb.record_frames(now, record.frames)
         bb.record_output(now, record.output)
-    path = bb.trigger("manual", now, "replay test").result(timeout=60)
-    bb.close()
+    future = bb.trigger("manual", now, "replay test")
+    bb.close()  # writes the dump still merging (the trigger was on the last tick)
+    path = future.result(timeout=60)
     rec = read_recording(path)
     recorded = rec.on("/stack/command")
     assert rec.span_us[0] == 0 and len(recorded) == round(12e6 / TICK_US)

@@ -82,8 +82,14 @@ def test_dead_front_radar_triggers_a_minimal_risk_manoeuvre_that_stops_the_shutt
     assert any("sensor:front" in r for r in d.reasons)
     assert all(x.level == FailSafeLevel.MINIMAL_RISK_MANOEUVRE for x in directives[first:])
     assert speeds[first] > 1.0 and speeds[-1] < 0.05  # it was moving and came to a stop
-    # The MRM asks for a takeover, which the referee logs and the loop's black box also records.
-    assert sorted(p.name.split("_")[1] for p in dumps) == ["manual", "takeover"], dumps
-    rec = read_recording(next(p for p in dumps if "manual" in p.name))
-    assert rec.events[0]["trigger"] == "manual" and "no frame" in rec.events[0]["reason"]
-    assert rec.span_us == (0, first * TICK_US)  # everything up to the trigger (less than 30 s so far)
+    # The MRM asks for a takeover, which the referee logs: the loop's black box (MRM, takeover) and the
+    # watcher (manual) trigger on the same tick, one incident: one file holding all three events.
+    assert len(dumps) == 1, dumps
+    rec = read_recording(dumps[0])
+    triggers = [ev["trigger"] for ev in rec.events]
+    assert sorted(triggers) == ["manual", "mrm", "takeover"], triggers
+    assert {int(ev["time_us"]) for ev in rec.events} == {first * TICK_US}
+    manual = next(ev for ev in rec.events if ev["trigger"] == "manual")
+    assert "no frame" in manual["reason"]
+    # Everything from the start (less than 30 s so far) to the merge time after the trigger.
+    assert rec.span_us == (0, first * TICK_US + BlackBoxConfig(out_dir=tmp_path).merge_us)

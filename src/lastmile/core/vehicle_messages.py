@@ -10,6 +10,7 @@ import numpy as np
 from lastmile.core.arrays import frozen_array
 from lastmile.core.errors import MessageError
 from lastmile.core.geometry import SE2
+from lastmile.core.objects import TrackedObjects
 from lastmile.core.safety_messages import SafetyDirective
 from lastmile.core.stamp import Stamp
 
@@ -266,6 +267,9 @@ class StackOutput:
             health monitor watches them).
         diagnostics: what the vehicle's safety needs from the stack each tick.
         stop_reason: the cause of the decision's stop point when one of :class:`StopReason` applies.
+        tracks: the tracks decision and planning used, on planning cycles (None otherwise); for the
+            black box, never read by the vehicle's safety.
+        trajectory: the planned trajectory, on planning cycles that planned (None otherwise); likewise.
     """
 
     command: ActuatorCommand | None
@@ -275,3 +279,5 @@ class StackOutput:
     heartbeats: tuple[Heartbeat, ...] = field(default_factory=tuple)
     diagnostics: StackDiagnostics | None = None
     stop_reason: StopReason = StopReason.NONE
+    tracks: TrackedObjects | None = None
+    trajectory: Trajectory | None = None

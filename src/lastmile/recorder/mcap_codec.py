@@ -2,12 +2,13 @@
 
 Every message is written once losslessly, so replay gets back an equal message:
 
-- a ``LidarSweep`` as a ``foxglove.PointCloud`` (float32 columns: already lossless);
-- everything else as JSON with schema name ``lastmile.<Class>``: dataclasses are tagged objects,
+- a ``LidarSweep`` as a ``foxglove.PointCloud`` (protobuf, float32 columns: already lossless);
+- everything else as JSON with schema name ``lastmile.<Class>`` (documented: ``record_schemas.py``):
+  dataclasses are tagged objects,
   arrays ``{"$array": base64, "dtype", "shape"}``, enums ``{"$enum": class, "value"}``, non-finite
   floats ``{"$float": "nan" | "inf" | "-inf"}`` (JSON has none); Python's float repr round-trips exactly.
 
-Some messages also get a view for Foxglove (pose, transform, objects, path), which replay ignores.
+Views for Foxglove (pose, transforms, objects, path) are built apart, in ``foxglove_views.py``.
 Decoding only builds classes from the core registry below: a file cannot make us import anything.
 """
 
@@ -15,9 +16,10 @@ from __future__ import annotations
 
 import base64
 import dataclasses
+import functools
 import json
 import math
-from collections.abc import Iterator
+from dataclasses import dataclass
 from enum import Enum
 from typing import Any
 
@@ -34,7 +36,8 @@ from lastmile.core import (
 from lastmile.core.errors import LastmileError
 from lastmile.core.object_class import ObjectClass
 from lastmile.core.stamp import Stamp
-from lastmile.recorder import foxglove_schemas as fx
+from lastmile.recorder import foxglove_views as fv
+from lastmile.recorder import record_schemas
 
 
 class RecordingError(LastmileError):
@@ -68,12 +71,12 @@ LIDAR_SCHEMA = "foxglove.PointCloud"
 
 
 def _to_json(value: Any) -> Any:
+    if isinstance(value, Enum):  # before int: an IntEnum must come back as its enum
+        return {"$enum": type(value).__name__, "value": value.value}
     if isinstance(value, bool | int | str) or value is None:
         return value
     if isinstance(value, float):
         return value if math.isfinite(value) else {"$float": repr(value)}
-    if isinstance(value, Enum):
-        return {"$enum": type(value).__name__, "value": value.value}
     if isinstance(value, np.ndarray):
         arr = np.ascontiguousarray(value)
         return {
@@ -133,111 +136,73 @@ def encode_message(message: Any) -> bytes:
 
 
 def decode_message(schema_name: str, data: bytes) -> Any:
-    """The core message of a lossless record (``lastmile.*`` or ``foxglove.PointCloud`` schema)."""
+    """The core message of a lossless JSON record (a ``lastmile.*`` schema)."""
     try:
         doc = json.loads(data)
     except ValueError as exc:
         raise RecordingError(f"decode: expected JSON for schema {schema_name}, got {exc}") from None
-    if schema_name == LIDAR_SCHEMA:
-        return sensor_frames.LidarSweep(
-            stamp=Stamp(fx.stamp_of(doc["timestamp"])),
-            sensor_id=doc["frame_id"],
-            points=fx.points_from_cloud(doc),
-        )
     return _from_json(doc)
 
 
-def schema_of(message: Any) -> tuple[str, bytes]:
-    """The (schema name, schema bytes) of a message's lossless channel."""
+def lidar_from_cloud(cloud: Any) -> sensor_frames.LidarSweep:
+    """A ``LidarSweep`` from a decoded ``foxglove.PointCloud`` written by :func:`lossless_record`."""
+    names = tuple(f.name for f in cloud.fields)
+    if names != fv.LIDAR_FIELD_NAMES or cloud.point_stride != 4 * len(names):
+        raise RecordingError(
+            f"decode: expected a LiDAR cloud with float32 fields {fv.LIDAR_FIELD_NAMES}, got {names}"
+        )
+    frame = str(cloud.frame_id)
+    points = np.frombuffer(cloud.data, dtype="<f4").reshape(-1, len(names)).astype(np.float32)
+    return sensor_frames.LidarSweep(
+        stamp=Stamp(fv.stamp_us_of(cloud.timestamp)),
+        sensor_id=frame.removeprefix("lidar_"),
+        points=points,
+    )
+
+
+@dataclass(frozen=True, slots=True)
+class ChannelSpec:
+    """How a channel is written: schema name, schema encoding and bytes, message encoding."""
+
+    schema: str
+    schema_encoding: str
+    schema_data: bytes
+    message_encoding: str
+
+
+def foxglove_spec(message: Any) -> ChannelSpec:
+    """The channel of a ``foxglove.messages`` object: the SDK's own schema, protobuf."""
+    cls: type = type(message)
+    return _foxglove_type_spec(cls)
+
+
+@functools.cache
+def _foxglove_type_spec(cls: type) -> ChannelSpec:
+    sch = cls.get_schema()  # type: ignore[attr-defined]
+    return ChannelSpec(sch.name, sch.encoding, bytes(sch.data), "protobuf")
+
+
+LIDAR_SPEC = _foxglove_type_spec(fv.fm.PointCloud)
+"""The channel of a LiDAR sweep's lossless record: a Foxglove ``PointCloud``."""
+
+
+def json_spec(message: Any) -> ChannelSpec:
+    """The channel of a core message's lossless JSON record, with its documented schema."""
+    cls: type = type(message)
+    if CLASSES.get(cls.__name__) is not cls:
+        raise RecordingError(f"encode: expected a message class of lastmile.core, got {cls.__qualname__}")
+    return ChannelSpec(f"lastmile.{cls.__name__}", "jsonschema", record_schemas.schema_for(cls), "json")
+
+
+def lossless_record(message: Any) -> tuple[ChannelSpec, bytes]:
+    """The channel and payload of a message's lossless record.
+
+    A ``LidarSweep`` is a Foxglove ``PointCloud`` in its sensor's frame (every column float32, as the
+    sweep holds them: lossless); anything else is our JSON with a documented ``lastmile.<Class>`` schema.
+    """
     if isinstance(message, sensor_frames.LidarSweep):
-        return LIDAR_SCHEMA, fx.SCHEMA_BYTES[LIDAR_SCHEMA]
-    name = type(message).__name__
-    doc = {
-        "title": f"lastmile.{name}",
-        "type": "object",
-        "description": (type(message).__doc__ or "").strip().splitlines()[0]
-        if type(message).__doc__
-        else name,
-        "properties": {"$type": {"const": name}},
-    }
-    return f"lastmile.{name}", json.dumps(doc).encode()
-
-
-def lossless_payload(message: Any) -> bytes:
-    if isinstance(message, sensor_frames.LidarSweep):
-        doc = fx.point_cloud(message.stamp, message.sensor_id, sensor_frames.LIDAR_COLUMNS, message.points)
-        return json.dumps(doc, separators=(",", ":")).encode()
-    return encode_message(message)
-
-
-_TRACK_RGBA = (0.95, 0.55, 0.1, 0.6)
-_DETECTION_RGBA = (0.2, 0.6, 1.0, 0.5)
-
-
-def foxglove_views(topic: str, message: Any) -> Iterator[tuple[str, str, bytes]]:
-    """Extra (topic, Foxglove schema name, payload) records that make a message visible in Foxglove."""
-    dumps = json.dumps
-    if isinstance(message, vehicle_messages.LocalizationEstimate) and message.valid:
-        p = message.map_from_base
-        pose = fx.planar_pose(p.x_m, p.y_m, p.yaw_rad)
-        yield (
-            "/viz/pose",
-            "foxglove.PoseInFrame",
-            dumps({"timestamp": fx.time_of(message.stamp), "frame_id": fx.MAP_FRAME, "pose": pose}).encode(),
+        cloud = fv.point_cloud(
+            message.stamp, f"lidar_{message.sensor_id}", fv.LIDAR_FIELD_NAMES, message.points
         )
-        yield (
-            "/tf",
-            "foxglove.FrameTransform",
-            dumps(
-                {
-                    "timestamp": fx.time_of(message.stamp),
-                    "parent_frame_id": fx.MAP_FRAME,
-                    "child_frame_id": fx.BASE_FRAME,
-                    "translation": pose["position"],
-                    "rotation": pose["orientation"],
-                }
-            ).encode(),
-        )
-    elif isinstance(message, objects.TrackedObjects | objects.DetectedObjects):
-        cols = (
-            objects.TRACK_COLUMNS
-            if isinstance(message, objects.TrackedObjects)
-            else objects.DETECTION_COLUMNS
-        )
-        ix = {c: cols.index(c) for c in ("x_m", "y_m", "yaw_rad", "length_m", "width_m")}
-        frame = fx.MAP_FRAME if getattr(message, "frame", "map") == "map" else fx.BASE_FRAME
-        ids = message.ids.tolist() if isinstance(message, objects.TrackedObjects) else range(len(message))
-        rgba = _TRACK_RGBA if isinstance(message, objects.TrackedObjects) else _DETECTION_RGBA
-        entities = [
-            fx.entity(
-                message.stamp,
-                f"{topic}/{tid}",
-                frame,
-                cubes=[
-                    fx.cube(
-                        row[ix["x_m"]],
-                        row[ix["y_m"]],
-                        row[ix["yaw_rad"]],
-                        max(row[ix["length_m"]], 0.3),
-                        max(row[ix["width_m"]], 0.3),
-                        rgba,
-                    )
-                ],
-            )
-            for tid, row in zip(ids, message.table.tolist(), strict=True)
-        ]
-        yield f"/viz{topic}", "foxglove.SceneUpdate", dumps({"deletions": [], "entities": entities}).encode()
-    elif isinstance(message, vehicle_messages.Trajectory):
-        pts = [{"x": float(x), "y": float(y), "z": 0.05} for x, y in message.points[:, :2].tolist()]
-        line = {
-            "type": 0,
-            "pose": fx.planar_pose(0.0, 0.0, 0.0),
-            "thickness": 0.15,
-            "scale_invariant": False,
-            "points": pts,
-            "color": {"r": 0.1, "g": 0.9, "b": 0.3, "a": 1.0},
-            "colors": [],
-            "indices": [],
-        }
-        ent = fx.entity(message.stamp, "trajectory", fx.MAP_FRAME, lines=[line])
-        yield f"/viz{topic}", "foxglove.SceneUpdate", dumps({"deletions": [], "entities": [ent]}).encode()
+        return LIDAR_SPEC, cloud.encode()
+    return json_spec(message), encode_message(message)

@@ -1,44 +1,37 @@
-"""Read a black-box MCAP back into our messages: summary, frames for re-running the stack, PNG rendering."""
+"""Read a black-box MCAP back into our messages and Foxglove views: summary, frames for re-running the stack.
+
+Any MCAP with Foxglove's protobuf schemas is read too (``lastmile perceive``'s output); its channels come
+back as views. Rendering is in ``replay_render.py``.
+"""
 
 from __future__ import annotations
 
+import base64
 import json
-import math
 import struct
 from collections import Counter
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
+from mcap import records as mcap_records
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
+from mcap.stream_reader import StreamReader
+from mcap_protobuf.decoder import DecoderFactory
 
-from lastmile.core.objects import TRACK_COLUMNS, TrackedObjects
-from lastmile.core.sensor_frames import LIDAR_COLUMNS, RADAR_COLUMNS, LidarSweep, RadarFrame, SensorFrame
+from lastmile.core.frame_kinds import FRAME_KINDS
+from lastmile.core.sensor_frames import LidarSweep, SensorFrame
 from lastmile.core.stamp import Stamp
-from lastmile.core.vehicle_messages import (
-    ActuatorCommand,
-    BehaviourDecision,
-    LocalizationEstimate,
-    Trajectory,
-)
 from lastmile.recorder import mcap_codec
-from lastmile.recorder.black_box import EVENT_SCHEMA, SUMMARY_METADATA
+from lastmile.recorder.black_box import SUMMARY_METADATA
 from lastmile.recorder.mcap_codec import RecordingError
+from lastmile.recorder.mcap_dump import EVENT_SCHEMA, PROFILE
 
-_SENSOR_TYPES = (
-    "GnssInsFrame",
-    "ImuFrame",
-    "WheelOdometryFrame",
-    "RadarFrame",
-    "DoorSensorFrame",
-    "StopCallFrame",
-    "LidarSweep",
-    "CameraDetections",
-    "TrafficLightDetections",
-)
+_SENSOR_TYPES = tuple(FRAME_KINDS)
+"""Every frame type the loop delivers to the stack (the operator's input and V2I reports among them)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -68,7 +61,10 @@ class Recording:
         channels: every channel in the file, views included.
         events: the trigger event records (trigger, time_us, reason, window bounds).
         metadata: every metadata record as (name, dict); ``operator_summary`` among them once added.
-        attachments: (name, media type, bytes), e.g. the operator's audio summary.
+        attachments: (name, media type, bytes), e.g. the operator's summary as text and as sound.
+        views: the decoded Foxglove (protobuf) messages in log-time order: poses, transforms, clouds,
+            scene updates, logs (what replay draws; every channel of a Foxglove MCAP from elsewhere).
+        warning: set when the file was cut short or damaged and only read up to the damage.
     """
 
     path: Path
@@ -77,12 +73,16 @@ class Recording:
     events: tuple[dict[str, str], ...] = ()
     metadata: tuple[tuple[str, dict[str, str]], ...] = ()
     attachments: tuple[tuple[str, str, bytes], ...] = field(default_factory=tuple)
+    views: tuple[ViewMessage, ...] = ()
+    warning: str | None = None
 
     @property
     def span_us(self) -> tuple[int, int]:
-        if not self.messages:
+        """(first, last) log time of the lossless records, or of the views in a file that has none."""
+        msgs = self.messages or self.views
+        if not msgs:
             return (0, 0)
-        return self.messages[0].log_time_us, self.messages[-1].log_time_us
+        return msgs[0].log_time_us, msgs[-1].log_time_us
 
     @property
     def operator_summary(self) -> str | None:
@@ -108,8 +108,8 @@ class Recording:
         """
         grouped: dict[int, list[SensorFrame]] = {}
         for m in self.messages:
-            if type(m.message).__name__ in _SENSOR_TYPES:
-                grouped.setdefault(m.log_time_us, []).append(m.message)
+            if isinstance(m.message, _SENSOR_TYPES):
+                grouped.setdefault(m.log_time_us, []).append(cast(SensorFrame, m.message))
         if tick_us is None:
             for now in sorted(grouped):
                 yield Stamp(now), tuple(grouped[now])
@@ -122,51 +122,166 @@ class Recording:
 
     def frames_in_capture_order(self) -> list[SensorFrame]:
         """Every sensor frame sorted by capture stamp (stable for equal stamps)."""
-        frames = [m.message for m in self.messages if type(m.message).__name__ in _SENSOR_TYPES]
+        frames = [cast(SensorFrame, m.message) for m in self.messages if isinstance(m.message, _SENSOR_TYPES)]
         return sorted(frames, key=lambda f: int(f.stamp))
+
+
+@dataclass(frozen=True, slots=True)
+class ViewMessage:
+    """A decoded Foxglove message (protobuf): the views replay draws, and any Foxglove MCAP's channels."""
+
+    log_time_us: int
+    topic: str
+    schema: str
+    message: Any
+
+
+class _Collector:
+    """Turns (schema, channel, message) records into a :class:`Recording`'s parts."""
+
+    def __init__(self, profile: str) -> None:
+        self.ours = profile == PROFILE
+        self.decoders = DecoderFactory()
+        self.decode_cache: dict[int, Any] = {}
+        self.messages: list[RecordedMessage] = []
+        self.views: list[ViewMessage] = []
+        self.counts: Counter[tuple[str, str]] = Counter()
+        self.first: dict[tuple[str, str], int] = {}
+        self.last: dict[tuple[str, str], int] = {}
+        self.events: list[dict[str, str]] = []
+
+    def _decoder(self, schema: Any, channel: Any) -> Any:
+        if channel.id not in self.decode_cache:
+            self.decode_cache[channel.id] = self.decoders.decoder_for(channel.message_encoding, schema)
+        return self.decode_cache[channel.id]
+
+    def add(self, schema: Any, channel: Any, message: Any) -> None:
+        name = schema.name if schema is not None else ""
+        key = (channel.topic, name)
+        t_us = message.log_time // 1000
+        self.counts[key] += 1
+        self.first.setdefault(key, t_us)
+        self.last[key] = t_us
+        topic = channel.topic
+        if name == EVENT_SCHEMA:
+            self.events.append({k: str(v) for k, v in json.loads(message.data).items()})
+        elif name.startswith("lastmile."):
+            self.messages.append(RecordedMessage(t_us, topic, mcap_codec.decode_message(name, message.data)))
+        elif name.startswith("foxglove.") and channel.message_encoding == "json":
+            # Recordings of lastmile before the Foxglove SDK: JSON views, the LiDAR cloud among them.
+            if name == mcap_codec.LIDAR_SCHEMA and topic.startswith("/sensors/lidar/"):
+                self.messages.append(RecordedMessage(t_us, topic, _legacy_lidar(message.data)))
+        elif name.startswith("foxglove."):
+            decoder = self._decoder(schema, channel)
+            if decoder is None:
+                return
+            decoded = decoder(message.data)
+            self.views.append(ViewMessage(t_us, topic, name, decoded))
+            if self.ours and name == mcap_codec.LIDAR_SCHEMA and topic.startswith("/sensors/lidar/"):
+                self.messages.append(RecordedMessage(t_us, topic, mcap_codec.lidar_from_cloud(decoded)))
+
+    def recording(
+        self,
+        path: Path,
+        metadata: tuple[tuple[str, dict[str, str]], ...],
+        attachments: tuple[tuple[str, str, bytes], ...],
+        warning: str | None = None,
+    ) -> Recording:
+        channels = tuple(
+            ChannelSummary(topic=t, schema=s, count=n, first_us=self.first[(t, s)], last_us=self.last[(t, s)])
+            for (t, s), n in sorted(self.counts.items())
+        )
+        return Recording(
+            path=path,
+            messages=tuple(sorted(self.messages, key=lambda m: m.log_time_us)),
+            channels=channels,
+            events=tuple(self.events),
+            metadata=metadata,
+            attachments=attachments,
+            views=tuple(sorted(self.views, key=lambda m: m.log_time_us)),
+            warning=warning,
+        )
+
+
+def _legacy_lidar(data: bytes) -> LidarSweep:
+    doc = json.loads(data)
+    k = len(doc["fields"])
+    pts = np.frombuffer(base64.b64decode(doc["data"]), dtype="<f4").reshape(-1, k).astype(np.float32)
+    t = doc["timestamp"]
+    return LidarSweep(
+        stamp=Stamp(int(t["sec"]) * 1_000_000 + int(t["nsec"]) // 1000), sensor_id=doc["frame_id"], points=pts
+    )
 
 
 def _load_stream(path: Path, stream: Any) -> Recording:
     reader = make_reader(stream)
-    messages: list[RecordedMessage] = []
-    counts: Counter[tuple[str, str]] = Counter()
-    first: dict[tuple[str, str], int] = {}
-    last: dict[tuple[str, str], int] = {}
-    events: list[dict[str, str]] = []
+    col = _Collector(reader.get_header().profile)
     for schema, channel, message in reader.iter_messages(log_time_order=True):
-        schema_name = schema.name if schema is not None else ""
-        key = (channel.topic, schema_name)
-        t_us = message.log_time // 1000
-        counts[key] += 1
-        first.setdefault(key, t_us)
-        last[key] = t_us
-        if schema_name == EVENT_SCHEMA:
-            events.append({k: str(v) for k, v in json.loads(message.data).items()})
-        elif schema_name.startswith("lastmile.") or schema_name == mcap_codec.LIDAR_SCHEMA:
-            messages.append(
-                RecordedMessage(t_us, channel.topic, mcap_codec.decode_message(schema_name, message.data))
-            )
+        col.add(schema, channel, message)
     metadata = tuple((m.name, dict(m.metadata)) for m in reader.iter_metadata())
     attachments = tuple((a.name, a.media_type, bytes(a.data)) for a in reader.iter_attachments())
-    channels = tuple(
-        ChannelSummary(topic=t, schema=s, count=n, first_us=first[(t, s)], last_us=last[(t, s)])
-        for (t, s), n in sorted(counts.items())
+    return col.recording(path, metadata, attachments)
+
+
+def _recover(path: Path, stream: Any, cause: Exception) -> Recording:
+    """Read a file cut short (a crash, a full disk, a copy interrupted) as far as its records are whole.
+
+    The stream reader walks the records from the start; everything in the complete records before the
+    damage is kept (messages of an unfinished chunk are lost with it).
+    """
+    stream.seek(0)
+    reader = StreamReader(stream, record_size_limit=None)
+    schemas: dict[int, mcap_records.Schema] = {}
+    channels: dict[int, mcap_records.Channel] = {}
+    metadata: list[tuple[str, dict[str, str]]] = []
+    attachments: list[tuple[str, str, bytes]] = []
+    col: _Collector | None = None
+    stop: Exception = cause
+    try:
+        for rec in reader.records:
+            if isinstance(rec, mcap_records.Header):
+                col = _Collector(rec.profile)
+            elif isinstance(rec, mcap_records.Schema):
+                schemas[rec.id] = rec
+            elif isinstance(rec, mcap_records.Channel):
+                channels[rec.id] = rec
+            elif isinstance(rec, mcap_records.Message) and col is not None and rec.channel_id in channels:
+                channel = channels[rec.channel_id]
+                col.add(schemas.get(channel.schema_id), channel, rec)
+            elif isinstance(rec, mcap_records.Metadata):
+                metadata.append((rec.name, dict(rec.metadata)))
+            elif isinstance(rec, mcap_records.Attachment):
+                attachments.append((rec.name, rec.media_type, bytes(rec.data)))
+            elif isinstance(rec, mcap_records.Footer):
+                break
+    except _READ_ERRORS as exc:
+        stop = exc
+    if col is None:
+        raise RecordingError(
+            f"expected a readable MCAP file, got {path}: {type(cause).__name__}: {cause}"
+        ) from None
+    size = path.stat().st_size
+    n = sum(col.counts.values())
+    warning = (
+        f"{path} is cut short or damaged ({type(stop).__name__} within {size} bytes): "
+        f"read the {n} messages of its complete records"
     )
-    return Recording(
-        path=path,
-        messages=tuple(messages),
-        channels=channels,
-        events=tuple(events),
-        metadata=metadata,
-        attachments=attachments,
-    )
+    return col.recording(path, tuple(metadata), tuple(attachments), warning)
+
+
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+"""The 8 bytes every MCAP file starts with (format version 0)."""
+
+_READ_ERRORS = (McapError, ValueError, KeyError, EOFError, OSError, struct.error, IndexError)
 
 
 def read_recording(path: str | Path) -> Recording:
-    """Read a black-box MCAP file, or a spool directory of chunk files (merged in time order).
+    """Read a black-box MCAP file (or any Foxglove MCAP), or a spool directory of chunk files (merged).
+
+    A file cut short is read as far as its records are whole, with ``Recording.warning`` saying so.
 
     Raises:
-        RecordingError: the path is missing, not an MCAP file, truncated, or holds undecodable data.
+        RecordingError: the path is missing, not an MCAP file, or holds undecodable data.
     """
     p = Path(path)
     if p.is_dir():
@@ -175,16 +290,25 @@ def read_recording(path: str | Path) -> Recording:
             raise RecordingError(f"expected an MCAP file or a spool directory with chunk_*.mcap, got {p}")
         parts = [read_recording(c) for c in chunks]
         msgs = tuple(sorted((m for r in parts for m in r.messages), key=lambda m: m.log_time_us))
+        views = tuple(sorted((m for r in parts for m in r.views), key=lambda m: m.log_time_us))
         chans = tuple(c for r in parts for c in r.channels)
-        return Recording(path=p, messages=msgs, channels=_merge_channels(chans))
+        return Recording(path=p, messages=msgs, channels=_merge_channels(chans), views=views)
     if not p.is_file():
         raise RecordingError(f"expected an MCAP file, got {p} (no such file)")
     try:
         with open(p, "rb") as fh:
-            return _load_stream(p, fh)
-    except (McapError, ValueError, KeyError, EOFError, OSError, struct.error) as exc:
-        # Truncated or foreign bytes surface from the mcap reader as any of these.
-        raise RecordingError(f"expected a readable MCAP file, got {p}: {type(exc).__name__}: {exc}") from None
+            if fh.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
+                raise RecordingError(
+                    f"expected a readable MCAP file, got {p}, which lacks MCAP's magic bytes"
+                )
+            fh.seek(0)
+            try:
+                return _load_stream(p, fh)
+            except _READ_ERRORS as exc:
+                # Truncated or damaged bytes surface from the mcap reader as any of these.
+                return _recover(p, fh, exc)
+    except OSError as exc:
+        raise RecordingError(f"expected a readable MCAP file, got {p}: {exc}") from None
 
 
 def _merge_channels(chans: tuple[ChannelSummary, ...]) -> tuple[ChannelSummary, ...]:
@@ -204,132 +328,3 @@ def _merge_channels(chans: tuple[ChannelSummary, ...]) -> tuple[ChannelSummary, 
             )
         )
     return tuple(merged[k] for k in sorted(merged))
-
-
-# --- rendering -----------------------------------------------------------------------------------------
-def render_png_sequence(
-    recording: Recording,
-    out_dir: str | Path,
-    *,
-    fps: float = 10.0,
-    view_m: float = 40.0,
-    max_frames: int | None = None,
-) -> list[Path]:
-    """Top-down PNG frames (ego pose, trajectory, tracks, LiDAR/radar points) at ``fps`` of log time.
-
-    Sensor points are drawn around the ego pose as if the sensor sat at the rear axle (the recording
-    does not carry mounting poses): good for seeing what the stack saw, not for measuring.
-    """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.patches import Polygon
-
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    t0, t1 = recording.span_us
-    step = round(1e6 / fps)
-    latest: dict[str, Any] = {}
-    msgs = recording.messages
-    i = 0
-    paths: list[Path] = []
-    fig, ax = plt.subplots(figsize=(6.4, 6.4), dpi=100)
-    try:
-        for k, t in enumerate(range(t0, t1 + 1, step)):
-            if max_frames is not None and k >= max_frames:
-                break
-            while i < len(msgs) and msgs[i].log_time_us <= t:
-                m = msgs[i].message
-                if isinstance(
-                    m,
-                    LocalizationEstimate | TrackedObjects | Trajectory | BehaviourDecision | ActuatorCommand,
-                ):
-                    latest[type(m).__name__] = m
-                elif isinstance(m, LidarSweep | RadarFrame):
-                    latest[f"pts:{msgs[i].topic}"] = m
-                i += 1
-            ax.clear()
-            est = latest.get("LocalizationEstimate")
-            cx, cy, yaw = (
-                (est.map_from_base.x_m, est.map_from_base.y_m, est.map_from_base.yaw_rad)
-                if est
-                else (0.0, 0.0, 0.0)
-            )
-            c, s = math.cos(yaw), math.sin(yaw)
-            for key, m in latest.items():
-                if not key.startswith("pts:"):
-                    continue
-                if isinstance(m, LidarSweep):
-                    px, py = m.points[:, LIDAR_COLUMNS.index("x_m")], m.points[:, LIDAR_COLUMNS.index("y_m")]
-                    ax.scatter(cx + c * px - s * py, cy + s * px + c * py, s=0.5, c="0.4")
-                else:
-                    px, py = (
-                        m.objects[:, RADAR_COLUMNS.index("x_m")],
-                        m.objects[:, RADAR_COLUMNS.index("y_m")],
-                    )
-                    ax.scatter(cx + c * px - s * py, cy + s * px + c * py, s=10, marker="x", c="tab:purple")
-            traj = latest.get("Trajectory")
-            if traj is not None:
-                ax.plot(traj.points[:, 0], traj.points[:, 1], "-", c="tab:green", lw=2)
-            tracks = latest.get("TrackedObjects")
-            if tracks is not None:
-                col = {n: TRACK_COLUMNS.index(n) for n in ("x_m", "y_m", "yaw_rad", "length_m", "width_m")}
-                for row in tracks.table:
-                    ax.add_patch(
-                        Polygon(
-                            _box(
-                                row[col["x_m"]],
-                                row[col["y_m"]],
-                                row[col["yaw_rad"]],
-                                row[col["length_m"]],
-                                row[col["width_m"]],
-                            ),
-                            closed=True,
-                            fc="tab:orange",
-                            alpha=0.6,
-                        )
-                    )
-            if est is not None:
-                ax.add_patch(
-                    Polygon(
-                        _box(cx + 1.45 * c, cy + 1.45 * s, yaw, 4.6, 2.0),
-                        closed=True,
-                        fc="tab:blue",
-                        alpha=0.8,
-                    )
-                )
-            decision = latest.get("BehaviourDecision")
-            cmd = latest.get("ActuatorCommand")
-            title = f"t = {t / 1e6:.2f} s"
-            if est is not None:
-                title += f"  v = {est.speed_mps:.1f} m/s"
-            if decision is not None:
-                title += f"  {decision.state.value}"
-            if cmd is not None and cmd.emergency_brake:
-                title += "  E-BRAKE"
-            ax.set_title(title, fontsize=9)
-            ax.set_xlim(cx - view_m / 2, cx + view_m / 2)
-            ax.set_ylim(cy - view_m / 2, cy + view_m / 2)
-            ax.set_aspect("equal")
-            ax.set_xlabel("x [m]")
-            ax.set_ylabel("y [m]")
-            path = out / f"frame_{k:05d}.png"
-            fig.savefig(path)
-            paths.append(path)
-    finally:
-        plt.close(fig)
-    return paths
-
-
-def _box(x: float, y: float, yaw: float, length: float, width: float) -> np.ndarray:
-    c, s = math.cos(yaw), math.sin(yaw)
-    local = np.array(
-        [
-            [length / 2, width / 2],
-            [-length / 2, width / 2],
-            [-length / 2, -width / 2],
-            [length / 2, -width / 2],
-        ]
-    )
-    return np.c_[x + c * local[:, 0] - s * local[:, 1], y + s * local[:, 0] + c * local[:, 1]]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -14,16 +15,19 @@ from lastmile.evaluation.report import write_report
 from lastmile.hdmap.loader import load_campus_map
 from lastmile.hdmap.model import HDMap
 from lastmile.hdmap.service_route import ServiceRoute, campus_service, load_route
+from lastmile.recorder.live_view import LiveView
 from lastmile.recorder.run_log import RunLog, RunMeta
 from lastmile.recorder.run_log_writer import RunLogWriter
 from lastmile.runner.loop import ClosedLoop, LoopCallback
 from lastmile.runner.loop_callbacks import (
     BlackBoxCallback,
+    LiveViewCallback,
     ProgressCallback,
     ProgressFn,
     RunLogCallback,
     TimingCallback,
     black_box_config,
+    live_view_config,
 )
 from lastmile.runner.run_config import RunConfig, run_config_dict
 from lastmile.sim.scenario import MapSpec, Scenario
@@ -109,12 +113,16 @@ def run_scenario(
     config: RunConfig = DEFAULT_CONFIG,
     progress: ProgressFn | None = None,
     black_box_dir: Path | None = None,
+    live: tuple[str, int] | None = None,
+    on_live: Callable[[int], None] | None = None,
 ) -> RunLog:
     """Simulate ``scenario`` with ``config``; returns the run log (wall-clock figures in ``log.timing``).
 
     With ``black_box_dir`` (and the black box on in ``config.loop``), the black box keeps the last
     window and writes it there as MCAP on a takeover, an emergency stop, a collision or a crash of the
     vehicle software (``recording`` events say where). Ctrl-C ends the run early with what was done.
+    With ``live`` (host, port), the same channels are served over Foxglove's WebSocket protocol as the
+    run happens, paced to the wall clock; ``on_live`` is told the port once the server listens.
     """
     with threadpool_limits(limits=1):  # small matrices: BLAS threads only compete with the loop
         loop = build_closed_loop(scenario, config)
@@ -123,8 +131,19 @@ def run_scenario(
         timing = TimingCallback()
         callbacks: list[LoopCallback] = [RunLogCallback(writer, world, scenario), timing]
         if black_box_dir is not None and config.loop.black_box:
-            box = black_box_config(black_box_dir, config.loop.black_box_window_s, world)
+            box = black_box_config(
+                black_box_dir,
+                config.loop.black_box_window_s,
+                world,
+                sensor_calibration(world),
+                run=(scenario, config),
+            )
             callbacks.append(BlackBoxCallback(box, writer))
+        if live is not None:
+            view = LiveView(live_view_config(live[0], live[1], world, sensor_calibration(world)))
+            if on_live is not None:
+                on_live(view.port)
+            callbacks.append(LiveViewCallback(view))
         if progress is not None:
             callbacks.append(ProgressCallback(progress, scenario.minutes * 60.0))
         loop.callbacks.extend(callbacks)

@@ -58,7 +58,13 @@ from lastmile.fleet.scheduling import CAPACITY_SEATS
 from lastmile.fleet.vehicle_client import Assignment, VehicleClient
 from lastmile.recorder.run_log import RunLog
 from lastmile.recorder.run_log_writer import RunLogWriter
-from lastmile.runner.closed_loop import build_closed_loop, evaluate_run, load_world_map, run_meta
+from lastmile.runner.closed_loop import (
+    build_closed_loop,
+    evaluate_run,
+    load_world_map,
+    run_meta,
+    sensor_calibration,
+)
 from lastmile.runner.fleet_config import Demand, FleetConfig, poisson_demand
 from lastmile.runner.fleet_server import ServerProcess
 from lastmile.runner.fleet_shuttle import (
@@ -353,7 +359,11 @@ def _build_shuttles(
             timing=TimingCallback(),
         )
         box = black_box_config(
-            out_dir / f"shuttle-{k}" / "recordings", run_config.loop.black_box_window_s, loop.world
+            out_dir / f"shuttle-{k}" / "recordings",
+            run_config.loop.black_box_window_s,
+            loop.world,
+            sensor_calibration(loop.world),
+            run=(scenario, run_config),
         )
         loop.callbacks.extend(
             [

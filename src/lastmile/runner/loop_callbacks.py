@@ -11,15 +11,22 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from lastmile.core.run_events import EventKind
 from lastmile.core.safety_messages import FailSafeLevel
 from lastmile.core.vehicle_messages import BehaviourState
+from lastmile.hdmap.model import HDMap
 from lastmile.recorder.black_box import BlackBox, BlackBoxConfig
+from lastmile.recorder.foxglove_views import planar_matrix
+from lastmile.recorder.live_view import LiveView, LiveViewConfig
 from lastmile.recorder.run_log import STATE_NAMES
 from lastmile.recorder.run_log_writer import RunLogWriter
 from lastmile.runner.loop import ClosedLoop, LoopCallback, TickRecord
-from lastmile.sim.scenario import Scenario
+from lastmile.runner.run_config import RunConfig, run_config_to_toml
+from lastmile.sim.scenario import Scenario, scenario_to_toml
 from lastmile.sim.simulation import Simulation
+from lastmile.stack.vehicle_build import SensorCalibration
 
 LOG_EVERY_TICKS = 2  # ego trace at 50 Hz with the 10 ms tick
 PROGRESS_EVERY_TICKS = 100
@@ -119,8 +126,8 @@ class RunLogCallback(LoopCallback):
 
 class BlackBoxCallback(LoopCallback):
     """Keeps the black box's rolling window and makes it write on a takeover, a collision, an emergency
-    stop, a hardware-watchdog trip or a crash of the vehicle software; logs a ``recording`` event per
-    file at the end."""
+    stop, a minimal risk manoeuvre, a hardware-watchdog trip or a crash of the vehicle software (triggers
+    close in time share one file); logs a ``recording`` event per file at the end."""
 
     def __init__(self, config: BlackBoxConfig, writer: RunLogWriter) -> None:
         self.box = BlackBox(config)
@@ -128,6 +135,7 @@ class BlackBoxCallback(LoopCallback):
         self._failing = False
         self._tripped = False
         self._state: BehaviourState | None = None
+        self._level = FailSafeLevel.NONE
 
     def on_tick(self, record: TickRecord) -> None:
         box, now_us = self.box, int(record.now)
@@ -138,12 +146,16 @@ class BlackBoxCallback(LoopCallback):
         out, directive = record.output, record.verdict.directive
         if out is not None:
             box.record_output(now_us, out)
-            if directive.level != FailSafeLevel.NONE:
+            if directive.level != FailSafeLevel.NONE or directive.level != self._level:
                 box.record(now_us, "/safety/directive", directive)
         if out is not None and out.decision is not None and record.state != self._state:
             if record.state == BehaviourState.EMERGENCY_STOP:
                 box.trigger("emergency_stop", now_us, out.decision.reason)
             self._state = record.state
+        if directive.level != self._level:
+            if directive.level == FailSafeLevel.MINIMAL_RISK_MANOEUVRE:
+                box.trigger("mrm", now_us, "; ".join(directive.reasons))
+            self._level = directive.level
         if record.verdict.watchdog_tripped and not self._tripped:
             box.trigger("watchdog", now_us, "hardware watchdog: no fresh command from the stack")
         self._tripped = record.verdict.watchdog_tripped
@@ -158,8 +170,46 @@ class BlackBoxCallback(LoopCallback):
             head, t_text, _ = path.stem.rsplit("_", 2)
             trigger = head.removeprefix("blackbox_")
             self.writer.add_event(
-                float(t_text.rstrip("s")), EventKind.RECORDING, path=str(path), trigger=trigger
+                float(t_text.rstrip("s")),
+                EventKind.RECORDING,
+                path=str(path),
+                trigger=trigger,
+                triggers=list(self.box.dump_triggers.get(path, (trigger,))),
             )
+
+
+class LiveViewCallback(LoopCallback):
+    """Serves the run live (Foxglove WebSocket): the black box's channels, as each tick happens.
+
+    With ``realtime`` the loop waits for the wall clock whenever it runs ahead of it, so a viewer sees
+    the run at its own pace (waiting only: a loop slower than real time is never hurried).
+    """
+
+    def __init__(self, live: LiveView, realtime: bool = True) -> None:
+        self.live = live
+        self.realtime = realtime
+        self._wall0 = 0.0
+        self._level: FailSafeLevel | None = None
+
+    def on_start(self, loop: ClosedLoop[Any]) -> None:
+        self._wall0 = time.perf_counter()
+
+    def on_tick(self, record: TickRecord) -> None:
+        live, now_us = self.live, int(record.now)
+        live.record_frames(now_us, record.frames)
+        if record.output is not None:
+            live.record_output(now_us, record.output)
+        directive = record.verdict.directive
+        if directive.level != self._level:
+            live.record(now_us, "/safety/directive", directive)
+            self._level = directive.level
+        if self.realtime:
+            ahead_s = record.t_s - (time.perf_counter() - self._wall0)
+            if ahead_s > 0:
+                time.sleep(ahead_s)
+
+    def on_end(self, loop: ClosedLoop[Any], ticks_run: int) -> None:
+        self.live.close()
 
 
 class ProgressCallback(LoopCallback):
@@ -212,6 +262,77 @@ class TimingCallback(LoopCallback):
             self.timing["raw_perception"] = dict(report.perception)
 
 
-def black_box_config(out_dir: Path, window_s: float, world: Simulation) -> BlackBoxConfig:
-    """The black box of a run writing into ``out_dir``, keeping ``window_s`` seconds."""
-    return BlackBoxConfig(out_dir=out_dir, window_us=round(window_s * 1e6), sensor_mounts=world.radar_mounts)
+RUN_METADATA = "lastmile_run"
+"""The metadata record of every black-box file that says what produced the run (scenario and run
+configuration as TOML): ``lastmile replay --through-stack`` rebuilds the stack from it."""
+
+
+def black_box_config(
+    out_dir: Path,
+    window_s: float,
+    world: Simulation,
+    calibration: SensorCalibration,
+    run: tuple[Scenario, RunConfig] | None = None,
+) -> BlackBoxConfig:
+    """The black box of a run writing into ``out_dir``, keeping ``window_s`` seconds.
+
+    Its ``/tf`` places every sensor at its true mount (the vehicle's calibration: the simulated
+    sensors' own), and it draws the HD map the vehicle drives on and its service route. With ``run``
+    (the scenario and the run configuration), each file says what produced it (:data:`RUN_METADATA`).
+    """
+    metadata = {}
+    if run is not None:
+        metadata[RUN_METADATA] = {
+            "scenario_toml": scenario_to_toml(run[0]),
+            "run_config_toml": run_config_to_toml(run[1]),
+        }
+    return BlackBoxConfig(
+        out_dir=out_dir,
+        window_us=round(window_s * 1e6),
+        sensor_mounts=sensor_frame_mounts(calibration),
+        map_lines=map_polylines(world.world.hdmap),
+        route=np.asarray(world.service_route.xy_m),
+        metadata=metadata,
+    )
+
+
+def sensor_frame_mounts(calibration: SensorCalibration) -> dict[str, np.ndarray]:
+    """(4, 4) base_from_sensor of every sensor by its frame id in recordings (``foxglove_views``)."""
+    mounts: dict[str, np.ndarray] = {}
+    for sensor_id, se2 in calibration.radar_mounts.items():
+        mounts[f"radar_{sensor_id}"] = planar_matrix(se2.x_m, se2.y_m, se2.yaw_rad)
+    for sensor_id, matrix in calibration.lidar_mounts.items():
+        mounts[f"lidar_{sensor_id}"] = np.asarray(matrix, dtype=float)
+    for prefix, cameras in (("camera", calibration.cameras), ("light_camera", calibration.light_cameras)):
+        for cam in cameras:
+            # The camera model holds camera_from_base (optical frame); /tf wants base -> camera.
+            mounts[f"{prefix}_{cam.camera_id}"] = np.linalg.inv(cam.camera_from_base)
+    return mounts
+
+
+def map_polylines(hdmap: HDMap) -> tuple[np.ndarray, ...]:
+    """The map's lane boundaries (each shared bound once), stop lines and crosswalk outlines."""
+    lines: dict[tuple[int, str], np.ndarray] = {}
+    for ll in hdmap.lanelets.values():
+        for side, bound, bound_id in (("l", ll.left, ll.left_bound_id), ("r", ll.right, ll.right_bound_id)):
+            key = (bound_id, "") if bound_id else (ll.id, side)
+            lines.setdefault(key, np.asarray(bound.xy_m))
+    out = list(lines.values())
+    out.extend(np.asarray(sl.line)[:, :2] for sl in hdmap.stop_lines)
+    for cw in hdmap.crosswalks:
+        poly = np.asarray(cw.polygon)[:, :2]
+        out.append(np.vstack([poly, poly[:1]]))
+    return tuple(out)
+
+
+def live_view_config(
+    host: str, port: int, world: Simulation, calibration: SensorCalibration
+) -> LiveViewConfig:
+    """The live view of a run: the black box's sensor mounts, map and route, served at ``host:port``."""
+    return LiveViewConfig(
+        host=host,
+        port=port,
+        sensor_mounts=sensor_frame_mounts(calibration),
+        map_lines=map_polylines(world.world.hdmap),
+        route=np.asarray(world.service_route.xy_m),
+    )

@@ -305,6 +305,8 @@ class ShuttleStack:
             heartbeats=self.guard.drain(),
             diagnostics=self._diagnostics(now, planning_cycle),
             stop_reason=self._stop_reason,
+            tracks=self._tracks if planning_cycle else None,
+            trajectory=self._trajectory if planning_cycle else None,
         )
 
     def report(self) -> VehicleReport:
