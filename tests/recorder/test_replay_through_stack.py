@@ -13,6 +13,8 @@ from lastmile.recorder.black_box import BlackBox, BlackBoxConfig
 from lastmile.recorder.mcap_codec import encode_message
 from lastmile.recorder.replay import read_recording
 from lastmile.runner.closed_loop import build_closed_loop
+from lastmile.runner.loop import ClosedLoop
+from lastmile.runner.replay_world import RecordedSafety, RecordedWorld
 from lastmile.sim.scenario import default_service
 from tests.closed_loop.harness import RADAR
 
@@ -40,10 +42,11 @@ def test_recorded_frames_replayed_through_a_fresh_stack_give_the_recorded_comman
     assert max(abs(c.accel_mps2) for c in recorded) > 0.1  # the shuttle did something worth replaying
 
     fresh = build_closed_loop(scenario, RADAR).software
-    replayed = []
+    world = RecordedWorld(rec, TICK_US)
     # The safety's directive stayed NONE throughout (checked above): frames alone reproduce the run.
-    for now, frames in rec.ticks(TICK_US):
-        out = fresh.tick(now, frames)
-        assert out.command is not None
-        replayed.append(out.command)
+    replay = ClosedLoop(world, fresh, RecordedSafety({}), TICK_US)
+    replayed = []
+    for tick in replay.ticks(world.tick_count, first_tick=world.first_tick):
+        assert tick.output is not None and tick.output.command is not None
+        replayed.append(tick.output.command)
     assert [encode_message(c) for c in replayed] == [encode_message(c) for c in recorded]

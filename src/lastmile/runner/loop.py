@@ -13,12 +13,12 @@ from collections.abc import Awaitable, Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any, Generic, Protocol, TypeVar
 
+from lastmile.core.safety_messages import SafetyDirective
 from lastmile.core.sensor_frames import SensorFrame
 from lastmile.core.stamp import Stamp
 from lastmile.core.vehicle import VehicleSoftware
 from lastmile.core.vehicle_messages import ActuatorCommand, BehaviourState, SafetyVerdict, StackOutput
 from lastmile.sim.judge import Event
-from lastmile.stack.vehicle_build import VehicleSafety
 
 
 class World(Protocol):
@@ -42,6 +42,22 @@ class World(Protocol):
 
     def drain_events(self) -> list[Event]:
         """The referee's and operators' events since the last call."""
+        ...
+
+
+class Safety(Protocol):
+    """What the loop asks of the vehicle's safety (``safety.vehicle_safety.VehicleSafety`` on a
+    vehicle; a replay hands over recorded directives instead)."""
+
+    directive: SafetyDirective | None
+    """What the software is handed on its next tick."""
+
+    def observe(self, now: Stamp, frames: Sequence[SensorFrame]) -> None:
+        """The frames delivered at ``now``, before the software sees them."""
+        ...
+
+    def step(self, now: Stamp, output: StackOutput | None, failure: str = "") -> SafetyVerdict:
+        """The software's output of this tick (None when it raised, with ``failure``), gated."""
         ...
 
 
@@ -98,7 +114,7 @@ class ClosedLoop(Generic[W]):
         self,
         world: W,
         software: VehicleSoftware,
-        safety: VehicleSafety,
+        safety: Safety,
         tick_us: int,
         callbacks: Sequence[LoopCallback] = (),
     ) -> None:
@@ -147,16 +163,17 @@ class ClosedLoop(Generic[W]):
             return None, f"{type(exc).__name__}: {exc}", time.perf_counter() - t0
         return output, "", time.perf_counter() - t0
 
-    def ticks(self, ticks: int) -> Iterator[TickRecord]:
-        """Step ``ticks`` ticks from tick 0, yielding each tick's record (for tests that watch a run as
-        it goes); the callbacks' ``on_end`` runs when the iteration ends, however it ends."""
+    def ticks(self, ticks: int, first_tick: int = 0) -> Iterator[TickRecord]:
+        """Step ``ticks`` ticks from ``first_tick`` (a replay starts where its recording does), yielding
+        each tick's record (for tests that watch a run as it goes); the callbacks' ``on_end`` runs when
+        the iteration ends, however it ends."""
         for callback in self.callbacks:
             callback.on_start(self)
         self.ticks_run = 0
         try:
-            for tick in range(ticks):
-                record = self.step(tick)
-                self.ticks_run = tick + 1
+            for k in range(ticks):
+                record = self.step(first_tick + k)
+                self.ticks_run = k + 1
                 yield record
         finally:
             for callback in self.callbacks:

@@ -18,7 +18,9 @@ from lastmile.core.safety_messages import SafetyDirective
 from lastmile.core.vehicle_messages import ActuatorCommand, BehaviourDecision
 from lastmile.recorder.replay import Recording
 from lastmile.runner.closed_loop import build_closed_loop
+from lastmile.runner.loop import ClosedLoop
 from lastmile.runner.loop_callbacks import RUN_METADATA
+from lastmile.runner.replay_world import RecordedSafety, RecordedWorld
 from lastmile.runner.run_config import RunConfig
 from lastmile.sim.scenario import Scenario
 
@@ -87,19 +89,27 @@ def replay_through_stack(recording: Recording) -> StackReplayDiff:
     for m in recording.messages:
         if isinstance(m.message, ActuatorCommand | BehaviourDecision | SafetyDirective):
             by_tick.setdefault(m.log_time_us, {})[type(m.message).__name__] = m.message
-    directive: SafetyDirective | None = None
+    directives: dict[int, SafetyDirective] = {}
+    for now, kinds in by_tick.items():
+        directive = kinds.get("SafetyDirective")
+        if isinstance(directive, SafetyDirective):
+            directives[now] = directive
+    world = RecordedWorld(recording, config.loop.tick_us)
+    loop = ClosedLoop(world, stack, RecordedSafety(directives), config.loop.tick_us)
     state = None
     ticks = compared = differing = state_diffs = 0
     first = last = None
     max_da = max_ds = 0.0
-    for now, frames in recording.ticks(config.loop.tick_us):
+    for record in loop.ticks(world.tick_count, first_tick=world.first_tick):
+        now, out = record.now, record.output
         recorded = by_tick.get(int(now), {})
-        out = stack.tick(now, frames, directive)
         ticks += 1
         cmd = recorded.get("ActuatorCommand")
-        if isinstance(cmd, ActuatorCommand) and out.command is not None:
+        replayed = None if out is None else out.command
+        if isinstance(cmd, ActuatorCommand) and (out is None or replayed is not None):
             compared += 1
-            diff, da, ds = _differs(out.command, cmd)
+            # A stack that raised where the recorded one commanded differs too.
+            diff, da, ds = (True, 0.0, 0.0) if replayed is None else _differs(replayed, cmd)
             max_da, max_ds = max(max_da, da), max(max_ds, ds)
             if diff:
                 differing += 1
@@ -108,12 +118,8 @@ def replay_through_stack(recording: Recording) -> StackReplayDiff:
         decision = recorded.get("BehaviourDecision")
         if isinstance(decision, BehaviourDecision):
             state = decision.state
-        if state is not None and out.decision is not None and out.decision.state != state:
+        if state is not None and record.state is not None and record.state != state:
             state_diffs += 1
-        # The safety's directive after this tick is the one the stack obeys from the next tick on.
-        new_directive = recorded.get("SafetyDirective")
-        if isinstance(new_directive, SafetyDirective):
-            directive = new_directive
     return StackReplayDiff(
         ticks=ticks,
         compared=compared,
