@@ -17,7 +17,8 @@ from lastmile.core.errors import ConfigError, MessageError
 from lastmile.core.geometry import SE2, wrap_angle_rad
 from lastmile.core.sensor_frames import GnssInsFrame
 from lastmile.core.stamp import US_PER_S, Stamp
-from lastmile.core.vehicle_messages import LocalizationEstimate
+from lastmile.core.vehicle_messages import LocalizationEstimate, PositionSource
+from lastmile.localization.position_source import AbsoluteUpdates
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -127,6 +128,8 @@ class OdometryEkf:
 
     def __init__(self, config: OdometryEkfConfig | None = None) -> None:
         self.config = c = config or OdometryEkfConfig()
+        self.absolute = AbsoluteUpdates()
+        """When a fix was last accepted (the estimate's ``source``: GNSS or dead reckoning)."""
         self.rejected_fixes = 0
         """Fixes rejected by the chi-square gate (each counted once, when it arrives)."""
         self.gross_rejections = 0
@@ -209,7 +212,10 @@ class OdometryEkf:
             raise MessageError(f"GnssInsFrame.stamp: expected a non-negative stamp, got {frame.stamp}")
         if not frame.fix_ok:
             return False
-        return self._insert(int(frame.stamp), _GNSS, frame)
+        used = self._insert(int(frame.stamp), _GNSS, frame)
+        if used:
+            self.absolute.note(PositionSource.GNSS, int(frame.stamp))
+        return used
 
     def estimate(self, stamp: Stamp) -> LocalizationEstimate:
         """The pose at ``stamp``, extrapolated from the newest posterior at or before it.
@@ -238,6 +244,7 @@ class OdometryEkf:
             pos_std_m=pos_std,
             yaw_std_rad=math.sqrt(p[9]),
             valid=initialised and pos_std <= self.config.max_pos_std_m,
+            source=self.absolute.source_at(int(stamp)),
         )
 
     # --------------------------------------------------------------------------------------------
