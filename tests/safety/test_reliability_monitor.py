@@ -275,24 +275,33 @@ def test_leaving_the_map_and_the_route(straight_map: HDMap) -> None:
     assert _only(sigs, K.OFF_ROUTE).level == L.MINIMAL_RISK_MANOEUVRE
 
 
-def test_dead_reckoning_holds_snow_lions_cap_and_never_lets_a_stopped_vehicle_go_again() -> None:
+def _cap(signals: tuple[MalfunctionSignal, ...]) -> float | None:
+    return _only(signals, K.LOCALIZATION_DEAD_RECKONING).speed_cap_mps
+
+
+def test_dead_reckoning_holds_snow_lions_cap_ratchets_down_and_never_lets_a_stopped_vehicle_go_again() -> (
+    None
+):
     feed = Feed()
     feed.run(2_500_000)
     assert not [s for s in feed.run(feed.now) if s.kind == K.LOCALIZATION_DEAD_RECKONING]
     feed.source = PositionSource.DEAD_RECKONING
     sig = _only(feed.run(feed.now + 100_000), K.LOCALIZATION_DEAD_RECKONING)
     assert sig.level == L.SPEED_LIMIT and sig.speed_cap_mps == pytest.approx(0.5)
+    feed.speed_mps = 0.2  # slowed for something: it may not speed up again beyond its noise margin
+    assert _cap(feed.run(feed.now + 100_000)) == pytest.approx(0.3)
+    feed.speed_mps = 0.4
+    assert _cap(feed.run(feed.now + 100_000)) == pytest.approx(0.3)
     feed.speed_mps = 0.0
-    assert _only(feed.run(feed.now + 100_000), K.LOCALIZATION_DEAD_RECKONING).speed_cap_mps == 0.0
+    assert _cap(feed.run(feed.now + 100_000)) == 0.0
     feed.speed_mps = 0.3  # creeping off again, still on dead reckoning: held at standstill
     sig = _only(feed.run(feed.now + 100_000), K.LOCALIZATION_DEAD_RECKONING)
     assert sig.speed_cap_mps == 0.0 and "held at standstill" in sig.reason
     feed.source = PositionSource.GNSS  # a fix holds the pose again: the hold ends
     assert not [s for s in feed.run(feed.now + 100_000) if s.kind == K.LOCALIZATION_DEAD_RECKONING]
-    feed.source = PositionSource.DEAD_RECKONING
-    assert _only(feed.run(feed.now + 100_000), K.LOCALIZATION_DEAD_RECKONING).speed_cap_mps == pytest.approx(
-        0.5
-    )
+    feed.source = PositionSource.DEAD_RECKONING  # a new outage starts from its own speed
+    feed.speed_mps = 3.0
+    assert _cap(feed.run(feed.now + 100_000)) == pytest.approx(0.5)
 
 
 def test_a_protection_level_beyond_the_lane_margin_is_the_manoeuvre_to_a_stop() -> None:

@@ -82,7 +82,7 @@ class ReliabilityMonitor:
         """
         self.config = config or ReliabilityConfig()
         self.lane_margin_m = lane_margin_m
-        self._dead_reckoning_stopped = False
+        self._dead_reckoning_lowest_mps: float | None = None
         self.hdmap = hdmap
         self.route = route
         if hdmap is not None:
@@ -438,22 +438,26 @@ class ReliabilityMonitor:
         return True
 
     def _dead_reckoning(self, now_us: int, est: LocalizationEstimate, out: list[MalfunctionSignal]) -> None:
-        """Snow Lion's 0.5 m/s while nothing absolute holds the pose; once stopped, held at standstill
-        until something does (a vehicle that has lost its position never speeds up on dead reckoning)."""
+        """While nothing absolute holds the pose: Snow Lion's 0.5 m/s, and never faster than the lowest
+        speed since dead reckoning began (plus ``dead_reckoning_speed_margin_mps``); once stopped, held
+        at standstill until a fix or a landmark holds the pose again. A vehicle that has lost its
+        position slows down; it never speeds up on dead reckoning."""
         c = self.config
         if est.source is not PositionSource.DEAD_RECKONING:
-            self._dead_reckoning_stopped = False
+            self._dead_reckoning_lowest_mps = None
             return
-        if abs(est.speed_mps) < c.standstill_mps:
-            self._dead_reckoning_stopped = True
-        held = self._dead_reckoning_stopped
+        speed = abs(est.speed_mps)
+        lowest = self._dead_reckoning_lowest_mps
+        self._dead_reckoning_lowest_mps = lowest = speed if lowest is None else min(lowest, speed)
+        held = lowest < c.standstill_mps
+        cap = 0.0 if held else min(c.covariance_speed_cap_mps, lowest + c.dead_reckoning_speed_margin_mps)
         self._emit(
             out,
             now_us,
             "localization",
             K.LOCALIZATION_DEAD_RECKONING,
             "no absolute position correction: dead reckoning" + (", held at standstill" if held else ""),
-            cap=0.0 if held else c.covariance_speed_cap_mps,
+            cap=cap,
         )
 
     def _gnss_lost(self, now_us: int, out: list[MalfunctionSignal]) -> None:
