@@ -10,7 +10,7 @@ from lastmile.core.gnss_messages import GnssQuality
 from lastmile.core.sensor_frames import GnssInsFrame
 from lastmile.core.vehicle import VehicleGeometry
 from lastmile.hdmap.service_route import campus_service
-from lastmile.sim.gnss_scenario import GnssOutage, GnssRegion, GnssScenario, RegionQuality
+from lastmile.sim.gnss_scenario import GnssOutage, GnssRegion, GnssScenario
 from lastmile.sim.scenario import Scenario, load_scenario
 from lastmile.sim.simulation import Simulation
 
@@ -48,9 +48,7 @@ def test_an_outage_window_from_the_scenario_file_takes_the_fix_away_then_rtk_ret
 
 
 def test_a_region_along_the_route_degrades_the_fix_to_float_with_its_covariance(service):
-    gnss = GnssScenario(
-        regions=(GnssRegion(quality=RegionQuality.RTK_FLOAT, from_route_s_m=-5.0, to_route_s_m=20.0),)
-    )
+    gnss = GnssScenario(regions=(GnssRegion(quality="rtk_float", from_route_s_m=-5.0, to_route_s_m=20.0),))
     frames = _gnss(_frames(Scenario(minutes=1.0, gnss=gnss), service, 1.0))
     assert frames and all(f.fix_ok and f.quality is GnssQuality.RTK_FLOAT for f in frames)
     # Float is decimetre-level; the receiver reports half its real sigma (formal covariances are optimistic).
@@ -88,4 +86,24 @@ def test_a_region_with_both_a_polygon_and_a_route_stretch_is_one_clear_error(tmp
         "[gnss]\nregions = [{polygon = [[0, 0], [1, 0], [1, 1]], from_route_s_m = 0.0, to_route_s_m = 5.0}]\n"
     )
     with pytest.raises(ConfigError, match="expected either polygon or from_route_s_m"):
+        load_scenario(path)
+
+
+def test_a_scenario_with_gnss_degradation_writes_back_to_an_equal_toml(tmp_path: Path):
+    from lastmile.sim.scenario import scenario_to_toml
+
+    gnss = GnssScenario(
+        outages=(GnssOutage(start_s=3.0, duration_s=2.0),),
+        regions=(GnssRegion(quality="single", polygon=((0.0, 0.0), (5.0, 0.0), (5.0, 5.0))),),
+        snow_outages=True,
+    )
+    path = tmp_path / "s.toml"
+    path.write_text(scenario_to_toml(Scenario(gnss=gnss)))
+    assert load_scenario(path).gnss == gnss
+
+
+def test_an_unknown_quality_names_the_choices(tmp_path: Path):
+    path = tmp_path / "s.toml"
+    path.write_text('[gnss]\noutages = [{start_s = 1.0, duration_s = 1.0, quality = "rtk_fix"}]\n')
+    with pytest.raises(ConfigError, match="expected one of"):
         load_scenario(path)

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from enum import Enum
+from typing import Literal
 
 import numpy as np
 
@@ -21,18 +21,13 @@ from lastmile.core.polyline import Polyline
 from lastmile.hdmap.model import HDMap
 from lastmile.sim.gnss_degradation import GnssDegradation, GnssDegradationConfig, OutageRegion, WheelSlip
 
+RegionQuality = Literal["none", "single", "dgnss", "rtk_float"]
+"""The best solution inside a degraded region or window ("none": no fix at all)."""
 
-class RegionQuality(Enum):
-    """The best solution inside a degraded region ("none": no fix at all)."""
 
-    NONE = "none"
-    SINGLE = "single"
-    DGNSS = "dgnss"
-    RTK_FLOAT = "rtk_float"
-
-    @property
-    def gnss_quality(self) -> GnssQuality | None:
-        return None if self is RegionQuality.NONE else GnssQuality(self.value)
+def gnss_quality(quality: RegionQuality) -> GnssQuality | None:
+    """The receiver's solution type for a scenario's quality name (None: no fix)."""
+    return None if quality == "none" else GnssQuality(quality)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -42,7 +37,7 @@ class GnssOutage:
 
     start_s: float
     duration_s: float
-    quality: RegionQuality = RegionQuality.NONE
+    quality: RegionQuality = "none"
 
     def __post_init__(self) -> None:
         check_range("gnss.outages.start_s", self.start_s, 0.0, 24 * 3600.0)
@@ -55,15 +50,16 @@ class GnssRegion:
 
     Give either ``polygon`` (map-frame outline, at least 3 [x, y] points, m) or a stretch of the service
     route, ``from_route_s_m`` to ``to_route_s_m`` (a corridor ``half_width_m`` either side of it).
+    It is active from ``start_s`` until ``end_s`` (None: to the end of the run).
     """
 
-    quality: RegionQuality = RegionQuality.NONE
+    quality: RegionQuality = "none"
     polygon: tuple[tuple[float, float], ...] = ()
     from_route_s_m: float | None = None
     to_route_s_m: float | None = None
     half_width_m: float = 10.0
     start_s: float = 0.0
-    end_s: float = math.inf
+    end_s: float | None = None
 
     def __post_init__(self) -> None:
         by_route = self.from_route_s_m is not None or self.to_route_s_m is not None
@@ -87,7 +83,7 @@ class GnssRegion:
                 f"{self.from_route_s_m!r} and {self.to_route_s_m!r}"
             )
         check_range("gnss.regions.half_width_m", self.half_width_m, 0.5, 100.0)
-        if not self.end_s > self.start_s:
+        if self.end_s is not None and not self.end_s > self.start_s:
             raise ConfigError(f"gnss.regions: expected end_s > start_s, got {self.end_s} <= {self.start_s}")
 
     def outline(self, route: Polyline) -> np.ndarray:
@@ -151,14 +147,17 @@ class GnssScenario:
         regions = tuple(
             OutageRegion(
                 polygon=None,
-                quality=o.quality.gnss_quality,
+                quality=gnss_quality(o.quality),
                 start_s=o.start_s,
                 end_s=o.start_s + o.duration_s,
             )
             for o in self.outages
         ) + tuple(
             OutageRegion(
-                polygon=r.outline(route), quality=r.quality.gnss_quality, start_s=r.start_s, end_s=r.end_s
+                polygon=r.outline(route),
+                quality=gnss_quality(r.quality),
+                start_s=r.start_s,
+                end_s=math.inf if r.end_s is None else r.end_s,
             )
             for r in self.regions
         )
