@@ -160,9 +160,6 @@ class ReliabilityConfig:
             is the MRM (Reid et al. 2019, "Localization requirements for autonomous vehicles": the
             lateral alert limit is half the lane width less half the vehicle width).
         standstill_mps: below this the vehicle counts as stopped (dead reckoning holds it there).
-        dead_reckoning_speed_margin_mps: on dead reckoning the cap is the lowest speed estimate since it
-            began plus this (room for the speed estimate's noise and the controller's ripple, so that the
-            cap does not ratchet down on noise alone), m/s.
         gnss_lost_us: no usable GNSS fix for this long.
         gate_rejections_max, gate_window_us: more EKF gate rejections than this within the window.
         gross_rejections_max: more gross rejections (``PoseEkf.gross_rejections``: a fix 20 sigma off)
@@ -193,7 +190,6 @@ class ReliabilityConfig:
     protection_sigma_factor: float = 1.96
     lane_margin_m: float | None = None
     standstill_mps: float = 0.05
-    dead_reckoning_speed_margin_mps: float = 0.1
     gnss_lost_us: int = 2_000_000
     gate_rejections_max: int = 1
     gate_window_us: int = 2_000_000

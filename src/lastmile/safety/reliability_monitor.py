@@ -82,7 +82,7 @@ class ReliabilityMonitor:
         """
         self.config = config or ReliabilityConfig()
         self.lane_margin_m = lane_margin_m
-        self._dead_reckoning_lowest_mps: float | None = None
+        self._dead_reckoning_stopped = False
         self.hdmap = hdmap
         self.route = route
         if hdmap is not None:
@@ -438,26 +438,24 @@ class ReliabilityMonitor:
         return True
 
     def _dead_reckoning(self, now_us: int, est: LocalizationEstimate, out: list[MalfunctionSignal]) -> None:
-        """While nothing absolute holds the pose: Snow Lion's 0.5 m/s, and never faster than the lowest
-        speed since dead reckoning began (plus ``dead_reckoning_speed_margin_mps``); once stopped, held
-        at standstill until a fix or a landmark holds the pose again. A vehicle that has lost its
-        position slows down; it never speeds up on dead reckoning."""
+        """While nothing absolute holds the pose: Snow Lion's 0.5 m/s, and 0 once the vehicle has stopped
+        until a fix or a landmark holds the pose again. A vehicle that has lost its position slows to the
+        cap; it never speeds up beyond it, and never moves off again on dead reckoning. (A cap that
+        followed the lowest speed down would spiral to a stop: the stack tracks the cap from below.)"""
         c = self.config
         if est.source is not PositionSource.DEAD_RECKONING:
-            self._dead_reckoning_lowest_mps = None
+            self._dead_reckoning_stopped = False
             return
-        speed = abs(est.speed_mps)
-        lowest = self._dead_reckoning_lowest_mps
-        self._dead_reckoning_lowest_mps = lowest = speed if lowest is None else min(lowest, speed)
-        held = lowest < c.standstill_mps
-        cap = 0.0 if held else min(c.covariance_speed_cap_mps, lowest + c.dead_reckoning_speed_margin_mps)
+        if abs(est.speed_mps) < c.standstill_mps:
+            self._dead_reckoning_stopped = True
+        held = self._dead_reckoning_stopped
         self._emit(
             out,
             now_us,
             "localization",
             K.LOCALIZATION_DEAD_RECKONING,
             "no absolute position correction: dead reckoning" + (", held at standstill" if held else ""),
-            cap=cap,
+            cap=0.0 if held else c.covariance_speed_cap_mps,
         )
 
     def _gnss_lost(self, now_us: int, out: list[MalfunctionSignal]) -> None:
