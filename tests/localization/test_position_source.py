@@ -1,5 +1,6 @@
 """Each localization mode says what holds its position: GNSS, landmarks, or nothing (dead reckoning)."""
 
+import dataclasses
 import math
 
 import pytest
@@ -66,3 +67,17 @@ def test_the_newest_source_within_the_timeout_wins():
     assert upd.source_at(2_800_000) is PositionSource.GNSS
     with pytest.raises(ConfigError, match="expected a positive number"):
         AbsoluteUpdates(timeout_s=math.inf)
+
+
+def test_a_float_fix_counts_at_least_its_datasheet_accuracy_whatever_the_receiver_reports():
+    from lastmile.core.gnss_messages import GnssQuality
+
+    ekf = OdometryEkf(OdometryEkfConfig(zero_slip_offset_m=0.0))
+    ekf.predict(stamp_from_s(0.0), 0.0, 0.0)
+    optimistic = dataclasses.replace(_fix(0.02), pos_std_m=0.05, quality=GnssQuality.RTK_FLOAT)
+    assert ekf.update_gnss(optimistic)
+    assert ekf.estimate(stamp_from_s(0.02)).pos_std_m == pytest.approx(0.2, rel=0.02)  # RTKLIB: float 0.2 m
+    rtk = OdometryEkf(OdometryEkfConfig(zero_slip_offset_m=0.0))
+    rtk.predict(stamp_from_s(0.0), 0.0, 0.0)
+    assert rtk.update_gnss(_fix(0.02))  # reported 0.02 m, above the RTK floor: taken as reported
+    assert rtk.estimate(stamp_from_s(0.02)).pos_std_m == pytest.approx(0.02, rel=0.02)

@@ -27,6 +27,7 @@ from lastmile.core.gnss_messages import (
     ERROR_CORRELATION_S,
     GnssFix,
     GnssQuality,
+    floored_sigma_m,
     white_covariance_m2,
 )
 from lastmile.core.sensor_frames import GnssInsFrame
@@ -405,7 +406,8 @@ class PoseEkf:
         return snap._replace(s=s, p=0.5 * (new_p + new_p.T))
 
     def _fuse_ins(self, snap: _Snap, fix: GnssInsFrame, reset: bool, first_time: bool) -> tuple[_Snap, bool]:
-        r = np.diag([fix.pos_std_m**2, fix.pos_std_m**2]) + self._timing_cov(snap)
+        sigma = floored_sigma_m(fix.pos_std_m, fix.quality)
+        r = np.diag([sigma**2, sigma**2]) + self._timing_cov(snap)
         if not snap.initialised or not snap.yaw_known or reset:
             snap = self._set_position(snap, fix.x_m, fix.y_m, r, fix.yaw_rad, fix.yaw_std_rad**2, False)
             return self._fuse_speed_yaw(snap, fix), self._count_accepted(first_time)

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 from lastmile.core.errors import ConfigError, MessageError
 from lastmile.core.geometry import SE2, wrap_angle_rad
+from lastmile.core.gnss_messages import floored_sigma_m
 from lastmile.core.sensor_frames import GnssInsFrame
 from lastmile.core.stamp import US_PER_S, Stamp
 from lastmile.core.vehicle_messages import LocalizationEstimate, PositionSource
@@ -370,7 +371,7 @@ class OdometryEkf:
         self, snap: _Snapshot, fix: GnssInsFrame, reset: bool, first_time: bool
     ) -> tuple[_Snapshot, bool]:
         t_us, initialised, w_in, s, p = snap
-        r_pos = fix.pos_std_m**2
+        r_pos = floored_sigma_m(fix.pos_std_m, fix.quality) ** 2
         if not initialised or reset:
             return self._initialise(snap, fix), True
         dx, dy = fix.x_m - s[_X], fix.y_m - s[_Y]
@@ -412,7 +413,7 @@ class OdometryEkf:
     def _initialise(self, snap: _Snapshot, fix: GnssInsFrame) -> _Snapshot:
         """Pose from the fix; speed and bias (and their covariance) kept from the odometry so far."""
         t_us, _, w_in, s, p = snap
-        r_pos = fix.pos_std_m**2
+        r_pos = floored_sigma_m(fix.pos_std_m, fix.quality) ** 2
         new_p = list(p)
         for i in (_X, _Y, _YAW):
             for j in range(5):
