@@ -107,3 +107,13 @@ def test_an_unknown_quality_names_the_choices(tmp_path: Path):
     path.write_text('[gnss]\noutages = [{start_s = 1.0, duration_s = 1.0, quality = "rtk_fix"}]\n')
     with pytest.raises(ConfigError, match="expected one of"):
         load_scenario(path)
+
+
+@pytest.mark.parametrize(
+    ("range_m", "quality"), [(15.0, GnssQuality.RTK_FIXED), (25.0, GnssQuality.RTK_FLOAT)]
+)
+def test_multipath_degrades_the_fix_only_within_its_range_of_the_map_buildings(service, range_m, quality):
+    # Route s 1200 m passes a building 18.2 m away.
+    gnss = GnssScenario(multipath=True, multipath_range_m=range_m)
+    frames = _gnss(_frames(Scenario(minutes=1.0, start_route_s_m=1200.0, gnss=gnss), service, 1.0))
+    assert frames and all(f.fix_ok and f.quality is quality for f in frames)

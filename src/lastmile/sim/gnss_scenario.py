@@ -110,7 +110,10 @@ class GnssScenario:
     Attributes:
         outages: windows in time with no (or a degraded) fix everywhere.
         regions: places with no (or a degraded) fix.
-        multipath: RTK degrades to float with a correlated bias near the map's buildings.
+        multipath: RTK degrades to float with a correlated bias near the map's buildings (within
+            ``multipath_range_m``; the campus loop passes its buildings at 18 m and more, so there the
+            default 15 m leaves RTK fixed).
+        multipath_range_m: a facade closer than this degrades the solution, m.
         snow_outages: in snow, heavy snow on the antenna takes the fix away (Poisson starts,
             ``snow_outages_per_hour``, exponential lengths of mean ``snow_outage_mean_s``).
         wheel_slip_on_snow: in snow the wheels over-read by ``wheel_slip_scale`` (spin) with a slip
@@ -120,6 +123,7 @@ class GnssScenario:
     outages: tuple[GnssOutage, ...] = ()
     regions: tuple[GnssRegion, ...] = ()
     multipath: bool = False
+    multipath_range_m: float = 15.0  # GnssDegradationConfig's default (a campus building)
     snow_outages: bool = False
     snow_outages_per_hour: float = 6.0
     snow_outage_mean_s: float = 30.0
@@ -129,6 +133,7 @@ class GnssScenario:
     reported_sigma_factor: float = 0.5
 
     def __post_init__(self) -> None:
+        check_range("gnss.multipath_range_m", self.multipath_range_m, 0.1, 500.0)
         check_range("gnss.snow_outages_per_hour", self.snow_outages_per_hour, 0.0, 3600.0)
         check_range("gnss.snow_outage_mean_s", self.snow_outage_mean_s, 0.1, 3600.0)
         check_range("gnss.wheel_slip_scale", self.wheel_slip_scale, -0.5, 0.5)
@@ -162,6 +167,7 @@ class GnssScenario:
             for r in self.regions
         )
         config = GnssDegradationConfig(
+            multipath_range_m=self.multipath_range_m,
             snow_outages_per_hour=self.snow_outages_per_hour if self.snow_outages else 0.0,
             snow_outage_mean_s=self.snow_outage_mean_s,
             reported_sigma_factor=self.reported_sigma_factor,
