@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from lastmile.core.stamp import stamp_from_s
+from lastmile.core.vehicle_messages import PositionSource
 from lastmile.localization.ekf import PoseEkf, PoseEkfConfig
 from lastmile.localization.landmark_localization import (
     FacadeDetections,
@@ -154,3 +155,14 @@ def test_a_scan_match_with_its_covariance_is_a_direct_pose_measurement():
         stamp=stamp_from_s(0.0), x_m=20.0, y_m=0.0, yaw_rad=0.0, covariance=np.diag([1e-4, 1e-4, 1e-6])
     )
     assert not ekf.update_pose(far) and ekf.rejected_pose_measurements == 1
+
+
+def test_through_an_outage_the_estimate_says_landmarks_hold_it_or_that_it_dead_reckons(drive):
+    landmarks = MapLandmarks(poles=_poles_along(drive), segments=np.zeros((0, 2, 2)))
+    rng = np.random.default_rng(2)
+    end = stamp_from_s(float(drive.t_s[-1]))
+    with_poles, _, _ = _run(drive, landmarks, (120.0, 1e9), True, rng)
+    without, _, _ = _run(drive, landmarks, (120.0, 1e9), False, rng)
+    assert with_poles.estimate(end).source is PositionSource.LANDMARKS
+    assert without.estimate(end).source is PositionSource.DEAD_RECKONING
+    assert without.estimate(stamp_from_s(119.5)).source is PositionSource.GNSS

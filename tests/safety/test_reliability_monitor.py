@@ -18,7 +18,7 @@ from lastmile.core.safety_messages import (
 )
 from lastmile.core.sensor_frames import GnssInsFrame, ImuFrame, LidarSweep, RadarFrame
 from lastmile.core.stamp import Stamp
-from lastmile.core.vehicle_messages import LocalizationEstimate
+from lastmile.core.vehicle_messages import LocalizationEstimate, PositionSource
 from lastmile.hdmap.model import HDMap
 from lastmile.safety.reliability_config import ReliabilityConfig, SensorSpec
 from lastmile.safety.reliability_monitor import ReliabilityMonitor
@@ -39,9 +39,21 @@ def _specs() -> tuple[SensorSpec, ...]:
 class Feed:
     """A healthy sensor suite at its rates; hooks can break one stream from a given time."""
 
-    def __init__(self, hdmap: HDMap | None = None) -> None:
+    def __init__(
+        self,
+        hdmap: HDMap | None = None,
+        config: ReliabilityConfig | None = None,
+        lane_margin_m: Callable[[float], float] | None = None,
+    ) -> None:
         route = Polyline(np.array([[0.0, 0.0], [400.0, 0.0]]))
-        self.mon = ReliabilityMonitor(ReliabilityConfig(sensors=_specs()), hdmap=hdmap, route=route)
+        self.mon = ReliabilityMonitor(
+            config or ReliabilityConfig(sensors=_specs()),
+            hdmap=hdmap,
+            route=route,
+            lane_margin_m=lane_margin_m,
+        )
+        self.speed_mps = 3.0
+        self.source = PositionSource.GNSS
         self.rng = np.random.default_rng(0)
         self.now = 0
         self.x_m = 50.0
@@ -97,11 +109,12 @@ class Feed:
                     LocalizationEstimate(
                         stamp=Stamp(t),
                         map_from_base=SE2(self.x_m, self.y_m, 0.0),
-                        speed_mps=3.0,
+                        speed_mps=self.speed_mps,
                         yaw_rate_radps=0.0,
                         pos_std_m=self.pos_std_m,
                         yaw_std_rad=0.01,
                         valid=self.valid,
+                        source=self.source,
                     ),
                 )
             signals = self.mon.evaluate(t)
@@ -243,9 +256,11 @@ def test_localization_integrity_faults_map_to_levels() -> None:
     early = _only(feed.run(lost_at + 200_000), K.GNSS_LOST)
     assert early.level == L.SPEED_LIMIT and early.speed_cap_mps is not None
     assert _only(feed.run(lost_at + 1_900_000), K.GNSS_LOST).level == L.SPEED_LIMIT
-    # ...and calls the operator once the fix stays away for gnss_lost_us.
+    # ...and keeps Snow Lion's cap once the fix stays away for gnss_lost_us (no bare takeover request
+    # without a cap: the stop comes from the protection level against the lane margin).
     sig = _only(feed.run(lost_at + 2_200_000), K.GNSS_LOST)
-    assert sig.level == L.TAKEOVER_REQUEST
+    assert sig.level == L.SPEED_LIMIT and sig.speed_cap_mps == pytest.approx(0.5)
+    assert "no GNSS fix for 2.2 s" in sig.reason
     for i, total in enumerate((0, 1, 2, 3, 5)):
         feed.mon.observe_gate_rejections(feed.now + i, total)
     assert _only(feed.run(feed.now), K.LOCALIZATION_GATE_REJECTIONS).level == L.SPEED_LIMIT
@@ -258,3 +273,63 @@ def test_leaving_the_map_and_the_route(straight_map: HDMap) -> None:
     sigs = feed.run(feed.now + 100_000)
     assert _only(sigs, K.OFF_MAP).level == L.EMERGENCY_STOP
     assert _only(sigs, K.OFF_ROUTE).level == L.MINIMAL_RISK_MANOEUVRE
+
+
+def _cap(signals: tuple[MalfunctionSignal, ...]) -> float | None:
+    return _only(signals, K.LOCALIZATION_DEAD_RECKONING).speed_cap_mps
+
+
+def test_dead_reckoning_holds_snow_lions_cap_and_never_lets_a_stopped_vehicle_go_again() -> None:
+    feed = Feed()
+    feed.run(2_500_000)
+    assert not [s for s in feed.run(feed.now) if s.kind == K.LOCALIZATION_DEAD_RECKONING]
+    feed.source = PositionSource.DEAD_RECKONING
+    sig = _only(feed.run(feed.now + 100_000), K.LOCALIZATION_DEAD_RECKONING)
+    assert sig.level == L.SPEED_LIMIT and sig.speed_cap_mps == pytest.approx(0.5)
+    feed.speed_mps = 0.2  # slowed for something: still Snow Lion's cap
+    assert _cap(feed.run(feed.now + 100_000)) == pytest.approx(0.5)
+    feed.speed_mps = 0.0
+    assert _cap(feed.run(feed.now + 100_000)) == 0.0
+    feed.speed_mps = 0.3  # creeping off again, still on dead reckoning: held at standstill
+    sig = _only(feed.run(feed.now + 100_000), K.LOCALIZATION_DEAD_RECKONING)
+    assert sig.speed_cap_mps == 0.0 and "held at standstill" in sig.reason
+    feed.source = PositionSource.GNSS  # a fix holds the pose again: the hold ends
+    assert not [s for s in feed.run(feed.now + 100_000) if s.kind == K.LOCALIZATION_DEAD_RECKONING]
+    feed.source = PositionSource.DEAD_RECKONING  # a new outage: moving again under the cap
+    feed.speed_mps = 3.0
+    assert _cap(feed.run(feed.now + 100_000)) == pytest.approx(0.5)
+
+
+def test_a_protection_level_beyond_the_lane_margin_is_the_manoeuvre_to_a_stop() -> None:
+    feed = Feed(config=ReliabilityConfig(sensors=_specs(), lane_margin_m=0.75))
+    feed.run(2_500_000)
+    feed.pos_std_m = 0.35  # 1.96 sigma = 0.69 m, inside the margin: Snow Lion's cap only
+    sig = _only(feed.run(feed.now + 100_000), K.LOCALIZATION_COVARIANCE)
+    assert sig.level == L.SPEED_LIMIT
+    feed.pos_std_m = 0.40  # 0.78 m > 0.75 m
+    sig = _only(feed.run(feed.now + 100_000), K.LOCALIZATION_COVARIANCE)
+    assert sig.level == L.MINIMAL_RISK_MANOEUVRE and "lane margin 0.75 m" in sig.reason
+
+
+def test_the_lane_margin_along_the_route_overrides_the_configured_one() -> None:
+    seen: list[float] = []
+
+    def narrow(s_m: float) -> float:
+        seen.append(s_m)
+        return 0.2
+
+    feed = Feed(config=ReliabilityConfig(sensors=_specs(), lane_margin_m=0.75), lane_margin_m=narrow)
+    feed.run(2_500_000)
+    feed.pos_std_m = 0.15  # 0.29 m: beyond a 0.2 m margin, far inside 0.75 m
+    sig = _only(feed.run(feed.now + 100_000), K.LOCALIZATION_COVARIANCE)
+    assert sig.level == L.MINIMAL_RISK_MANOEUVRE and "lane margin 0.20 m" in sig.reason
+    assert seen and seen[-1] == pytest.approx(50.0, abs=0.1)  # asked at the pose's route s
+
+
+def test_without_gnss_a_pose_held_by_landmarks_is_not_capped() -> None:
+    feed = Feed()
+    feed.run(2_500_000)
+    feed.fix_ok = False
+    feed.source = PositionSource.LANDMARKS
+    sig = _only(feed.run(feed.now + 3_000_000), K.GNSS_LOST)
+    assert sig.level == L.NONE and sig.speed_cap_mps is None and "landmarks" in sig.reason

@@ -36,6 +36,11 @@ ERROR_CORRELATION_S = 60.0
 """Correlation time of a GNSS solution's error (multipath and atmosphere change over about a minute), s."""
 
 
+def floored_sigma_m(reported_sigma_m: float, quality: GnssQuality) -> float:
+    """A receiver's reported one-sigma accuracy, floored at its solution type's datasheet figure, m."""
+    return max(reported_sigma_m, ACCURACY_FLOOR_M[quality])
+
+
 def white_covariance_m2(fix: GnssFix) -> tuple[float, float, float]:
     """The fix's reported covariance (xx, xy, yy) with each axis floored at its type's accuracy, m^2."""
     floor = ACCURACY_FLOOR_M[fix.quality] ** 2

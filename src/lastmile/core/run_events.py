@@ -34,6 +34,8 @@ class EventKind(StrEnum):
     STACK_CRASH = "stack_crash"
     HARDWARE_WATCHDOG = "hardware_watchdog"
     SAFETY = "safety"
+    LOCALIZATION = "localization"
+    """What holds the vehicle's pose (GNSS, landmarks, dead reckoning) or the GNSS fix quality changed."""
     STATE_CHANGE = "state_change"
     EMERGENCY_STOP = "emergency_stop"
     HMI = "hmi"

@@ -41,6 +41,8 @@ class MalfunctionKind(Enum):
     LOCALIZATION_INVALID = "localization_invalid"
     LOCALIZATION_COVARIANCE = "localization_covariance"
     GNSS_LOST = "gnss_lost"
+    LOCALIZATION_DEAD_RECKONING = "localization_dead_reckoning"
+    """The pose has had no absolute correction (GNSS, landmarks) for the mode's timeout."""
     LOCALIZATION_GATE_REJECTIONS = "localization_gate_rejections"
     OPERATOR_ESTOP = "operator_estop"
     STACK_FAILED = "stack_failed"

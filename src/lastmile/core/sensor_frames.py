@@ -13,6 +13,7 @@ import numpy as np
 
 from lastmile.core.arrays import frozen_array
 from lastmile.core.errors import MessageError
+from lastmile.core.gnss_messages import GnssQuality
 from lastmile.core.safety_messages import OperatorInput
 from lastmile.core.stamp import Stamp
 from lastmile.core.traffic_light_messages import TrafficLightDetections
@@ -29,7 +30,9 @@ class GnssInsFrame:
     """RTK GNSS / INS solution: pose of the base (rear axle centre) in the map frame.
 
     ``fix_ok`` False means the receiver reports no usable solution (outage); the values are then
-    the receiver's last dead-reckoned guess and must not be trusted.
+    the receiver's last dead-reckoned guess and must not be trusted. ``quality`` is the solution type
+    the receiver reports (RTK fixed on a healthy RTK receiver; float or single where the sky or a
+    facade degrade it), with ``pos_std_m`` its reported one-sigma accuracy per axis.
     """
 
     stamp: Stamp
@@ -40,6 +43,7 @@ class GnssInsFrame:
     pos_std_m: float
     yaw_std_rad: float
     fix_ok: bool = True
+    quality: GnssQuality = GnssQuality.RTK_FIXED
 
     def validate(self) -> None:
         _check_finite(

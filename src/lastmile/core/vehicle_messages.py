@@ -15,9 +15,25 @@ from lastmile.core.safety_messages import SafetyDirective
 from lastmile.core.stamp import Stamp
 
 
+class PositionSource(Enum):
+    """What holds a localization estimate's position to the map."""
+
+    GNSS = "gnss"
+    """GNSS fixes accepted within the mode's timeout."""
+    LANDMARKS = "landmarks"
+    """Map landmarks or scan-to-map matches (GNSS-denied localization) within the timeout."""
+    DEAD_RECKONING = "dead_reckoning"
+    """Nothing absolute within the timeout (or never): odometry and IMU only; the error grows."""
+
+
 @dataclass(frozen=True, slots=True, kw_only=True)
 class LocalizationEstimate:
-    """Pose of the base (rear axle) in the map frame, with speed and confidence."""
+    """Pose of the base (rear axle) in the map frame, with speed and confidence.
+
+    The confidence is the filter's covariance: ``pos_std_m`` is the sigma of its largest horizontal
+    axis (so a bound on the lateral error too), ``yaw_std_rad`` the heading's; ``source`` says what last
+    corrected the position (dead reckoning: nothing absolute within the mode's timeout).
+    """
 
     stamp: Stamp
     map_from_base: SE2
@@ -26,6 +42,7 @@ class LocalizationEstimate:
     pos_std_m: float
     yaw_std_rad: float
     valid: bool
+    source: PositionSource = PositionSource.GNSS
 
 
 class BehaviourState(Enum):

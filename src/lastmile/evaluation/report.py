@@ -16,6 +16,7 @@ from matplotlib.patches import Patch
 from lastmile.core.errors import LastmileError
 from lastmile.evaluation import metrics as metrics_mod
 from lastmile.evaluation import run_signals
+from lastmile.evaluation.localization_timeline import localization_lines
 from lastmile.recorder import run_log
 
 if TYPE_CHECKING:  # only for annotations: the report draws any object shaped like an HDMap
@@ -436,6 +437,9 @@ def write_report(
         "## Events",
         "",
         *_events_table(log),
+        "## Localization",
+        "",
+        *localization_lines(log, sig.duration_s),
         "## Compute time",
         "",
         *timing_lines,

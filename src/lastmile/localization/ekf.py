@@ -27,11 +27,12 @@ from lastmile.core.gnss_messages import (
     ERROR_CORRELATION_S,
     GnssFix,
     GnssQuality,
+    floored_sigma_m,
     white_covariance_m2,
 )
 from lastmile.core.sensor_frames import GnssInsFrame
 from lastmile.core.stamp import US_PER_S, Stamp
-from lastmile.core.vehicle_messages import LocalizationEstimate
+from lastmile.core.vehicle_messages import LocalizationEstimate, PositionSource
 from lastmile.localization.ekf_config import PoseEkfConfig
 from lastmile.localization.ekf_model import (
     BG,
@@ -48,6 +49,7 @@ from lastmile.localization.ekf_model import (
     motion,
 )
 from lastmile.localization.landmark_localization import PoseMeasurement
+from lastmile.localization.position_source import AbsoluteUpdates
 from lastmile.localization.reacquisition import ReacquisitionRule, RejectedFix
 
 __all__ = ["PoseEkf", "PoseEkfConfig", "PosePosterior"]
@@ -113,6 +115,8 @@ class PoseEkf:
 
     def __init__(self, config: PoseEkfConfig | None = None) -> None:
         self.config = c = config or PoseEkfConfig()
+        self.absolute = AbsoluteUpdates()
+        """When a fix or a landmark pose was last accepted (the estimate's ``source``)."""
         self.rejected_fixes = 0
         """Fixes rejected by the chi-square gate (each counted once, when it arrives)."""
         self.gross_rejections = 0
@@ -218,7 +222,7 @@ class PoseEkf:
             raise MessageError(f"GnssInsFrame.stamp: expected a non-negative stamp, got {frame.stamp}")
         if not frame.fix_ok:
             return False
-        return self._insert(int(frame.stamp), _GNSS_INS, frame)
+        return self._noted(PositionSource.GNSS, frame.stamp, self._insert(int(frame.stamp), _GNSS_INS, frame))
 
     def update_position(self, fix: GnssFix) -> bool:
         """Correct with a position-only GNSS fix of the antenna (``antenna_lever_arm_m`` from the base).
@@ -231,7 +235,7 @@ class PoseEkf:
             True if the fix was used (see ``update_gnss``).
         """
         fix.validate()
-        return self._insert(int(fix.stamp), _GNSS_POS, fix)
+        return self._noted(PositionSource.GNSS, fix.stamp, self._insert(int(fix.stamp), _GNSS_POS, fix))
 
     def update_pose(self, measurement: PoseMeasurement) -> bool:
         """Correct with a measurement of the planar pose (landmarks, a scan match), linearised here.
@@ -246,7 +250,13 @@ class PoseEkf:
             raise MessageError(
                 f"PoseMeasurement.stamp: expected a non-negative stamp, got {measurement.stamp}"
             )
-        return self._insert(int(measurement.stamp), _POSE, measurement)
+        used = self._insert(int(measurement.stamp), _POSE, measurement)
+        return self._noted(PositionSource.LANDMARKS, measurement.stamp, used)
+
+    def _noted(self, source: PositionSource, stamp: Stamp, used: bool) -> bool:
+        if used:
+            self.absolute.note(source, int(stamp))
+        return used
 
     def estimate(self, stamp: Stamp) -> LocalizationEstimate:
         """The pose at ``stamp``, extrapolated from the newest posterior at or before it.
@@ -266,6 +276,7 @@ class PoseEkf:
             pos_std_m=pos_std,
             yaw_std_rad=math.sqrt(p[YAW, YAW]),
             valid=snap.initialised and snap.yaw_known and pos_std <= self.config.max_pos_std_m,
+            source=self.absolute.source_at(int(stamp)),
         )
 
     def posterior(self, stamp: Stamp) -> PosePosterior:
@@ -395,7 +406,8 @@ class PoseEkf:
         return snap._replace(s=s, p=0.5 * (new_p + new_p.T))
 
     def _fuse_ins(self, snap: _Snap, fix: GnssInsFrame, reset: bool, first_time: bool) -> tuple[_Snap, bool]:
-        r = np.diag([fix.pos_std_m**2, fix.pos_std_m**2]) + self._timing_cov(snap)
+        sigma = floored_sigma_m(fix.pos_std_m, fix.quality)
+        r = np.diag([sigma**2, sigma**2]) + self._timing_cov(snap)
         if not snap.initialised or not snap.yaw_known or reset:
             snap = self._set_position(snap, fix.x_m, fix.y_m, r, fix.yaw_rad, fix.yaw_std_rad**2, False)
             return self._fuse_speed_yaw(snap, fix), self._count_accepted(first_time)

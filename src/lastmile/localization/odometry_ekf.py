@@ -15,9 +15,11 @@ from dataclasses import dataclass
 
 from lastmile.core.errors import ConfigError, MessageError
 from lastmile.core.geometry import SE2, wrap_angle_rad
+from lastmile.core.gnss_messages import floored_sigma_m
 from lastmile.core.sensor_frames import GnssInsFrame
 from lastmile.core.stamp import US_PER_S, Stamp
-from lastmile.core.vehicle_messages import LocalizationEstimate
+from lastmile.core.vehicle_messages import LocalizationEstimate, PositionSource
+from lastmile.localization.position_source import AbsoluteUpdates
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -127,6 +129,8 @@ class OdometryEkf:
 
     def __init__(self, config: OdometryEkfConfig | None = None) -> None:
         self.config = c = config or OdometryEkfConfig()
+        self.absolute = AbsoluteUpdates()
+        """When a fix was last accepted (the estimate's ``source``: GNSS or dead reckoning)."""
         self.rejected_fixes = 0
         """Fixes rejected by the chi-square gate (each counted once, when it arrives)."""
         self.gross_rejections = 0
@@ -209,7 +213,10 @@ class OdometryEkf:
             raise MessageError(f"GnssInsFrame.stamp: expected a non-negative stamp, got {frame.stamp}")
         if not frame.fix_ok:
             return False
-        return self._insert(int(frame.stamp), _GNSS, frame)
+        used = self._insert(int(frame.stamp), _GNSS, frame)
+        if used:
+            self.absolute.note(PositionSource.GNSS, int(frame.stamp))
+        return used
 
     def estimate(self, stamp: Stamp) -> LocalizationEstimate:
         """The pose at ``stamp``, extrapolated from the newest posterior at or before it.
@@ -238,6 +245,7 @@ class OdometryEkf:
             pos_std_m=pos_std,
             yaw_std_rad=math.sqrt(p[9]),
             valid=initialised and pos_std <= self.config.max_pos_std_m,
+            source=self.absolute.source_at(int(stamp)),
         )
 
     # --------------------------------------------------------------------------------------------
@@ -363,7 +371,7 @@ class OdometryEkf:
         self, snap: _Snapshot, fix: GnssInsFrame, reset: bool, first_time: bool
     ) -> tuple[_Snapshot, bool]:
         t_us, initialised, w_in, s, p = snap
-        r_pos = fix.pos_std_m**2
+        r_pos = floored_sigma_m(fix.pos_std_m, fix.quality) ** 2
         if not initialised or reset:
             return self._initialise(snap, fix), True
         dx, dy = fix.x_m - s[_X], fix.y_m - s[_Y]
@@ -405,7 +413,7 @@ class OdometryEkf:
     def _initialise(self, snap: _Snapshot, fix: GnssInsFrame) -> _Snapshot:
         """Pose from the fix; speed and bias (and their covariance) kept from the odometry so far."""
         t_us, _, w_in, s, p = snap
-        r_pos = fix.pos_std_m**2
+        r_pos = floored_sigma_m(fix.pos_std_m, fix.quality) ** 2
         new_p = list(p)
         for i in (_X, _Y, _YAW):
             for j in range(5):

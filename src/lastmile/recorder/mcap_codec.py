@@ -34,6 +34,7 @@ from lastmile.core import (
     vehicle_messages,
 )
 from lastmile.core.errors import LastmileError
+from lastmile.core.gnss_messages import GnssQuality
 from lastmile.core.object_class import ObjectClass
 from lastmile.core.stamp import Stamp
 from lastmile.recorder import foxglove_views as fv
@@ -46,7 +47,7 @@ class RecordingError(LastmileError):
 
 def _registry() -> tuple[dict[str, type], dict[str, type[Enum]]]:
     classes: dict[str, type] = {}
-    enums: dict[str, type[Enum]] = {"ObjectClass": ObjectClass}
+    enums: dict[str, type[Enum]] = {"ObjectClass": ObjectClass, "GnssQuality": GnssQuality}
     for module in (
         geometry,
         objects,

@@ -118,6 +118,7 @@ EVENT_SCHEMAS: dict[EventKind, dict[str, str]] = {
     EventKind.FAULT_END: {"kind": "str", "target": "str"},
     EventKind.STACK_CRASH: {"error": "str"},
     EventKind.SAFETY: {"level": "str", "mrm": "str", "reason": "str"},
+    EventKind.LOCALIZATION: {"source": "str", "gnss": "str", "pos_std_m": "float"},
     EventKind.HARDWARE_WATCHDOG: {"reason": "str"},
     EventKind.OPERATOR_ESTOP: {"state": "str"},
     EventKind.OPERATOR_RELEASE: {"state": "str"},

@@ -15,6 +15,7 @@ import numpy as np
 
 from lastmile.core.run_events import EventKind
 from lastmile.core.safety_messages import FailSafeLevel
+from lastmile.core.sensor_frames import GnssInsFrame
 from lastmile.core.vehicle_messages import BehaviourState
 from lastmile.hdmap.model import HDMap
 from lastmile.recorder.black_box import BlackBox, BlackBoxConfig
@@ -35,6 +36,9 @@ BLACK_BOX_TRIGGERS = ("takeover", "collision")
 
 ProgressFn = Callable[[float, float], None]
 
+NO_GNSS_YET, NO_FIX, INVALID_POSE = "none_yet", "no_fix", "invalid"
+"""Values of ``localization`` events besides the GNSS qualities and position sources."""
+
 
 class RunLogCallback(LoopCallback):
     """Writes the run log: injected faults, crashes, watchdog trips, safety levels, behaviour states,
@@ -53,6 +57,8 @@ class RunLogCallback(LoopCallback):
         self._watchdog_logged = False
         self._level = FailSafeLevel.NONE
         self._state: BehaviourState | None = None
+        self._gnss = NO_GNSS_YET
+        self._localized: tuple[str, str] | None = None
 
     def on_tick(self, record: TickRecord) -> None:
         w, t_s = self.writer, record.t_s
@@ -66,6 +72,7 @@ class RunLogCallback(LoopCallback):
             w.add_event(t_s, EventKind.HARDWARE_WATCHDOG, reason="no fresh command for 100 ms")
             self._watchdog_logged = True
         self._safety_level(record)
+        self._localization(record)
         self._state_change(record)
         for msg in record.output.hmi if record.output is not None else ():
             w.add_event(
@@ -105,6 +112,23 @@ class RunLogCallback(LoopCallback):
                 reason="; ".join(directive.reasons),
             )
             self._level = directive.level
+
+    def _localization(self, record: TickRecord) -> None:
+        """A ``localization`` event whenever the pose's source or the GNSS fix the vehicle received
+        changes (as the vehicle sees them: its estimate and its receiver's frames)."""
+        for frame in record.frames:
+            if isinstance(frame, GnssInsFrame):
+                self._gnss = frame.quality.value if frame.fix_ok else NO_FIX
+        diagnostics = record.output.diagnostics if record.output is not None else None
+        est = diagnostics.estimate if diagnostics is not None else None
+        if est is None:
+            return
+        now = (est.source.value if est.valid else INVALID_POSE, self._gnss)
+        if now != self._localized:
+            self.writer.add_event(
+                record.t_s, EventKind.LOCALIZATION, source=now[0], gnss=now[1], pos_std_m=est.pos_std_m
+            )
+            self._localized = now
 
     def _state_change(self, record: TickRecord) -> None:
         state, out = record.state, record.output

@@ -26,7 +26,8 @@ DEFAULT_LEVELS: dict[MalfunctionKind, FailSafeLevel] = {
     K.WEATHER_PRECIPITATION: L.TAKEOVER_REQUEST,
     K.LOCALIZATION_INVALID: L.EMERGENCY_STOP,
     K.LOCALIZATION_COVARIANCE: L.SPEED_LIMIT,
-    K.GNSS_LOST: L.TAKEOVER_REQUEST,
+    K.GNSS_LOST: L.SPEED_LIMIT,
+    K.LOCALIZATION_DEAD_RECKONING: L.SPEED_LIMIT,
     K.LOCALIZATION_GATE_REJECTIONS: L.SPEED_LIMIT,
 }
 """Fail-safe level of each malfunction at its out-of-ODD threshold (degraded thresholds ask SPEED_LIMIT).
@@ -35,7 +36,10 @@ Why: losing the pose (invalid, or off the drivable area) means the vehicle canno
 area, the one hazard ISO 22737 answers with an immediate stop; losing a sensor, a frozen or garbage
 stream or a blocked view leaves the pose and the other sensors, enough for a comfortable stop; a poor
 but usable input (rate, latency, noise, covariance: Snow Lion's 0.5 m/s) only slows the shuttle; a
-lost GNSS fix with the EKF still dead-reckoning, or heavy precipitation, is for the operator to judge.
+lost GNSS fix with the pose dead-reckoning holds it at Snow Lion's 0.5 m/s (and at standstill once it
+stopped: it never re-accelerates on dead reckoning), and once the position's protection level exceeds
+the lane margin the vehicle stops by the minimal risk manoeuvre (``LOCALIZATION_COVARIANCE``); a pose
+held by landmarks needs no GNSS; heavy precipitation is for the operator to judge.
 """
 
 
@@ -148,7 +152,14 @@ class ReliabilityConfig:
         route_offset_max_m: the pose farther than this from the route centre line is off route.
         pos_std_degraded_m, pos_std_max_m: localization std above the first: speed limit
             (Snow Lion's forced 0.5 m/s); above the second: the MRM.
-        covariance_speed_cap_mps: that cap.
+        covariance_speed_cap_mps: that cap, also while the pose dead-reckons (no absolute correction).
+        protection_sigma_factor: the position's protection level is this many sigma of its largest
+            axis (1.96: a two-sided 95 % bound on the lateral error).
+        lane_margin_m: room between the vehicle's side and its lane's edge where the monitor has no
+            map margin of its own (None: only the map's, or none); a protection level beyond the margin
+            is the MRM (Reid et al. 2019, "Localization requirements for autonomous vehicles": the
+            lateral alert limit is half the lane width less half the vehicle width).
+        standstill_mps: below this the vehicle counts as stopped (dead reckoning holds it there).
         gnss_lost_us: no usable GNSS fix for this long.
         gate_rejections_max, gate_window_us: more EKF gate rejections than this within the window.
         gross_rejections_max: more gross rejections (``PoseEkf.gross_rejections``: a fix 20 sigma off)
@@ -176,6 +187,9 @@ class ReliabilityConfig:
     pos_std_degraded_m: float = 0.3
     pos_std_max_m: float = 1.0
     covariance_speed_cap_mps: float = 0.5
+    protection_sigma_factor: float = 1.96
+    lane_margin_m: float | None = None
+    standstill_mps: float = 0.05
     gnss_lost_us: int = 2_000_000
     gate_rejections_max: int = 1
     gate_window_us: int = 2_000_000
@@ -204,6 +218,13 @@ class ReliabilityConfig:
         if not 0.0 < self.min_rate_fraction < 1.0:
             raise ConfigError(
                 f"ReliabilityConfig.min_rate_fraction: expected in (0, 1), got {self.min_rate_fraction}"
+            )
+        if not self.protection_sigma_factor > 0 or (
+            self.lane_margin_m is not None and self.lane_margin_m < 0
+        ):
+            raise ConfigError(
+                "ReliabilityConfig: expected protection_sigma_factor > 0 and lane_margin_m >= 0 or None, got "
+                f"{self.protection_sigma_factor} and {self.lane_margin_m}"
             )
         if self.gate_rejections_max < 0 or self.gross_rejections_max < 0:
             raise ConfigError(

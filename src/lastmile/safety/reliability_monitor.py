@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Callable
 
 import numpy as np
 
@@ -21,7 +22,7 @@ from lastmile.core.sensor_frames import (
     SensorFrame,
 )
 from lastmile.core.stamp import Stamp
-from lastmile.core.vehicle_messages import LocalizationEstimate
+from lastmile.core.vehicle_messages import LocalizationEstimate, PositionSource
 from lastmile.hdmap.model import HDMap
 from lastmile.safety.frame_checks import garbage_reason, payload_digest, sensor_key
 from lastmile.safety.reliability_config import ReliabilityConfig, SensorSpec
@@ -73,8 +74,15 @@ class ReliabilityMonitor:
         config: ReliabilityConfig | None = None,
         hdmap: HDMap | None = None,
         route: Polyline | None = None,
+        lane_margin_m: Callable[[float], float] | None = None,
     ) -> None:
+        """Args:
+        lane_margin_m: the lane margin (half the lane width less half the vehicle's) at a route s of
+            the rear axle, m; None: ``config.lane_margin_m``.
+        """
         self.config = config or ReliabilityConfig()
+        self.lane_margin_m = lane_margin_m
+        self._dead_reckoning_stopped = False
         self.hdmap = hdmap
         self.route = route
         if hdmap is not None:
@@ -352,44 +360,12 @@ class ReliabilityMonitor:
             if not est.valid:
                 if self._ever_valid or after_grace:
                     self._emit(out, now_us, "localization", K.LOCALIZATION_INVALID, "no valid pose estimate")
-            elif est.pos_std_m > c.pos_std_max_m:
-                self._emit(
-                    out,
-                    now_us,
-                    "localization",
-                    K.LOCALIZATION_COVARIANCE,
-                    f"position std {est.pos_std_m:.2f} m > {c.pos_std_max_m:.2f} m",
-                    FailSafeLevel.MINIMAL_RISK_MANOEUVRE,
-                )
-            elif est.pos_std_m > c.pos_std_degraded_m:
-                self._emit(
-                    out,
-                    now_us,
-                    "localization",
-                    K.LOCALIZATION_COVARIANCE,
-                    f"position std {est.pos_std_m:.2f} m > {c.pos_std_degraded_m:.2f} m",
-                    cap=c.covariance_speed_cap_mps,
-                )
+            else:
+                self._pose_integrity(now_us, est, out)
         elif after_grace:
             self._emit(out, now_us, "localization", K.LOCALIZATION_INVALID, "no pose estimate received")
         if self._gnss_seen or after_grace:
-            since = self._last_fix_us if self._last_fix_us is not None else self._started_us
-            if now_us - since > c.gnss_lost_us:
-                self._emit(
-                    out, now_us, "sensor:gnss", K.GNSS_LOST, f"no GNSS fix for {(now_us - since) / 1e6:.1f} s"
-                )
-            elif self._last_fix_us is not None and self._fix_dropped_us is not None:
-                # The receiver says it lost its fix: slow down at once while the EKF dead-reckons, and
-                # call the operator if the fix does not come back within gnss_lost_us.
-                self._emit(
-                    out,
-                    now_us,
-                    "sensor:gnss",
-                    K.GNSS_LOST,
-                    "GNSS receiver reports no fix",
-                    FailSafeLevel.SPEED_LIMIT,
-                    cap=c.covariance_speed_cap_mps,
-                )
+            self._gnss_lost(now_us, out)
         while self._gate and self._gate[0][0] <= now_us - c.gate_window_us:
             self._gate.popleft()
         rejected = sum(n for _, n in self._gate)
@@ -412,6 +388,100 @@ class ReliabilityMonitor:
                 K.LOCALIZATION_GATE_REJECTIONS,
                 f"{rejected} GNSS fixes rejected by the EKF gate in {c.gate_window_us / 1e6:.0f} s",
             )
+
+    def _pose_integrity(self, now_us: int, est: LocalizationEstimate, out: list[MalfunctionSignal]) -> None:
+        """A valid pose's covariance against the lane margin and the covariance limits; dead reckoning."""
+        c = self.config
+        if self._beyond_lane_margin(now_us, est, out):
+            pass  # the manoeuvre to a stop covers the covariance limits below
+        elif est.pos_std_m > c.pos_std_max_m:
+            self._emit(
+                out,
+                now_us,
+                "localization",
+                K.LOCALIZATION_COVARIANCE,
+                f"position std {est.pos_std_m:.2f} m > {c.pos_std_max_m:.2f} m",
+                FailSafeLevel.MINIMAL_RISK_MANOEUVRE,
+            )
+        elif est.pos_std_m > c.pos_std_degraded_m:
+            self._emit(
+                out,
+                now_us,
+                "localization",
+                K.LOCALIZATION_COVARIANCE,
+                f"position std {est.pos_std_m:.2f} m > {c.pos_std_degraded_m:.2f} m",
+                cap=c.covariance_speed_cap_mps,
+            )
+        self._dead_reckoning(now_us, est, out)
+
+    def _beyond_lane_margin(
+        self, now_us: int, est: LocalizationEstimate, out: list[MalfunctionSignal]
+    ) -> bool:
+        """The position's protection level beyond the lane margin: the MRM to a stop (the vehicle can no
+        longer tell that it is in its lane)."""
+        c = self.config
+        margin = c.lane_margin_m
+        if self.lane_margin_m is not None and self._route_s is not None:
+            margin = self.lane_margin_m(self._route_s)
+        level_m = c.protection_sigma_factor * est.pos_std_m
+        if margin is None or level_m <= margin:
+            return False
+        self._emit(
+            out,
+            now_us,
+            "localization",
+            K.LOCALIZATION_COVARIANCE,
+            f"protection level {c.protection_sigma_factor:.2f} sigma = {level_m:.2f} m "
+            f"> lane margin {margin:.2f} m",
+            FailSafeLevel.MINIMAL_RISK_MANOEUVRE,
+        )
+        return True
+
+    def _dead_reckoning(self, now_us: int, est: LocalizationEstimate, out: list[MalfunctionSignal]) -> None:
+        """While nothing absolute holds the pose: Snow Lion's 0.5 m/s, and 0 once the vehicle has stopped
+        until a fix or a landmark holds the pose again. A vehicle that has lost its position slows to the
+        cap; it never speeds up beyond it, and never moves off again on dead reckoning. (A cap that
+        followed the lowest speed down would spiral to a stop: the stack tracks the cap from below.)"""
+        c = self.config
+        if est.source is not PositionSource.DEAD_RECKONING:
+            self._dead_reckoning_stopped = False
+            return
+        if abs(est.speed_mps) < c.standstill_mps:
+            self._dead_reckoning_stopped = True
+        held = self._dead_reckoning_stopped
+        self._emit(
+            out,
+            now_us,
+            "localization",
+            K.LOCALIZATION_DEAD_RECKONING,
+            "no absolute position correction: dead reckoning" + (", held at standstill" if held else ""),
+            cap=0.0 if held else c.covariance_speed_cap_mps,
+        )
+
+    def _gnss_lost(self, now_us: int, out: list[MalfunctionSignal]) -> None:
+        """No fix (the receiver says so, or none for ``gnss_lost_us``): Snow Lion's cap while the pose
+        dead-reckons; nothing to enforce while landmarks hold it (the signal is kept for the record)."""
+        c = self.config
+        assert self._started_us is not None
+        since = self._last_fix_us if self._last_fix_us is not None else self._started_us
+        if now_us - since > c.gnss_lost_us:
+            reason = f"no GNSS fix for {(now_us - since) / 1e6:.1f} s"
+        elif self._last_fix_us is not None and self._fix_dropped_us is not None:
+            reason = "GNSS receiver reports no fix"
+        else:
+            return
+        est = self._pose
+        if est is not None and est.valid and est.source is PositionSource.LANDMARKS:
+            self._emit(
+                out,
+                now_us,
+                "sensor:gnss",
+                K.GNSS_LOST,
+                reason + " (pose held by landmarks)",
+                FailSafeLevel.NONE,
+            )
+            return
+        self._emit(out, now_us, "sensor:gnss", K.GNSS_LOST, reason, cap=c.covariance_speed_cap_mps)
 
     def _weather_checks(self, now_us: int, out: list[MalfunctionSignal]) -> None:
         w, c = self._weather, self.config

@@ -1,7 +1,8 @@
 """Simulated GNSS, IMU and wheel-odometry degradation: fix quality, multipath, outages, drift, slip.
 
-Not wired into the simulator yet (issue 19: the scenario will select it per map region). Each model is
-driven by its own ``numpy.random.Generator`` (one seed spawn per component), so a run repeats bit for bit.
+The scenario's ``[gnss]`` table selects them (:mod:`lastmile.sim.gnss_scenario`); the sensor suite then
+takes its GNSS solution and wheel speed from here. Each model is driven by its own
+``numpy.random.Generator`` (one seed spawn per component), so a run repeats bit for bit.
 
 - :class:`GnssDegradation`: a receiver's solution of the antenna: RTK fixed by default; RTK float with a
   Gauss-Markov multipath bias near the map's buildings (largest at the facade, gone at
@@ -31,12 +32,12 @@ class OutageRegion:
     """A map region where the solution degrades.
 
     Attributes:
-        polygon: (N, 2) outline in the map frame, m.
+        polygon: (N, 2) outline in the map frame, m; None: everywhere (an outage window in time).
         quality: the best solution available inside; None: no fix at all.
         start_s, end_s: when the region is active (simulated seconds); default always.
     """
 
-    polygon: np.ndarray
+    polygon: np.ndarray | None
     quality: GnssQuality | None = None
     start_s: float = 0.0
     end_s: float = math.inf
@@ -83,6 +84,8 @@ class GnssDegradationConfig:
             if not (value >= 0 and math.isfinite(value)):
                 raise ConfigError(f"GnssDegradationConfig.{name}: expected a number >= 0, got {value!r}")
         for region in self.regions:
+            if region.polygon is None:
+                continue
             poly = np.asarray(region.polygon)
             if poly.ndim != 2 or poly.shape[1] != 2 or poly.shape[0] < 3:
                 raise ConfigError(f"OutageRegion.polygon: expected (N >= 3, 2), got shape {poly.shape}")
@@ -144,7 +147,9 @@ class GnssDegradation:
             return None
         quality: GnssQuality | None = GnssQuality.RTK_FIXED
         for region in c.regions:
-            if region.start_s <= t_s < region.end_s and _inside(np.asarray(region.polygon), x_m, y_m):
+            if region.start_s <= t_s < region.end_s and (
+                region.polygon is None or _inside(np.asarray(region.polygon), x_m, y_m)
+            ):
                 quality = region.quality
                 if quality is None:
                     return None

@@ -13,6 +13,7 @@ from lastmile.core.config import check_range, from_mapping, load_toml
 from lastmile.core.errors import ConfigError
 from lastmile.core.vehicle_messages import BehaviourState
 from lastmile.sim.faults import FaultSpec
+from lastmile.sim.gnss_scenario import GnssScenario
 from lastmile.sim.passengers import PassengerConfig
 from lastmile.sim.traffic_signals import SignalConfig
 from lastmile.sim.weather import parse_weather
@@ -161,6 +162,8 @@ class Scenario:
     """How long after standstill the operator releases the e-stop (and confirms the cause is gone)."""
     traffic_signals: SignalConfig = field(default_factory=SignalConfig)
     """Timing and mode (cycle, flashing red / yellow, dark) of the map's traffic signals."""
+    gnss: GnssScenario = field(default_factory=GnssScenario)
+    """GNSS fix quality, outages, multipath, heavy snow and wheel slip (none: plain RTK GNSS/INS)."""
 
     def __post_init__(self) -> None:
         check_range("scenario.minutes", self.minutes, 0.01, 24 * 60.0)

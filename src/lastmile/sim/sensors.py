@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from lastmile.core.geometry import SE2
+from lastmile.core.gnss_messages import GnssQuality
 from lastmile.core.object_class import ObjectClass
 from lastmile.core.rng import component_rng
 from lastmile.core.sensor_frames import (
@@ -28,7 +29,12 @@ from lastmile.core.sensor_frames import (
 from lastmile.core.stamp import Stamp
 from lastmile.sim.agents import agent_arrays
 from lastmile.sim.faults import FaultInjector
+from lastmile.sim.gnss_degradation import GnssDegradation, WheelSlip
+from lastmile.sim.weather import Weather
 from lastmile.sim.world import World
+
+# What a receiver without a fix reports as its accuracy: it keeps sending its dead-reckoned guess.
+NO_FIX_STD_M = 10.0
 
 # A 4-bit alive counter, as CAN end-to-end protection uses (AUTOSAR E2E profile 1).
 ODOM_CYCLE_MODULO = 16
@@ -117,8 +123,18 @@ class SensorSuite:
         radars: tuple[RadarSpec, ...] | None = None,
         rates: SensorRates | None = None,
         faults: FaultInjector | None = None,
+        gnss_receiver: GnssDegradation | None = None,
+        wheel_slip: WheelSlip | None = None,
     ) -> None:
+        """Args:
+        gnss_receiver: the degraded receiver of the scenario's ``[gnss]`` table (None: plain RTK).
+        wheel_slip: wheel slip on snow (None: the weather's slip noise only).
+        """
         self.world = world
+        self.gnss_receiver = gnss_receiver
+        self.wheel_slip = wheel_slip
+        # Own streams, so that turning degradation on leaves every other draw as it was.
+        self._slip_rng = component_rng(seed, "sensor.odom.slip")
         self.tick_us = tick_us
         g = world.geometry
         self.radars = radars or default_radars(g.front_from_rear_axle_m, g.rear_overhang_m)
@@ -189,6 +205,8 @@ class SensorSuite:
         return out
 
     def _gnss(self, now: Stamp) -> GnssInsFrame:
+        if self.gnss_receiver is not None:
+            return self._degraded_gnss(now, self.gnss_receiver)
         s, rng, r = self.world.ego.state, self._rng["gnss"], self.rates
         std = r.gnss_pos_std_m * self.world.effects.gnss_noise_factor
         return GnssInsFrame(
@@ -199,6 +217,36 @@ class SensorSuite:
             speed_mps=max(0.0, s.speed_mps + float(rng.normal(0.0, 0.02))),
             pos_std_m=std,
             yaw_std_rad=r.gnss_yaw_std_rad,
+        )
+
+    def _degraded_gnss(self, now: Stamp, receiver: GnssDegradation) -> GnssInsFrame:
+        """The receiver's solution: its quality and reported sigma, or its no-fix guess in an outage."""
+        s, rng, r = self.world.ego.state, self._rng["gnss"], self.rates
+        fix = receiver.fix(now, s.x_m, s.y_m, heavy_snow=self.world.weather is Weather.SNOW)
+        yaw = s.yaw_rad + float(rng.normal(0.0, r.gnss_yaw_std_rad))
+        speed = max(0.0, s.speed_mps + float(rng.normal(0.0, 0.02)))
+        if fix is None:
+            # No fix: the receiver's dead-reckoned guess, metres off, and flagged as such.
+            return GnssInsFrame(
+                stamp=now,
+                x_m=s.x_m + float(rng.normal(0.0, NO_FIX_STD_M)),
+                y_m=s.y_m + float(rng.normal(0.0, NO_FIX_STD_M)),
+                yaw_rad=yaw,
+                speed_mps=speed,
+                pos_std_m=NO_FIX_STD_M,
+                yaw_std_rad=r.gnss_yaw_std_rad,
+                fix_ok=False,
+                quality=GnssQuality.SINGLE,
+            )
+        return GnssInsFrame(
+            stamp=now,
+            x_m=fix.x_m,
+            y_m=fix.y_m,
+            yaw_rad=yaw,
+            speed_mps=speed,
+            pos_std_m=float(np.sqrt(max(fix.var_xx_m2, fix.var_yy_m2))),
+            yaw_std_rad=r.gnss_yaw_std_rad,
+            quality=fix.quality,
         )
 
     def _imu(self, now: Stamp) -> ImuFrame:
@@ -214,9 +262,12 @@ class SensorSuite:
         s, rng = self.world.ego.state, self._rng["odom"]
         slip = float(rng.normal(0.0, self.world.effects.wheel_slip_std)) if s.speed_mps > 0 else 0.0
         self._odom_cycle = (self._odom_cycle + 1) % ODOM_CYCLE_MODULO
+        speed = max(0.0, s.speed_mps * (self._odom_scale + slip))
+        if self.wheel_slip is not None:
+            speed = max(0.0, self.wheel_slip.corrupt(speed, self._slip_rng))
         return WheelOdometryFrame(
             stamp=now,
-            speed_mps=max(0.0, s.speed_mps * (self._odom_scale + slip)),
+            speed_mps=speed,
             steer_front_rad=s.steer_front_rad,
             steer_rear_rad=s.steer_rear_rad,
             cycle=self._odom_cycle,

@@ -36,7 +36,7 @@ from lastmile.sim.sensors import RCS_DBSM, SensorSuite
 from lastmile.sim.traffic_light_camera import TrafficLightCameraRig
 from lastmile.sim.traffic_signals import SignalController
 from lastmile.sim.vehicle_model import ActuatorDynamics, KinematicBicycle, VehicleState
-from lastmile.sim.weather import parse_weather
+from lastmile.sim.weather import Weather, parse_weather
 from lastmile.sim.world import World
 
 CAR_LENGTH_M, CAR_WIDTH_M = 4.5, 1.8
@@ -67,7 +67,16 @@ class Simulation:
             hdmap, ego, agents, parse_weather(scenario.weather), component_rng(scenario.seed, "agents")
         )
         self.faults = FaultInjector(scenario.faults, scenario.seed)
-        self.sensors = SensorSuite(self.world, scenario.seed, tick_us, faults=self.faults)
+        self.sensors = SensorSuite(
+            self.world,
+            scenario.seed,
+            tick_us,
+            faults=self.faults,
+            gnss_receiver=scenario.gnss.receiver(
+                hdmap, service_route, component_rng(scenario.seed, "sensor.gnss.receiver")
+            ),
+            wheel_slip=scenario.gnss.wheel_slip(self.world.weather is Weather.SNOW),
+        )
         # The LiDAR rig and cameras cost ~10 ms per 10 Hz frame: built only when the stack reads them.
         self.raw_sensors = (
             RawSensorRig(self.world, scenario.seed, tick_us, snow_cover_lane_m=scenario.snow_cover_lane_m)

@@ -20,6 +20,7 @@ from lastmile.hdmap.layers import SLayerDatabase
 from lastmile.safety.failsafe import FailSafeArbiter, FailSafeConfig
 from lastmile.safety.hardware_watchdog import HardwareWatchdog, HardwareWatchdogConfig
 from lastmile.safety.health_monitor import HealthMonitor, ModuleSpec
+from lastmile.safety.lane_margin import lane_margin_along_route
 from lastmile.safety.reliability_config import ReliabilityConfig, raw_sensor_specs
 from lastmile.safety.reliability_monitor import ReliabilityMonitor
 from lastmile.safety.supervisor import SafetySupervisor
@@ -106,7 +107,13 @@ def build_vehicle(
     """The stack for ``settings`` and its vehicle safety, watching the same map, route and sensors."""
     config = stack_config(settings, calibration, tick_us)
     software = ShuttleStack(layers, geometry, config, fault_hook=fault_hook)
-    safety = build_safety(layers, config.reliability, settings.safety.failsafe(), settings.safety.watchdog())
+    safety = build_safety(
+        layers,
+        config.reliability,
+        settings.safety.failsafe(),
+        settings.safety.watchdog(),
+        vehicle_width_m=geometry.width_m,
+    )
     return Vehicle(software=software, safety=safety)
 
 
@@ -115,9 +122,12 @@ def build_safety(
     reliability: ReliabilityConfig,
     failsafe: FailSafeConfig | None = None,
     watchdog: HardwareWatchdogConfig | None = None,
+    vehicle_width_m: float | None = None,
 ) -> VehicleSafety:
     """The vehicle safety watching the stack's modules (:data:`MODULE_PERIODS_US`), the sensors of
-    ``reliability`` and the map's route, arbitrating with ``failsafe``."""
+    ``reliability`` and the map's route, arbitrating with ``failsafe``; with ``vehicle_width_m`` it
+    also holds the pose's protection level to the lane margin along the route."""
+    margin = lane_margin_along_route(layers, vehicle_width_m) if vehicle_width_m is not None else None
     supervisor = SafetySupervisor(
         HealthMonitor(
             [
@@ -129,7 +139,7 @@ def build_safety(
                 for name, period in MODULE_PERIODS_US.items()
             ]
         ),
-        ReliabilityMonitor(reliability, layers.hdmap, layers.centerline),
+        ReliabilityMonitor(reliability, layers.hdmap, layers.centerline, lane_margin_m=margin),
         FailSafeArbiter(config=failsafe, layers=layers),
     )
     return VehicleSafety(supervisor, HardwareWatchdog(watchdog))
