@@ -16,6 +16,7 @@ from lastmile.core.errors import MessageError
 from lastmile.core.sensor_frames import (
     GnssInsFrame,
     ImuFrame,
+    LidarSweep,
     RadarFrame,
     SensorFrame,
     WheelOdometryFrame,
@@ -66,6 +67,23 @@ def _(frame: RadarFrame) -> tuple[object, ...] | None:
     if frame.cycle >= 0:
         return (frame.cycle, hash(frame.objects.tobytes()))
     return payload_digest.dispatch(object)(frame)
+
+
+@singledispatch
+def point_count(frame: SensorFrame) -> int | None:
+    """How many returns a frame carries, for sensors with a minimum (None: not a point sensor)."""
+    return None
+
+
+@point_count.register
+def _(frame: LidarSweep) -> int | None:
+    return int(frame.points.shape[0])
+
+
+@point_count.register
+def _(frame: RadarFrame) -> int | None:
+    # Raw detections before tracking, clutter included; -1 when the radar does not report them.
+    return frame.raw_detections if frame.raw_detections >= 0 else None
 
 
 PLAUSIBLE_SPEED_MPS = 15.0  # odometry or GNSS speed: a 20 km/h shuttle never reaches it

@@ -17,14 +17,12 @@ from lastmile.core.safety_messages import (
 )
 from lastmile.core.sensor_frames import (
     GnssInsFrame,
-    LidarSweep,
-    RadarFrame,
     SensorFrame,
 )
 from lastmile.core.stamp import Stamp
 from lastmile.core.vehicle_messages import LocalizationEstimate, PositionSource
 from lastmile.hdmap.model import HDMap
-from lastmile.safety.frame_checks import garbage_reason, payload_digest, sensor_key
+from lastmile.safety.frame_checks import garbage_reason, payload_digest, point_count, sensor_key
 from lastmile.safety.reliability_config import ReliabilityConfig, SensorSpec
 
 K = MalfunctionKind
@@ -59,6 +57,51 @@ class _Stream:
         self.out_of_order: deque[int] = deque()
         # kind -> (last event time, reason) for one-off events held for event_hold_us.
         self.events: dict[MalfunctionKind, tuple[int, str]] = {}
+
+    def arrive(self, now_us: int, window_us: int) -> None:
+        """A frame arrived: its time counts towards the rate over the last ``window_us``."""
+        if self.first_us < 0:
+            self.first_us = now_us
+        self.last_arrival_us = now_us
+        self.arrivals.append(now_us)
+        while self.arrivals and self.arrivals[0] <= now_us - window_us:
+            self.arrivals.popleft()
+
+    def check_timing(self, now_us: int, stamp_us: int, config: ReliabilityConfig) -> None:
+        """Latency against the stream's bound, and stamps going back (out of order) within the window."""
+        latency = now_us - stamp_us
+        if latency > self.spec.max_latency_us:
+            self.events[K.SENSOR_LATENCY] = (
+                now_us,
+                f"latency {latency / 1e3:.0f} ms > {self.spec.max_latency_us / 1e3:.0f} ms",
+            )
+        if stamp_us > self.last_stamp_us:
+            self.last_stamp_us = stamp_us
+            if self.latency_min_us is None or latency < self.latency_min_us:
+                self.latency_min_us = latency
+            return
+        self.out_of_order.append(now_us)
+        while self.out_of_order and self.out_of_order[0] <= now_us - config.rate_window_us:
+            self.out_of_order.popleft()
+        if len(self.out_of_order) > config.out_of_order_max:
+            self.events[K.SENSOR_OUT_OF_ORDER] = (
+                now_us,
+                f"{len(self.out_of_order)} stamps going back within {config.rate_window_us / 1e6:.0f} s, "
+                f"last {stamp_us} after {self.last_stamp_us}",
+            )
+
+    def check_content(self, frame: SensorFrame) -> None:
+        """A payload repeating its predecessor (a frozen driver), and too few points or detections."""
+        if self.spec.frozen_after is not None:
+            digest = payload_digest(frame)
+            if digest is not None and digest == self.digest:
+                self.repeats += 1
+            else:
+                self.repeats = 1 if digest is not None else 0
+            self.digest = digest
+        count = point_count(frame)
+        if self.spec.min_points > 0 and count is not None:
+            self.points_low = count < self.spec.min_points
 
 
 class ReliabilityMonitor:
@@ -114,60 +157,29 @@ class ReliabilityMonitor:
         key = sensor_key(frame)
         if key is None:
             return
+        now = int(now_us)
         bad = garbage_reason(frame)
         st = self._streams.get(key)
         if st is None:
             if bad:
-                self._unknown_garbage[key] = (int(now_us), bad)
+                self._unknown_garbage[key] = (now, bad)
             return
-        c = self.config
-        if st.first_us < 0:
-            st.first_us = int(now_us)
-        st.last_arrival_us = int(now_us)
-        st.arrivals.append(int(now_us))
-        while st.arrivals and st.arrivals[0] <= now_us - c.rate_window_us:
-            st.arrivals.popleft()
+        st.arrive(now, self.config.rate_window_us)
         if bad:
-            st.events[K.SENSOR_GARBAGE] = (int(now_us), bad)
+            st.events[K.SENSOR_GARBAGE] = (now, bad)
             return  # garbage says nothing about freezing, latency or order
-        latency = now_us - frame.stamp
-        if latency > st.spec.max_latency_us:
-            st.events[K.SENSOR_LATENCY] = (
-                int(now_us),
-                f"latency {latency / 1e3:.0f} ms > {st.spec.max_latency_us / 1e3:.0f} ms",
-            )
-        if frame.stamp <= st.last_stamp_us:
-            st.out_of_order.append(int(now_us))
-            while st.out_of_order and st.out_of_order[0] <= now_us - c.rate_window_us:
-                st.out_of_order.popleft()
-            if len(st.out_of_order) > c.out_of_order_max:
-                st.events[K.SENSOR_OUT_OF_ORDER] = (
-                    int(now_us),
-                    f"{len(st.out_of_order)} stamps going back within {c.rate_window_us / 1e6:.0f} s, "
-                    f"last {frame.stamp} after {st.last_stamp_us}",
-                )
-        else:
-            st.last_stamp_us = int(frame.stamp)
-            if st.latency_min_us is None or latency < st.latency_min_us:
-                st.latency_min_us = int(latency)
-        if st.spec.frozen_after is not None:
-            digest = payload_digest(frame)
-            if digest is not None and digest == st.digest:
-                st.repeats += 1
-            else:
-                st.repeats = 1 if digest is not None else 0
-            st.digest = digest
-        if isinstance(frame, LidarSweep) and st.spec.min_points > 0:
-            st.points_low = frame.points.shape[0] < st.spec.min_points
-        if isinstance(frame, RadarFrame) and st.spec.min_points > 0 and frame.raw_detections >= 0:
-            st.points_low = frame.raw_detections < st.spec.min_points
+        st.check_timing(now, int(frame.stamp), self.config)
+        st.check_content(frame)
         if isinstance(frame, GnssInsFrame):
-            self._gnss_seen = True
-            if frame.fix_ok:
-                self._last_fix_us = int(now_us)
-                self._fix_dropped_us = None
-            elif self._fix_dropped_us is None:
-                self._fix_dropped_us = int(now_us)
+            self._observe_fix(now, frame)
+
+    def _observe_fix(self, now_us: int, frame: GnssInsFrame) -> None:
+        self._gnss_seen = True
+        if frame.fix_ok:
+            self._last_fix_us = now_us
+            self._fix_dropped_us = None
+        elif self._fix_dropped_us is None:
+            self._fix_dropped_us = now_us
 
     def observe_localization(self, now_us: int, estimate: LocalizationEstimate) -> None:
         """The EKF's estimate (once per check is enough)."""
