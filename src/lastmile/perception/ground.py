@@ -174,6 +174,7 @@ class AdaptiveGridGroundSegmenter:
     def segment(self, xyz_m: npt.ArrayLike, road_mask: RoadMask | None = None) -> BoolArray:
         cfg = self.config
         fallback_idx: list[np.ndarray] = []
+        edge_candidates: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         p = np.asarray(xyz_m, dtype=np.float64).reshape(-1, 3)
         n = len(p)
         ground = np.zeros(n, dtype=bool)
@@ -236,52 +237,46 @@ class AdaptiveGridGroundSegmenter:
             # Tolerance per region: the range-dependent one, tightened where the fit is smooth.
             classify_ring(idx, res, region, window, 2 * n_sec, cfg.smooth_floor_m, cfg.smooth_sigmas, ground)
             if road_mask is not None and cfg.edge_margin_m > 0.0:
-                self._ground_at_road_edge(idx, px, py, pz, window, region, planes, road_mask, ground)
+                edge_candidates.append(_edge_candidates(idx, px, py, pz, window, region, planes, ground))
             poor = self._poor_points(res, region, fitted) if cfg.level_change_fallback else None
             if poor is not None:
                 fallback_idx.append(idx[poor])
             prev_planes, prev_sectors = planes.reshape(n_sec, 2, 3), n_sec
+        if edge_candidates:
+            assert road_mask is not None
+            self._ground_at_road_edge(edge_candidates, road_mask, ground)
         if fallback_idx:
             self._apply_fallback(p, az, np.concatenate(fallback_idx), road_mask, ground)
         return ground
 
     def _ground_at_road_edge(
         self,
-        idx: np.ndarray,
-        px: np.ndarray,
-        py: np.ndarray,
-        pz: np.ndarray,
-        window: np.ndarray,
-        region: np.ndarray,
-        planes: np.ndarray,
+        candidates: list[tuple[np.ndarray, np.ndarray, np.ndarray]],
         road_mask: RoadMask,
         ground: BoolArray,
     ) -> None:
-        """Marks as ground the ring's points that lie on their cell's other surface (road for an
-        off-road point, off-road for a road point) within ``edge_margin_m`` of the map's road edge.
+        """Marks as ground the candidates (:func:`_edge_candidates`, every ring's) that lie within
+        ``edge_margin_m`` of the map's road edge.
 
         Args:
-            idx: (M,) the ring's rows in the cloud; px, py, pz, window, region: (M,) per point.
-            planes: (R, 3) the ring's final planes, region ``2 * sector + road``.
+            candidates: per ring, (K,) rows in the cloud, (K, 2) their x, y, (K,) whether the map
+                calls them road.
             ground: (N,) labels, updated in place.
         """
-        other = region ^ 1
-        res_other = pz - (planes[other, 0] + planes[other, 1] * px + planes[other, 2] * py)
-        cand = np.flatnonzero(~ground[idx] & (res_other <= window))
-        if len(cand) == 0:
+        rows = np.concatenate([c[0] for c in candidates])
+        if len(rows) == 0:
             return
-        xy = np.column_stack([px[cand], py[cand]])
-        own_road = (region[cand] & 1) == 1
-        near_edge = np.zeros(len(cand), dtype=bool)
+        xy = np.concatenate([c[1] for c in candidates])
+        own_road = np.concatenate([c[2] for c in candidates])
         # Eight directions: any side of the point that the map calls the other surface within the
-        # margin (an edge at any angle is found to within cos(22.5 deg) of the margin).
+        # margin (an edge at any angle is found to within cos(22.5 deg) of the margin). One mask
+        # call for all of them: the exact edge test's cost is mostly per call.
         m = self.config.edge_margin_m
-        for k in range(8):
-            a = k * math.pi / 4.0
-            offset = np.array([m * math.cos(a), m * math.sin(a)])
-            shifted = np.asarray(road_mask(xy + offset), dtype=bool)
-            near_edge |= shifted != own_road
-        ground[idx[cand[near_edge]]] = True
+        a = np.arange(8) * (math.pi / 4.0)
+        offsets = np.column_stack([m * np.cos(a), m * np.sin(a)])
+        shifted = np.asarray(road_mask((xy[None, :, :] + offsets[:, None, :]).reshape(-1, 2)), dtype=bool)
+        near_edge = (shifted.reshape(8, -1) != own_road[None, :]).any(axis=0)
+        ground[rows[near_edge]] = True
 
     def _apply_fallback(
         self, p: np.ndarray, az: np.ndarray, points: np.ndarray, road_mask: RoadMask | None, ground: BoolArray
@@ -311,6 +306,31 @@ class AdaptiveGridGroundSegmenter:
 
 
 _HIST_BIN_M = 0.05
+
+
+def _edge_candidates(
+    idx: np.ndarray,
+    px: np.ndarray,
+    py: np.ndarray,
+    pz: np.ndarray,
+    window: np.ndarray,
+    region: np.ndarray,
+    planes: np.ndarray,
+    ground: BoolArray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A ring's points that are not ground on their own part's plane but lie within the tolerance
+    of their cell's other part (road for an off-road point, off-road for a road point): rows in the
+    cloud, (K, 2) x y, whether the map calls them road.
+
+    Args:
+        idx: (M,) the ring's rows in the cloud; px, py, pz, window, region: (M,) per point.
+        planes: (R, 3) the ring's final planes, region ``2 * sector + road``.
+        ground: (N,) labels so far.
+    """
+    other = region ^ 1
+    res_other = pz - (planes[other, 0] + planes[other, 1] * px + planes[other, 2] * py)
+    cand = np.flatnonzero(~ground[idx] & (res_other <= window))
+    return idx[cand], np.column_stack([px[cand], py[cand]]), (region[cand] & 1) == 1
 
 
 def _low_quantile(res: np.ndarray, region: np.ndarray, n_regions: int, cfg: AdaptiveGridConfig) -> np.ndarray:
