@@ -13,9 +13,8 @@ horizon.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
+from matplotlib.path import Path as MplPath
 
 from lastmile.core.object_class import ObjectClass
 from lastmile.core.objects import TRACK_COLUMNS, TrackedObjects
@@ -35,9 +34,16 @@ def on_road_surface(hdmap: HDMap, xy_m: np.ndarray) -> np.ndarray:
     crossing's stretch of road; a crosswalk's marking drawn on over the sidewalk is not road)."""
     pts = np.asarray(xy_m, dtype=np.float64).reshape(-1, 2)
     on = hdmap.is_drivable(pts)
-    for i in np.flatnonzero(~on).tolist():
-        lid = hdmap.lanelet_at(float(pts[i, 0]), float(pts[i, 1]))
-        on[i] = lid is not None and hdmap.lanelets[lid].subtype == "crosswalk"
+    rest = np.flatnonzero(~on)
+    for lid, ll in hdmap.lanelets.items():
+        if ll.subtype != "crosswalk" or len(rest) == 0:
+            continue
+        poly = hdmap.polygon_of(lid)
+        lo, hi = poly.min(axis=0), poly.max(axis=0)
+        near = rest[np.all((pts[rest] >= lo) & (pts[rest] <= hi), axis=1)]
+        if len(near):
+            on[near] = MplPath(poly).contains_points(pts[near])
+            rest = np.flatnonzero(~on)
     return on
 
 
@@ -55,19 +61,19 @@ def yieldable_tracks(tracks: TrackedObjects, hdmap: HDMap, horizon_s: float) -> 
     if len(unknown) == 0:
         return tracks
     steps = np.arange(0.0, horizon_s + 1e-9, STEP_S)
+    u = t[unknown]
+    c, s = np.cos(u[:, _YAW]), np.sin(u[:, _YAW])
+    hl, hw = u[:, _L] / 2.0, u[:, _W] / 2.0
+    # Per track: its four corners, then its constant-velocity path (one map query for all tracks).
+    corners = [
+        np.column_stack([u[:, _X] + c * a - s * b, u[:, _Y] + s * a + c * b])
+        for a, b in ((hl, hw), (hl, -hw), (-hl, hw), (-hl, -hw))
+    ]
+    path = [np.column_stack([u[:, _X] + u[:, _VX] * k, u[:, _Y] + u[:, _VY] * k]) for k in steps]
+    probes = np.stack(corners + path, axis=1)  # (U, 4 + T, 2)
+    on = on_road_surface(hdmap, probes.reshape(-1, 2)).reshape(len(unknown), -1)
     drop = np.zeros(len(t), dtype=bool)
-    for i in unknown.tolist():
-        row = t[i]
-        c, s = math.cos(row[_YAW]), math.sin(row[_YAW])
-        hl, hw = row[_L] / 2.0, row[_W] / 2.0
-        corners = np.array(
-            [
-                [row[_X] + c * a - s * b, row[_Y] + s * a + c * b]
-                for a, b in ((hl, hw), (hl, -hw), (-hl, hw), (-hl, -hw))
-            ]
-        )
-        path = np.column_stack([row[_X] + row[_VX] * steps, row[_Y] + row[_VY] * steps])
-        drop[i] = not on_road_surface(hdmap, np.vstack([corners, path])).any()
+    drop[unknown] = ~on.any(axis=1)
     if not drop.any():
         return tracks
     return TrackedObjects(stamp=tracks.stamp, ids=tracks.ids[~drop], table=t[~drop])
