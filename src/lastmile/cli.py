@@ -659,5 +659,15 @@ def perceive(
     typer.echo(f"wrote {out / 'labels'}/, {out / 'objects.mcap'} and {out / 'timing.json'}")
 
 
+@app.command()
+def warmup() -> None:
+    """Compile the perception kernels into the user's cache, once per install: the first frame is fast."""
+    from lastmile.perception.warmup import main as warm
+
+    code = warm()
+    if code:
+        raise typer.Exit(code)
+
+
 def main() -> None:
     app()

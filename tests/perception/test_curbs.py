@@ -170,3 +170,20 @@ def test_a_snow_ramp_is_followed_to_the_bare_road_from_its_upper_part_and_past_i
     est = detect_curb(xyz, np.array([[0.0, 0.0], [40.0, 0.0]]))
     assert est.valid
     assert np.all(np.abs(est.offset_m - 1.1) <= 0.06)
+
+
+def test_the_far_sidewalk_of_a_narrow_road_is_not_reassigned_as_obstacles():
+    # A 3.5 m lane between two 0.15 m sidewalks: the road-fit strip (band + road_fit_width_m = 4 m
+    # left of the right curb) reaches 0.5 m onto the far sidewalk, which stands 0.15 m above the
+    # road plane; only the band belongs to the right curb's detector.
+    scene = Scene(
+        profile_y=(-12.0, -1.76, -1.75, 1.75, 1.76, 12.0), profile_z=(0.15, 0.15, 0.0, 0.0, 0.15, 0.15)
+    )
+    rng = np.random.default_rng(5)
+    parts = [base_cloud(scene, lidar, rng) for lidar in default_rig()]
+    xyz = np.vstack([p[0] for p in parts])
+    est = detect_curb(xyz, np.array([[0.0, -1.75], [40.0, -1.75]]), CurbConfig(s_min_m=4.0, s_max_m=25.0))
+    assert est.valid
+    far = np.flatnonzero((xyz[:, 1] > 1.8) & (xyz[:, 0] > 4.0) & (xyz[:, 0] < 25.0))
+    assert len(far) > 50
+    assert not np.isin(far, est.obstacle_idx).any()

@@ -172,3 +172,37 @@ def test_a_pedestrian_below_a_level_change_is_not_ground(ped_x_m):
     # The grid alone keeps the plane of the upper road, and everything below it is ground.
     plain = AdaptiveGridGroundSegmenter(AdaptiveGridConfig(level_change_fallback=False)).segment(xyz)
     assert plain[ped].all()
+
+
+@pytest.mark.parametrize("map_error_m", [0.1, 0.2])
+def test_a_sidewalk_strip_the_map_calls_road_is_ground_and_an_object_at_the_edge_is_not(map_error_m):
+    # A 0.15 m sidewalk beyond y = -3.5 on both sides; the map's road edge lies map_error_m out on
+    # the sidewalk (map and localization error), so a strip of sidewalk falls in the road part.
+    scene = Scene(
+        profile_y=(-30.0, -3.51, -3.5, 3.5, 3.51, 30.0),
+        profile_z=(0.15, 0.15, 0.0, 0.0, 0.15, 0.15),
+        boxes=(Box((10.0, -3.6, 0.15), (10.5, -3.3, 1.05)),),  # a bin standing on the edge
+    )
+    rng = np.random.default_rng(3)
+    xyz, _, box = base_cloud(scene, default_rig()[0], rng)
+    xyz, box = xyz[np.hypot(xyz[:, 0], xyz[:, 1]) < 30], box[np.hypot(xyz[:, 0], xyz[:, 1]) < 30]
+    edge = 3.5 + map_error_m
+
+    def road(xy: np.ndarray) -> np.ndarray:
+        return np.abs(xy[:, 1]) < edge
+
+    strip = (box == -1) & (np.abs(xyz[:, 1]) > 3.52) & (np.abs(xyz[:, 1]) < edge)
+    assert strip.sum() > 20
+    off = AdaptiveGridGroundSegmenter(AdaptiveGridConfig(edge_margin_m=0.0)).segment(xyz, road)
+    # The leak: near the bus (tolerance 0.12 m + 4 mm/m) the strip stands out of the road plane.
+    assert (~off[strip]).sum() >= 10
+    ground = AdaptiveGridGroundSegmenter().segment(xyz, road)
+    assert ground[box == -1].mean() >= 0.995
+    # The bin's returns more than the tolerance above the sidewalk stay obstacles.
+    tall = (box == 0) & (xyz[:, 2] > 0.15 + 0.25)
+    assert tall.sum() > 10 and not ground[tall].any()
+
+
+def test_edge_margin_is_validated():
+    with pytest.raises(ConfigError, match="edge_margin_m"):
+        AdaptiveGridConfig(edge_margin_m=-0.1)

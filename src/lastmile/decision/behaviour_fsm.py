@@ -9,6 +9,7 @@ is one :class:`~lastmile.decision.behaviour_memory.BehaviourMemory`.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -23,6 +24,7 @@ from lastmile.decision.behaviour_memory import BehaviourMemory, Cycle, DecisionC
 from lastmile.decision.decision_config import DecisionConfig, DecisionInput
 from lastmile.decision.intersection_handling import AllWayStops, handle_intersection, next_all_way_stop_line
 from lastmile.decision.mission import MissionManager
+from lastmile.decision.offroad_unknowns import yieldable_tracks
 from lastmile.decision.stop_constraints import (
     StopConstraint,
     crosswalk_constraints,
@@ -105,6 +107,10 @@ class BehaviourStateMachine:
         """The cycle's stop points from obstacles, cut-ins, crosswalks, lights and the fail-safe."""
         t_s = inp.stamp / 1e6
         g, c, ctx = self.geometry, self.config, self.context
+        # Every rule below sees only the tracks it may yield to (offroad_unknowns).
+        inp = dataclasses.replace(
+            inp, tracks=yieldable_tracks(inp.tracks, self.layers.hdmap, c.offroad_unknown_horizon_s)
+        )
         front_s = inp.route_s_m + g.front_from_rear_axle_m
         obstacles = route_obstacles(inp.tracks, ctx.route, inp.route_s_m, g.front_from_rear_axle_m)
         speed_cap = min(c.cruise_speed_mps, self.layers.speed_limit_at(front_s))

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 from lastmile.core.errors import ConfigError
@@ -43,6 +44,10 @@ class DecisionConfig:
             20 km/h the shuttle needs about 10 m to stop comfortably, and someone walking to the kerb
             covers 5 m in that time. So does a map-aware predicted path (``DecisionInput.predictions``,
             mode ``to_crosswalk``) that reaches the zone within the same time.
+        offroad_unknown_horizon_s: an unclassified track off the road surface is yielded to only
+            when its constant-velocity path enters the surface within this time
+            (``decision.offroad_unknowns``); the crosswalk look-ahead, the longest any yield rule
+            looks ahead, so nothing a rule could still yield to is dropped.
         vehicle_prediction_horizon_s: how far ahead a vehicle's lane-following predicted path
             (``DecisionInput.predictions``) is searched for where it enters the corridor (a car
             turning in from a side road); the shuttle then follows it from there
@@ -127,6 +132,7 @@ class DecisionConfig:
     curb_gap_target_m: float = 0.2
     crosswalk_margin_m: float = 2.0
     crosswalk_lookahead_s: float = 6.0
+    offroad_unknown_horizon_s: float = 6.0
     vehicle_prediction_horizon_s: float = 4.0
     cut_in_pass_margin_s: float = 2.0
     transition_m: float = 32.0
@@ -180,6 +186,11 @@ class DecisionConfig:
             value = getattr(self, name)
             if not value > 0:
                 raise ConfigError(f"DecisionConfig.{name}: expected a positive number, got {value!r}")
+        h = self.offroad_unknown_horizon_s
+        if not (math.isfinite(h) and h >= 0.0):
+            raise ConfigError(
+                f"DecisionConfig.offroad_unknown_horizon_s: expected a finite value >= 0 s, got {h!r}"
+            )
 
 
 @dataclass(frozen=True, slots=True)

@@ -10,7 +10,8 @@ last bit.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+
+from lastmile.perception.jit_cache import njit
 
 
 @njit(cache=True, nogil=True, inline="always")

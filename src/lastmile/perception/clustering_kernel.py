@@ -12,7 +12,8 @@ No fastmath (no reassociation): one input gives one partition, bit for bit.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+
+from lastmile.perception.jit_cache import njit
 
 
 @njit(cache=True, nogil=True)

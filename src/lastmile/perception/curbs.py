@@ -343,9 +343,12 @@ def detect_curb(
         coeffs = _huber_polyfit(centres[ok], detected[ok], cfg.residual_degree)
     offset = np.clip(np.polyval(coeffs, centres), -cfg.band_m, cfg.band_m)
     boundary = points_at(curb, centres, offset)
-    # Reassignment: raised points on the road side of the fitted boundary are obstacles.
+    # Reassignment: raised points on the road side of the fitted boundary are obstacles, inside
+    # the band only. The road-fit strip beyond it (out to ``reach``) may cross the far edge of a
+    # narrow road: on a 3.5 m lane the far sidewalk, 0.15 m above the road plane, was reassigned
+    # as a row of obstacles that kept their place beside the moving shuttle.
     off_at = np.clip(np.polyval(coeffs, s), -cfg.band_m, cfg.band_m)
-    obst = in_s & (d > off_at + cfg.obstacle_margin_m) & (d <= reach) & (h >= cfg.obstacle_height_m)
+    obst = band & (d > off_at + cfg.obstacle_margin_m) & (h >= cfg.obstacle_height_m)
     obstacle_idx = near[obst] if valid else np.zeros(0, dtype=np.int64)
     surface = band & (d <= off_at + cfg.obstacle_margin_m) & (h <= cfg.surface_max_m)
     surface_idx = near[surface] if valid else np.zeros(0, dtype=np.int64)

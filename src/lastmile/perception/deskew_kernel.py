@@ -8,7 +8,8 @@ clouds are bit-identical.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+
+from lastmile.perception.jit_cache import njit
 
 
 @njit(cache=True, nogil=True)

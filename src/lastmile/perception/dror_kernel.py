@@ -11,7 +11,8 @@ beyond excluded), so the mask equals that of the k-th-nearest-neighbour query bi
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+
+from lastmile.perception.jit_cache import njit
 
 # A grid with more cells than this many per pooled point (plus a constant) is sorted instead of
 # counted into buckets: a sparse pool spread far would make the bucket array larger than it saves.

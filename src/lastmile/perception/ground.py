@@ -78,6 +78,13 @@ class AdaptiveGridConfig:
             wall or a ramp), its points take the labels of Himmelsbach's line fit per segment
             (``fallback``), which follows the lower surface; the grid alone would call everything
             below its kept plane ground (a pedestrian standing 1.7 m below it included).
+        edge_margin_m: within this of the HD map's road edge (either side), a point that is not
+            ground on its own part's plane is ground when it lies within the tolerance of the
+            cell's other part (road or off-road). The map's edge and the real one differ by the
+            map's error (HD maps are surveyed to about 0.1 m) plus the localization's (the
+            vehicle places the map about as well again): a strip of sidewalk the map calls road
+            stood 0.15 m out of the road plane, a row of small objects that kept their place
+            beside the moving shuttle (tracked as moving at its speed). 0 turns the rule off.
     """
 
     ring_edges_m: tuple[float, ...] = (0.0, 6.0, 12.0, 20.0, 30.0, 45.0, 65.0, 120.0)
@@ -98,6 +105,7 @@ class AdaptiveGridConfig:
     smooth_floor_m: float = 0.10
     level_change_fallback: bool = True
     fallback: HimmelsbachConfig = field(default_factory=HimmelsbachConfig)
+    edge_margin_m: float = 0.25
 
     def __post_init__(self) -> None:
         e = self.ring_edges_m
@@ -125,6 +133,8 @@ class AdaptiveGridConfig:
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise ConfigError(f"AdaptiveGridConfig.{name}: expected a positive number, got {v}")
+        if not (math.isfinite(self.edge_margin_m) and 0.0 <= self.edge_margin_m <= 2.0):
+            raise ConfigError(f"AdaptiveGridConfig.edge_margin_m: expected 0..2 m, got {self.edge_margin_m}")
         if self.threshold_max_m < self.threshold_near_m or self.threshold_per_m < 0:
             raise ConfigError(
                 "AdaptiveGridConfig: expected threshold_per_m >= 0 and threshold_max_m >= threshold_near_m, "
@@ -164,6 +174,7 @@ class AdaptiveGridGroundSegmenter:
     def segment(self, xyz_m: npt.ArrayLike, road_mask: RoadMask | None = None) -> BoolArray:
         cfg = self.config
         fallback_idx: list[np.ndarray] = []
+        edge_candidates: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         p = np.asarray(xyz_m, dtype=np.float64).reshape(-1, 3)
         n = len(p)
         ground = np.zeros(n, dtype=bool)
@@ -225,13 +236,47 @@ class AdaptiveGridGroundSegmenter:
                 planes, fitted = _fit_planes(sums, prior.reshape(-1, 3), cfg)
             # Tolerance per region: the range-dependent one, tightened where the fit is smooth.
             classify_ring(idx, res, region, window, 2 * n_sec, cfg.smooth_floor_m, cfg.smooth_sigmas, ground)
+            if road_mask is not None and cfg.edge_margin_m > 0.0:
+                edge_candidates.append(_edge_candidates(idx, px, py, pz, window, region, planes, ground))
             poor = self._poor_points(res, region, fitted) if cfg.level_change_fallback else None
             if poor is not None:
                 fallback_idx.append(idx[poor])
             prev_planes, prev_sectors = planes.reshape(n_sec, 2, 3), n_sec
+        if edge_candidates:
+            assert road_mask is not None
+            self._ground_at_road_edge(edge_candidates, road_mask, ground)
         if fallback_idx:
             self._apply_fallback(p, az, np.concatenate(fallback_idx), road_mask, ground)
         return ground
+
+    def _ground_at_road_edge(
+        self,
+        candidates: list[tuple[np.ndarray, np.ndarray, np.ndarray]],
+        road_mask: RoadMask,
+        ground: BoolArray,
+    ) -> None:
+        """Marks as ground the candidates (:func:`_edge_candidates`, every ring's) that lie within
+        ``edge_margin_m`` of the map's road edge.
+
+        Args:
+            candidates: per ring, (K,) rows in the cloud, (K, 2) their x, y, (K,) whether the map
+                calls them road.
+            ground: (N,) labels, updated in place.
+        """
+        rows = np.concatenate([c[0] for c in candidates])
+        if len(rows) == 0:
+            return
+        xy = np.concatenate([c[1] for c in candidates])
+        own_road = np.concatenate([c[2] for c in candidates])
+        # Eight directions: any side of the point that the map calls the other surface within the
+        # margin (an edge at any angle is found to within cos(22.5 deg) of the margin). One mask
+        # call for all of them: the exact edge test's cost is mostly per call.
+        m = self.config.edge_margin_m
+        a = np.arange(8) * (math.pi / 4.0)
+        offsets = np.column_stack([m * np.cos(a), m * np.sin(a)])
+        shifted = np.asarray(road_mask((xy[None, :, :] + offsets[:, None, :]).reshape(-1, 2)), dtype=bool)
+        near_edge = (shifted.reshape(8, -1) != own_road[None, :]).any(axis=0)
+        ground[rows[near_edge]] = True
 
     def _apply_fallback(
         self, p: np.ndarray, az: np.ndarray, points: np.ndarray, road_mask: RoadMask | None, ground: BoolArray
@@ -261,6 +306,31 @@ class AdaptiveGridGroundSegmenter:
 
 
 _HIST_BIN_M = 0.05
+
+
+def _edge_candidates(
+    idx: np.ndarray,
+    px: np.ndarray,
+    py: np.ndarray,
+    pz: np.ndarray,
+    window: np.ndarray,
+    region: np.ndarray,
+    planes: np.ndarray,
+    ground: BoolArray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A ring's points that are not ground on their own part's plane but lie within the tolerance
+    of their cell's other part (road for an off-road point, off-road for a road point): rows in the
+    cloud, (K, 2) x y, whether the map calls them road.
+
+    Args:
+        idx: (M,) the ring's rows in the cloud; px, py, pz, window, region: (M,) per point.
+        planes: (R, 3) the ring's final planes, region ``2 * sector + road``.
+        ground: (N,) labels so far.
+    """
+    other = region ^ 1
+    res_other = pz - (planes[other, 0] + planes[other, 1] * px + planes[other, 2] * py)
+    cand = np.flatnonzero(~ground[idx] & (res_other <= window))
+    return idx[cand], np.column_stack([px[cand], py[cand]]), (region[cand] & 1) == 1
 
 
 def _low_quantile(res: np.ndarray, region: np.ndarray, n_regions: int, cfg: AdaptiveGridConfig) -> np.ndarray:

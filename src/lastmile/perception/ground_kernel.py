@@ -9,7 +9,8 @@ bit-identical to the NumPy version's.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+
+from lastmile.perception.jit_cache import njit
 
 N_SUMS = 10
 """Columns of :func:`weighted_sums`: w, wx, wy, wz, wxx, wxy, wyy, wxz, wyz, count(w > 0)."""

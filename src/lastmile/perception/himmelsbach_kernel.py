@@ -9,7 +9,8 @@ their ground verdicts and each bin's line come out bit-identical.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+
+from lastmile.perception.jit_cache import njit
 
 
 @njit(cache=True, nogil=True)

@@ -22,6 +22,7 @@ from lastmile.core.object_class import ObjectClass
 from lastmile.core.objects import DETECTION_COLUMNS, DetectedObjects
 from lastmile.core.sensor_frames import LidarSweep
 from lastmile.perception.cluster_geometry import ClusterGeometryConfig, ClusterSet, describe_clusters
+from lastmile.perception.cluster_split import ClusterSplitConfig, split_pedestrians
 from lastmile.perception.clustering import euclidean_cluster_labels
 from lastmile.perception.curbs import CurbConfig, CurbEstimate, detect_curb
 from lastmile.perception.ground import GROUND_SEGMENTERS, AdaptiveGridConfig, make_ground_segmenter
@@ -70,6 +71,7 @@ class LidarPipelineConfig:
         cell (column x ring spacing) relative to the densest unit's (:mod:`scan_density`), so a
         sparse blind-spot unit's short row on a car end counts as the surface it covers.
     time_bin_us: de-skew time-bin width.
+    split: pedestrians carved out of larger clusters (:mod:`cluster_split`).
     """
 
     ground: str = "adaptive_grid"
@@ -84,6 +86,7 @@ class LidarPipelineConfig:
     snow_surface: SnowSurfaceConfig = field(default_factory=SnowSurfaceConfig)
     weight_by_unit_density: bool = True
     time_bin_us: int = 500
+    split: ClusterSplitConfig = field(default_factory=ClusterSplitConfig)
 
     def __post_init__(self) -> None:
         if self.ground not in GROUND_SEGMENTERS:
@@ -242,6 +245,8 @@ class LidarPipeline:
         if len(newly):
             extra = euclidean_cluster_labels(xyz[newly], cfg.cluster_eps_m)
             labels[newly] = extra + (labels.max() + 1)
+        if cfg.split.enabled:
+            labels = split_pedestrians(xyz, labels, ground, cfg.split)
         clock.lap("clustering")
         has = labels >= 0
         has_idx = np.flatnonzero(has)

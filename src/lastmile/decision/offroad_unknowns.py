@@ -1,0 +1,79 @@
+"""Which tracks decision may yield to: not an unclassified object off the road that is not heading onto it.
+
+An object no sensor could classify, standing or moving beside the road and not towards it, is
+scenery or a perception artefact (a kerb edge, a hedge, a return the ground removal missed): every
+yield rule (in-path obstacles, cut-ins, crosswalks) would otherwise stop the shuttle for it once its
+constant-velocity path ran alongside a crossing. A classified road user off the road (a pedestrian on
+the sidewalk) is always kept: the crosswalk rule exists for exactly those.
+
+"Off the road" is the footprint against the map's road surface (drivable and crosswalk lanelets);
+"heading onto it" is the constant-velocity path of the footprint's centre entering it within the
+horizon.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from matplotlib.path import Path as MplPath
+
+from lastmile.core.object_class import ObjectClass
+from lastmile.core.objects import TRACK_COLUMNS, TrackedObjects
+from lastmile.hdmap.model import HDMap
+
+_X, _Y, _VX, _VY, _L, _W, _YAW, _CLS = (
+    TRACK_COLUMNS.index(c)
+    for c in ("x_m", "y_m", "vx_mps", "vy_mps", "length_m", "width_m", "yaw_rad", "class_id")
+)
+STEP_S = 0.5
+"""Sampling of the constant-velocity path (a track at 6 m/s moves 3 m between samples; the road
+surface is wider than that)."""
+
+
+def on_road_surface(hdmap: HDMap, xy_m: np.ndarray) -> np.ndarray:
+    """(N,) bool: which (N, 2) map points lie on a drivable lanelet or a crosswalk lanelet (the
+    crossing's stretch of road; a crosswalk's marking drawn on over the sidewalk is not road)."""
+    pts = np.asarray(xy_m, dtype=np.float64).reshape(-1, 2)
+    on = hdmap.is_drivable(pts)
+    rest = np.flatnonzero(~on)
+    for lid, ll in hdmap.lanelets.items():
+        if ll.subtype != "crosswalk" or len(rest) == 0:
+            continue
+        poly = hdmap.polygon_of(lid)
+        lo, hi = poly.min(axis=0), poly.max(axis=0)
+        near = rest[np.all((pts[rest] >= lo) & (pts[rest] <= hi), axis=1)]
+        if len(near):
+            on[near] = MplPath(poly).contains_points(pts[near])
+            rest = np.flatnonzero(~on)
+    return on
+
+
+def yieldable_tracks(tracks: TrackedObjects, hdmap: HDMap, horizon_s: float) -> TrackedObjects:
+    """``tracks`` without the unclassified ones whose footprint is off the road surface and whose
+    constant-velocity path stays off it for ``horizon_s``.
+
+    Args:
+        tracks: the tracker's output, map frame.
+        hdmap: the map whose lanelets and crosswalks are the road surface.
+        horizon_s: how far ahead the path is followed (>= 0).
+    """
+    t = tracks.table
+    unknown = np.flatnonzero(t[:, _CLS].astype(np.int64) == int(ObjectClass.UNKNOWN))
+    if len(unknown) == 0:
+        return tracks
+    steps = np.arange(0.0, horizon_s + 1e-9, STEP_S)
+    u = t[unknown]
+    c, s = np.cos(u[:, _YAW]), np.sin(u[:, _YAW])
+    hl, hw = u[:, _L] / 2.0, u[:, _W] / 2.0
+    # Per track: its four corners, then its constant-velocity path (one map query for all tracks).
+    corners = [
+        np.column_stack([u[:, _X] + c * a - s * b, u[:, _Y] + s * a + c * b])
+        for a, b in ((hl, hw), (hl, -hw), (-hl, hw), (-hl, -hw))
+    ]
+    path = [np.column_stack([u[:, _X] + u[:, _VX] * k, u[:, _Y] + u[:, _VY] * k]) for k in steps]
+    probes = np.stack(corners + path, axis=1)  # (U, 4 + T, 2)
+    on = on_road_surface(hdmap, probes.reshape(-1, 2)).reshape(len(unknown), -1)
+    drop = np.zeros(len(t), dtype=bool)
+    drop[unknown] = ~on.any(axis=1)
+    if not drop.any():
+        return tracks
+    return TrackedObjects(stamp=tracks.stamp, ids=tracks.ids[~drop], table=t[~drop])
