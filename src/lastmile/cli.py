@@ -15,8 +15,14 @@ from lastmile.core.perception_mode import PerceptionMode
 if TYPE_CHECKING:
     from lastmile.runner.run_config import RunConfig
 
+PLAIN_HELP = None
+"""Help text is plain, not Rich markup: markup mode ate every ``[default: ...]`` the options wrote."""
+
 app = typer.Typer(
-    add_completion=False, no_args_is_help=True, help="Autonomous campus shuttle: stack, simulator, tools."
+    add_completion=False,
+    no_args_is_help=True,
+    rich_markup_mode=PLAIN_HELP,
+    help="Autonomous campus shuttle: stack, simulator, tools.",
 )
 
 
@@ -34,6 +40,22 @@ def _run_config(config: Path | None, perception: str | None, default_perception:
     if perception not in PERCEPTION_OPTIONS:
         raise ConfigError(f"--perception: expected one of {sorted(PERCEPTION_OPTIONS)}, got {perception!r}")
     return base.with_perception(PERCEPTION_OPTIONS[perception])
+
+
+def _print_version(value: bool) -> None:
+    if value:
+        typer.echo(__version__)
+        raise typer.Exit()
+
+
+@app.callback()
+def _options(
+    version: Annotated[
+        bool,
+        typer.Option("--version", callback=_print_version, is_eager=True, help="Print the version and exit."),
+    ] = False,
+) -> None:
+    """Autonomous campus shuttle: stack, simulator, tools."""
 
 
 @app.command()
@@ -89,7 +111,9 @@ def run(
         return
 
     try:
+        from lastmile.core.output_dir import prepare_output_dir
         from lastmile.runner.closed_loop import evaluate_run, load_world_map, run_scenario
+        from lastmile.runner.stop_signals import StopSignals
         from lastmile.sim.scenario import MapSpec, default_service, load_scenario, route_service
         from lastmile.sim.weather import parse_weather
 
@@ -114,20 +138,26 @@ def run(
             overrides["weather"] = weather
         spec = dataclasses.replace(spec, **overrides)  # type: ignore[arg-type]
         run_config.check_serves(spec)
-        with Progress(
-            TextColumn("[bold]simulating[/bold] {task.description}"),
-            BarColumn(),
-            TextColumn("{task.completed:.0f}/{task.total:.0f} s"),
-            TimeElapsedColumn(),
-        ) as bar:
+        world_map = load_world_map(spec.map)  # a bad route or map is found before the run, not after
+        prepare_output_dir(out)
+        with (
+            StopSignals() as stop,
+            Progress(
+                TextColumn("[bold]simulating[/bold] {task.description}"),
+                BarColumn(),
+                TextColumn("{task.completed:.0f}/{task.total:.0f} s"),
+                TimeElapsedColumn(),
+            ) as bar,
+        ):
             task = bar.add_task(f"{spec.name} seed {spec.seed} {spec.weather}", total=spec.minutes * 60.0)
             log = run_scenario(
                 spec,
                 run_config,
                 progress=lambda done, total: bar.update(task, completed=done),
                 black_box_dir=out / "recordings",
+                stop=lambda: stop.requested,
             )
-        metrics = evaluate_run(log, out, hdmap=load_world_map(spec.map).hdmap)
+        metrics = evaluate_run(log, out, hdmap=world_map.hdmap)
     except LastmileError as exc:
         typer.echo(f"lastmile run: {exc}", err=True)
         raise typer.Exit(2) from None
@@ -136,7 +166,7 @@ def run(
             f"lastmile run: interrupted; wrote the {metrics['duration_s']:.0f} s simulated so far to {out}",
             err=True,
         )
-        raise typer.Exit(130)
+        raise typer.Exit(stop.exit_code or 130)
     typer.echo(
         f"wrote {out}/report.md: {metrics['distance_m']:.0f} m, {metrics['stops_served']} stops served, "
         f"{metrics['collisions_total']} collisions, {metrics['takeovers']} takeovers, "
@@ -165,8 +195,10 @@ def _run_fleet(
             raise ConfigError(
                 "--fleet: expected no --scenario or --weather (the fleet world is its own), got one"
             )
+        from lastmile.core.output_dir import prepare_output_dir
         from lastmile.runner.fleet_config import FleetConfig
         from lastmile.runner.fleet_run import run_fleet
+        from lastmile.runner.stop_signals import StopSignals
 
         config = FleetConfig(
             shuttles=fleet,
@@ -174,14 +206,23 @@ def _run_fleet(
             seed=seed if seed is not None else 0,
             demand_per_pair_per_h=demand,
         )
-        with Progress(
-            TextColumn(f"[bold]simulating[/bold] {fleet} shuttles with the server"),
-            BarColumn(),
-            TextColumn("{task.completed:.0f}/{task.total:.0f} s"),
-            TimeElapsedColumn(),
-        ) as bar:
+        prepare_output_dir(out)
+        with (
+            StopSignals() as stop,
+            Progress(
+                TextColumn(f"[bold]simulating[/bold] {fleet} shuttles with the server"),
+                BarColumn(),
+                TextColumn("{task.completed:.0f}/{task.total:.0f} s"),
+                TimeElapsedColumn(),
+            ) as bar,
+        ):
             task = bar.add_task("fleet", total=config.minutes * 60.0)
-            m = run_fleet(config, out, progress=lambda done, total: bar.update(task, completed=done))
+            m = run_fleet(
+                config,
+                out,
+                progress=lambda done, total: bar.update(task, completed=done),
+                stop=lambda: stop.requested,
+            )
     except LastmileError as exc:
         typer.echo(f"lastmile run: {exc}", err=True)
         raise typer.Exit(2) from None
@@ -191,6 +232,9 @@ def _run_fleet(
         f"median wait {'-' if wait is None else f'{wait:.0f} s'}, "
         f"{m['fleet_distance_km']:.1f} km, real-time factor {m['timing']['realtime_factor']:.1f}x"
     )
+    if m["interrupted"]:
+        typer.echo(f"lastmile run: interrupted after {m['duration_s']:.0f} s simulated", err=True)
+        raise typer.Exit(stop.exit_code or 130)
 
 
 @app.command()
@@ -225,8 +269,10 @@ def sweep(
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     try:
+        from lastmile.core.output_dir import prepare_output_dir
         from lastmile.evaluation.sweep_report import write_sweep_report
-        from lastmile.runner.sweep import generic_cases, run_sweep
+        from lastmile.runner.stop_signals import StopSignals
+        from lastmile.runner.sweep import check_cases, generic_cases, run_sweep
         from lastmile.sim.scenario import load_scenario
         from lastmile.sim.scenario_generator import ScenarioSpace, sample_scenarios
         from lastmile.sim.suites import SUITES
@@ -252,9 +298,16 @@ def sweep(
                 raise ConfigError(f"sweep --scenarios: expected TOML files in {scenarios}, got none")
             cases = generic_cases([load_scenario(f) for f in files], group=str(scenarios))
             title = f"Sweep: {len(files)} scenarios from {scenarios}"
-        with Progress(
-            TextColumn("[bold]sweep[/bold]"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn()
-        ) as bar:
+        if workers is not None and workers < 1:
+            raise ConfigError(f"sweep --workers: expected at least 1 worker process, got {workers}")
+        check_cases(cases)
+        prepare_output_dir(out)
+        with (
+            StopSignals() as stop,
+            Progress(
+                TextColumn("[bold]sweep[/bold]"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn()
+            ) as bar,
+        ):
             task = bar.add_task("scenarios", total=len(cases))
             summary = run_sweep(
                 cases,
@@ -264,6 +317,7 @@ def sweep(
                 ray_address=ray_address,
                 progress=lambda done, total: bar.update(task, completed=done),
                 config=run_config,
+                stop=lambda: stop.requested,
             )
         report = write_sweep_report(summary, out, title)
     except LastmileError as exc:
@@ -273,9 +327,14 @@ def sweep(
         f"wrote {report}: {summary['passed']}/{summary['scenarios']} passed, "
         f"{summary['collisions_at_fault']} at-fault collisions"
     )
+    if summary["interrupted"]:
+        typer.echo(f"lastmile sweep: interrupted; {len(summary['not_run'])} scenarios not run", err=True)
+        raise typer.Exit(stop.exit_code or 130)
 
 
-experiment_app = typer.Typer(no_args_is_help=True, help="Reproduce the papers' experiments.")
+experiment_app = typer.Typer(
+    no_args_is_help=True, rich_markup_mode=PLAIN_HELP, help="Reproduce the papers' experiments."
+)
 app.add_typer(experiment_app, name="experiment")
 
 
@@ -375,7 +434,9 @@ def replay(
 
 
 # --- lastmile eval: scoring against real data (self-contained block) --------------------------------
-eval_app = typer.Typer(no_args_is_help=True, help="Score the stack's modules on real data sets.")
+eval_app = typer.Typer(
+    no_args_is_help=True, rich_markup_mode=PLAIN_HELP, help="Score the stack's modules on real data sets."
+)
 app.add_typer(eval_app, name="eval")
 
 
@@ -560,7 +621,11 @@ def serve(
         raise typer.Exit(2) from None
 
 
-map_app = typer.Typer(no_args_is_help=True, help="Check maps and route files for a shuttle service.")
+map_app = typer.Typer(
+    no_args_is_help=True,
+    rich_markup_mode=PLAIN_HELP,
+    help="Check maps and route files for a shuttle service.",
+)
 app.add_typer(map_app, name="map")
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -109,12 +110,14 @@ def run_scenario(
     config: RunConfig = DEFAULT_CONFIG,
     progress: ProgressFn | None = None,
     black_box_dir: Path | None = None,
+    stop: Callable[[], bool] | None = None,
 ) -> RunLog:
     """Simulate ``scenario`` with ``config``; returns the run log (wall-clock figures in ``log.timing``).
 
     With ``black_box_dir`` (and the black box on in ``config.loop``), the black box keeps the last
     window and writes it there as MCAP on a takeover, an emergency stop, a collision or a crash of the
-    vehicle software (``recording`` events say where). Ctrl-C ends the run early with what was done.
+    vehicle software (``recording`` events say where). Ctrl-C, or ``stop()`` turning true between
+    ticks (:class:`lastmile.runner.stop_signals.StopSignals`), ends the run early with what was done.
     """
     with threadpool_limits(limits=1):  # small matrices: BLAS threads only compete with the loop
         loop = build_closed_loop(scenario, config)
@@ -128,7 +131,7 @@ def run_scenario(
         if progress is not None:
             callbacks.append(ProgressCallback(progress, scenario.minutes * 60.0))
         loop.callbacks.extend(callbacks)
-        loop.run(round(scenario.minutes * 60e6 / config.loop.tick_us))
+        loop.run(round(scenario.minutes * 60e6 / config.loop.tick_us), stop)
         if loop.interrupted:
             timing.timing["interrupted"] = True
         writer.set_timing(timing.timing)

@@ -152,6 +152,9 @@ class BlackBoxCallback(LoopCallback):
                 box.trigger(kind, now_us, str(data))
 
     def on_end(self, loop: ClosedLoop[Any], ticks_run: int) -> None:
+        if loop.interrupted and ticks_run > 0:
+            # The user stopped the run, often because something looked wrong: keep the last window.
+            self.box.dump("manual", reason="run interrupted (Ctrl-C or SIGTERM)")
         self.box.close()
         for path in sorted(self.box.dumps):
             # blackbox_<trigger>_<t>s_<n>.mcap; the trigger may itself hold underscores (emergency_stop).
