@@ -15,13 +15,14 @@ from matplotlib.patches import Patch
 
 from lastmile.core.errors import LastmileError
 from lastmile.evaluation import metrics as metrics_mod
-from lastmile.evaluation import run_signals
+from lastmile.evaluation import report_html, report_tables, report_views, run_signals
 from lastmile.recorder import run_log
 
 if TYPE_CHECKING:  # only for annotations: the report draws any object shaped like an HDMap
     from lastmile.hdmap.model import HDMap
 
 REPORT_FILE = "report.md"
+HTML_FILE = "report.html"
 MAP_PNG = "map.png"
 SPEED_PNG = "speed_accel.png"
 COMFORT_PNG = "comfort.png"
@@ -42,16 +43,6 @@ _EVENT_STYLE: dict[str, dict[str, Any]] = {
     "stop_served": {"marker": "o", "color": "#31a354", "s": 45, "label": "stop served"},
     "stop_missed": {"marker": "o", "color": "#000000", "s": 45, "label": "stop missed"},
 }
-_TABLE_EVENTS = (
-    "collision",
-    "takeover",
-    "rule_violation",
-    "emergency_stop",
-    "stop_served",
-    "stop_missed",
-    "min_ttc",
-)
-
 _METRIC_GROUPS: tuple[tuple[str, tuple[str, ...]], ...] = (
     (
         "Snow Lion Table 2",
@@ -196,9 +187,7 @@ def _plot_map(log: run_log.RunLog, hdmap: HDMap | None, path: Path) -> None:
         ax.add_collection(path_lines)
         fig.colorbar(path_lines, ax=ax, label="speed [m/s]", shrink=0.8)
         ax.plot(*xy[0], marker="o", color="k", ms=6, zorder=4, label="start")
-        if len(log.agents):
-            a = log.agents.xy_m
-            ax.scatter(a[:, 0], a[:, 1], s=1, color="#e7969c", alpha=0.5, zorder=2, label="other road users")
+        road_users = report_views.draw_road_users(ax, log)
         for kind, style in _EVENT_STYLE.items():
             events = log.events_of(kind)
             if events:
@@ -214,7 +203,8 @@ def _plot_map(log: run_log.RunLog, hdmap: HDMap | None, path: Path) -> None:
         pad = max(20.0, 0.08 * float(np.max(hi - lo)))
         ax.set_xlim(lo[0] - pad, hi[0] + pad)
         ax.set_ylim(lo[1] - pad, hi[1] + pad)
-        ax.legend(loc="best", fontsize=7, markerscale=0.8)
+        handles, _ = ax.get_legend_handles_labels()
+        ax.legend(handles=[*handles, *road_users], loc="best", fontsize=7, markerscale=0.8)
     else:
         ax.text(0.5, 0.5, "no ego samples", ha="center", va="center", transform=ax.transAxes)
         if hdmap is not None:
@@ -310,16 +300,6 @@ def _plot_comfort(sig: run_signals.RunSignals, path: Path) -> None:
 
 
 # --- report.md -----------------------------------------------------------------------------------------
-def _event_details(event: run_log.RunEvent) -> str:
-    d = event.data
-    if event.kind == "stop_served":
-        return (
-            f"stop {d['stop_id']}: curb gap {d['curb_gap_m']:.2f} m, longitudinal error "
-            f"{d['longitudinal_error_m']:.2f} m, boarded {d['boarded']}, alighted {d['alighted']}"
-        )
-    return ", ".join(f"{k}={v}" for k, v in d.items())
-
-
 def _metrics_tables(metrics: Mapping[str, object]) -> list[str]:
     lines: list[str] = []
     shown: set[str] = set()
@@ -337,17 +317,6 @@ def _metrics_tables(metrics: Mapping[str, object]) -> list[str]:
         lines += [f"| {k} | {_fmt(metrics[k])} |" for k in rest]
         lines.append("")
     return lines
-
-
-def _events_table(log: run_log.RunLog) -> list[str]:
-    events = log.events_of(*_TABLE_EVENTS)
-    if not events:
-        return ["No collisions, takeovers, violations, emergency stops or stop visits.", ""]
-    lines = ["| t [s] | kind | details |", "|---:|---|---|"]
-    lines += [f"| {e.t_s:.2f} | {e.kind} | {_md(_event_details(e))} |" for e in events[:MAX_EVENT_ROWS]]
-    if len(events) > MAX_EVENT_ROWS:
-        lines.append(f"| | | {len(events) - MAX_EVENT_ROWS} more not listed |")
-    return [*lines, ""]
 
 
 def _timing_table(timing: Mapping[str, Any]) -> list[str]:
@@ -405,6 +374,9 @@ def write_report(
     _plot_map(log, hdmap, out / MAP_PNG)
     _plot_speed(log, sig, out / SPEED_PNG)
     _plot_comfort(sig, out / COMFORT_PNG)
+    has_places = hdmap is not None and report_views.plot_places(log, hdmap, out / report_views.PLACES_PNG)
+    closest = report_views.closest(report_views.encounters(log))
+    has_encounters = report_views.plot_encounters(log, hdmap, closest, out / report_views.ENCOUNTERS_PNG)
     meta = log.meta
     lines = [
         f"# Run report: {_md(meta.scenario_name)}",
@@ -418,10 +390,39 @@ def write_report(
     if meta.perception_mode == "oracle":
         lines += ["> Perception mode **oracle**: the stack saw ground truth. This run is an ablation.", ""]
     lines += [
+        "## Checks failed",
+        "",
+        *report_tables.bulleted(report_tables.failed_checks(log, metrics, sig), "None."),
         "## Map",
         "",
-        f"![driven path coloured by speed, with events]({MAP_PNG})",
+        f"![driven path coloured by speed, with events and other road users' tracks]({MAP_PNG})",
         "",
+        *(
+            [
+                "## Stops and intersections",
+                "",
+                f"![each stop and intersection up close]({report_views.PLACES_PNG})",
+                "",
+            ]
+            if has_places
+            else []
+        ),
+        *(
+            [
+                "## Closest encounters",
+                "",
+                "Every collision and the closest approaches: the scene around the closest moment (dots: "
+                "both at that moment) over the time-to-collision samples.",
+                "",
+                f"![encounter views]({report_views.ENCOUNTERS_PNG})",
+                "",
+            ]
+            if has_encounters
+            else []
+        ),
+        "## Stops",
+        "",
+        *report_tables.stops_table(log),
         "## Speed and acceleration",
         "",
         f"![speed and acceleration over time with behaviour states]({SPEED_PNG})",
@@ -435,11 +436,15 @@ def write_report(
         *_metrics_tables(metrics),
         "## Events",
         "",
-        *_events_table(log),
+        *report_tables.events_table(log, MAX_EVENT_ROWS),
+        "## Behaviour states",
+        "",
+        *report_tables.state_timeline(log, MAX_EVENT_ROWS),
         "## Compute time",
         "",
         *timing_lines,
     ]
     path = out / REPORT_FILE
     path.write_text("\n".join(lines), encoding="utf-8")
+    report_html.write_html(lines, out, out / HTML_FILE, title=f"Run report: {meta.scenario_name}")
     return path

@@ -22,6 +22,9 @@ from lastmile.sim.scenario import Scenario
 from lastmile.sim.simulation import Simulation
 
 LOG_EVERY_TICKS = 2  # ego trace at 50 Hz with the 10 ms tick
+AGENTS_EVERY_TICKS = 50
+"""Other road users at 2 Hz: enough to draw their tracks and place them at an encounter (a pedestrian
+moves 0.7 m between samples), a few kB a minute."""
 PROGRESS_EVERY_TICKS = 100
 BLACK_BOX_TRIGGERS = ("takeover", "collision")
 """Referee events that make the black box write its window (besides e-stops and crashes)."""
@@ -46,6 +49,7 @@ class RunLogCallback(LoopCallback):
         self._watchdog_logged = False
         self._level = FailSafeLevel.NONE
         self._state: BehaviourState | None = None
+        self._road_users_seen: set[int] = set()
 
     def on_tick(self, record: TickRecord) -> None:
         w, t_s = self.writer, record.t_s
@@ -84,8 +88,20 @@ class RunLogCallback(LoopCallback):
                 code,
                 self.world.route_progress_m,
             )
+        if record.tick % AGENTS_EVERY_TICKS == 0:
+            self._road_users(t_s)
         if record.events:
             w.add_events(record.events)
+
+    def _road_users(self, t_s: float) -> None:
+        """The active road users' positions (ground truth, for the report only); each one's class once."""
+        users = [a for a in self.world.road_users if a.active]
+        for a in users:
+            if a.id not in self._road_users_seen:
+                self._road_users_seen.add(a.id)
+                self.writer.add_event(t_s, EventKind.ROAD_USER, agent_id=a.id, agent_class=a.cls.name.lower())
+        if users:
+            self.writer.add_agent_rows(t_s, [a.id for a in users], [(a.x_m, a.y_m) for a in users])
 
     def _safety_level(self, record: TickRecord) -> None:
         directive = record.verdict.directive
