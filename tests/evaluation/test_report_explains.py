@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from lastmile.core.perception_mode import PerceptionMode
 from lastmile.core.polyline import Polyline
 from lastmile.evaluation import metrics as m
 from lastmile.evaluation import report as r
@@ -20,6 +21,7 @@ from lastmile.sim.scenario import RingCar, Scenario
 from .synthetic import make_log
 
 N = 3000  # 60 s at 50 Hz
+RADAR = PerceptionMode.RADAR_TRACKING
 
 
 def _ttc_events(agent: int, t0: float, count: int) -> list[tuple[float, str, dict[str, object]]]:
@@ -120,7 +122,7 @@ def test_stops_get_insets_and_the_html_report_is_one_self_contained_file(tmp_pat
 
 def test_a_closed_loop_run_logs_the_other_road_users_with_their_class() -> None:
     scenario = Scenario(name="one_car", minutes=0.05, ring_cars=(RingCar(direction="cw", start_s_m=100.0),))
-    log = run_scenario(scenario, RunConfig().with_perception(RunConfig().stack.perception.RADAR_TRACKING))
+    log = run_scenario(scenario, RunConfig().with_perception(RADAR))
     assert len(log.agents) > 0
     classes = report_views.road_user_classes(log)
     assert "car" in classes.values()
@@ -129,3 +131,15 @@ def test_a_closed_loop_run_logs_the_other_road_users_with_their_class() -> None:
     # 2 Hz: 3 s of run give 6 samples of each road user.
     per_user = np.bincount(log.agents.agent_id)
     assert per_user[per_user > 0].max() == 6
+
+
+def test_warm_up_is_apart_from_the_real_time_factor_and_reported(tmp_path: Path) -> None:
+    from lastmile.runner.closed_loop import evaluate_run
+
+    log = run_scenario(Scenario(name="short", minutes=0.05), RunConfig().with_perception(RADAR))
+    timing = log.timing
+    assert timing["warmup_s"] > 0.0
+    assert timing["realtime_factor"] > timing["realtime_factor_with_warmup"]
+    assert all(row["warmup_ms"] is not None for row in timing["modules"].values())
+    evaluate_run(log, tmp_path)
+    assert "Warm-up (each module's first call" in (tmp_path / "report.md").read_text()

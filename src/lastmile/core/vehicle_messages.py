@@ -223,12 +223,13 @@ class VehicleReport:
     """What the vehicle software reports about a whole run (timing and counters, no ground truth).
 
     Attributes:
-        modules: compute time per module: ``p50_ms``, ``p95_ms``, ``max_ms`` and ``calls``.
+        modules: compute time per module: ``p50_ms``, ``p95_ms``, ``max_ms`` and ``calls`` of the
+            steady state (None before a second call), and ``warmup_ms``, the first call, apart.
         counters: named totals (frames rejected, V2I reports received, perception frame counts...).
         perception: the perception chain's own summary (rig frames, clusters, curb offsets), if any.
     """
 
-    modules: dict[str, dict[str, float]]
+    modules: dict[str, dict[str, float | None]]
     counters: dict[str, int]
     perception: dict[str, float | int | None] = field(default_factory=dict)
 

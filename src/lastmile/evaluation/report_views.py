@@ -33,7 +33,7 @@ PLACE_RADIUS_M = 30.0
 MAX_PLACE_VIEWS = 12
 
 CLASS_COLOURS = {
-    "car": "#1f77b4",
+    "car": "#9467bd",
     "pedestrian": "#d62728",
     "cyclist": "#2ca02c",
     "animal": "#8c564b",
