@@ -5,6 +5,8 @@ from __future__ import annotations
 import json
 import os
 import signal
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -192,3 +194,65 @@ def test_a_stopped_fleet_run_writes_its_run_directory_for_the_time_simulated(tmp
     assert json.loads((tmp_path / "fleet_metrics.json").read_text())["interrupted"] is True
     assert (tmp_path / "shuttle-0" / "metrics.json").exists()
     assert list((tmp_path / "shuttle-0" / "recordings").glob("blackbox_manual_*.mcap"))
+
+
+BAD_INVOCATIONS = [
+    (["run", "--seed", "-1", "--out", "{tmp}/o"], "scenario.seed: expected a non-negative integer, got -1"),
+    (
+        ["sweep", "--generate", "0", "--out", "{tmp}/o"],
+        "sweep --generate: expected at least 1 scenario, got 0",
+    ),
+    (
+        ["sweep", "--suite", "iso22737", "--engine", "foo", "--out", "{tmp}/o"],
+        "sweep --engine: expected one of",
+    ),
+    (
+        ["sweep", "--suite", "iso22737", "--seed", "-3", "--out", "{tmp}/o"],
+        "sweep --seed: expected a non-negative",
+    ),
+    (["sweep", "--scenarios", "{tmp}/taken", "--out", "{tmp}/o"], "expected a folder of scenario TOML files"),
+    (
+        ["experiment", "v2i", "--laps", "1", "--out", "{tmp}/taken"],
+        "--out: expected a directory to write into",
+    ),
+    (["serve", "--out", "{tmp}/taken"], "--out: expected a directory to write into"),
+    (
+        ["eval", "tracking", "--detections", "{tmp}", "--labels", "{tmp}", "--json", "{tmp}/taken/x.json"],
+        "--json: expected a directory to write into",
+    ),
+    (
+        ["eval", "tracking", "--detections", "{tmp}", "--labels", "{tmp}", "--results", "{tmp}/taken"],
+        "--results: expected a directory to write into",
+    ),
+    (
+        ["eval", "localization", "{tmp}/taken", "--json", "{tmp}"],
+        "--json: expected a file to write, got a directory",
+    ),
+]
+
+
+@pytest.mark.parametrize(
+    ("args", "expected"), BAD_INVOCATIONS, ids=[" ".join(a[:2]) for a, _ in BAD_INVOCATIONS]
+)
+def test_every_bad_option_is_one_line_before_any_work(
+    args: list[str], expected: str, tmp_path: Path, no_simulation: None
+) -> None:
+    (tmp_path / "taken").write_text("x")
+    _one_line_exit_2([a.replace("{tmp}", str(tmp_path)) for a in args], expected)
+
+
+@pytest.mark.parametrize(
+    ("args", "expected"),
+    [
+        (["run", "--minutes", "abc"], "python -m lastmile run: Invalid value for '--minutes'"),
+        (["run", "--bogus"], "python -m lastmile run: No such option: --bogus"),
+        (["bogus"], "python -m lastmile: No such command 'bogus'."),
+    ],
+)
+def test_clicks_own_usage_errors_are_one_line_too(args: list[str], expected: str) -> None:
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1] / "src")}
+    proc = subprocess.run(
+        [sys.executable, "-m", "lastmile", *args], capture_output=True, text=True, env=env, timeout=120
+    )
+    assert proc.returncode == 2
+    assert proc.stderr.strip().startswith(expected) and len(proc.stderr.strip().splitlines()) == 1

@@ -272,12 +272,16 @@ def sweep(
         from lastmile.core.output_dir import prepare_output_dir
         from lastmile.evaluation.sweep_report import write_sweep_report
         from lastmile.runner.stop_signals import StopSignals
-        from lastmile.runner.sweep import check_cases, generic_cases, run_sweep
+        from lastmile.runner.sweep import ENGINES, check_cases, generic_cases, run_sweep
         from lastmile.sim.scenario import load_scenario
         from lastmile.sim.scenario_generator import ScenarioSpace, sample_scenarios
         from lastmile.sim.suites import SUITES
 
         run_config = _run_config(config, perception, PERCEPTION_OPTIONS["radar"])
+        if seed < 0:
+            raise ConfigError(f"sweep --seed: expected a non-negative integer, got {seed}")
+        if engine not in ENGINES:
+            raise ConfigError(f"sweep --engine: expected one of {', '.join(ENGINES)}, got {engine!r}")
         chosen = [x for x in (suite, generate, scenarios) if x is not None]
         if len(chosen) != 1:
             raise ConfigError(
@@ -289,10 +293,17 @@ def sweep(
             cases = SUITES[suite](seed)
             title = f"Sweep: suite {suite} (seed {seed})"
         elif generate is not None:
+            if generate < 1:
+                raise ConfigError(f"sweep --generate: expected at least 1 scenario, got {generate}")
             cases = generic_cases(sample_scenarios(ScenarioSpace(), generate, seed))
             title = f"Sweep: {generate} generated scenarios (seed {seed})"
         else:
             assert scenarios is not None
+            if not scenarios.is_dir():
+                raise ConfigError(
+                    f"sweep --scenarios: expected a folder of scenario TOML files, got {str(scenarios)!r} "
+                    f"({'a file' if scenarios.exists() else 'no such folder'})"
+                )
             files = sorted(scenarios.glob("*.toml"))
             if not files:
                 raise ConfigError(f"sweep --scenarios: expected TOML files in {scenarios}, got none")
@@ -351,6 +362,7 @@ def experiment_v2i(
     from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
     try:
+        from lastmile.core.output_dir import prepare_output_dir
         from lastmile.evaluation.v2i_report import write_v2i_report
         from lastmile.sim.infrastructure import CrossingCameraConfig
         from lastmile.sim.v2i_experiment import V2iConfig, run_v2i_experiment
@@ -363,6 +375,9 @@ def experiment_v2i(
             ) from None
         if laps < 1:
             raise ConfigError(f"experiment v2i --laps: expected at least 1, got {laps}")
+        if any(s < 0 for s in seed_list):
+            raise ConfigError(f"experiment v2i --seeds: expected non-negative integers, got {seeds!r}")
+        prepare_output_dir(out)
         config = V2iConfig(camera=CrossingCameraConfig(rate_hz=rate_hz))
         with Progress(SpinnerColumn(), TextColumn("[bold]v2i[/bold] simulating"), TimeElapsedColumn()) as bar:
             bar.add_task("v2i")
@@ -459,8 +474,14 @@ def eval_tracking(
     from rich.table import Table
 
     try:
+        from lastmile.core.output_dir import prepare_output_dir, prepare_output_file
         from lastmile.evaluation.kitti_io import list_sequences, write_results
         from lastmile.runner.kitti_tracking import run_kitti
+
+        if results is not None:
+            prepare_output_dir(results, "--results")
+        if json_out is not None:
+            prepare_output_file(json_out, "--json")
 
         seqs = [s.strip() for s in sequences.split(",") if s.strip()] if sequences else list_sequences(labels)
         if not seqs:
@@ -545,6 +566,7 @@ def eval_localization(
     from rich.table import Table
 
     try:
+        from lastmile.core.output_dir import prepare_output_dir, prepare_output_file
         from lastmile.localization.ekf import PoseEkfConfig
         from lastmile.recorder.drive_reader import read_drive
         from lastmile.recorder.drive_rosbag import BagTopics
@@ -562,6 +584,10 @@ def eval_localization(
             raise ConfigError(f"--lever-arm: expected FORWARD,LEFT in metres, got {lever_arm!r}")
         config = PoseEkfConfig(zero_slip_offset_m=0.0, antenna_lever_arm_m=lever_m).with_imu(imu_grade)
         outages = tuple(lr.Outage.parse(o) for o in outage or ())
+        if json_out is not None:
+            prepare_output_file(json_out, "--json")
+        if tum_dir is not None:
+            prepare_output_dir(tum_dir, "--tum-dir")
         drive = read_drive(list(inputs), BagTopics(imu_topic, fix_topic, odom_topic), imu_forward_axis)
         result = lr.replay_drive(drive, outages, modes[mode], config, use_accel)
         if tum_dir is not None:
@@ -604,9 +630,11 @@ def serve(
     ] = 600.0,
 ) -> None:
     """Run the dispatch server (HTTP + WebSocket API, web dashboard) until interrupted."""
+    from lastmile.core.output_dir import prepare_output_dir
     from lastmile.fleet.serve_main import serve as serve_forever
 
     try:
+        prepare_output_dir(out)
         serve_forever(
             host=host,
             port=port,
@@ -679,4 +707,19 @@ def perceive(
 
 
 def main() -> None:
-    app()
+    """The ``lastmile`` entry point: Click's own usage errors (a wrong type, an unknown option) come out
+    as one line and exit 2, as the commands' errors do, instead of a usage box."""
+    import sys
+
+    # Click's exceptions, from wherever this Typer takes Click (newer Typers vendor it).
+    click_exceptions = sys.modules[typer.BadParameter.__module__]
+    try:
+        code = app(standalone_mode=False)
+    except click_exceptions.UsageError as exc:
+        command = exc.ctx.command_path if exc.ctx is not None else "lastmile"
+        typer.echo(f"{command}: {exc.format_message()}", err=True)
+        sys.exit(exc.exit_code)
+    except typer.Abort:  # Ctrl-C outside a run (in a prompt, while importing)
+        typer.echo("lastmile: interrupted", err=True)
+        sys.exit(130)
+    sys.exit(code if isinstance(code, int) else 0)

@@ -44,3 +44,16 @@ def prepare_output_dir(path: Path, option: str = "--out") -> Path:
     os.close(handle)
     os.unlink(probe)
     return path
+
+
+def prepare_output_file(path: Path, option: str) -> Path:
+    """Check that ``path`` can be written as a file (not a directory; its folder made and writable),
+    before any work starts.
+
+    Raises:
+        ConfigError: as :func:`prepare_output_dir`, or ``path`` is a directory.
+    """
+    if path.is_dir():
+        raise ConfigError(f"{option}: expected a file to write, got a directory {str(path)!r}")
+    prepare_output_dir(path.parent, option)
+    return path

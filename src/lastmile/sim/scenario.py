@@ -193,6 +193,8 @@ class Scenario:
 
     def __post_init__(self) -> None:
         check_range("scenario.minutes", self.minutes, 0.01, 24 * 60.0)
+        if self.seed < 0:  # NumPy's SeedSequence takes none
+            raise ConfigError(f"scenario.seed: expected a non-negative integer, got {self.seed}")
         states = [s.value for s in BehaviourState]
         if self.estop_in_state and self.estop_in_state not in states:
             raise ConfigError(
