@@ -143,3 +143,16 @@ def test_warm_up_is_apart_from_the_real_time_factor_and_reported(tmp_path: Path)
     assert all(row["warmup_ms"] is not None for row in timing["modules"].values())
     evaluate_run(log, tmp_path)
     assert "Warm-up (each module's first call" in (tmp_path / "report.md").read_text()
+
+
+def test_latency_histograms_show_each_module_against_its_budget(tmp_path: Path) -> None:
+    log = run_scenario(Scenario(name="short", minutes=0.05), RunConfig().with_perception(RADAR))
+    planning = log.timing["modules"]["planning"]
+    assert planning["budget_ms"] == 100.0 and planning["over_budget"] is not None
+    from lastmile.runner.closed_loop import evaluate_run
+
+    evaluate_run(log, tmp_path)
+    text = (tmp_path / "report.md").read_text()
+    assert "| budget [ms] | over budget |" in text
+    assert f"![per-module latency histograms against the cycle budget]({r.LATENCY_PNG})" in text
+    assert (tmp_path / r.LATENCY_PNG).stat().st_size > 10_000

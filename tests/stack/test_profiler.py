@@ -6,7 +6,7 @@ import time
 
 import pytest
 
-from lastmile.stack.profiler import ModuleProfiler
+from lastmile.stack.profiler import HISTOGRAM_EDGES_MS, ModuleProfiler
 
 
 def test_the_first_call_is_reported_as_warm_up_and_kept_out_of_the_percentiles() -> None:
@@ -27,3 +27,14 @@ def test_a_module_called_once_has_only_a_warm_up() -> None:
         pass
     row = profiler.summary()["planning"]
     assert row["calls"] == 0 and row["p50_ms"] is None and row["warmup_ms"] is not None
+
+
+def test_calls_over_the_cycle_budget_are_counted_and_binned() -> None:
+    profiler = ModuleProfiler({"planning": 5.0})
+    for k in range(6):
+        with profiler.measure("planning"):
+            time.sleep(0.3 if k == 0 else 0.012 if k in (2, 4) else 0.0005)
+    row = profiler.summary()["planning"]
+    assert row["budget_ms"] == 5.0 and row["over_budget"] == 2  # the warm-up is not an overrun
+    assert sum(row["histogram"]) == row["calls"] == 5
+    assert len(row["histogram"]) == len(HISTOGRAM_EDGES_MS) - 1

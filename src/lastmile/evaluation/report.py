@@ -13,6 +13,7 @@ from matplotlib.colors import Normalize
 from matplotlib.figure import Figure
 from matplotlib.patches import Patch
 
+from lastmile.core import vehicle_messages
 from lastmile.core.errors import LastmileError
 from lastmile.evaluation import metrics as metrics_mod
 from lastmile.evaluation import report_html, report_tables, report_views, run_signals
@@ -26,6 +27,7 @@ HTML_FILE = "report.html"
 MAP_PNG = "map.png"
 SPEED_PNG = "speed_accel.png"
 COMFORT_PNG = "comfort.png"
+LATENCY_PNG = "latency.png"
 
 MAX_PLOT_POINTS = 4000
 """Ego samples drawn at most per trace; a 10-minute 50 Hz log is thinned about 8x, far below what shows."""
@@ -309,6 +311,35 @@ def _plot_comfort(sig: run_signals.RunSignals, path: Path) -> None:
     fig.savefig(path, dpi=_DPI)
 
 
+# --- (d) per-module latency -------------------------------------------------------------------------
+def _plot_latency(timing: Mapping[str, Any], path: Path) -> bool:
+    """One histogram per module of its steady-state call times (log scale) with its cycle budget.
+    False (nothing written) when the timing holds no histograms (an older log, no modules)."""
+    modules = timing.get("modules", {})
+    rows = [(n, r) for n, r in sorted(modules.items()) if isinstance(r, Mapping) and r.get("histogram")]
+    if not rows:
+        return False
+    edges = np.asarray(vehicle_messages.LATENCY_HISTOGRAM_EDGES_MS)
+    cols = min(4, len(rows))
+    fig = Figure(figsize=(3.2 * cols, 2.6 * -(-len(rows) // cols)), dpi=_DPI, layout="constrained")
+    axes = np.atleast_1d(fig.subplots(-(-len(rows) // cols), cols)).ravel()
+    for ax, (name, row) in zip(axes, rows, strict=False):
+        counts = np.asarray(row["histogram"], dtype=float)
+        ax.stairs(counts, edges, fill=True, color="#6baed6")
+        ax.set_xscale("log")
+        budget, over = row.get("budget_ms"), row.get("over_budget")
+        if isinstance(budget, int | float):
+            ax.axvline(float(budget), color="#d62728", ls="--", lw=1.0)
+        title = f"{name}: {over} of {row.get('calls')} over {budget:g} ms" if budget else name
+        ax.set_title(title, fontsize=8)
+        ax.set_xlabel("call time [ms]", fontsize=7)
+        ax.tick_params(labelsize=6)
+    for ax in axes[len(rows) :]:
+        ax.set_axis_off()
+    fig.savefig(path, dpi=_DPI)
+    return True
+
+
 # --- report.md -----------------------------------------------------------------------------------------
 def _metrics_tables(metrics: Mapping[str, object]) -> list[str]:
     lines: list[str] = []
@@ -336,8 +367,8 @@ def _timing_table(timing: Mapping[str, Any]) -> list[str]:
         raise ReportError(f"timing.modules: expected a mapping of module name to figures, got {modules!r}")
     if modules:
         lines += [
-            "| module | calls | p50 [ms] | p95 [ms] | max [ms] | warm-up [ms] |",
-            "|---|---:|---:|---:|---:|---:|",
+            "| module | calls | p50 [ms] | p95 [ms] | max [ms] | warm-up [ms] | budget [ms] | over budget |",
+            "|---|---:|---:|---:|---:|---:|---:|---:|",
         ]
         for name in sorted(modules):
             row = modules[name]
@@ -345,7 +376,8 @@ def _timing_table(timing: Mapping[str, Any]) -> list[str]:
                 raise ReportError(
                     f"timing.modules.{name}: expected p50_ms, p95_ms, max_ms, calls, got {row!r}"
                 )
-            cells = [_fmt(row.get(k)) for k in ("calls", "p50_ms", "p95_ms", "max_ms", "warmup_ms")]
+            keys = ("calls", "p50_ms", "p95_ms", "max_ms", "warmup_ms", "budget_ms", "over_budget")
+            cells = [_fmt(row.get(k)) for k in keys]
             lines.append(f"| {_md(name)} | " + " | ".join(cells) + " |")
         lines.append("")
     else:
@@ -391,6 +423,8 @@ def write_report(
         raise ReportError(f"{out}: expected a writable run directory, got {exc}") from None
     sig = run_signals.RunSignals(log, comfort)
     timing_lines = _timing_table(log.timing)
+    if _plot_latency(log.timing, out / LATENCY_PNG):
+        timing_lines += [f"![per-module latency histograms against the cycle budget]({LATENCY_PNG})", ""]
     _plot_map(log, hdmap, out / MAP_PNG)
     _plot_speed(log, sig, out / SPEED_PNG)
     _plot_comfort(sig, out / COMFORT_PNG)
