@@ -118,20 +118,21 @@ def test_a_second_stop_signal_interrupts_at_once_and_handlers_are_restored() -> 
     assert signal.getsignal(signal.SIGTERM) is before
 
 
-def test_sigterm_during_a_run_leaves_the_partial_run_directory_and_exit_143(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+@pytest.mark.parametrize(("signum", "code"), [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
+def test_a_stop_signal_during_a_run_leaves_the_partial_run_directory(
+    signum: signal.Signals, code: int, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     step = ClosedLoop.step
 
-    def step_then_terminate(self: ClosedLoop, tick: int):  # type: ignore[no-untyped-def]
+    def step_then_signal(self: ClosedLoop, tick: int):  # type: ignore[no-untyped-def]
         if tick == 300:  # 3 s into the run: a real signal to this process, through the CLI's handler
-            os.kill(os.getpid(), signal.SIGTERM)
+            os.kill(os.getpid(), signum)
         return step(self, tick)
 
-    monkeypatch.setattr(ClosedLoop, "step", step_then_terminate)
+    monkeypatch.setattr(ClosedLoop, "step", step_then_signal)
     out = tmp_path / "run"
     result = CliRunner().invoke(app, ["run", "--minutes", "1", "--perception", "radar", "--out", str(out)])
-    assert result.exit_code == 143, result.output
+    assert result.exit_code == code, result.output
     assert "interrupted; wrote the 3 s simulated so far" in result.output
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["duration_s"] == pytest.approx(3.01, abs=0.011)
