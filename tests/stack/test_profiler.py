@@ -38,3 +38,20 @@ def test_calls_over_the_cycle_budget_are_counted_and_binned() -> None:
     assert row["budget_ms"] == 5.0 and row["over_budget"] == 2  # the warm-up is not an overrun
     assert sum(row["histogram"]) == row["calls"] == 5
     assert len(row["histogram"]) == len(HISTOGRAM_EDGES_MS) - 1
+
+
+def test_a_call_during_which_numba_compiles_is_warm_up_wherever_it_falls() -> None:
+    from numba import njit
+
+    @njit(cache=False)
+    def fresh_kernel(x: float) -> float:  # never compiled before: its first call compiles
+        return x * 2.0 + 1.0
+
+    profiler = ModuleProfiler()
+    for k in range(6):
+        with profiler.measure("perception"):
+            if k == 3:  # the first complete frame reaches the kernel on the fourth call
+                fresh_kernel(1.0)
+    row = profiler.summary()["perception"]
+    assert row["warmup_calls"] == 2 and row["calls"] == 4
+    assert row["max_ms"] is not None and row["warmup_ms"] > 10 * row["max_ms"]

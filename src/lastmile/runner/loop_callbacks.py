@@ -217,8 +217,8 @@ class TimingCallback(LoopCallback):
         cpu = time.process_time() - self._cpu0
         simulated_s = ticks_run * loop.tick_us / 1e6
         report = loop.software.report()
-        # Each module's first call (Numba compiling, first frame) is warm-up: apart, as a user starting
-        # the shuttle once and driving for hours never sees it again.
+        # Warm-up (each module's first call, and calls during which Numba compiled) is apart: a user
+        # starting the shuttle once and driving for hours never sees it again.
         warmup = sum(float(m.get("warmup_ms") or 0.0) for m in report.modules.values()) / 1e3
         steady, steady_cpu = wall - warmup, cpu - warmup
         self.timing = {
