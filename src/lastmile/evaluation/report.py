@@ -386,7 +386,7 @@ def _timing_table(timing: Mapping[str, Any]) -> list[str]:
         lines += [f"Real-time factor (simulated / wall-clock time): {_fmt(timing['realtime_factor'])}", ""]
     if "warmup_s" in timing:
         lines += [
-            f"Warm-up (each module's first call, and every call during which Numba compiled): "
+            f"Warm-up (each module's first call, and calls in which Numba compiled or loaded kernels): "
             f"{_fmt(timing['warmup_s'])} s, "
             "kept out of the percentiles, the calls and the real-time factor above; with it, the "
             f"real-time factor is {_fmt(timing.get('realtime_factor_with_warmup'))}.",

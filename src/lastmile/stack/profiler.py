@@ -17,8 +17,11 @@ HISTOGRAM_EDGES_MS = vehicle_messages.LATENCY_HISTOGRAM_EDGES_MS
 
 
 class _CompileClock(numba_event.Listener):
-    """Seconds Numba has spent compiling in this process (its ``numba:compile`` events; a kernel
-    compiled inside another's compilation counts once)."""
+    """Seconds Numba has spent compiling or loading compiled kernels from its cache in this process.
+
+    Both happen while Numba holds its compiler lock (``numba:compiler_lock`` events, which enclose the
+    ``numba:compile`` ones); nested events count once.
+    """
 
     def __init__(self) -> None:
         self.total_s = 0.0
@@ -37,15 +40,15 @@ class _CompileClock(numba_event.Listener):
 
 
 COMPILE_CLOCK = _CompileClock()
-numba_event.register("numba:compile", COMPILE_CLOCK)
+numba_event.register("numba:compiler_lock", COMPILE_CLOCK)
 
 
 class ModuleProfiler:
     """Collects the wall time of each module call; ``summary`` gives p50/p95/max in ms, warm-up apart.
 
     Warm-up is a module's first call (first allocations, caches filling) and every call during which
-    Numba compiled (a kernel compiles on the first frame that reaches it: up to tens of seconds, against
-    milliseconds in steady state). Warm-up calls are reported as ``warmup_ms`` and ``warmup_calls`` and
+    Numba compiled or loaded a kernel from its cache (a kernel compiles on the first frame that reaches
+    it: up to tens of seconds, against milliseconds in steady state). Warm-up calls are reported as ``warmup_ms`` and ``warmup_calls`` and
     kept out of the percentiles, ``calls`` and the overrun count, so that neither a latency nor a
     real-time factor mixes the two.
     """
