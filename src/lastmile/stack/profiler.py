@@ -48,9 +48,9 @@ class ModuleProfiler:
 
     Warm-up is a module's first call (first allocations, caches filling) and every call during which
     Numba compiled or loaded a kernel from its cache (a kernel compiles on the first frame that reaches
-    it: up to tens of seconds, against milliseconds in steady state). Warm-up calls are reported as ``warmup_ms`` and ``warmup_calls`` and
-    kept out of the percentiles, ``calls`` and the overrun count, so that neither a latency nor a
-    real-time factor mixes the two.
+    it: up to tens of seconds, against milliseconds in steady state). Warm-up calls are reported as
+    ``warmup_ms`` and ``warmup_calls`` and kept out of the percentiles, ``calls`` and the overrun count,
+    so that neither a latency nor a real-time factor mixes the two.
     """
 
     def __init__(self, budgets_ms: Mapping[str, float] | None = None) -> None:
