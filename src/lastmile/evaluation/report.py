@@ -442,6 +442,12 @@ def write_report(
         f"{_md(meta.scenario_name)} | {_md(meta.map_name)} | {_fmt(sig.duration_s)} |",
         "",
     ]
+    if log.timing.get("interrupted"):
+        lines += [
+            f"> **Interrupted** (Ctrl-C or SIGTERM) after {_fmt(sig.duration_s)} s of the "
+            f"{_fmt(meta.duration_s)} s planned: everything below covers the time simulated.",
+            "",
+        ]
     if meta.perception_mode == "oracle":
         lines += ["> Perception mode **oracle**: the stack saw ground truth. This run is an ablation.", ""]
     lines += [
