@@ -15,8 +15,14 @@ from lastmile.core.perception_mode import PerceptionMode
 if TYPE_CHECKING:
     from lastmile.runner.run_config import RunConfig
 
+PLAIN_HELP = None
+"""Help text is plain, not Rich markup: markup mode ate every ``[default: ...]`` the options wrote."""
+
 app = typer.Typer(
-    add_completion=False, no_args_is_help=True, help="Autonomous campus shuttle: stack, simulator, tools."
+    add_completion=False,
+    no_args_is_help=True,
+    rich_markup_mode=PLAIN_HELP,
+    help="Autonomous campus shuttle: stack, simulator, tools.",
 )
 
 
@@ -34,6 +40,22 @@ def _run_config(config: Path | None, perception: str | None, default_perception:
     if perception not in PERCEPTION_OPTIONS:
         raise ConfigError(f"--perception: expected one of {sorted(PERCEPTION_OPTIONS)}, got {perception!r}")
     return base.with_perception(PERCEPTION_OPTIONS[perception])
+
+
+def _print_version(value: bool) -> None:
+    if value:
+        typer.echo(__version__)
+        raise typer.Exit()
+
+
+@app.callback()
+def _options(
+    version: Annotated[
+        bool,
+        typer.Option("--version", callback=_print_version, is_eager=True, help="Print the version and exit."),
+    ] = False,
+) -> None:
+    """Autonomous campus shuttle: stack, simulator, tools."""
 
 
 @app.command()
@@ -93,7 +115,9 @@ def run(
         return
 
     try:
+        from lastmile.core.output_dir import prepare_output_dir
         from lastmile.runner.closed_loop import evaluate_run, load_world_map, run_scenario
+        from lastmile.runner.stop_signals import StopSignals
         from lastmile.sim.scenario import MapSpec, default_service, load_scenario, route_service
         from lastmile.sim.weather import parse_weather
 
@@ -118,12 +142,17 @@ def run(
             overrides["weather"] = weather
         spec = dataclasses.replace(spec, **overrides)  # type: ignore[arg-type]
         run_config.check_serves(spec)
-        with Progress(
-            TextColumn("[bold]simulating[/bold] {task.description}"),
-            BarColumn(),
-            TextColumn("{task.completed:.0f}/{task.total:.0f} s"),
-            TimeElapsedColumn(),
-        ) as bar:
+        world_map = load_world_map(spec.map)  # a bad route or map is found before the run, not after
+        prepare_output_dir(out)
+        with (
+            StopSignals() as stop,
+            Progress(
+                TextColumn("[bold]simulating[/bold] {task.description}"),
+                BarColumn(),
+                TextColumn("{task.completed:.0f}/{task.total:.0f} s"),
+                TimeElapsedColumn(),
+            ) as bar,
+        ):
             task = bar.add_task(f"{spec.name} seed {spec.seed} {spec.weather}", total=spec.minutes * 60.0)
             log = run_scenario(
                 spec,
@@ -132,8 +161,9 @@ def run(
                 black_box_dir=out / "recordings",
                 live=("127.0.0.1", live_port) if live else None,
                 on_live=lambda port: bar.console.print(f"live: connect Foxglove to ws://127.0.0.1:{port}"),
+                stop=lambda: stop.requested,
             )
-        metrics = evaluate_run(log, out, hdmap=load_world_map(spec.map).hdmap)
+        metrics = evaluate_run(log, out, hdmap=world_map.hdmap)
     except LastmileError as exc:
         typer.echo(f"lastmile run: {exc}", err=True)
         raise typer.Exit(2) from None
@@ -142,7 +172,7 @@ def run(
             f"lastmile run: interrupted; wrote the {metrics['duration_s']:.0f} s simulated so far to {out}",
             err=True,
         )
-        raise typer.Exit(130)
+        raise typer.Exit(stop.exit_code or 130)
     typer.echo(
         f"wrote {out}/report.md: {metrics['distance_m']:.0f} m, {metrics['stops_served']} stops served, "
         f"{metrics['collisions_total']} collisions, {metrics['takeovers']} takeovers, "
@@ -171,8 +201,10 @@ def _run_fleet(
             raise ConfigError(
                 "--fleet: expected no --scenario or --weather (the fleet world is its own), got one"
             )
+        from lastmile.core.output_dir import prepare_output_dir
         from lastmile.runner.fleet_config import FleetConfig
         from lastmile.runner.fleet_run import run_fleet
+        from lastmile.runner.stop_signals import StopSignals
 
         config = FleetConfig(
             shuttles=fleet,
@@ -180,14 +212,23 @@ def _run_fleet(
             seed=seed if seed is not None else 0,
             demand_per_pair_per_h=demand,
         )
-        with Progress(
-            TextColumn(f"[bold]simulating[/bold] {fleet} shuttles with the server"),
-            BarColumn(),
-            TextColumn("{task.completed:.0f}/{task.total:.0f} s"),
-            TimeElapsedColumn(),
-        ) as bar:
+        prepare_output_dir(out)
+        with (
+            StopSignals() as stop,
+            Progress(
+                TextColumn(f"[bold]simulating[/bold] {fleet} shuttles with the server"),
+                BarColumn(),
+                TextColumn("{task.completed:.0f}/{task.total:.0f} s"),
+                TimeElapsedColumn(),
+            ) as bar,
+        ):
             task = bar.add_task("fleet", total=config.minutes * 60.0)
-            m = run_fleet(config, out, progress=lambda done, total: bar.update(task, completed=done))
+            m = run_fleet(
+                config,
+                out,
+                progress=lambda done, total: bar.update(task, completed=done),
+                stop=lambda: stop.requested,
+            )
     except LastmileError as exc:
         typer.echo(f"lastmile run: {exc}", err=True)
         raise typer.Exit(2) from None
@@ -197,6 +238,9 @@ def _run_fleet(
         f"median wait {'-' if wait is None else f'{wait:.0f} s'}, "
         f"{m['fleet_distance_km']:.1f} km, real-time factor {m['timing']['realtime_factor']:.1f}x"
     )
+    if m["interrupted"]:
+        typer.echo(f"lastmile run: interrupted after {m['duration_s']:.0f} s simulated", err=True)
+        raise typer.Exit(stop.exit_code or 130)
 
 
 @app.command()
@@ -231,13 +275,19 @@ def sweep(
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     try:
+        from lastmile.core.output_dir import prepare_output_dir
         from lastmile.evaluation.sweep_report import write_sweep_report
-        from lastmile.runner.sweep import generic_cases, run_sweep
+        from lastmile.runner.stop_signals import StopSignals
+        from lastmile.runner.sweep import ENGINES, check_cases, generic_cases, run_sweep
         from lastmile.sim.scenario import load_scenario
         from lastmile.sim.scenario_generator import ScenarioSpace, sample_scenarios
         from lastmile.sim.suites import SUITES
 
         run_config = _run_config(config, perception, PERCEPTION_OPTIONS["radar"])
+        if seed < 0:
+            raise ConfigError(f"sweep --seed: expected a non-negative integer, got {seed}")
+        if engine not in ENGINES:
+            raise ConfigError(f"sweep --engine: expected one of {', '.join(ENGINES)}, got {engine!r}")
         chosen = [x for x in (suite, generate, scenarios) if x is not None]
         if len(chosen) != 1:
             raise ConfigError(
@@ -249,18 +299,32 @@ def sweep(
             cases = SUITES[suite](seed)
             title = f"Sweep: suite {suite} (seed {seed})"
         elif generate is not None:
+            if generate < 1:
+                raise ConfigError(f"sweep --generate: expected at least 1 scenario, got {generate}")
             cases = generic_cases(sample_scenarios(ScenarioSpace(), generate, seed))
             title = f"Sweep: {generate} generated scenarios (seed {seed})"
         else:
             assert scenarios is not None
+            if not scenarios.is_dir():
+                raise ConfigError(
+                    f"sweep --scenarios: expected a folder of scenario TOML files, got {str(scenarios)!r} "
+                    f"({'a file' if scenarios.exists() else 'no such folder'})"
+                )
             files = sorted(scenarios.glob("*.toml"))
             if not files:
                 raise ConfigError(f"sweep --scenarios: expected TOML files in {scenarios}, got none")
             cases = generic_cases([load_scenario(f) for f in files], group=str(scenarios))
             title = f"Sweep: {len(files)} scenarios from {scenarios}"
-        with Progress(
-            TextColumn("[bold]sweep[/bold]"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn()
-        ) as bar:
+        if workers is not None and workers < 1:
+            raise ConfigError(f"sweep --workers: expected at least 1 worker process, got {workers}")
+        check_cases(cases)
+        prepare_output_dir(out)
+        with (
+            StopSignals() as stop,
+            Progress(
+                TextColumn("[bold]sweep[/bold]"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn()
+            ) as bar,
+        ):
             task = bar.add_task("scenarios", total=len(cases))
             summary = run_sweep(
                 cases,
@@ -270,6 +334,7 @@ def sweep(
                 ray_address=ray_address,
                 progress=lambda done, total: bar.update(task, completed=done),
                 config=run_config,
+                stop=lambda: stop.requested,
             )
         report = write_sweep_report(summary, out, title)
     except LastmileError as exc:
@@ -279,9 +344,14 @@ def sweep(
         f"wrote {report}: {summary['passed']}/{summary['scenarios']} passed, "
         f"{summary['collisions_at_fault']} at-fault collisions"
     )
+    if summary["interrupted"]:
+        typer.echo(f"lastmile sweep: interrupted; {len(summary['not_run'])} scenarios not run", err=True)
+        raise typer.Exit(stop.exit_code or 130)
 
 
-experiment_app = typer.Typer(no_args_is_help=True, help="Reproduce the papers' experiments.")
+experiment_app = typer.Typer(
+    no_args_is_help=True, rich_markup_mode=PLAIN_HELP, help="Reproduce the papers' experiments."
+)
 app.add_typer(experiment_app, name="experiment")
 
 
@@ -298,6 +368,7 @@ def experiment_v2i(
     from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
     try:
+        from lastmile.core.output_dir import prepare_output_dir
         from lastmile.evaluation.v2i_report import write_v2i_report
         from lastmile.sim.infrastructure import CrossingCameraConfig
         from lastmile.sim.v2i_experiment import V2iConfig, run_v2i_experiment
@@ -310,6 +381,9 @@ def experiment_v2i(
             ) from None
         if laps < 1:
             raise ConfigError(f"experiment v2i --laps: expected at least 1, got {laps}")
+        if any(s < 0 for s in seed_list):
+            raise ConfigError(f"experiment v2i --seeds: expected non-negative integers, got {seeds!r}")
+        prepare_output_dir(out)
         config = V2iConfig(camera=CrossingCameraConfig(rate_hz=rate_hz))
         with Progress(SpinnerColumn(), TextColumn("[bold]v2i[/bold] simulating"), TimeElapsedColumn()) as bar:
             bar.add_task("v2i")
@@ -421,7 +495,9 @@ def replay(
 
 
 # --- lastmile eval: scoring against real data (self-contained block) --------------------------------
-eval_app = typer.Typer(no_args_is_help=True, help="Score the stack's modules on real data sets.")
+eval_app = typer.Typer(
+    no_args_is_help=True, rich_markup_mode=PLAIN_HELP, help="Score the stack's modules on real data sets."
+)
 app.add_typer(eval_app, name="eval")
 
 
@@ -444,8 +520,14 @@ def eval_tracking(
     from rich.table import Table
 
     try:
+        from lastmile.core.output_dir import prepare_output_dir, prepare_output_file
         from lastmile.evaluation.kitti_io import list_sequences, write_results
         from lastmile.runner.kitti_tracking import run_kitti
+
+        if results is not None:
+            prepare_output_dir(results, "--results")
+        if json_out is not None:
+            prepare_output_file(json_out, "--json")
 
         seqs = [s.strip() for s in sequences.split(",") if s.strip()] if sequences else list_sequences(labels)
         if not seqs:
@@ -530,6 +612,7 @@ def eval_localization(
     from rich.table import Table
 
     try:
+        from lastmile.core.output_dir import prepare_output_dir, prepare_output_file
         from lastmile.localization.ekf import PoseEkfConfig
         from lastmile.recorder.drive_reader import read_drive
         from lastmile.recorder.drive_rosbag import BagTopics
@@ -547,6 +630,10 @@ def eval_localization(
             raise ConfigError(f"--lever-arm: expected FORWARD,LEFT in metres, got {lever_arm!r}")
         config = PoseEkfConfig(zero_slip_offset_m=0.0, antenna_lever_arm_m=lever_m).with_imu(imu_grade)
         outages = tuple(lr.Outage.parse(o) for o in outage or ())
+        if json_out is not None:
+            prepare_output_file(json_out, "--json")
+        if tum_dir is not None:
+            prepare_output_dir(tum_dir, "--tum-dir")
         drive = read_drive(list(inputs), BagTopics(imu_topic, fix_topic, odom_topic), imu_forward_axis)
         result = lr.replay_drive(drive, outages, modes[mode], config, use_accel)
         if tum_dir is not None:
@@ -589,9 +676,11 @@ def serve(
     ] = 600.0,
 ) -> None:
     """Run the dispatch server (HTTP + WebSocket API, web dashboard) until interrupted."""
+    from lastmile.core.output_dir import prepare_output_dir
     from lastmile.fleet.serve_main import serve as serve_forever
 
     try:
+        prepare_output_dir(out)
         serve_forever(
             host=host,
             port=port,
@@ -606,7 +695,11 @@ def serve(
         raise typer.Exit(2) from None
 
 
-map_app = typer.Typer(no_args_is_help=True, help="Check maps and route files for a shuttle service.")
+map_app = typer.Typer(
+    no_args_is_help=True,
+    rich_markup_mode=PLAIN_HELP,
+    help="Check maps and route files for a shuttle service.",
+)
 app.add_typer(map_app, name="map")
 
 
@@ -670,4 +763,19 @@ def warmup() -> None:
 
 
 def main() -> None:
-    app()
+    """The ``lastmile`` entry point: Click's own usage errors (a wrong type, an unknown option) come out
+    as one line and exit 2, as the commands' errors do, instead of a usage box."""
+    import sys
+
+    # Click's exceptions, from wherever this Typer takes Click (newer Typers vendor it).
+    click_exceptions = sys.modules[typer.BadParameter.__module__]
+    try:
+        code = app(standalone_mode=False)
+    except click_exceptions.UsageError as exc:
+        command = exc.ctx.command_path if exc.ctx is not None else "lastmile"
+        typer.echo(f"{command}: {exc.format_message()}", err=True)
+        sys.exit(exc.exit_code)
+    except typer.Abort:  # Ctrl-C outside a run (in a prompt, while importing)
+        typer.echo("lastmile: interrupted", err=True)
+        sys.exit(130)
+    sys.exit(code if isinstance(code, int) else 0)

@@ -39,3 +39,15 @@ def test_report_tabulates_fault_response_per_kind(tmp_path):
     cells = [c.strip() for c in line.strip("|").split("|")]
     assert cells[1:4] == ["3", "2", "0.12 / 0.12 (1 never)"]
     assert cells[5] == "MINIMAL_RISK_MANOEUVRE" and cells[6] == "MINIMAL_RISK_MANOEUVRE, NONE"
+
+
+def test_an_interrupted_sweep_says_so_and_never_passes_a_cut_case(tmp_path):
+    cut = {**_row("b", None), "interrupted": True}
+    rows = [_row("a", None), cut]
+    summary = {"scenarios": 2, "passed": 1, "failed": 1, "collisions_total": 0, "collisions_at_fault": 0}
+    summary |= {"interrupted": True, "not_run": ["c"]}
+    text = write_sweep_report({**summary, "rows": rows}, tmp_path, "t").read_text()
+    assert "**Interrupted** (Ctrl-C or SIGTERM): 1 scenarios stopped early" in text
+    assert "1 not run: `c`." in text
+    assert "| `b` | clear | - | interrupted |" in text
+    assert "| faults | 2 | 1 | 1 |" in text

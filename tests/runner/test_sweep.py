@@ -32,7 +32,7 @@ def test_generated_scenarios_repeat_from_their_seed_and_round_trip_through_toml(
     from lastmile.runner.sweep import write_cases
 
     for case, path, config_path in write_cases(cases, tmp_path):
-        assert load_scenario(path) == case.scenario
+        assert load_scenario(path) == dataclasses.replace(case.scenario, checks=case.checks)
         assert load_run_config(config_path) == SWEEP_CONFIG
 
 

@@ -23,6 +23,14 @@ def load_toml(path: Path) -> dict[str, Any]:
             return tomllib.load(handle)
     except FileNotFoundError:
         raise ConfigError(f"{path}: expected a TOML file, got no such file") from None
+    except IsADirectoryError:
+        raise ConfigError(f"{path}: expected a TOML file, got a directory") from None
+    except PermissionError:
+        raise ConfigError(f"{path}: expected a readable TOML file, got permission denied") from None
+    except UnicodeDecodeError as exc:
+        raise ConfigError(
+            f"{path}: expected a UTF-8 TOML text file, got binary data (byte {exc.start})"
+        ) from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: expected valid TOML, got a syntax error ({exc})") from None
 

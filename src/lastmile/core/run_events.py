@@ -25,6 +25,8 @@ class EventKind(StrEnum):
     INTERSECTION_ENTRY = "intersection_entry"
     SIGNAL_ENTRY = "signal_entry"
     LOOP_COMPLETED = "loop_completed"
+    ROAD_USER = "road_user"
+    """Another road user first logged: its id and class (positions go to the agents table)."""
     # The scenario's operators.
     OPERATOR_ESTOP = "operator_estop"
     OPERATOR_RELEASE = "operator_release"

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from enum import Enum
+from typing import Any
 
 import numpy as np
 
@@ -236,17 +237,25 @@ class StackDiagnostics:
     front_route_s_m: float | None
 
 
+LATENCY_HISTOGRAM_EDGES_MS = tuple(float(x) for x in np.logspace(-2, 4, 37))
+"""Bins of the per-module latency histograms in :class:`VehicleReport`: 0.01 ms to 10 s, six per decade
+(times outside go to the end bins)."""
+
+
 @dataclass(frozen=True, slots=True, kw_only=True)
 class VehicleReport:
     """What the vehicle software reports about a whole run (timing and counters, no ground truth).
 
     Attributes:
-        modules: compute time per module: ``p50_ms``, ``p95_ms``, ``max_ms`` and ``calls``.
+        modules: compute time per module: ``p50_ms``, ``p95_ms``, ``max_ms`` and ``calls`` of the
+            steady state (None before a second call), ``warmup_ms`` (the first call, apart),
+            ``budget_ms`` and ``over_budget`` (its cycle budget and the calls over it), and
+            ``histogram`` (steady calls per bin of :data:`LATENCY_HISTOGRAM_EDGES_MS`).
         counters: named totals (frames rejected, V2I reports received, perception frame counts...).
         perception: the perception chain's own summary (rig frames, clusters, curb offsets), if any.
     """
 
-    modules: dict[str, dict[str, float]]
+    modules: dict[str, dict[str, Any]]
     counters: dict[str, int]
     perception: dict[str, float | int | None] = field(default_factory=dict)
 

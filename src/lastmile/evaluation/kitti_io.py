@@ -102,8 +102,13 @@ class KittiRows:
 def _parse(path: Path, sep: str | None, n_fields: tuple[int, ...], what: str) -> list[list[str]]:
     if not path.is_file():
         raise ConfigError(f"{what}: expected a file, got {str(path)!r} (missing)")
+    try:
+        text = path.read_bytes().decode("utf-8")
+    except UnicodeDecodeError as exc:
+        at_line = path.read_bytes()[: exc.start].count(b"\n") + 1
+        raise MessageError(f"{path}:{at_line}: expected {what} as text, got binary data") from None
     rows = []
-    for lineno, line in enumerate(path.read_text().splitlines(), start=1):
+    for lineno, line in enumerate(text.splitlines(), start=1):
         if not line.strip():
             continue
         fields = [f.strip() for f in line.split(sep)] if sep else line.split()

@@ -13,9 +13,10 @@ from matplotlib.colors import Normalize
 from matplotlib.figure import Figure
 from matplotlib.patches import Patch
 
+from lastmile.core import vehicle_messages
 from lastmile.core.errors import LastmileError
 from lastmile.evaluation import metrics as metrics_mod
-from lastmile.evaluation import run_signals
+from lastmile.evaluation import report_html, report_tables, report_views, run_signals
 from lastmile.evaluation.localization_timeline import localization_lines
 from lastmile.recorder import run_log
 
@@ -23,9 +24,11 @@ if TYPE_CHECKING:  # only for annotations: the report draws any object shaped li
     from lastmile.hdmap.model import HDMap
 
 REPORT_FILE = "report.md"
+HTML_FILE = "report.html"
 MAP_PNG = "map.png"
 SPEED_PNG = "speed_accel.png"
 COMFORT_PNG = "comfort.png"
+LATENCY_PNG = "latency.png"
 
 MAX_PLOT_POINTS = 4000
 """Ego samples drawn at most per trace; a 10-minute 50 Hz log is thinned about 8x, far below what shows."""
@@ -43,16 +46,6 @@ _EVENT_STYLE: dict[str, dict[str, Any]] = {
     "stop_served": {"marker": "o", "color": "#31a354", "s": 45, "label": "stop served"},
     "stop_missed": {"marker": "o", "color": "#000000", "s": 45, "label": "stop missed"},
 }
-_TABLE_EVENTS = (
-    "collision",
-    "takeover",
-    "rule_violation",
-    "emergency_stop",
-    "stop_served",
-    "stop_missed",
-    "min_ttc",
-)
-
 _METRIC_GROUPS: tuple[tuple[str, tuple[str, ...]], ...] = (
     (
         "Snow Lion Table 2",
@@ -180,8 +173,18 @@ def _draw_hdmap(ax: Any, hdmap: HDMap) -> None:
             )
 
 
+def _map_figure(log: run_log.RunLog) -> Figure:
+    """A figure shaped like the driven area, so that a long straight run is not a strip in a square."""
+    width_in = 10.0
+    if len(log) < 2:
+        return Figure(figsize=(width_in, 7.0), dpi=_DPI, layout="constrained")
+    span = np.ptp(np.c_[log.column("x_m"), log.column("y_m")], axis=0) + 40.0
+    height_in = float(np.clip(width_in * span[1] / span[0], 1.5, 12.0)) + 1.6  # + title and colour bar
+    return Figure(figsize=(width_in, height_in), dpi=_DPI, layout="constrained")
+
+
 def _plot_map(log: run_log.RunLog, hdmap: HDMap | None, path: Path) -> None:
-    fig = Figure(figsize=(8.0, 7.0), dpi=_DPI)
+    fig = _map_figure(log)
     ax = fig.add_subplot()
     if hdmap is not None:
         _draw_hdmap(ax, hdmap)
@@ -195,11 +198,9 @@ def _plot_map(log: run_log.RunLog, hdmap: HDMap | None, path: Path) -> None:
         path_lines = LineCollection(list(segments), cmap="viridis", norm=norm, linewidths=2.0, zorder=3)
         path_lines.set_array(speed[:-1])
         ax.add_collection(path_lines)
-        fig.colorbar(path_lines, ax=ax, label="speed [m/s]", shrink=0.8)
+        fig.colorbar(path_lines, ax=ax, label="speed [m/s]", location="bottom", shrink=0.6, aspect=40)
         ax.plot(*xy[0], marker="o", color="k", ms=6, zorder=4, label="start")
-        if len(log.agents):
-            a = log.agents.xy_m
-            ax.scatter(a[:, 0], a[:, 1], s=1, color="#e7969c", alpha=0.5, zorder=2, label="other road users")
+        road_users = report_views.draw_road_users(ax, log)
         for kind, style in _EVENT_STYLE.items():
             events = log.events_of(kind)
             if events:
@@ -215,7 +216,8 @@ def _plot_map(log: run_log.RunLog, hdmap: HDMap | None, path: Path) -> None:
         pad = max(20.0, 0.08 * float(np.max(hi - lo)))
         ax.set_xlim(lo[0] - pad, hi[0] + pad)
         ax.set_ylim(lo[1] - pad, hi[1] + pad)
-        ax.legend(loc="best", fontsize=7, markerscale=0.8)
+        handles, _ = ax.get_legend_handles_labels()
+        ax.legend(handles=[*handles, *road_users], loc="best", fontsize=7, markerscale=0.8)
     else:
         ax.text(0.5, 0.5, "no ego samples", ha="center", va="center", transform=ax.transAxes)
         if hdmap is not None:
@@ -310,17 +312,36 @@ def _plot_comfort(sig: run_signals.RunSignals, path: Path) -> None:
     fig.savefig(path, dpi=_DPI)
 
 
+# --- (d) per-module latency -------------------------------------------------------------------------
+def _plot_latency(timing: Mapping[str, Any], path: Path) -> bool:
+    """One histogram per module of its steady-state call times (log scale) with its cycle budget.
+    False (nothing written) when the timing holds no histograms (an older log, no modules)."""
+    modules = timing.get("modules", {})
+    rows = [(n, r) for n, r in sorted(modules.items()) if isinstance(r, Mapping) and r.get("histogram")]
+    if not rows:
+        return False
+    edges = np.asarray(vehicle_messages.LATENCY_HISTOGRAM_EDGES_MS)
+    cols = min(4, len(rows))
+    fig = Figure(figsize=(3.2 * cols, 2.6 * -(-len(rows) // cols)), dpi=_DPI, layout="constrained")
+    axes = np.atleast_1d(fig.subplots(-(-len(rows) // cols), cols)).ravel()
+    for ax, (name, row) in zip(axes, rows, strict=False):
+        counts = np.asarray(row["histogram"], dtype=float)
+        ax.stairs(counts, edges, fill=True, color="#6baed6")
+        ax.set_xscale("log")
+        budget, over = row.get("budget_ms"), row.get("over_budget")
+        if isinstance(budget, int | float):
+            ax.axvline(float(budget), color="#d62728", ls="--", lw=1.0)
+        title = f"{name}: {over} of {row.get('calls')} over {budget:g} ms" if budget else name
+        ax.set_title(title, fontsize=8)
+        ax.set_xlabel("call time [ms]", fontsize=7)
+        ax.tick_params(labelsize=6)
+    for ax in axes[len(rows) :]:
+        ax.set_axis_off()
+    fig.savefig(path, dpi=_DPI)
+    return True
+
+
 # --- report.md -----------------------------------------------------------------------------------------
-def _event_details(event: run_log.RunEvent) -> str:
-    d = event.data
-    if event.kind == "stop_served":
-        return (
-            f"stop {d['stop_id']}: curb gap {d['curb_gap_m']:.2f} m, longitudinal error "
-            f"{d['longitudinal_error_m']:.2f} m, boarded {d['boarded']}, alighted {d['alighted']}"
-        )
-    return ", ".join(f"{k}={v}" for k, v in d.items())
-
-
 def _metrics_tables(metrics: Mapping[str, object]) -> list[str]:
     lines: list[str] = []
     shown: set[str] = set()
@@ -340,37 +361,38 @@ def _metrics_tables(metrics: Mapping[str, object]) -> list[str]:
     return lines
 
 
-def _events_table(log: run_log.RunLog) -> list[str]:
-    events = log.events_of(*_TABLE_EVENTS)
-    if not events:
-        return ["No collisions, takeovers, violations, emergency stops or stop visits.", ""]
-    lines = ["| t [s] | kind | details |", "|---:|---|---|"]
-    lines += [f"| {e.t_s:.2f} | {e.kind} | {_md(_event_details(e))} |" for e in events[:MAX_EVENT_ROWS]]
-    if len(events) > MAX_EVENT_ROWS:
-        lines.append(f"| | | {len(events) - MAX_EVENT_ROWS} more not listed |")
-    return [*lines, ""]
-
-
 def _timing_table(timing: Mapping[str, Any]) -> list[str]:
     lines = ["Wall-clock figures of this machine; they vary between identical runs and are not metrics.", ""]
     modules = timing.get("modules", {})
     if not isinstance(modules, Mapping):
         raise ReportError(f"timing.modules: expected a mapping of module name to figures, got {modules!r}")
     if modules:
-        lines += ["| module | calls | p50 [ms] | p95 [ms] | max [ms] |", "|---|---:|---:|---:|---:|"]
+        lines += [
+            "| module | calls | p50 [ms] | p95 [ms] | max [ms] | warm-up [ms] | budget [ms] | over budget |",
+            "|---|---:|---:|---:|---:|---:|---:|---:|",
+        ]
         for name in sorted(modules):
             row = modules[name]
             if not isinstance(row, Mapping):
                 raise ReportError(
                     f"timing.modules.{name}: expected p50_ms, p95_ms, max_ms, calls, got {row!r}"
                 )
-            cells = [_fmt(row.get(k)) for k in ("calls", "p50_ms", "p95_ms", "max_ms")]
+            keys = ("calls", "p50_ms", "p95_ms", "max_ms", "warmup_ms", "budget_ms", "over_budget")
+            cells = [_fmt(row.get(k)) for k in keys]
             lines.append(f"| {_md(name)} | " + " | ".join(cells) + " |")
         lines.append("")
     else:
         lines += ["No per-module timing recorded.", ""]
     if "realtime_factor" in timing:
         lines += [f"Real-time factor (simulated / wall-clock time): {_fmt(timing['realtime_factor'])}", ""]
+    if "warmup_s" in timing:
+        lines += [
+            f"Warm-up (each module's first call, and calls in which Numba compiled or loaded kernels): "
+            f"{_fmt(timing['warmup_s'])} s, "
+            "kept out of the percentiles, the calls and the real-time factor above; with it, the "
+            f"real-time factor is {_fmt(timing.get('realtime_factor_with_warmup'))}.",
+            "",
+        ]
     return lines
 
 
@@ -403,9 +425,14 @@ def write_report(
         raise ReportError(f"{out}: expected a writable run directory, got {exc}") from None
     sig = run_signals.RunSignals(log, comfort)
     timing_lines = _timing_table(log.timing)
+    if _plot_latency(log.timing, out / LATENCY_PNG):
+        timing_lines += [f"![per-module latency histograms against the cycle budget]({LATENCY_PNG})", ""]
     _plot_map(log, hdmap, out / MAP_PNG)
     _plot_speed(log, sig, out / SPEED_PNG)
     _plot_comfort(sig, out / COMFORT_PNG)
+    has_places = hdmap is not None and report_views.plot_places(log, hdmap, out / report_views.PLACES_PNG)
+    closest = report_views.closest(report_views.encounters(log))
+    has_encounters = report_views.plot_encounters(log, hdmap, closest, out / report_views.ENCOUNTERS_PNG)
     meta = log.meta
     lines = [
         f"# Run report: {_md(meta.scenario_name)}",
@@ -416,13 +443,48 @@ def write_report(
         f"{_md(meta.scenario_name)} | {_md(meta.map_name)} | {_fmt(sig.duration_s)} |",
         "",
     ]
+    if log.timing.get("interrupted"):
+        lines += [
+            f"> **Interrupted** (Ctrl-C or SIGTERM) after {_fmt(sig.duration_s)} s of the "
+            f"{_fmt(meta.duration_s)} s planned: everything below covers the time simulated.",
+            "",
+        ]
     if meta.perception_mode == "oracle":
         lines += ["> Perception mode **oracle**: the stack saw ground truth. This run is an ablation.", ""]
     lines += [
+        "## Checks failed",
+        "",
+        *report_tables.bulleted(report_tables.failed_checks(log, metrics, sig), "None."),
         "## Map",
         "",
-        f"![driven path coloured by speed, with events]({MAP_PNG})",
+        f"![driven path coloured by speed, with events and other road users' tracks]({MAP_PNG})",
         "",
+        *(
+            [
+                "## Stops and intersections",
+                "",
+                f"![each stop and intersection up close]({report_views.PLACES_PNG})",
+                "",
+            ]
+            if has_places
+            else []
+        ),
+        *(
+            [
+                "## Closest encounters",
+                "",
+                "Every collision and the closest approaches: the scene around the closest moment (dots: "
+                "both at that moment) over the time-to-collision samples.",
+                "",
+                f"![encounter views]({report_views.ENCOUNTERS_PNG})",
+                "",
+            ]
+            if has_encounters
+            else []
+        ),
+        "## Stops",
+        "",
+        *report_tables.stops_table(log),
         "## Speed and acceleration",
         "",
         f"![speed and acceleration over time with behaviour states]({SPEED_PNG})",
@@ -436,14 +498,18 @@ def write_report(
         *_metrics_tables(metrics),
         "## Events",
         "",
-        *_events_table(log),
+        *report_tables.events_table(log, MAX_EVENT_ROWS),
         "## Localization",
         "",
         *localization_lines(log, sig.duration_s),
+        "## Behaviour states",
+        "",
+        *report_tables.state_timeline(log, MAX_EVENT_ROWS),
         "## Compute time",
         "",
         *timing_lines,
     ]
     path = out / REPORT_FILE
     path.write_text("\n".join(lines), encoding="utf-8")
+    report_html.write_html(lines, out, out / HTML_FILE, title=f"Run report: {meta.scenario_name}")
     return path

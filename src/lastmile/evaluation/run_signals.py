@@ -213,6 +213,27 @@ class RunSignals:
             and np.all(np.abs(jerk) <= c.max_abs_jerk_mps3)
         )
 
+    def comfort_exceedances(self) -> list[str]:
+        """Why :attr:`comfort_compliant` is false: per limit broken, the worst sample, when, and how many
+        0.1 s samples broke it (emergency windows exempt, as in the check). Empty when compliant."""
+        c = self.comfort
+        keep_a = ~self._windows[3]
+        t_a, accel = self.accel_10hz_t_s[keep_a], self.accel_10hz_mps2[keep_a]
+        t_j, jerk = self.jerk_t_s[~self._jerk[2]], self.jerk_mps3[~self._jerk[2]]
+        out = []
+        for name, t, values, over, limit, unit in (
+            ("acceleration", t_a, accel, accel > c.max_accel_mps2, c.max_accel_mps2, "m/s²"),
+            ("braking", t_a, -accel, accel < -c.max_decel_mps2, c.max_decel_mps2, "m/s²"),
+            ("jerk", t_j, np.abs(jerk), np.abs(jerk) > c.max_abs_jerk_mps3, c.max_abs_jerk_mps3, "m/s³"),
+        ):
+            if over.any():
+                worst = int(np.argmax(np.where(over, values, -np.inf)))
+                out.append(
+                    f"{name} {values[worst]:.2f} {unit} at {t[worst]:.1f} s exceeds {limit:.2f} "
+                    f"({int(over.sum())} samples of 0.1 s over)"
+                )
+        return out
+
     # --- rules -----------------------------------------------------------------------------------
     def violations(self, rule: str) -> tuple[run_log.RunEvent, ...]:
         return tuple(e for e in self.events("rule_violation") if e.data.get("rule") == rule)

@@ -29,6 +29,7 @@ def write_sweep_report(summary: dict[str, Any], out_dir: Path, title: str) -> Pa
         "",
         f"Perception mode: {', '.join(summary.get('perception_modes', [])) or 'unknown'}.",
         "",
+        *_interruption(summary),
         "![outcomes per group](outcomes.png)",
         "",
         "## By group",
@@ -37,7 +38,7 @@ def write_sweep_report(summary: dict[str, Any], out_dir: Path, title: str) -> Pa
         "|---|---:|---:|---:|",
     ]
     for name, members in groups.items():
-        ok = sum(1 for r in members if r["passed"])
+        ok = sum(1 for r in members if r["passed"] and not r.get("interrupted"))
         lines.append(f"| {name} | {len(members)} | {ok} | {len(members) - ok} |")
     lines += [
         "",
@@ -49,7 +50,7 @@ def write_sweep_report(summary: dict[str, Any], out_dir: Path, title: str) -> Pa
     for r in rows:
         failed = "; ".join(f"{k}: {v['detail']}" for k, v in r["checks"].items() if not v["ok"])
         faults = ", ".join(r["faults"]) or "-"
-        verdict = "PASS" if r["passed"] else "**FAIL**"
+        verdict = "interrupted" if r.get("interrupted") else "PASS" if r["passed"] else "**FAIL**"
         lines.append(f"| `{r['name']}` | {r['weather']} | {faults} | {verdict} | {failed or '-'} |")
     lines += _fault_table(rows)
     lines += ["", "## Collisions and rule violations", ""]
@@ -123,3 +124,17 @@ def _plot(groups: dict[str, list[dict[str, Any]]], path: Path) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
+
+
+def _interruption(summary: dict[str, Any]) -> list[str]:
+    """A warning paragraph when the sweep was stopped before every case had run to its end."""
+    if not summary.get("interrupted"):
+        return []
+    cut = [r["name"] for r in summary["rows"] if r.get("interrupted")]
+    not_run = summary.get("not_run", [])
+    return [
+        f"**Interrupted** (Ctrl-C or SIGTERM): {len(cut)} scenarios stopped early and judged on the time "
+        f"simulated (never counted as passed), {len(not_run)} not run"
+        + (f": {', '.join(f'`{n}`' for n in not_run)}." if not_run else "."),
+        "",
+    ]

@@ -23,23 +23,14 @@ fills the folder ahead of the first run.
 from __future__ import annotations
 
 import os
-import sys
 from pathlib import Path
 
 import numba
 from numba import njit
 
+from lastmile.core.user_cache import user_cache_dir
+
 __all__ = ["kernel_cache_dir", "njit"]
-
-
-def _user_cache_root() -> Path:
-    if sys.platform == "win32":
-        local = os.environ.get("LOCALAPPDATA")
-        return Path(local) if local else Path.home() / "AppData" / "Local"
-    if sys.platform == "darwin":
-        return Path.home() / "Library" / "Caches"
-    xdg = os.environ.get("XDG_CACHE_HOME")
-    return Path(xdg) if xdg and os.path.isabs(xdg) else Path.home() / ".cache"
 
 
 def kernel_cache_dir() -> Path:
@@ -47,7 +38,7 @@ def kernel_cache_dir() -> Path:
     if os.environ.get("NUMBA_CACHE_DIR"):
         return Path(os.environ["NUMBA_CACHE_DIR"])
     own = os.environ.get("LASTMILE_CACHE_DIR")
-    return (Path(own) if own else _user_cache_root() / "lastmile") / "numba"
+    return (Path(own) if own else user_cache_dir()) / "numba"
 
 
 # Set on Numba's config module, not in the environment: child processes and other libraries keep

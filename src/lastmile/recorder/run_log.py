@@ -114,6 +114,7 @@ EVENT_SCHEMAS: dict[EventKind, dict[str, str]] = {
     EventKind.MIN_TTC: {"ttc_s": "float", "agent_id": "int"},
     EventKind.INTERSECTION_ENTRY: {"order_ok": "bool"},
     EventKind.LOOP_COMPLETED: {"loop": "int"},
+    EventKind.ROAD_USER: {"agent_id": "int", "agent_class": "str"},
     EventKind.FAULT_START: {"kind": "str", "target": "str"},
     EventKind.FAULT_END: {"kind": "str", "target": "str"},
     EventKind.STACK_CRASH: {"error": "str"},

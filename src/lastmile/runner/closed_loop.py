@@ -115,12 +115,14 @@ def run_scenario(
     black_box_dir: Path | None = None,
     live: tuple[str, int] | None = None,
     on_live: Callable[[int], None] | None = None,
+    stop: Callable[[], bool] | None = None,
 ) -> RunLog:
     """Simulate ``scenario`` with ``config``; returns the run log (wall-clock figures in ``log.timing``).
 
     With ``black_box_dir`` (and the black box on in ``config.loop``), the black box keeps the last
     window and writes it there as MCAP on a takeover, an emergency stop, a collision or a crash of the
-    vehicle software (``recording`` events say where). Ctrl-C ends the run early with what was done.
+    vehicle software (``recording`` events say where). Ctrl-C, or ``stop()`` turning true between
+    ticks (:class:`lastmile.runner.stop_signals.StopSignals`), ends the run early with what was done.
     With ``live`` (host, port), the same channels are served over Foxglove's WebSocket protocol as the
     run happens, paced to the wall clock; ``on_live`` is told the port once the server listens.
     """
@@ -147,7 +149,7 @@ def run_scenario(
         if progress is not None:
             callbacks.append(ProgressCallback(progress, scenario.minutes * 60.0))
         loop.callbacks.extend(callbacks)
-        loop.run(round(scenario.minutes * 60e6 / config.loop.tick_us))
+        loop.run(round(scenario.minutes * 60e6 / config.loop.tick_us), stop)
         if loop.interrupted:
             timing.timing["interrupted"] = True
         writer.set_timing(timing.timing)

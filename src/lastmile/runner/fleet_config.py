@@ -50,6 +50,8 @@ class FleetConfig:
     def __post_init__(self) -> None:
         if self.shuttles < 1:
             raise ConfigError(f"fleet: expected at least 1 shuttle, got {self.shuttles}")
+        if self.seed < 0:
+            raise ConfigError(f"fleet seed: expected a non-negative integer, got {self.seed}")
         if not self.minutes > 0:
             raise ConfigError(f"fleet minutes: expected > 0, got {self.minutes}")
         if self.demand_per_pair_per_h < 0:

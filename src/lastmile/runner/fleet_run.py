@@ -119,20 +119,33 @@ class _Camera:
     delivered: int = 0
 
 
-def run_fleet(config: FleetConfig, out_dir: Path, progress: ProgressCallback | None = None) -> dict[str, Any]:
+def run_fleet(
+    config: FleetConfig,
+    out_dir: Path,
+    progress: ProgressCallback | None = None,
+    stop: Callable[[], bool] | None = None,
+) -> dict[str, Any]:
     """Run the fleet against a fresh server in ``out_dir/server``; writes the run directory and returns
-    the fleet metrics (each shuttle's own metrics under ``shuttle-<k>/``)."""
+    the fleet metrics (each shuttle's own metrics under ``shuttle-<k>/``).
+
+    ``stop()`` turning true between ticks (Ctrl-C, SIGTERM: :mod:`lastmile.runner.stop_signals`) ends
+    the run there; the run directory is written for the time simulated and ``interrupted`` is set.
+    """
     out_dir.mkdir(parents=True, exist_ok=True)
     server = ServerProcess(out_dir / "server", out_dir / "server" / "runs").start()
     try:
         with threadpool_limits(limits=1):
-            return asyncio.run(_run(config, out_dir, server, progress))
+            return asyncio.run(_run(config, out_dir, server, progress, stop))
     finally:
         server.stop()
 
 
 async def _run(
-    config: FleetConfig, out_dir: Path, server: ServerProcess, progress: ProgressCallback | None
+    config: FleetConfig,
+    out_dir: Path,
+    server: ServerProcess,
+    progress: ProgressCallback | None,
+    stop: Callable[[], bool] | None,
 ) -> dict[str, Any]:
     seeds = np.random.SeedSequence(config.seed).spawn(config.shuttles + 1)
     run_config = FLEET_RUN_CONFIG.with_cruise_speed(config.cruise_speed_mps)
@@ -188,6 +201,7 @@ async def _run(
         sync_ticks = round(config.sync_period_s * 1e6 / tick_us)
         dt = tick_us / 1e6
         next_rider = 0
+        interrupted = False
 
         def before_tick(tick: int) -> None:
             """Every shuttle sees the others, and the mirrored pedestrians, where they truly are."""
@@ -201,7 +215,12 @@ async def _run(
 
         async def after_tick(tick: int) -> bool:
             """Account the tick, relay the cameras, and at sync points talk to the server; True ends."""
-            nonlocal next_rider
+            nonlocal next_rider, interrupted
+            if stop is not None and stop():
+                interrupted = True
+                for s in shuttles:
+                    s.loop.interrupted = True  # their callbacks keep the black box, as a single run's do
+                return True
             now, t_s = Stamp(tick * tick_us), tick * dt
             for s in shuttles:
                 s.distance_m += s.world.ego_state.speed_mps * dt
@@ -247,6 +266,7 @@ async def _run(
     wall, cpu = time.perf_counter() - wall0, time.process_time() - cpu0
     duration_s = end_tick * tick_us / 1e6
     metrics, records = _fleet_metrics(shuttles, riders, cameras, duration_s, wall, cpu, out_dir)
+    metrics["interrupted"] = interrupted
     write_fleet_report(metrics, records, out_dir)
     if progress is not None:
         progress(config.minutes * 60.0, config.minutes * 60.0)

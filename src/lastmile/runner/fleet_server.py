@@ -51,7 +51,9 @@ class ServerProcess:
         if self.db_url is not None:
             cmd += ["--db", self.db_url]
         with open(self.out_dir / "server.log", "ab") as log:
-            self.proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT)
+            # Its own session: a Ctrl-C at the terminal reaches the fleet run, which then writes its
+            # partial run directory while the server still answers, and stops the server itself.
+            self.proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
         deadline = time.monotonic() + START_TIMEOUT_S
         while time.monotonic() < deadline:
             if self.proc.poll() is not None:

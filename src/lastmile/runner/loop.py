@@ -9,7 +9,7 @@ and report. Nothing else in the code base writes a tick loop.
 from __future__ import annotations
 
 import time
-from collections.abc import Awaitable, Callable, Iterable, Iterator, Sequence
+from collections.abc import Awaitable, Callable, Generator, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any, Generic, Protocol, TypeVar
 
@@ -163,7 +163,7 @@ class ClosedLoop(Generic[W]):
             return None, f"{type(exc).__name__}: {exc}", time.perf_counter() - t0
         return output, "", time.perf_counter() - t0
 
-    def ticks(self, ticks: int, first_tick: int = 0) -> Iterator[TickRecord]:
+    def ticks(self, ticks: int, first_tick: int = 0) -> Generator[TickRecord, None, None]:
         """Step ``ticks`` ticks from ``first_tick`` (a replay starts where its recording does), yielding
         each tick's record (for tests that watch a run as it goes); the callbacks' ``on_end`` runs when
         the iteration ends, however it ends."""
@@ -179,17 +179,23 @@ class ClosedLoop(Generic[W]):
             for callback in self.callbacks:
                 callback.on_end(self, self.ticks_run)
 
-    def run(self, ticks: int) -> int:
-        """Step ``ticks`` ticks; Ctrl-C stops early with everything so far kept (``interrupted``).
+    def run(self, ticks: int, stop: Callable[[], bool] | None = None) -> int:
+        """Step ``ticks`` ticks; Ctrl-C, or ``stop()`` turning true between ticks, stops early with
+        everything so far kept (``interrupted``).
 
         Returns:
             The number of ticks run.
         """
+        steps = self.ticks(ticks)
         try:
-            for _ in self.ticks(ticks):
-                pass
+            for _ in steps:
+                if stop is not None and stop():
+                    self.interrupted = True
+                    break
         except KeyboardInterrupt:
             self.interrupted = True
+        finally:
+            steps.close()  # the callbacks' on_end now, not whenever the generator is collected
         return self.ticks_run
 
 

@@ -8,10 +8,13 @@ configuration the case actually ran with.
 
 from __future__ import annotations
 
+import contextlib
+import dataclasses
 import json
 import os
+import signal
 from collections.abc import Callable
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -23,6 +26,7 @@ from lastmile.core.perception_mode import PerceptionMode
 from lastmile.evaluation.metrics import compute_metrics
 from lastmile.recorder.run_log import RunLog
 from lastmile.runner.run_config import RunConfig, load_run_config, run_config_to_toml
+from lastmile.runner.stop_signals import StopSignals
 from lastmile.sim.operator_estop import STANDSTILL_MPS
 from lastmile.sim.scenario import load_scenario, scenario_to_toml
 from lastmile.sim.suites import FAULT_CHECKS, GENERIC_CHECKS, SuiteCase
@@ -236,7 +240,12 @@ def run_case(scenario_path: str, config_path: str, checks: tuple[str, ...], grou
     sweep_dir = path.parent.parent
     scenario = load_scenario(path)
     config = load_run_config(Path(config_path))
-    log = run_scenario(scenario, config, black_box_dir=sweep_dir / "recordings" / scenario.name)
+    log = run_scenario(
+        scenario,
+        config,
+        black_box_dir=sweep_dir / "recordings" / scenario.name,
+        stop=lambda: _WORKER_STOP.requested,
+    )
     m = compute_metrics(log)
     results = {name: CHECKS[name](log, m) for name in checks}
     incidents = [
@@ -258,6 +267,7 @@ def run_case(scenario_path: str, config_path: str, checks: tuple[str, ...], grou
         "perception_mode": str(config.stack.perception),
         "faults": [f"{f.kind}:{f.target}" for f in scenario.faults],
         "passed": all(r.ok for r in results.values()),
+        "interrupted": bool(log.timing.get("interrupted")),
         "checks": {k: {"ok": r.ok, "detail": r.detail} for k, r in results.items()},
         "collisions_total": m["collisions_total"],
         "collisions_at_fault": m["collisions_at_fault"],
@@ -277,11 +287,8 @@ def run_case(scenario_path: str, config_path: str, checks: tuple[str, ...], grou
     }
 
 
-def write_cases(
-    cases: list[SuiteCase], out_dir: Path, config: RunConfig = SWEEP_CONFIG
-) -> list[tuple[SuiteCase, Path, Path]]:
-    """Each case's scenario as ``out_dir/scenarios/<name>.toml`` and the run configuration it runs with
-    (``config``, with the case's own shuttle speed) as ``out_dir/configs/<name>.toml``."""
+def check_cases(cases: list[SuiteCase]) -> None:
+    """Unique names and known checks, before anything runs or is written."""
     names = [c.name for c in cases]
     if len(set(names)) != len(names):
         raise ConfigError("sweep: expected unique scenario names, got duplicates")
@@ -291,6 +298,15 @@ def write_cases(
             raise ConfigError(
                 f"sweep case {case.name}: unknown check {unknown[0]!r}; expected one of {sorted(CHECKS)}"
             )
+
+
+def write_cases(
+    cases: list[SuiteCase], out_dir: Path, config: RunConfig = SWEEP_CONFIG
+) -> list[tuple[SuiteCase, Path, Path]]:
+    """Each case's scenario as ``out_dir/scenarios/<name>.toml`` and the run configuration it runs with
+    (``config``, with the case's own shuttle speed) as ``out_dir/configs/<name>.toml``. The scenario
+    file carries the case's checks, so the folder re-runs with ``sweep --scenarios`` as it was judged."""
+    check_cases(cases)
     folder = out_dir / "scenarios"
     configs = out_dir / "configs"
     folder.mkdir(parents=True, exist_ok=True)
@@ -302,7 +318,7 @@ def write_cases(
         )
         case_config.check_serves(case.scenario)
         path = folder / f"{case.name}.toml"
-        path.write_text(scenario_to_toml(case.scenario))
+        path.write_text(scenario_to_toml(dataclasses.replace(case.scenario, checks=case.checks)))
         config_path = configs / f"{case.name}.toml"
         config_path.write_text(run_config_to_toml(case_config))
         written.append((case, path, config_path))
@@ -310,12 +326,13 @@ def write_cases(
 
 
 def generic_cases(scenarios: list[Any], group: str = "generated") -> list[SuiteCase]:
-    """Sweep cases for plain scenarios: the generic checks, plus the fault check where one is injected."""
+    """Sweep cases for plain scenarios: the checks their files name, else the generic checks, plus the
+    fault check where one is injected."""
     return [
         SuiteCase(
             name=s.name,
             scenario=s,
-            checks=FAULT_CHECKS if s.faults else GENERIC_CHECKS,
+            checks=s.checks or (FAULT_CHECKS if s.faults else GENERIC_CHECKS),
             group=group,
         )
         for s in scenarios
@@ -330,21 +347,35 @@ def run_sweep(
     ray_address: str | None = None,
     progress: ProgressCallback | None = None,
     config: RunConfig = SWEEP_CONFIG,
+    stop: Callable[[], bool] | None = None,
 ) -> dict[str, Any]:
     """Run every case with ``config`` (each case may set its shuttle speed); writes ``summary.json``
-    and returns it (rows in case order)."""
+    and returns it (rows in case order).
+
+    ``stop()`` turning true (Ctrl-C, SIGTERM: :mod:`lastmile.runner.stop_signals`) ends the sweep: cases
+    not started are left out and listed under ``not_run``, running ones stop at their next tick and give
+    a row marked ``interrupted`` (judged on the time simulated, never counted as passed).
+    """
     if engine not in ENGINES:
         raise ConfigError(f"sweep --engine: expected one of {ENGINES}, got {engine!r}")
+    if workers is not None and workers < 1:
+        raise ConfigError(f"sweep --workers: expected at least 1 worker process, got {workers}")
     written = write_cases(cases, out_dir, config)
     jobs = [(str(path), str(config_path), case.checks, case.group) for case, path, config_path in written]
-    rows = _run_local(jobs, workers, progress) if engine == "local" else _run_ray(jobs, ray_address, progress)
+    if engine == "local":
+        rows = _run_local(jobs, workers, progress, stop)
+    else:
+        rows = _run_ray(jobs, ray_address, progress)
     summary = summarize(rows)
+    ran = {r["name"] for r in rows}
+    summary["not_run"] = [case.name for case, _, _ in written if case.name not in ran]
+    summary["interrupted"] = bool(summary["not_run"]) or any(r.get("interrupted") for r in rows)
     (out_dir / "summary.json").write_text(json.dumps(summary, indent=2))
     return summary
 
 
 def summarize(rows: list[dict[str, Any]]) -> dict[str, Any]:
-    passed = sum(1 for r in rows if r["passed"])
+    passed = sum(1 for r in rows if r["passed"] and not r.get("interrupted"))
     return {
         "scenarios": len(rows),
         "passed": passed,
@@ -367,18 +398,55 @@ def pin_blas_threads() -> None:
         os.environ[name] = "1"
 
 
+_WORKER_STOP = StopSignals()
+"""In a sweep's worker process: Ctrl-C (the terminal's, or forwarded) ends the running case early."""
+
+STOP_POLL_S = 0.2
+"""How often the sweep's parent looks for a stop request while it waits for cases."""
+
+
+def _init_worker() -> None:
+    pin_blas_threads()
+    _WORKER_STOP.__enter__()
+
+
 def _run_local(
-    jobs: list[tuple[str, str, tuple[str, ...], str]], workers: int | None, progress: ProgressCallback | None
+    jobs: list[tuple[str, str, tuple[str, ...], str]],
+    workers: int | None,
+    progress: ProgressCallback | None,
+    stop: Callable[[], bool] | None = None,
 ) -> list[dict[str, Any]]:
     workers = workers or os.cpu_count() or 1
     rows: list[dict[str, Any] | None] = [None] * len(jobs)
-    with ProcessPoolExecutor(max_workers=workers, initializer=pin_blas_threads) as pool:
+    with ProcessPoolExecutor(max_workers=workers, initializer=_init_worker) as pool:
         futures = {pool.submit(run_case, *job): i for i, job in enumerate(jobs)}
-        for done, future in enumerate(as_completed(futures), start=1):
-            rows[futures[future]] = future.result()
-            if progress is not None:
-                progress(done, len(jobs))
+        pending = set(futures)
+        done = 0
+        stopping = False
+        while pending:
+            finished, pending = wait(pending, timeout=STOP_POLL_S, return_when=FIRST_COMPLETED)
+            for future in finished:
+                if future.cancelled():
+                    continue
+                rows[futures[future]] = future.result()
+                done += 1
+                if progress is not None:
+                    progress(done, len(jobs))
+            if not stopping and stop is not None and stop():
+                stopping = True
+                for future in pending:
+                    future.cancel()
+                _interrupt_workers(pool)
     return [r for r in rows if r is not None]
+
+
+def _interrupt_workers(pool: ProcessPoolExecutor) -> None:
+    """Ask each worker to end its case at the next tick (a terminal's Ctrl-C reached them already; a
+    SIGTERM to the sweep did not). The executor keeps its processes in a private mapping."""
+    processes: dict[int, Any] = getattr(pool, "_processes", None) or {}
+    for pid in list(processes):
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(pid, signal.SIGINT)
 
 
 def _run_ray(

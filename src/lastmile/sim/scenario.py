@@ -18,6 +18,13 @@ from lastmile.sim.passengers import PassengerConfig
 from lastmile.sim.traffic_signals import SignalConfig
 from lastmile.sim.weather import parse_weather
 
+MIN_ROAD_USER_SPEED_MPS = 0.05
+"""Slowest a moving road user may be (a goose wanders at 0.2-0.5 m/s); zero or less is a typo."""
+MAX_CAR_SPEED_MPS = 30.0
+"""108 km/h: far above any campus limit, so only nonsense is refused."""
+MAX_WALKER_SPEED_MPS = 4.0
+"""A running pedestrian; the crosswalk pedestrians share the bound."""
+
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class RingCar:
@@ -26,6 +33,10 @@ class RingCar:
     direction: Literal["ccw", "cw"] = "cw"
     start_s_m: float = 0.0
     speed_mps: float = 6.0
+
+    def __post_init__(self) -> None:
+        check_range("ring_cars.start_s_m", self.start_s_m, 0.0, 1e5)
+        check_range("ring_cars.speed_mps", self.speed_mps, MIN_ROAD_USER_SPEED_MPS, MAX_CAR_SPEED_MPS)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -39,6 +50,11 @@ class SideRoadCar:
     start_m: float = 100.0
     kind: Literal["car", "cyclist"] = "car"
 
+    def __post_init__(self) -> None:
+        check_range("side_road_cars.spawn_t_s", self.spawn_t_s, 0.0, 24 * 3600.0)
+        check_range("side_road_cars.speed_mps", self.speed_mps, MIN_ROAD_USER_SPEED_MPS, MAX_CAR_SPEED_MPS)
+        check_range("side_road_cars.start_m", self.start_m, 0.0, 1e4)
+
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class ParkedCar:
@@ -46,6 +62,9 @@ class ParkedCar:
 
     stop: str = "S1"
     from_end_m: float = 1.0
+
+    def __post_init__(self) -> None:
+        check_range("parked_cars.from_end_m", self.from_end_m, 0.0, 100.0)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -104,6 +123,13 @@ class Walker:
     min_trigger_m: float = 25.0
     gap_s: float = 3.0
     from_left: bool = True
+
+    def __post_init__(self) -> None:
+        check_range("walkers.route_s_m", self.route_s_m, 0.0, 1e5)
+        check_range("walkers.speed_mps", self.speed_mps, MIN_ROAD_USER_SPEED_MPS, MAX_WALKER_SPEED_MPS)
+        check_range("walkers.min_trigger_m", self.min_trigger_m, 0.0, 1000.0)
+        check_range("walkers.trigger_m", self.trigger_m, self.min_trigger_m, 1000.0)
+        check_range("walkers.gap_s", self.gap_s, 0.0, 60.0)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -164,9 +190,14 @@ class Scenario:
     """Timing and mode (cycle, flashing red / yellow, dark) of the map's traffic signals."""
     gnss: GnssScenario = field(default_factory=GnssScenario)
     """GNSS fix quality, outages, multipath, heavy snow and wheel slip (none: plain RTK GNSS/INS)."""
+    checks: tuple[str, ...] = ()
+    """Outcome checks a sweep judges this scenario by (names of ``lastmile.runner.sweep.CHECKS``, checked
+    there); empty: the generic ones. Suite cases write theirs here, so an exported suite re-runs as is."""
 
     def __post_init__(self) -> None:
         check_range("scenario.minutes", self.minutes, 0.01, 24 * 60.0)
+        if self.seed < 0:  # NumPy's SeedSequence takes none
+            raise ConfigError(f"scenario.seed: expected a non-negative integer, got {self.seed}")
         states = [s.value for s in BehaviourState]
         if self.estop_in_state and self.estop_in_state not in states:
             raise ConfigError(

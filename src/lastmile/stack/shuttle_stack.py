@@ -188,7 +188,7 @@ class ShuttleStack:
         self.geometry = geometry
         self.config = config
         self.route: Polyline = layers.centerline
-        self.profiler = ModuleProfiler()
+        self.profiler = ModuleProfiler(self._budgets_ms(config))
         # The EKF's zero-slip point is where the body has no sideways velocity: mid-wheelbase when the
         # rear wheels steer opposite to the front, the rear axle otherwise. A property of the vehicle.
         zero_slip_m = geometry.wheelbase_m / 2.0 if geometry.all_wheel_steer else 0.0
@@ -256,6 +256,19 @@ class ShuttleStack:
         self.fault_hook = fault_hook
         self.rejected_frames = 0
         self._handlers = self._frame_handlers()
+
+    @staticmethod
+    def _budgets_ms(config: StackConfig) -> dict[str, float]:
+        """Each profiled module's cycle budget: the period it runs at (the raw LiDAR chain at the
+        LiDAR's 10 Hz). One module over it delays the next cycle."""
+        tick_ms = config.tick_us / 1e3
+        planning_ms = config.planning_period_ticks * tick_ms
+        return {
+            "estimation": tick_ms,
+            "perception": 100.0,
+            **dict.fromkeys(("tracking", "prediction", "decision", "planning"), planning_ms),
+            "control": config.control_period_ticks * tick_ms,
+        }
 
     # ------------------------------------------------------------------------------------------------
     def tick(

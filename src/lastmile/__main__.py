@@ -1,0 +1,5 @@
+"""``python -m lastmile``: the same command line as ``lastmile``."""
+
+from lastmile.cli import main
+
+main()
