@@ -29,12 +29,14 @@ def _arc(cx: float, cy: float, r: float, a0: float, a1: float, n: int = 9) -> li
     return [(cx + r * math.cos(a), cy + r * math.sin(a)) for a in np.linspace(a0, a1, n)]
 
 
-def stadium(b: OsmBuilder, length_m: float = 100.0) -> dict[str, int]:
-    """Eastbound lane on y = 0, westbound on y = 5 (x from 0 to length), U-turn lanelets at both ends."""
+def stadium(b: OsmBuilder, length_m: float = 100.0, gap_m: float = 0.0) -> dict[str, int]:
+    """Eastbound lane on y = 0, westbound on y = 5 (x from 0 to length), U-turn lanelets at both ends;
+    the eastbound lane ends ``gap_m`` short of its U-turn (an unmapped gap)."""
     half = math.pi / 2
+    end = length_m - gap_m
     east = b.lanelet(
-        b.way([(0, 1.75), (length_m / 2, 1.75), (length_m, 1.75)], type="line_thin", subtype="dashed"),
-        b.way([(0, -1.75), (length_m / 2, -1.75), (length_m, -1.75)], type="curbstone"),
+        b.way([(0, 1.75), (length_m / 2, 1.75), (end, 1.75)], type="line_thin", subtype="dashed"),
+        b.way([(0, -1.75), (length_m / 2, -1.75), (end, -1.75)], type="curbstone"),
         speed_limit="20",
     )
     turn_e = b.lanelet(
@@ -88,6 +90,33 @@ def test_loop_through_stops_in_order_with_snap_distances(tmp_path: Path) -> None
         assert rs.s_end_m - rs.s_start_m == pytest.approx(12.0, abs=0.5)
         assert rs.curb_d_m == pytest.approx(-1.75, abs=0.1)
     np.testing.assert_allclose(db.speed_limit_mps, 20 / 3.6)
+
+
+def test_a_bridged_gap_is_a_connector_lanelet_the_map_calls_drivable(tmp_path: Path) -> None:
+    """connect_gaps_m makes the gap road for everyone who asks the map (the referee, the safety's ODD
+    check, the stack), not only a successor link the shuttle would cross off the drivable area."""
+    b = OsmBuilder()
+    ids = stadium(b, gap_m=4.0)
+    stops = _stop("A", 20, -1.0) + _stop("B", 50, 7.5)
+    with pytest.raises(RoutingError, match="expected a way from stop 'A'"):
+        load_route(_write(tmp_path, b, stops))
+    route = load_route(_write(tmp_path, b, stops, header=HEADER + "connect_gaps_m = 5.0\n"))
+    ((a, c, gap),) = route.bridged_gaps
+    assert (a, c) == (ids["east"], ids["turn_e"]) and gap == pytest.approx(4.0)
+    (connector,) = set(route.hdmap.lanelets) - set(ids.values())
+    assert route.hdmap.successors(ids["east"]) == (connector,)
+    assert route.hdmap.successors(connector) == (ids["turn_e"],)
+    assert connector in route.lanelet_ids
+    # Inside the gap, and the shuttle's corners 0.2 m inside its edges: drivable; past its edges: not.
+    inside = np.array([[98.0, 0.0], [96.5, 1.55], [99.5, -1.55]])
+    assert route.hdmap.is_drivable(inside).all()
+    assert not route.hdmap.is_drivable(np.array([[98.0, 2.0], [98.0, -2.0]])).any()
+    assert route.hdmap.lanelet_at(98.0, 0.0) == connector
+    db = route.layers()
+    on_gap = db.lanelet_id == connector
+    assert on_gap.sum() == pytest.approx(4, abs=1)
+    np.testing.assert_allclose(db.speed_limit_mps[on_gap], 20 / 3.6)  # the lanes' mapped limit
+    np.testing.assert_allclose(db.curb_right_d_m[on_gap], -1.75, atol=0.05)  # the curb goes on
 
 
 def test_a_stop_behind_the_last_on_its_lanelet_takes_a_lap(tmp_path: Path) -> None:

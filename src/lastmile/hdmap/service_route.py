@@ -22,7 +22,7 @@ from lastmile.core.geometry import point_in_polygon
 from lastmile.core.polyline import Polyline
 from lastmile.hdmap.layers import SLayerDatabase
 from lastmile.hdmap.loader import load_campus_map, load_projected_map
-from lastmile.hdmap.model import DRIVABLE_SUBTYPES, BusStop, HDMap
+from lastmile.hdmap.model import DRIVABLE_SUBTYPES, BusStop, HDMap, LaneletInfo
 from lastmile.hdmap.route_file import (
     MAX_SNAP_M,
     RouteSpec,
@@ -99,12 +99,13 @@ class ServiceRoute:
     Attributes:
         hdmap: the map, its ``stops`` replaced by this service's stops (mapped bays kept as they are;
             the others a kerbside ``BusStop`` whose bay is the lane itself and whose curb is the lane's
-            right edge over ``platform_length_m``), its successors extended by the bridged gaps.
+            right edge over ``platform_length_m``), a connector lanelet over each bridged gap.
         lanelet_ids: the closed service path (the last lanelet is followed by the first).
         polyline: its centre line, closed.
         stops: in service order.
         unmapped_speed_limit_mps: the route file's limit for lanelets whose map states none.
-        bridged_gaps: (from lanelet, to lanelet, gap m) links added by ``connect_gaps_m``.
+        bridged_gaps: (from lanelet, to lanelet, gap m) bridged by ``connect_gaps_m``, each through a
+            new connector lanelet.
         junctions: branches and merges along the path, in route s.
     """
 
@@ -425,17 +426,17 @@ def _path_along_drive(spec: RouteSpec, hdmap: HDMap, snaps: list[Snap]) -> tuple
     return _rotate_to_successor(hdmap, path, at)
 
 
-def bridge_gaps(hdmap: HDMap, gap_m: float) -> tuple[HDMap, tuple[tuple[int, int, float], ...]]:
-    """Link lanelet ends to lanelet starts within ``gap_m`` that head the same way and are not linked."""
+def find_gaps(hdmap: HDMap, gap_m: float) -> tuple[tuple[int, int, float], ...]:
+    """(dead end, lanelet, gap m): lanelet ends with no successor and a drivable lanelet starting
+    within ``gap_m`` that heads the same way (within GAP_HEADING_TOLERANCE_RAD)."""
     if gap_m <= 0:
-        return hdmap, ()
+        return ()
     ids = list(hdmap.lanelets)
     starts = np.array([hdmap.lanelets[i].centerline.xy_m[0] for i in ids])
-    succ = {k: list(v) for k, v in hdmap.successor_ids.items()}
-    added = []
+    found = []
     for a in ids:
         line = hdmap.lanelets[a].centerline
-        if succ.get(a) or hdmap.lanelets[a].subtype not in DRIVABLE_SUBTYPES:
+        if hdmap.successors(a) or hdmap.lanelets[a].subtype not in DRIVABLE_SUBTYPES:
             continue  # only dead ends: a lanelet with successors is connected as mapped
         end = line.xy_m[-1]
         gaps = np.hypot(*(starts - end).T)
@@ -447,13 +448,67 @@ def bridge_gaps(hdmap: HDMap, gap_m: float) -> tuple[HDMap, tuple[tuple[int, int
             bend = other.centerline.heading_at(0.0) - line.heading_at(line.length_m)
             turn = math.remainder(bend, 2 * math.pi)
             if abs(turn) <= GAP_HEADING_TOLERANCE_RAD:
-                succ.setdefault(a, []).append(b)
-                added.append((a, b, float(gaps[j])))
+                found.append((a, b, float(gaps[j])))
+    return tuple(found)
+
+
+def bridge_gaps(hdmap: HDMap, gap_m: float) -> tuple[HDMap, tuple[tuple[int, int, float], ...]]:
+    """Join the gaps ``find_gaps`` finds.
+
+    Each gap becomes a connector lanelet (a new id above every mapped one) whose bounds run straight
+    from the dead end's bounds to the next lanelet's: the route file says the gap is road, so it is
+    road everywhere the map is asked (routing, the drivable area of the referee and of the safety's
+    ODD check, the stack's road region), not only a successor link the shuttle would cross off-map.
+
+    Returns:
+        The map with the connectors and their links, and (dead end, next lanelet, gap m) per bridge.
+    """
+    added = find_gaps(hdmap, gap_m)
     if not added:
         return hdmap, ()
+    lanelets = dict(hdmap.lanelets)
+    succ = {k: list(v) for k, v in hdmap.successor_ids.items()}
+    next_id = max(abs(i) for i in hdmap.lanelets) + 1
+    for a, b, _ in added:
+        lanelets[next_id] = _connector(next_id, hdmap.lanelets[a], hdmap.lanelets[b])
+        succ.setdefault(a, []).append(next_id)
+        succ[next_id] = [b]
+        next_id += 1
     return (
-        dataclasses.replace(hdmap, successor_ids={k: tuple(v) for k, v in succ.items()}),
+        dataclasses.replace(hdmap, lanelets=lanelets, successor_ids={k: tuple(v) for k, v in succ.items()}),
         tuple(added),
+    )
+
+
+CONNECTOR_STEP_M = 0.5  # vertex spacing of a connector's bounds (the gap is short; any spacing is exact)
+MIN_BOUND_M = 1e-3
+
+
+def _connector(lid: int, a: LaneletInfo, b: LaneletInfo) -> LaneletInfo:
+    """A lanelet over the gap from ``a``'s end to ``b``'s start: straight bounds, ``a``'s types; its
+    limit is the lower mapped one of the two (NaN when neither states one: the route file's applies)."""
+
+    centre = b.centerline.xy_m[0] - a.centerline.xy_m[-1]
+    along = centre / max(float(np.hypot(*centre)), 1e-9)
+
+    def across(p: np.ndarray, q: np.ndarray) -> Polyline:
+        if float(np.hypot(*(q - p))) < MIN_BOUND_M:
+            # Bounds that meet (a lane narrowing to a point) still need a line: a millimetre along.
+            return Polyline(np.vstack([p, p + MIN_BOUND_M * along]))
+        n = max(2, math.ceil(float(np.hypot(*(q - p))) / CONNECTOR_STEP_M) + 1)
+        t = np.linspace(0.0, 1.0, n)[:, None]
+        return Polyline((1.0 - t) * p + t * q)
+
+    limits = [v for v in (a.speed_limit_mps, b.speed_limit_mps) if math.isfinite(v)]
+    return LaneletInfo(
+        id=lid,
+        centerline=across(a.centerline.xy_m[-1], b.centerline.xy_m[0]),
+        left=across(a.left.xy_m[-1], b.left.xy_m[0]),
+        right=across(a.right.xy_m[-1], b.right.xy_m[0]),
+        speed_limit_mps=min(limits) if limits else math.nan,
+        subtype=a.subtype,
+        left_type=a.left_type,
+        right_type=a.right_type,
     )
 
 
