@@ -10,9 +10,12 @@ import pytest
 from pyproj import Transformer
 
 from lastmile.core.errors import ConfigError, MapError, RoutingError
+from lastmile.core.vehicle import VehicleGeometry
+from lastmile.hdmap import lane_change
 from lastmile.hdmap.loader import load_projected_map
 from lastmile.hdmap.projection import MapProjection, ProjectionKind, mgrs_square_origin
-from lastmile.hdmap.service_route import load_route
+from lastmile.hdmap.routing import route_polyline
+from lastmile.hdmap.service_route import ServiceRoute, load_route
 from tests.hdmap.osm_builder import ORIGIN_LAT_DEG, ORIGIN_LON_DEG, OsmBuilder, straight_lane
 
 UTM = MapProjection(kind=ProjectionKind.UTM, origin_lat_deg=ORIGIN_LAT_DEG, origin_lon_deg=ORIGIN_LON_DEG)
@@ -341,10 +344,50 @@ def test_a_stop_on_a_passing_lane_is_reached_by_lane_changes(tmp_path: Path) -> 
     ]
     assert changes == [(r2, passing), (passing, r2)]
     steps = np.hypot(*np.diff(route.polyline.xy_m, axis=0).T)
-    assert steps.max() < 32.0  # one continuous line: the changes are short diagonals, no jumps back
+    assert steps.max() < 32.0  # one continuous line, no jumps back
     db = route.layers()
     np.testing.assert_allclose(db.speed_limit_mps, 15 / 3.6)
     assert [rs.stop.id for rs in db.stops] == ["A", "B", "C"]
+    _assert_drivable_lane_changes(route, y_lanes=(0.0, 3.5), x_span=(20.0, 80.0), speed_mps=15 / 3.6)
+
+
+def _assert_drivable_lane_changes(
+    route: ServiceRoute, y_lanes: tuple[float, float], x_span: tuple[float, float], speed_mps: float
+) -> None:
+    """On the straight eastbound stretch: each change is a smooth shift of one lane width, long enough
+    for the comfort bound at the lane's limit, and the shuttle's sides stay on the road throughout."""
+    line = route.polyline
+    s = np.arange(0.0, line.length_m, 0.25)
+    xy = line.points_at(s)
+    east = (xy[:, 0] > x_span[0] - 15) & (xy[:, 0] < x_span[1] + 15) & (xy[:, 1] < 6.0)
+    heading = np.unwrap(np.array([line.heading_at(v) for v in s]))
+    kappa = np.gradient(heading, s)
+    # The quintic's peak curvature at the comfortable length is a_comfort / v² (plus rounding of
+    # the 0.25 m sampling); a straight diagonal over the old third of a lanelet was far sharper.
+    limit = lane_change.COMFORT_LATERAL_ACCEL_MPS2 / speed_mps**2
+    assert np.abs(kappa[east]).max() <= 1.15 * limit
+    # Each change takes its comfortable length: the quintic is more than 0.1 m from both lanes over
+    # u in (0.155, 0.845) of it, 69 %.
+    between = east & (xy[:, 1] > y_lanes[0] + 0.1) & (xy[:, 1] < y_lanes[1] - 0.1)
+    comfortable = lane_change.comfortable_length_m(3.5, speed_mps, VehicleGeometry())
+    assert 2 * 0.65 * comfortable <= 0.25 * between.sum() <= 2 * 0.75 * comfortable
+    normal = np.c_[-np.sin(heading), np.cos(heading)]
+    half = VehicleGeometry().width_m / 2
+    assert route.hdmap.is_drivable(xy + half * normal).all()
+    assert route.hdmap.is_drivable(xy - half * normal).all()
+
+
+def test_a_lane_change_needs_a_speed_to_be_shaped(tmp_path: Path) -> None:
+    b = OsmBuilder()
+    dashed = b.way([(0, 1.75), (100, 1.75)], type="line_thin", subtype="dashed")
+    left = b.lanelet(b.way([(0, 5.25), (100, 5.25)], type="curbstone"), dashed)
+    right = b.lanelet(dashed, b.way([(0, -1.75), (100, -1.75)], type="curbstone"))
+    hdmap = load_projected_map(b.write(tmp_path / "map.osm"), UTM)
+    ids = (right, left) if left in hdmap.neighbours(right) else (left, right)
+    with pytest.raises(RoutingError, match="expected a speed limit on lanelet"):
+        route_polyline(hdmap, ids)
+    line = route_polyline(hdmap, ids, unmapped_speed_limit_mps=10 / 3.6)
+    assert line.length_m == pytest.approx(100.0, abs=1.0)  # a lane width sideways adds about half a metre
 
 
 def test_utm_stops_land_where_lanelet2_puts_the_map() -> None:

@@ -48,7 +48,9 @@ def build_layers(
     if not (math.isfinite(step_m) and step_m > 0):
         raise MapError(f"SLayerDatabase.build step_m: expected a positive step, got {step_m}")
     limits = _speed_limits(hdmap, lanelet_ids, unmapped_speed_limit_mps)
-    centre = route_polyline(hdmap, lanelet_ids, closed=closed)
+    centre = route_polyline(
+        hdmap, lanelet_ids, closed=closed, unmapped_speed_limit_mps=unmapped_speed_limit_mps
+    )
     starts = lanelet_starts_m(hdmap, lanelet_ids)
     # Lanelet lengths sum to the joined line's length up to rounding; scale so s maps exactly.
     starts *= centre.length_m / starts[-1]

@@ -215,7 +215,9 @@ def build_service(spec: RouteSpec, hdmap: HDMap) -> ServiceRoute:
         path, at = _path_along_drive(spec, hdmap, snaps)
     else:
         path, at = _path_through(hdmap, snaps, names)
-    polyline = route_polyline(hdmap, path, closed=True)
+    polyline = route_polyline(
+        hdmap, path, closed=True, unmapped_speed_limit_mps=spec.unmapped_speed_limit_mps
+    )
     pieces = route_pieces(hdmap, path, closed=True)
     starts = lanelet_starts_m(hdmap, path) * (polyline.length_m / lanelet_starts_m(hdmap, path)[-1])
     stops = []
