@@ -32,12 +32,24 @@ QUINTIC_PEAK = 10.0 / math.sqrt(3.0)
 """max |d²σ/du²| of the quintic smoothstep σ(u) = 10u³ - 15u⁴ + 6u⁵ on [0, 1]."""
 LENGTH_SHARES = (1.0, 0.8, 0.65, 0.5)
 """Shorter transitions tried (as shares of the comfortable length) when the longer ones leave the road."""
-CENTRE_SHIFTS = (0.0, 0.25, -0.25, 0.5, -0.5, 0.75, -0.75, 1.0, -1.0)
+CENTRE_SHIFTS = tuple(sorted((k / 10.0 for k in range(-15, 16)), key=abs))
 """Where the transition's centre is tried, in transition lengths from the mapped change point."""
 SAMPLE_M = 0.25  # vertex spacing inside a transition
 SMOOTH_SIGMA_M = 1.0
 """Along-line scale of the smoothing over a transition: removes a heading kink of a few degrees where
 two lanes meet at an angle, and moves a curve of 20 m radius inwards by about sigma² / 2R = 2.5 cm."""
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class KeepClear:
+    """A stretch of the route a lane change should stay out of (a stop's platform): centred on the
+    route vertex nearest (x_m, y_m), ``half_length_m`` either way, on lanelet ``lanelet_id``. A change
+    into that lanelet should end before the stretch, a change out of it begin after."""
+
+    x_m: float
+    y_m: float
+    half_length_m: float
+    lanelet_id: int
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -51,6 +63,8 @@ class LaneJump:
 
     index: int
     speed_mps: float
+    from_lanelet_id: int = 0
+    to_lanelet_id: int = 0
 
 
 def comfortable_length_m(width_m: float, speed_mps: float, geometry: VehicleGeometry) -> float:
@@ -74,8 +88,12 @@ def smooth_lane_changes(
     jumps: list[LaneJump],
     closed: bool,
     geometry: VehicleGeometry | None = None,
+    keep_clear: tuple[KeepClear, ...] = (),
 ) -> np.ndarray:
     """Replace each jump of the stepped centre line ``xy`` ((N, 2), jumps included) by a transition.
+
+    Placements are ranked: on the road first, then clear of ``keep_clear`` stretches, then clear of
+    changes the other way, then the longest, then the nearest the mapped change point.
 
     Returns:
         (M, 2) the smooth centre line (closed lines without the repeated first vertex).
@@ -102,30 +120,45 @@ def smooth_lane_changes(
         (float(arc[k]), comfortable_length_m(w, j.speed_mps, geometry))
         for k, w, j in zip(at, widths, jumps, strict=True)
     ]
+    clear = [
+        (
+            float(arc[int(np.argmin(np.hypot(xy[:, 0] - kc.x_m, xy[:, 1] - kc.y_m)))]),
+            kc.half_length_m,
+            kc.lanelet_id,
+        )
+        for kc in keep_clear
+    ]
     out = xy.copy()
     for n, (k, jump, step) in enumerate(zip(at, jumps, steps, strict=True)):
         before = np.array([step @ normal[k - 1], step @ tangent[k - 1]])
         after = np.array([step @ normal[k], step @ tangent[k]])
         # Windows of changes the other way (in, then out again): overlapping them makes an S-bend.
         against = [win for m, win in enumerate(windows) if m != n and widths[m] * widths[n] < 0]
-        best: tuple[tuple[int, float, int, float], np.ndarray, float, float] | None = None
+        best: tuple[tuple[int, float, float, int, float], np.ndarray, float, float] | None = None
         for rank, length in enumerate(_lengths(widths[n], jump.speed_mps, geometry)):
             for shift in CENTRE_SHIFTS:
                 centre = float(arc[k]) + shift * length
                 overlap = sum(_overlap_m(centre, length, c, ln, total, closed) for c, ln in against)
-                if best is not None and (best[0][0], best[0][1]) == (0, 0.0):
+                on_stop = sum(_stop_conflict_m(centre, length, jump, kc, total, closed) for kc in clear)
+                if best is not None and best[0][:3] == (0, 0.0, 0.0):
                     break
                 cand = out + _correction(
                     arc, k, centre, length, before, after, tangent, normal, total, closed
                 )
                 off = _off_road(hdmap, cand, normal, arc, centre, length, geometry, total, closed)
-                key = (off, round(overlap, 3), rank, abs(shift))
+                key = (off, round(on_stop, 3), round(overlap, 3), rank, abs(shift))
                 if best is None or key < best[0]:
                     best = (key, cand, centre, length)
         assert best is not None
         out = best[1]
         windows[n] = (best[2], best[3])
-    spans = windows
+    # A transition placed away from its jump leaves the lanes' meeting point (two lines at an angle)
+    # outside its window: the smoothing covers both.
+    spans = []
+    for (centre, length), k in zip(windows, at, strict=True):
+        d = float(_signed_from(np.array([arc[k]]), centre, total, closed)[0])
+        lo, hi = min(-length / 2.0, d), max(length / 2.0, d)
+        spans.append((centre + (lo + hi) / 2.0, hi - lo))
     out = _smooth_spans(out, arc, spans, total, closed)
     return out[:-1] if closed and np.hypot(*(out[0] - out[-1])) < 1e-9 else out
 
@@ -154,6 +187,22 @@ def _smooth_spans(
             fade = float(_sigma(np.array([(length / 2.0 + reach - abs(float(rel[i]))) / reach]))[0])
             out[i] = (1.0 - fade) * src[i] + fade * (w[:, None] * src[support]).sum(axis=0) / w.sum()
     return out
+
+
+def _stop_conflict_m(
+    centre: float, length: float, jump: LaneJump, stop: tuple[float, float, int], total: float, closed: bool
+) -> float:
+    """Metres of a transition window that conflict with a stop's stretch: a change into the stop's
+    lanelet should be over before the stretch, one out of it should start after, any other change
+    should stay out of it."""
+    s_centre, half, lanelet = stop
+    rel = float(_signed_from(np.array([centre]), s_centre, total, closed)[0])
+    start, end = rel - length / 2.0, rel + length / 2.0
+    if lanelet == jump.to_lanelet_id:
+        return max(0.0, end + half)
+    if lanelet == jump.from_lanelet_id:
+        return max(0.0, half - start)
+    return max(0.0, min(end, half) - max(start, -half))
 
 
 def _overlap_m(c1: float, l1: float, c2: float, l2: float, total: float, closed: bool) -> float:

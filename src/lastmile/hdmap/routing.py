@@ -172,6 +172,7 @@ def route_polyline(
     lanelet_ids: tuple[int, ...],
     closed: bool = False,
     unmapped_speed_limit_mps: float | None = None,
+    keep_clear: tuple[lane_change.KeepClear, ...] = (),
 ) -> Polyline:
     """The route's centre line: the lanelets' centre lines joined end to end; a lane change is a
     smooth lateral transition from one lane's line to the other's (``lane_change``), as long as its
@@ -180,6 +181,7 @@ def route_polyline(
     Args:
         unmapped_speed_limit_mps: the speed on lanelets whose map states no limit (a route file's);
             only lane changes need a speed.
+        keep_clear: stretches (stop platforms) lane changes keep out of where the road allows.
 
     Raises:
         RoutingError: the sequence is empty, names an unknown lanelet, or skips a successor link; a
@@ -197,7 +199,14 @@ def route_polyline(
         prev, part = parts[i], parts[j]
         if _is_lane_change(hdmap, pieces[i].lanelet_id, pieces[j].lanelet_id):
             speed = _lane_change_speed(hdmap, pieces[i].lanelet_id, unmapped_speed_limit_mps)
-            jumps.append(lane_change.LaneJump(index=at, speed_mps=speed))
+            jumps.append(
+                lane_change.LaneJump(
+                    index=at,
+                    speed_mps=speed,
+                    from_lanelet_id=pieces[i].lanelet_id,
+                    to_lanelet_id=pieces[j].lanelet_id,
+                )
+            )
         keep = part[1:] if float(np.hypot(*(part[0] - prev[-1]))) < JOIN_TOLERANCE_M else part
         joined.append(keep)
         at += len(keep)
@@ -205,7 +214,7 @@ def route_polyline(
     if closed:
         xy = xy[:-1]
     if jumps:
-        xy = lane_change.smooth_lane_changes(hdmap, xy, jumps, closed)
+        xy = lane_change.smooth_lane_changes(hdmap, xy, jumps, closed, keep_clear=keep_clear)
     return Polyline(xy, closed=closed)
 
 

@@ -20,6 +20,8 @@ import numpy as np
 from lastmile.core.errors import ConfigError, MapError, RoutingError
 from lastmile.core.geometry import point_in_polygon
 from lastmile.core.polyline import Polyline
+from lastmile.core.vehicle import VehicleGeometry
+from lastmile.hdmap.lane_change import KeepClear
 from lastmile.hdmap.layers import SLayerDatabase
 from lastmile.hdmap.loader import load_campus_map, load_projected_map
 from lastmile.hdmap.model import DRIVABLE_SUBTYPES, BusStop, HDMap, LaneletInfo
@@ -107,6 +109,8 @@ class ServiceRoute:
         bridged_gaps: (from lanelet, to lanelet, gap m) bridged by ``connect_gaps_m``, each through a
             new connector lanelet.
         junctions: branches and merges along the path, in route s.
+        keep_clear: the stops' platforms, which the path's lane changes keep out of where they can
+            (the same for ``polyline`` and ``layers()``).
     """
 
     name: str
@@ -118,6 +122,7 @@ class ServiceRoute:
     unmapped_speed_limit_mps: float | None
     bridged_gaps: tuple[tuple[int, int, float], ...] = ()
     junctions: tuple[RouteJunction, ...] = ()
+    keep_clear: tuple[KeepClear, ...] = ()
 
     @property
     def length_m(self) -> float:
@@ -141,6 +146,7 @@ class ServiceRoute:
             step_m=step_m,
             closed=True,
             unmapped_speed_limit_mps=self.unmapped_speed_limit_mps,
+            keep_clear=self.keep_clear,
         )
 
 
@@ -215,8 +221,18 @@ def build_service(spec: RouteSpec, hdmap: HDMap) -> ServiceRoute:
         path, at = _path_along_drive(spec, hdmap, snaps)
     else:
         path, at = _path_through(hdmap, snaps, names)
+    # Lane changes keep off the platforms (and a shuttle length either side, to be straight there).
+    half = spec.platform_length_m / 2.0 + VehicleGeometry().length_m
+    keep_clear = tuple(
+        KeepClear(x_m=x, y_m=y, half_length_m=half, lanelet_id=sn.lanelet_id)
+        for sn, (x, y) in ((sn, _on_lane(hdmap, sn)) for sn in snaps)
+    )
     polyline = route_polyline(
-        hdmap, path, closed=True, unmapped_speed_limit_mps=spec.unmapped_speed_limit_mps
+        hdmap,
+        path,
+        closed=True,
+        unmapped_speed_limit_mps=spec.unmapped_speed_limit_mps,
+        keep_clear=keep_clear,
     )
     pieces = route_pieces(hdmap, path, closed=True)
     starts = lanelet_starts_m(hdmap, path) * (polyline.length_m / lanelet_starts_m(hdmap, path)[-1])
@@ -240,6 +256,7 @@ def build_service(spec: RouteSpec, hdmap: HDMap) -> ServiceRoute:
         unmapped_speed_limit_mps=spec.unmapped_speed_limit_mps,
         bridged_gaps=gaps,
         junctions=_junctions(hdmap, path, starts),
+        keep_clear=keep_clear,
     )
 
 
