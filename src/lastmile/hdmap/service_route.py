@@ -40,6 +40,9 @@ GAP_HEADING_TOLERANCE_RAD = math.radians(45.0)
 """A bridged gap joins lanes heading the same way: more than this apart is a turn, not a gap."""
 PLATFORM_MARGIN_M = 5.0  # between a platform and the loop's start, where a bridged gap bends the line
 SAME_PLACE_M = 0.5  # a stop this little ahead of the previous one on its lanelet is the same place
+KERBSIDE_APPROACH_M = 32.0
+"""Route length a pull-over needs before its spot (the decision layer's ``transition_m``): a kerbside
+stop's edge is the lane's narrowest over this approach and the platform."""
 INTERSECTION_REACH_M = 30.0
 """Branches and merges this close along the route are one place (a junction box of a few lanes each
 way, or a roundabout's arms)."""
@@ -539,16 +542,28 @@ def _bus_stop(
     path: tuple[int, ...],
     starts: np.ndarray,
 ) -> BusStop:
-    """A mapped bay as it is; any other stop as a kerbside stop on its lane's right edge."""
+    """A mapped bay as it is; any other stop as a kerbside stop on its lane's right edge.
+
+    The edge is taken where the lane is narrowest over the platform and the pull-over's approach
+    before it (KERBSIDE_APPROACH_M): a lane that widens at the stop (a bay drawn as a bulge of the
+    lane) would otherwise put the spot so far right that the shuttle's corner leaves the narrower
+    lane on its way in.
+    """
     for bay in hdmap.stops:
         if stop.source == "bay" and bay.id == stop.name:
             return bay
+
+    def half_width(sk: float) -> float:
+        x, y, _ = polyline.point_at(sk)
+        k = int(np.clip(np.searchsorted(starts, sk % polyline.length_m, side="right") - 1, 0, len(path) - 1))
+        return abs(float(hdmap.lanelets[path[k]].right.project(x, y).d_m))
+
+    first = stop.route_s_m - platform_m / 2 - KERBSIDE_APPROACH_M
+    half = min(half_width(sk) for sk in np.arange(first, stop.route_s_m + platform_m / 2, 1.0).tolist())
     s = stop.route_s_m + np.linspace(-platform_m / 2, platform_m / 2, max(int(platform_m), 2) + 1)
     edge = []
     for sk in s.tolist():
         x, y, h = polyline.point_at(sk)
-        k = int(np.clip(np.searchsorted(starts, sk % polyline.length_m, side="right") - 1, 0, len(path) - 1))
-        half = abs(float(hdmap.lanelets[path[k]].right.project(x, y).d_m))
         edge.append((x + half * math.sin(h), y - half * math.cos(h)))  # right of the direction of travel
     return BusStop(
         id=stop.name,
