@@ -122,6 +122,43 @@ def test_a_bridged_gap_is_a_connector_lanelet_the_map_calls_drivable(tmp_path: P
     np.testing.assert_allclose(db.curb_right_d_m[on_gap], -1.75, atol=0.05)  # the curb goes on
 
 
+def test_a_kerbside_stop_where_the_lane_widens_keeps_to_the_narrower_edge(tmp_path: Path) -> None:
+    """The eastbound lane bulges 1.5 m to the right at x 44-56 (a bay drawn as a wider lane): the
+    stop's edge is the lane's narrowest over the platform and the pull-over's approach, so the spot
+    does not send the shuttle's corner over the narrower edge on the way in."""
+    b2 = OsmBuilder()
+    half = math.pi / 2
+    right = [(0, -1.75), (40, -1.75), (44, -3.25), (56, -3.25), (60, -1.75), (100, -1.75)]
+    b2.lanelet(
+        b2.way([(0, 1.75), (50, 1.75), (100, 1.75)], type="line_thin", subtype="dashed"),
+        b2.way(right, type="line_thin"),
+        speed_limit="20",
+    )
+    b2.lanelet(
+        b2.way(_arc(100, 2.5, 0.75, -half, half), type="line_thin"),
+        b2.way(_arc(100, 2.5, 4.25, -half, half), type="curbstone"),
+        speed_limit="20",
+    )
+    b2.lanelet(
+        b2.way([(100, 3.25), (50, 3.25), (0, 3.25)], type="line_thin", subtype="dashed"),
+        b2.way([(100, 6.75), (50, 6.75), (0, 6.75)], type="curbstone"),
+        speed_limit="20",
+    )
+    b2.lanelet(
+        b2.way(_arc(0, 2.5, 0.75, half, 3 * half), type="line_thin"),
+        b2.way(_arc(0, 2.5, 4.25, half, 3 * half), type="curbstone"),
+        speed_limit="20",
+    )
+    route = load_route(_write(tmp_path, b2, _stop("A", 50, -2.0) + _stop("B", 50, 7.5)))
+    db = route.layers()
+    at_a = db.stops[0]
+    assert at_a.stop.id == "A"
+    # At the platform the lane's centre line runs at y = -0.75 and its right edge at y = -3.25 (2.5 m
+    # right of it); the stop's edge keeps the 1.75 m of the narrow lane on the approach.
+    assert db.lane_right_at((at_a.s_start_m + at_a.s_end_m) / 2) == pytest.approx(-2.5, abs=0.05)
+    assert at_a.curb_d_m == pytest.approx(-1.75, abs=0.1)
+
+
 def test_a_stop_behind_the_last_on_its_lanelet_takes_a_lap(tmp_path: Path) -> None:
     """aUToronto's corner case: the goal lies behind the start on the same lanelet."""
     b = OsmBuilder()
