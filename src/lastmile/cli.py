@@ -615,3 +615,7 @@ def perceive(
 
 def main() -> None:
     app()
+
+
+if __name__ == "__main__":  # `python -m lastmile.cli ...` as the README and the briefs run it
+    main()
