@@ -43,6 +43,7 @@ SAME_PLACE_M = 0.5  # a stop this little ahead of the previous one on its lanele
 KERBSIDE_APPROACH_M = 32.0
 """Route length a pull-over needs before its spot (the decision layer's ``transition_m``): a kerbside
 stop's edge is the lane's narrowest over this approach and the platform."""
+ROAD_EDGE_STEP_M = 0.1  # resolution of the road's edge beside a kerbside stop's approach
 INTERSECTION_REACH_M = 30.0
 """Branches and merges this close along the route are one place (a junction box of a few lanes each
 way, or a roundabout's arms)."""
@@ -544,22 +545,35 @@ def _bus_stop(
 ) -> BusStop:
     """A mapped bay as it is; any other stop as a kerbside stop on its lane's right edge.
 
-    The edge is taken where the lane is narrowest over the platform and the pull-over's approach
-    before it (KERBSIDE_APPROACH_M): a lane that widens at the stop (a bay drawn as a bulge of the
-    lane) would otherwise put the spot so far right that the shuttle's corner leaves the narrower
-    lane on its way in.
+    The edge is the lane's right bound where the lane is narrowest along the platform, and no farther
+    right than the road's edge anywhere on the pull-over's approach (KERBSIDE_APPROACH_M): a lane
+    that widens at the stop (a bay drawn as a bulge of the lane) would otherwise put the spot so far
+    right that the shuttle's corner leaves the narrower road on its way in. The approach may cross
+    lanes (a lane change before the stop), so there the limit is the road's edge, not a lane's.
     """
     for bay in hdmap.stops:
         if stop.source == "bay" and bay.id == stop.name:
             return bay
 
-    def half_width(sk: float) -> float:
+    def lane_half(sk: float) -> float:
         x, y, _ = polyline.point_at(sk)
         k = int(np.clip(np.searchsorted(starts, sk % polyline.length_m, side="right") - 1, 0, len(path) - 1))
-        return abs(float(hdmap.lanelets[path[k]].right.project(x, y).d_m))
+        lid = hdmap.lanelet_at(x, y)
+        lane = hdmap.lanelets[lid if lid is not None and lid in hdmap.lanelets else path[k]]
+        return abs(float(lane.right.project(x, y).d_m))
 
-    first = stop.route_s_m - platform_m / 2 - KERBSIDE_APPROACH_M
-    half = min(half_width(sk) for sk in np.arange(first, stop.route_s_m + platform_m / 2, 1.0).tolist())
+    def road_right(sk: float, reach_m: float) -> float:
+        x, y, h = polyline.point_at(sk)
+        for t in np.arange(0.0, reach_m, ROAD_EDGE_STEP_M).tolist():
+            lid = hdmap.lanelet_at(x + t * math.sin(h), y - t * math.cos(h))
+            if lid is None or hdmap.lanelets[lid].subtype not in DRIVABLE_SUBTYPES:
+                return float(t)
+        return reach_m
+
+    on_platform = np.arange(stop.route_s_m - platform_m / 2, stop.route_s_m + platform_m / 2, 1.0).tolist()
+    half = min(lane_half(sk) for sk in on_platform)
+    approach = np.arange(stop.route_s_m - platform_m / 2 - KERBSIDE_APPROACH_M, on_platform[0], 1.0).tolist()
+    half = min([half] + [road_right(sk, half) for sk in approach])
     s = stop.route_s_m + np.linspace(-platform_m / 2, platform_m / 2, max(int(platform_m), 2) + 1)
     edge = []
     for sk in s.tolist():
