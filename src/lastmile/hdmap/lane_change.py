@@ -128,6 +128,7 @@ def smooth_lane_changes(
         )
         for kc in keep_clear
     ]
+    road = _Road(hdmap)
     out = xy.copy()
     for n, (k, jump, step) in enumerate(zip(at, jumps, steps, strict=True)):
         before = np.array([step @ normal[k - 1], step @ tangent[k - 1]])
@@ -145,7 +146,7 @@ def smooth_lane_changes(
                 cand = out + _correction(
                     arc, k, centre, length, before, after, tangent, normal, total, closed
                 )
-                off = _off_road(hdmap, cand, normal, arc, centre, length, geometry, total, closed)
+                off = _off_road(road, cand, normal, arc, centre, length, geometry, total, closed)
                 key = (off, round(on_stop, 3), round(overlap, 3), rank, abs(shift))
                 if best is None or key < best[0]:
                     best = (key, cand, centre, length)
@@ -258,8 +259,34 @@ def _correction(
     return lateral[:, None] * normal + along[:, None] * tangent
 
 
+class _Road:
+    """The drivable lanelets' outlines with their bounding boxes, for repeated point tests."""
+
+    def __init__(self, hdmap: HDMap) -> None:
+        polys = [
+            hdmap.polygon_of(lid) for lid, ll in hdmap.lanelets.items() if ll.subtype in DRIVABLE_SUBTYPES
+        ]
+        self.paths = [MplPath(poly) for poly in polys]
+        self.lo = np.array([poly.min(axis=0) for poly in polys]).reshape(-1, 2)
+        self.hi = np.array([poly.max(axis=0) for poly in polys]).reshape(-1, 2)
+
+    def contains(self, pts: np.ndarray) -> np.ndarray:
+        """(N,) bool: the (N, 2) points on a drivable lanelet."""
+        on_road = np.zeros(len(pts), dtype=bool)
+        if not len(pts):
+            return on_road
+        lo, hi = pts.min(axis=0), pts.max(axis=0)
+        near = np.flatnonzero(np.all(self.lo <= hi, axis=1) & np.all(self.hi >= lo, axis=1))
+        for k in near.tolist():
+            todo = ~on_road
+            if not todo.any():
+                break
+            on_road[todo] = self.paths[k].contains_points(pts[todo])
+        return on_road
+
+
 def _off_road(
-    hdmap: HDMap,
+    road: _Road,
     xy: np.ndarray,
     normal: np.ndarray,
     arc: np.ndarray,
@@ -277,18 +304,7 @@ def _off_road(
     near = np.abs(_signed_from(arc, centre, total, closed)) <= length / 2.0 + geometry.length_m
     half = geometry.width_m / 2.0
     pts = np.vstack([xy[near] + half * normal[near], xy[near] - half * normal[near]])
-    lo, hi = pts.min(axis=0), pts.max(axis=0)
-    on_road = np.zeros(len(pts), dtype=bool)
-    for lid, info in hdmap.lanelets.items():
-        if info.subtype not in DRIVABLE_SUBTYPES:
-            continue
-        poly = hdmap.polygon_of(lid)
-        if np.any(poly.max(axis=0) < lo) or np.any(poly.min(axis=0) > hi):
-            continue
-        todo = ~on_road
-        if todo.any():
-            on_road[todo] = MplPath(poly).contains_points(pts[todo])
-    return int((~on_road).sum())
+    return int((~road.contains(pts)).sum())
 
 
 def _tangents(xy: np.ndarray, is_jump: np.ndarray) -> np.ndarray:
