@@ -128,7 +128,7 @@ def smooth_lane_changes(
         )
         for kc in keep_clear
     ]
-    road = _Road(hdmap)
+    road = RoadOutline(hdmap)
     out = xy.copy()
     for n, (k, jump, step) in enumerate(zip(at, jumps, steps, strict=True)):
         before = np.array([step @ normal[k - 1], step @ tangent[k - 1]])
@@ -259,7 +259,7 @@ def _correction(
     return lateral[:, None] * normal + along[:, None] * tangent
 
 
-class _Road:
+class RoadOutline:
     """The drivable lanelets' outlines with their bounding boxes, for repeated point tests."""
 
     def __init__(self, hdmap: HDMap) -> None:
@@ -286,7 +286,7 @@ class _Road:
 
 
 def _off_road(
-    road: _Road,
+    road: RoadOutline,
     xy: np.ndarray,
     normal: np.ndarray,
     arc: np.ndarray,

@@ -21,7 +21,7 @@ from lastmile.core.errors import ConfigError, MapError, RoutingError
 from lastmile.core.geometry import point_in_polygon
 from lastmile.core.polyline import Polyline
 from lastmile.core.vehicle import VehicleGeometry
-from lastmile.hdmap.lane_change import KeepClear
+from lastmile.hdmap.lane_change import KeepClear, RoadOutline
 from lastmile.hdmap.layers import SLayerDatabase
 from lastmile.hdmap.loader import load_campus_map, load_projected_map
 from lastmile.hdmap.model import DRIVABLE_SUBTYPES, BusStop, HDMap, LaneletInfo
@@ -249,7 +249,10 @@ def build_service(spec: RouteSpec, hdmap: HDMap) -> ServiceRoute:
         half = spec.platform_length_m / 2 + PLATFORM_MARGIN_M
         s = min(max(float(s), half), polyline.length_m - half)
         stops.append(ServiceStop(name=name, x_m=x, y_m=y, snap=snap, route_s_m=float(s), source=source))
-    bus_stops = tuple(_bus_stop(hdmap, polyline, st, spec.platform_length_m, path, starts) for st in stops)
+    road = RoadOutline(hdmap)
+    bus_stops = tuple(
+        _bus_stop(hdmap, road, polyline, st, spec.platform_length_m, path, starts) for st in stops
+    )
     return ServiceRoute(
         name=spec.name,
         spec=spec,
@@ -537,6 +540,7 @@ def _connector(lid: int, a: LaneletInfo, b: LaneletInfo) -> LaneletInfo:
 
 def _bus_stop(
     hdmap: HDMap,
+    road: RoadOutline,
     polyline: Polyline,
     stop: ServiceStop,
     platform_m: float,
@@ -562,18 +566,19 @@ def _bus_stop(
         lane = hdmap.lanelets[lid if lid is not None and lid in hdmap.lanelets else path[k]]
         return abs(float(lane.right.project(x, y).d_m))
 
-    def road_right(sk: float, reach_m: float) -> float:
-        x, y, h = polyline.point_at(sk)
-        for t in np.arange(0.0, reach_m, ROAD_EDGE_STEP_M).tolist():
-            lid = hdmap.lanelet_at(x + t * math.sin(h), y - t * math.cos(h))
-            if lid is None or hdmap.lanelets[lid].subtype not in DRIVABLE_SUBTYPES:
-                return float(t)
-        return reach_m
-
     on_platform = np.arange(stop.route_s_m - platform_m / 2, stop.route_s_m + platform_m / 2, 1.0).tolist()
     half = min(lane_half(sk) for sk in on_platform)
-    approach = np.arange(stop.route_s_m - platform_m / 2 - KERBSIDE_APPROACH_M, on_platform[0], 1.0).tolist()
-    half = min([half] + [road_right(sk, half) for sk in approach])
+    # The road's edge right of each approach point: the first probe (every ROAD_EDGE_STEP_M) off it.
+    approach = np.arange(stop.route_s_m - platform_m / 2 - KERBSIDE_APPROACH_M, on_platform[0], 1.0)
+    steps = np.arange(0.0, half, ROAD_EDGE_STEP_M)
+    if len(approach) and len(steps):
+        xy = polyline.points_at(approach)
+        heading = np.array([polyline.heading_at(float(sk)) for sk in approach])
+        right = np.c_[np.sin(heading), -np.cos(heading)]
+        probes = xy[:, None, :] + steps[None, :, None] * right[:, None, :]
+        on_road = road.contains(probes.reshape(-1, 2)).reshape(len(approach), len(steps))
+        first_off = np.where(on_road.all(axis=1), half, steps[np.argmin(on_road, axis=1)])
+        half = min(half, float(first_off.min()))
     s = stop.route_s_m + np.linspace(-platform_m / 2, platform_m / 2, max(int(platform_m), 2) + 1)
     edge = []
     for sk in s.tolist():
