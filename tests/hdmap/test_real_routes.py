@@ -55,7 +55,7 @@ def test_bits_loop_serves_the_ten_waypoint_stops_in_order() -> None:
     assert route.lanelet_ids == (3580, connector)
     start = route.polyline.xy_m[0]
     assert route.hdmap.lanelet_at(*route.polyline.point_at(route.length_m - 2.0)[:2]) == connector
-    assert route.hdmap.is_drivable(start[None, :]).all()
+    assert route.hdmap.lanelet_at(*start) is not None  # the loop starts on road (exact test, no raster)
     assert 1580.0 < route.length_m < 1600.0
     s = [st.route_s_m for st in route.stops]
     assert s == sorted(s)  # the waypoints file lists them in driving order
