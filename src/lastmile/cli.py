@@ -779,3 +779,7 @@ def main() -> None:
         typer.echo("lastmile: interrupted", err=True)
         sys.exit(130)
     sys.exit(code if isinstance(code, int) else 0)
+
+
+if __name__ == "__main__":  # `python -m lastmile.cli ...` works as `lastmile ...` and `python -m lastmile`
+    main()

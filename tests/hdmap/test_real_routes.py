@@ -48,10 +48,14 @@ def test_bits_loop_serves_the_ten_waypoint_stops_in_order() -> None:
     assert route.spec.projection.mgrs_grid == "44QKE"
     assert [s.name for s in route.stops] == WAYPOINT_NAMES
     assert all(s.snap.distance_m <= 1.0 for s in route.stops)  # the poses were recorded on the lane
-    # One 1.58 km lanelet whose end is joined to its start across the mapped 4.4 m gap.
-    assert route.lanelet_ids == (3580,)
+    # One 1.58 km lanelet whose end is joined to its start across the 4.4 m gap by a connector lanelet.
     ((a, b, gap),) = route.bridged_gaps
     assert a == b == 3580 and 4.0 < gap < 5.0
+    (connector,) = set(route.hdmap.lanelets) - {3580, -3580}
+    assert route.lanelet_ids == (3580, connector)
+    start = route.polyline.xy_m[0]
+    assert route.hdmap.lanelet_at(*route.polyline.point_at(route.length_m - 2.0)[:2]) == connector
+    assert route.hdmap.lanelet_at(*start) is not None  # the loop starts on road (exact test, no raster)
     assert 1580.0 < route.length_m < 1600.0
     s = [st.route_s_m for st in route.stops]
     assert s == sorted(s)  # the waypoints file lists them in driving order

@@ -10,9 +10,12 @@ import pytest
 from pyproj import Transformer
 
 from lastmile.core.errors import ConfigError, MapError, RoutingError
+from lastmile.core.vehicle import VehicleGeometry
+from lastmile.hdmap import lane_change
 from lastmile.hdmap.loader import load_projected_map
 from lastmile.hdmap.projection import MapProjection, ProjectionKind, mgrs_square_origin
-from lastmile.hdmap.service_route import load_route
+from lastmile.hdmap.routing import route_polyline
+from lastmile.hdmap.service_route import ServiceRoute, load_route
 from tests.hdmap.osm_builder import ORIGIN_LAT_DEG, ORIGIN_LON_DEG, OsmBuilder, straight_lane
 
 UTM = MapProjection(kind=ProjectionKind.UTM, origin_lat_deg=ORIGIN_LAT_DEG, origin_lon_deg=ORIGIN_LON_DEG)
@@ -29,12 +32,14 @@ def _arc(cx: float, cy: float, r: float, a0: float, a1: float, n: int = 9) -> li
     return [(cx + r * math.cos(a), cy + r * math.sin(a)) for a in np.linspace(a0, a1, n)]
 
 
-def stadium(b: OsmBuilder, length_m: float = 100.0) -> dict[str, int]:
-    """Eastbound lane on y = 0, westbound on y = 5 (x from 0 to length), U-turn lanelets at both ends."""
+def stadium(b: OsmBuilder, length_m: float = 100.0, gap_m: float = 0.0) -> dict[str, int]:
+    """Eastbound lane on y = 0, westbound on y = 5 (x from 0 to length), U-turn lanelets at both ends;
+    the eastbound lane ends ``gap_m`` short of its U-turn (an unmapped gap)."""
     half = math.pi / 2
+    end = length_m - gap_m
     east = b.lanelet(
-        b.way([(0, 1.75), (length_m / 2, 1.75), (length_m, 1.75)], type="line_thin", subtype="dashed"),
-        b.way([(0, -1.75), (length_m / 2, -1.75), (length_m, -1.75)], type="curbstone"),
+        b.way([(0, 1.75), (length_m / 2, 1.75), (end, 1.75)], type="line_thin", subtype="dashed"),
+        b.way([(0, -1.75), (length_m / 2, -1.75), (end, -1.75)], type="curbstone"),
         speed_limit="20",
     )
     turn_e = b.lanelet(
@@ -88,6 +93,70 @@ def test_loop_through_stops_in_order_with_snap_distances(tmp_path: Path) -> None
         assert rs.s_end_m - rs.s_start_m == pytest.approx(12.0, abs=0.5)
         assert rs.curb_d_m == pytest.approx(-1.75, abs=0.1)
     np.testing.assert_allclose(db.speed_limit_mps, 20 / 3.6)
+
+
+def test_a_bridged_gap_is_a_connector_lanelet_the_map_calls_drivable(tmp_path: Path) -> None:
+    """connect_gaps_m makes the gap road for everyone who asks the map (the referee, the safety's ODD
+    check, the stack), not only a successor link the shuttle would cross off the drivable area."""
+    b = OsmBuilder()
+    ids = stadium(b, gap_m=4.0)
+    stops = _stop("A", 20, -1.0) + _stop("B", 50, 7.5)
+    with pytest.raises(RoutingError, match="expected a way from stop 'A'"):
+        load_route(_write(tmp_path, b, stops))
+    route = load_route(_write(tmp_path, b, stops, header=HEADER + "connect_gaps_m = 5.0\n"))
+    ((a, c, gap),) = route.bridged_gaps
+    assert (a, c) == (ids["east"], ids["turn_e"]) and gap == pytest.approx(4.0)
+    (connector,) = set(route.hdmap.lanelets) - set(ids.values())
+    assert route.hdmap.successors(ids["east"]) == (connector,)
+    assert route.hdmap.successors(connector) == (ids["turn_e"],)
+    assert connector in route.lanelet_ids
+    # Inside the gap, and the shuttle's corners 0.2 m inside its edges: drivable; past its edges: not.
+    inside = np.array([[98.0, 0.0], [96.5, 1.55], [99.5, -1.55]])
+    assert route.hdmap.is_drivable(inside).all()
+    assert not route.hdmap.is_drivable(np.array([[98.0, 2.0], [98.0, -2.0]])).any()
+    assert route.hdmap.lanelet_at(98.0, 0.0) == connector
+    db = route.layers()
+    on_gap = db.lanelet_id == connector
+    assert on_gap.sum() == pytest.approx(4, abs=1)
+    np.testing.assert_allclose(db.speed_limit_mps[on_gap], 20 / 3.6)  # the lanes' mapped limit
+    np.testing.assert_allclose(db.curb_right_d_m[on_gap], -1.75, atol=0.05)  # the curb goes on
+
+
+def test_a_kerbside_stop_where_the_lane_widens_keeps_to_the_narrower_edge(tmp_path: Path) -> None:
+    """The eastbound lane bulges 1.5 m to the right at x 44-56 (a bay drawn as a wider lane): the
+    stop's edge is the lane's narrowest over the platform and the pull-over's approach, so the spot
+    does not send the shuttle's corner over the narrower edge on the way in."""
+    b2 = OsmBuilder()
+    half = math.pi / 2
+    right = [(0, -1.75), (40, -1.75), (44, -3.25), (56, -3.25), (60, -1.75), (100, -1.75)]
+    b2.lanelet(
+        b2.way([(0, 1.75), (50, 1.75), (100, 1.75)], type="line_thin", subtype="dashed"),
+        b2.way(right, type="line_thin"),
+        speed_limit="20",
+    )
+    b2.lanelet(
+        b2.way(_arc(100, 2.5, 0.75, -half, half), type="line_thin"),
+        b2.way(_arc(100, 2.5, 4.25, -half, half), type="curbstone"),
+        speed_limit="20",
+    )
+    b2.lanelet(
+        b2.way([(100, 3.25), (50, 3.25), (0, 3.25)], type="line_thin", subtype="dashed"),
+        b2.way([(100, 6.75), (50, 6.75), (0, 6.75)], type="curbstone"),
+        speed_limit="20",
+    )
+    b2.lanelet(
+        b2.way(_arc(0, 2.5, 0.75, half, 3 * half), type="line_thin"),
+        b2.way(_arc(0, 2.5, 4.25, half, 3 * half), type="curbstone"),
+        speed_limit="20",
+    )
+    route = load_route(_write(tmp_path, b2, _stop("A", 50, -2.0) + _stop("B", 50, 7.5)))
+    db = route.layers()
+    at_a = db.stops[0]
+    assert at_a.stop.id == "A"
+    # At the platform the lane's centre line runs at y = -0.75 and its right edge at y = -3.25 (2.5 m
+    # right of it); the stop's edge keeps the 1.75 m of the narrow lane on the approach.
+    assert db.lane_right_at((at_a.s_start_m + at_a.s_end_m) / 2) == pytest.approx(-2.5, abs=0.05)
+    assert at_a.curb_d_m == pytest.approx(-1.75, abs=0.1)
 
 
 def test_a_stop_behind_the_last_on_its_lanelet_takes_a_lap(tmp_path: Path) -> None:
@@ -302,7 +371,7 @@ def test_a_stop_on_a_passing_lane_is_reached_by_lane_changes(tmp_path: Path) -> 
     )
     header = HEADER + "unmapped_speed_limit_kph = 15.0\n"
     route = load_route(
-        _write(tmp_path, b, _stop("A", 10, -1) + _stop("B", 70, 4.5) + _stop("C", 50, 13), header=header)
+        _write(tmp_path, b, _stop("A", 10, -1) + _stop("B", 50, 4.5) + _stop("C", 50, 13), header=header)
     )
     assert [s.snap.lanelet_id for s in route.stops] == [r1, passing, west]
     ids = route.lanelet_ids
@@ -312,10 +381,54 @@ def test_a_stop_on_a_passing_lane_is_reached_by_lane_changes(tmp_path: Path) -> 
     ]
     assert changes == [(r2, passing), (passing, r2)]
     steps = np.hypot(*np.diff(route.polyline.xy_m, axis=0).T)
-    assert steps.max() < 32.0  # one continuous line: the changes are short diagonals, no jumps back
+    assert steps.max() < 32.0  # one continuous line, no jumps back
     db = route.layers()
     np.testing.assert_allclose(db.speed_limit_mps, 15 / 3.6)
     assert [rs.stop.id for rs in db.stops] == ["A", "B", "C"]
+    _assert_drivable_lane_changes(route, y_lanes=(0.0, 3.5), x_span=(20.0, 80.0), speed_mps=15 / 3.6)
+
+
+def _assert_drivable_lane_changes(
+    route: ServiceRoute, y_lanes: tuple[float, float], x_span: tuple[float, float], speed_mps: float
+) -> None:
+    """On the straight eastbound stretch: each change is a smooth shift of one lane width, within what
+    the vehicle steers, and both keep clear of stop B's platform (x 44-56, and a shuttle length either
+    side) on the passing lane; the shuttle's sides stay on the road."""
+    line = route.polyline
+    s = np.arange(0.0, line.length_m, 0.25)
+    xy = line.points_at(s)
+    east = (xy[:, 0] > x_span[0] - 15) & (xy[:, 0] < x_span[1] + 15) & (xy[:, 1] < 6.0)
+    heading = np.unwrap(np.array([line.heading_at(v) for v in s]))
+    kappa = np.gradient(heading, s)
+    geometry = VehicleGeometry()
+    steer = lane_change.STEER_SHARE * math.tan(geometry.max_steer_rad) / geometry.wheelbase_m
+    assert np.abs(kappa[east]).max() <= 1.15 * steer
+    between = east & (xy[:, 1] > y_lanes[0] + 0.1) & (xy[:, 1] < y_lanes[1] - 0.1)
+    comfortable = lane_change.comfortable_length_m(3.5, speed_mps, geometry)
+    shortest = lane_change.min_length_m(3.5, geometry)
+    # More than 0.1 m from both lanes over u in (0.155, 0.845) of the quintic: 69 % of its length.
+    # The 19.4 m between the passing lane's ends and B's kept-clear stretch barely fit the 18.7 m
+    # comfortable length (placements are tried at tenths of it): a shorter one may be taken.
+    assert 2 * 0.65 * shortest <= 0.25 * between.sum() <= 2 * 0.75 * comfortable
+    platform = east & (xy[:, 0] > 44.0) & (xy[:, 0] < 56.0)
+    np.testing.assert_allclose(xy[platform, 1], y_lanes[1], atol=0.05)  # straight in the lane at B
+    normal = np.c_[-np.sin(heading), np.cos(heading)]
+    half = geometry.width_m / 2
+    assert route.hdmap.is_drivable(xy + half * normal).all()
+    assert route.hdmap.is_drivable(xy - half * normal).all()
+
+
+def test_a_lane_change_needs_a_speed_to_be_shaped(tmp_path: Path) -> None:
+    b = OsmBuilder()
+    dashed = b.way([(0, 1.75), (100, 1.75)], type="line_thin", subtype="dashed")
+    left = b.lanelet(b.way([(0, 5.25), (100, 5.25)], type="curbstone"), dashed)
+    right = b.lanelet(dashed, b.way([(0, -1.75), (100, -1.75)], type="curbstone"))
+    hdmap = load_projected_map(b.write(tmp_path / "map.osm"), UTM)
+    ids = (right, left) if left in hdmap.neighbours(right) else (left, right)
+    with pytest.raises(RoutingError, match="expected a speed limit on lanelet"):
+        route_polyline(hdmap, ids)
+    line = route_polyline(hdmap, ids, unmapped_speed_limit_mps=10 / 3.6)
+    assert line.length_m == pytest.approx(100.0, abs=1.0)  # a lane width sideways adds about half a metre
 
 
 def test_utm_stops_land_where_lanelet2_puts_the_map() -> None:

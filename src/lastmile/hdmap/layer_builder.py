@@ -13,6 +13,7 @@ from scipy.spatial import cKDTree
 
 from lastmile.core.errors import MapError
 from lastmile.core.polyline import Polyline
+from lastmile.hdmap.lane_change import KeepClear
 from lastmile.hdmap.layers import (
     ALL_WAY_STOP,
     BUS_BAY,
@@ -44,11 +45,18 @@ def build_layers(
     step_m: float,
     closed: bool,
     unmapped_speed_limit_mps: float | None = None,
+    keep_clear: tuple[KeepClear, ...] = (),
 ) -> SLayerDatabase:
     if not (math.isfinite(step_m) and step_m > 0):
         raise MapError(f"SLayerDatabase.build step_m: expected a positive step, got {step_m}")
     limits = _speed_limits(hdmap, lanelet_ids, unmapped_speed_limit_mps)
-    centre = route_polyline(hdmap, lanelet_ids, closed=closed)
+    centre = route_polyline(
+        hdmap,
+        lanelet_ids,
+        closed=closed,
+        unmapped_speed_limit_mps=unmapped_speed_limit_mps,
+        keep_clear=keep_clear,
+    )
     starts = lanelet_starts_m(hdmap, lanelet_ids)
     # Lanelet lengths sum to the joined line's length up to rounding; scale so s maps exactly.
     starts *= centre.length_m / starts[-1]

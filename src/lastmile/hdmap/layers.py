@@ -8,6 +8,7 @@ import numpy as np
 
 from lastmile.core.errors import MapError
 from lastmile.core.polyline import Polyline
+from lastmile.hdmap.lane_change import KeepClear
 from lastmile.hdmap.model import BusStop, Crosswalk, HDMap, Landmark, StopLine
 
 # road_type codes
@@ -108,19 +109,21 @@ class SLayerDatabase:
         step_m: float = 1.0,
         closed: bool = False,
         unmapped_speed_limit_mps: float | None = None,
+        keep_clear: tuple[KeepClear, ...] = (),
     ) -> SLayerDatabase:
         """Cut the route through ``lanelet_ids`` every ``step_m`` and fill every layer from the map.
 
         Args:
             unmapped_speed_limit_mps: the limit on route lanelets whose map states none (the route
                 file's); None: such a lanelet is an error.
+            keep_clear: stretches the route's lane changes keep out of (``routing.route_polyline``).
 
         Raises:
             MapError: a bad step, a route lanelet without a mapped speed limit and no limit given.
         """
         from lastmile.hdmap.layer_builder import build_layers  # the builder needs this class itself
 
-        return build_layers(cls, hdmap, lanelet_ids, step_m, closed, unmapped_speed_limit_mps)
+        return build_layers(cls, hdmap, lanelet_ids, step_m, closed, unmapped_speed_limit_mps, keep_clear)
 
     @property
     def length_m(self) -> float:

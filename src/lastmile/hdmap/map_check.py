@@ -20,7 +20,7 @@ from lastmile.hdmap.loader import load_projected_map
 from lastmile.hdmap.model import DRIVABLE_SUBTYPES, HDMap
 from lastmile.hdmap.projection import PROJECTOR_INFO_FILE, MapProjection, parse_projector, read_projector_info
 from lastmile.hdmap.route_file import MAX_SNAP_M, read_route_file
-from lastmile.hdmap.service_route import ServiceRoute, bridge_gaps, build_service
+from lastmile.hdmap.service_route import ServiceRoute, build_service, find_gaps
 
 
 class Status(enum.Enum):
@@ -150,7 +150,7 @@ def _largest_circuit(hdmap: HDMap) -> str:
     drv = set(_drivable(hdmap))
     adj = {k: [n for n in (*hdmap.successors(k), *hdmap.neighbours(k)) if n in drv] for k in drv}
     circuits = [c for c in _strong_components(adj) if len(c) > 1 or c[0] in adj[c[0]]]
-    _, gaps = bridge_gaps(hdmap, 2 * MAX_SNAP_M)
+    gaps = find_gaps(hdmap, 2 * MAX_SNAP_M)
     hint = (
         f"; {len(gaps)} dead ends lie within {2 * MAX_SNAP_M:g} m of a lane start heading the same way "
         f"(route files bridge them with map.connect_gaps_m, smallest {min(g for _, _, g in gaps):.1f} m)"

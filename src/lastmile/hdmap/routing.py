@@ -17,16 +17,16 @@ import numpy as np
 
 from lastmile.core.errors import RoutingError
 from lastmile.core.polyline import Polyline
-from lastmile.hdmap import campus_layout
+from lastmile.hdmap import campus_layout, lane_change
 from lastmile.hdmap.model import HDMap
 
 JOIN_TOLERANCE_M = 1e-6
 LANE_CHANGE_COST_M = 10.0
 """Extra cost of a lane change in metres of driving: Lanelet2's default (``defaultRoutingCosts``:
 ``RoutingCostDistance(10.)``)."""
-LANE_CHANGE_SHARE = 1.0 / 3.0
-"""A lane change leaves its lanelet a third of the way along what is left of it and joins the lanelet
-beside two thirds along: the middle third is the change."""
+LANE_CHANGE_SHARE = 1.0 / 2.0
+"""A lane change leaves its lanelet half way along what is left of it and joins the lanelet beside
+abreast of that point; ``lane_change`` turns the sideways step into a transition of its own length."""
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -115,8 +115,8 @@ def route_pieces(hdmap: HDMap, lanelet_ids: tuple[int, ...], closed: bool = Fals
     """What of each lanelet the route drives: all of it, except around lane changes.
 
     A lanelet entered from its predecessor is driven from its start; one left by a lane change is left
-    LANE_CHANGE_SHARE along what remained, and the lanelet beside is joined twice that far along (as
-    a fraction of its own length). Whole pieces carry ``s1_m = inf`` (to the lanelet's end).
+    LANE_CHANGE_SHARE along what remained, and the lanelet beside is joined abreast of that point.
+    Whole pieces carry ``s1_m = inf`` (to the lanelet's end).
 
     Raises:
         RoutingError: the sequence is empty, names an unknown lanelet, or has a step that is neither
@@ -145,7 +145,10 @@ def route_pieces(hdmap: HDMap, lanelet_ids: tuple[int, ...], closed: bool = Fals
         if nxt is not None and _is_lane_change(hdmap, lid, nxt):
             leave = start_frac + (1.0 - start_frac) * LANE_CHANGE_SHARE
             pieces.append(RoutePiece(lanelet_id=lid, s0_m=start_frac * length, s1_m=leave * length))
-            start_frac = start_frac + 2.0 * (1.0 - start_frac) * LANE_CHANGE_SHARE
+            # Join the lanelet beside where it is abreast of the point left: the step is sideways only.
+            x, y, _ = hdmap.lanelets[lid].centerline.point_at(leave * length)
+            beside = hdmap.lanelets[nxt].centerline
+            start_frac = min(max(beside.project(x, y).s_m / beside.length_m, 0.0), 1.0 - 1e-6)
         else:
             s0 = start_frac * length
             pieces.append(RoutePiece(lanelet_id=lid, s0_m=s0 if start_frac else 0.0, s1_m=math.inf))
@@ -164,24 +167,67 @@ def _piece_xy(hdmap: HDMap, piece: RoutePiece) -> np.ndarray:
     )
 
 
-def route_polyline(hdmap: HDMap, lanelet_ids: tuple[int, ...], closed: bool = False) -> Polyline:
-    """The route's centre line: the lanelets' centre lines joined end to end (a lane change crosses
-    from one lane's line to the other's, see ``route_pieces``).
+def route_polyline(
+    hdmap: HDMap,
+    lanelet_ids: tuple[int, ...],
+    closed: bool = False,
+    unmapped_speed_limit_mps: float | None = None,
+    keep_clear: tuple[lane_change.KeepClear, ...] = (),
+) -> Polyline:
+    """The route's centre line: the lanelets' centre lines joined end to end; a lane change is a
+    smooth lateral transition from one lane's line to the other's (``lane_change``), as long as its
+    speed limit asks and placed where the shuttle stays on the road, across lanelet boundaries.
+
+    Args:
+        unmapped_speed_limit_mps: the speed on lanelets whose map states no limit (a route file's);
+            only lane changes need a speed.
+        keep_clear: stretches (stop platforms) lane changes keep out of where the road allows.
 
     Raises:
-        RoutingError: the sequence is empty, names an unknown lanelet, or skips a successor link.
+        RoutingError: the sequence is empty, names an unknown lanelet, or skips a successor link; a
+            lane change leaves a lanelet with no speed limit, mapped or given.
     """
     pieces = route_pieces(hdmap, lanelet_ids, closed)
     parts = [_piece_xy(hdmap, p) for p in pieces]
     # Consecutive lanelets share their end points; a link bridged over a gap (a route file's
-    # connect_gaps_m) or a lane change keeps both, and the joined line crosses straight.
+    # connect_gaps_m) keeps both, and the joined line crosses straight.
     joined = [parts[0]]
-    for prev, part in itertools.pairwise(parts):
-        joined.append(part[1:] if float(np.hypot(*(part[0] - prev[-1]))) < JOIN_TOLERANCE_M else part)
+    jumps: list[lane_change.LaneJump] = []
+    at = len(parts[0])
+    links = list(itertools.pairwise(range(len(parts))))
+    for i, j in links:
+        prev, part = parts[i], parts[j]
+        if _is_lane_change(hdmap, pieces[i].lanelet_id, pieces[j].lanelet_id):
+            speed = _lane_change_speed(hdmap, pieces[i].lanelet_id, unmapped_speed_limit_mps)
+            jumps.append(
+                lane_change.LaneJump(
+                    index=at,
+                    speed_mps=speed,
+                    from_lanelet_id=pieces[i].lanelet_id,
+                    to_lanelet_id=pieces[j].lanelet_id,
+                )
+            )
+        keep = part[1:] if float(np.hypot(*(part[0] - prev[-1]))) < JOIN_TOLERANCE_M else part
+        joined.append(keep)
+        at += len(keep)
     xy = np.vstack(joined)
     if closed:
         xy = xy[:-1]
+    if jumps:
+        xy = lane_change.smooth_lane_changes(hdmap, xy, jumps, closed, keep_clear=keep_clear)
     return Polyline(xy, closed=closed)
+
+
+def _lane_change_speed(hdmap: HDMap, lanelet_id: int, unmapped_mps: float | None) -> float:
+    mapped = hdmap.lanelets[lanelet_id].speed_limit_mps
+    if math.isfinite(mapped):
+        return float(mapped)
+    if unmapped_mps is None:
+        raise RoutingError(
+            f"route: expected a speed limit on lanelet {lanelet_id} to shape its lane change (mapped, or "
+            "the route file's unmapped_speed_limit_kph), got none"
+        )
+    return unmapped_mps
 
 
 def lanelet_starts_m(hdmap: HDMap, lanelet_ids: tuple[int, ...]) -> np.ndarray:

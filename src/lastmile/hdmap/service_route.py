@@ -20,9 +20,11 @@ import numpy as np
 from lastmile.core.errors import ConfigError, MapError, RoutingError
 from lastmile.core.geometry import point_in_polygon
 from lastmile.core.polyline import Polyline
+from lastmile.core.vehicle import VehicleGeometry
+from lastmile.hdmap.lane_change import KeepClear, RoadOutline
 from lastmile.hdmap.layers import SLayerDatabase
 from lastmile.hdmap.loader import load_campus_map, load_projected_map
-from lastmile.hdmap.model import DRIVABLE_SUBTYPES, BusStop, HDMap
+from lastmile.hdmap.model import DRIVABLE_SUBTYPES, BusStop, HDMap, LaneletInfo
 from lastmile.hdmap.route_file import (
     MAX_SNAP_M,
     RouteSpec,
@@ -38,6 +40,10 @@ GAP_HEADING_TOLERANCE_RAD = math.radians(45.0)
 """A bridged gap joins lanes heading the same way: more than this apart is a turn, not a gap."""
 PLATFORM_MARGIN_M = 5.0  # between a platform and the loop's start, where a bridged gap bends the line
 SAME_PLACE_M = 0.5  # a stop this little ahead of the previous one on its lanelet is the same place
+KERBSIDE_APPROACH_M = 32.0
+"""Route length a pull-over needs before its spot (the decision layer's ``transition_m``): a kerbside
+stop's edge is the lane's narrowest over this approach and the platform."""
+ROAD_EDGE_STEP_M = 0.1  # resolution of the road's edge beside a kerbside stop's approach
 INTERSECTION_REACH_M = 30.0
 """Branches and merges this close along the route are one place (a junction box of a few lanes each
 way, or a roundabout's arms)."""
@@ -99,13 +105,16 @@ class ServiceRoute:
     Attributes:
         hdmap: the map, its ``stops`` replaced by this service's stops (mapped bays kept as they are;
             the others a kerbside ``BusStop`` whose bay is the lane itself and whose curb is the lane's
-            right edge over ``platform_length_m``), its successors extended by the bridged gaps.
+            right edge over ``platform_length_m``), a connector lanelet over each bridged gap.
         lanelet_ids: the closed service path (the last lanelet is followed by the first).
         polyline: its centre line, closed.
         stops: in service order.
         unmapped_speed_limit_mps: the route file's limit for lanelets whose map states none.
-        bridged_gaps: (from lanelet, to lanelet, gap m) links added by ``connect_gaps_m``.
+        bridged_gaps: (from lanelet, to lanelet, gap m) bridged by ``connect_gaps_m``, each through a
+            new connector lanelet.
         junctions: branches and merges along the path, in route s.
+        keep_clear: the stops' platforms, which the path's lane changes keep out of where they can
+            (the same for ``polyline`` and ``layers()``).
     """
 
     name: str
@@ -117,6 +126,7 @@ class ServiceRoute:
     unmapped_speed_limit_mps: float | None
     bridged_gaps: tuple[tuple[int, int, float], ...] = ()
     junctions: tuple[RouteJunction, ...] = ()
+    keep_clear: tuple[KeepClear, ...] = ()
 
     @property
     def length_m(self) -> float:
@@ -140,6 +150,7 @@ class ServiceRoute:
             step_m=step_m,
             closed=True,
             unmapped_speed_limit_mps=self.unmapped_speed_limit_mps,
+            keep_clear=self.keep_clear,
         )
 
 
@@ -214,7 +225,19 @@ def build_service(spec: RouteSpec, hdmap: HDMap) -> ServiceRoute:
         path, at = _path_along_drive(spec, hdmap, snaps)
     else:
         path, at = _path_through(hdmap, snaps, names)
-    polyline = route_polyline(hdmap, path, closed=True)
+    # Lane changes keep off the platforms (and a shuttle length either side, to be straight there).
+    half = spec.platform_length_m / 2.0 + VehicleGeometry().length_m
+    keep_clear = tuple(
+        KeepClear(x_m=x, y_m=y, half_length_m=half, lanelet_id=sn.lanelet_id)
+        for sn, (x, y) in ((sn, _on_lane(hdmap, sn)) for sn in snaps)
+    )
+    polyline = route_polyline(
+        hdmap,
+        path,
+        closed=True,
+        unmapped_speed_limit_mps=spec.unmapped_speed_limit_mps,
+        keep_clear=keep_clear,
+    )
     pieces = route_pieces(hdmap, path, closed=True)
     starts = lanelet_starts_m(hdmap, path) * (polyline.length_m / lanelet_starts_m(hdmap, path)[-1])
     stops = []
@@ -226,7 +249,10 @@ def build_service(spec: RouteSpec, hdmap: HDMap) -> ServiceRoute:
         half = spec.platform_length_m / 2 + PLATFORM_MARGIN_M
         s = min(max(float(s), half), polyline.length_m - half)
         stops.append(ServiceStop(name=name, x_m=x, y_m=y, snap=snap, route_s_m=float(s), source=source))
-    bus_stops = tuple(_bus_stop(hdmap, polyline, st, spec.platform_length_m, path, starts) for st in stops)
+    road = RoadOutline(hdmap)
+    bus_stops = tuple(
+        _bus_stop(hdmap, road, polyline, st, spec.platform_length_m, path, starts) for st in stops
+    )
     return ServiceRoute(
         name=spec.name,
         spec=spec,
@@ -237,6 +263,7 @@ def build_service(spec: RouteSpec, hdmap: HDMap) -> ServiceRoute:
         unmapped_speed_limit_mps=spec.unmapped_speed_limit_mps,
         bridged_gaps=gaps,
         junctions=_junctions(hdmap, path, starts),
+        keep_clear=keep_clear,
     )
 
 
@@ -425,17 +452,17 @@ def _path_along_drive(spec: RouteSpec, hdmap: HDMap, snaps: list[Snap]) -> tuple
     return _rotate_to_successor(hdmap, path, at)
 
 
-def bridge_gaps(hdmap: HDMap, gap_m: float) -> tuple[HDMap, tuple[tuple[int, int, float], ...]]:
-    """Link lanelet ends to lanelet starts within ``gap_m`` that head the same way and are not linked."""
+def find_gaps(hdmap: HDMap, gap_m: float) -> tuple[tuple[int, int, float], ...]:
+    """(dead end, lanelet, gap m): lanelet ends with no successor and a drivable lanelet starting
+    within ``gap_m`` that heads the same way (within GAP_HEADING_TOLERANCE_RAD)."""
     if gap_m <= 0:
-        return hdmap, ()
+        return ()
     ids = list(hdmap.lanelets)
     starts = np.array([hdmap.lanelets[i].centerline.xy_m[0] for i in ids])
-    succ = {k: list(v) for k, v in hdmap.successor_ids.items()}
-    added = []
+    found = []
     for a in ids:
         line = hdmap.lanelets[a].centerline
-        if succ.get(a) or hdmap.lanelets[a].subtype not in DRIVABLE_SUBTYPES:
+        if hdmap.successors(a) or hdmap.lanelets[a].subtype not in DRIVABLE_SUBTYPES:
             continue  # only dead ends: a lanelet with successors is connected as mapped
         end = line.xy_m[-1]
         gaps = np.hypot(*(starts - end).T)
@@ -447,34 +474,115 @@ def bridge_gaps(hdmap: HDMap, gap_m: float) -> tuple[HDMap, tuple[tuple[int, int
             bend = other.centerline.heading_at(0.0) - line.heading_at(line.length_m)
             turn = math.remainder(bend, 2 * math.pi)
             if abs(turn) <= GAP_HEADING_TOLERANCE_RAD:
-                succ.setdefault(a, []).append(b)
-                added.append((a, b, float(gaps[j])))
+                found.append((a, b, float(gaps[j])))
+    return tuple(found)
+
+
+def bridge_gaps(hdmap: HDMap, gap_m: float) -> tuple[HDMap, tuple[tuple[int, int, float], ...]]:
+    """Join the gaps ``find_gaps`` finds.
+
+    Each gap becomes a connector lanelet (a new id above every mapped one) whose bounds run straight
+    from the dead end's bounds to the next lanelet's: the route file says the gap is road, so it is
+    road everywhere the map is asked (routing, the drivable area of the referee and of the safety's
+    ODD check, the stack's road region), not only a successor link the shuttle would cross off-map.
+
+    Returns:
+        The map with the connectors and their links, and (dead end, next lanelet, gap m) per bridge.
+    """
+    added = find_gaps(hdmap, gap_m)
     if not added:
         return hdmap, ()
+    lanelets = dict(hdmap.lanelets)
+    succ = {k: list(v) for k, v in hdmap.successor_ids.items()}
+    next_id = max(abs(i) for i in hdmap.lanelets) + 1
+    for a, b, _ in added:
+        lanelets[next_id] = _connector(next_id, hdmap.lanelets[a], hdmap.lanelets[b])
+        succ.setdefault(a, []).append(next_id)
+        succ[next_id] = [b]
+        next_id += 1
     return (
-        dataclasses.replace(hdmap, successor_ids={k: tuple(v) for k, v in succ.items()}),
+        dataclasses.replace(hdmap, lanelets=lanelets, successor_ids={k: tuple(v) for k, v in succ.items()}),
         tuple(added),
+    )
+
+
+CONNECTOR_STEP_M = 0.5  # vertex spacing of a connector's bounds (the gap is short; any spacing is exact)
+MIN_BOUND_M = 1e-3
+
+
+def _connector(lid: int, a: LaneletInfo, b: LaneletInfo) -> LaneletInfo:
+    """A lanelet over the gap from ``a``'s end to ``b``'s start: straight bounds, ``a``'s types; its
+    limit is the lower mapped one of the two (NaN when neither states one: the route file's applies)."""
+
+    centre = b.centerline.xy_m[0] - a.centerline.xy_m[-1]
+    along = centre / max(float(np.hypot(*centre)), 1e-9)
+
+    def across(p: np.ndarray, q: np.ndarray) -> Polyline:
+        if float(np.hypot(*(q - p))) < MIN_BOUND_M:
+            # Bounds that meet (a lane narrowing to a point) still need a line: a millimetre along.
+            return Polyline(np.vstack([p, p + MIN_BOUND_M * along]))
+        n = max(2, math.ceil(float(np.hypot(*(q - p))) / CONNECTOR_STEP_M) + 1)
+        t = np.linspace(0.0, 1.0, n)[:, None]
+        return Polyline((1.0 - t) * p + t * q)
+
+    limits = [v for v in (a.speed_limit_mps, b.speed_limit_mps) if math.isfinite(v)]
+    return LaneletInfo(
+        id=lid,
+        centerline=across(a.centerline.xy_m[-1], b.centerline.xy_m[0]),
+        left=across(a.left.xy_m[-1], b.left.xy_m[0]),
+        right=across(a.right.xy_m[-1], b.right.xy_m[0]),
+        speed_limit_mps=min(limits) if limits else math.nan,
+        subtype=a.subtype,
+        left_type=a.left_type,
+        right_type=a.right_type,
     )
 
 
 def _bus_stop(
     hdmap: HDMap,
+    road: RoadOutline,
     polyline: Polyline,
     stop: ServiceStop,
     platform_m: float,
     path: tuple[int, ...],
     starts: np.ndarray,
 ) -> BusStop:
-    """A mapped bay as it is; any other stop as a kerbside stop on its lane's right edge."""
+    """A mapped bay as it is; any other stop as a kerbside stop on its lane's right edge.
+
+    The edge is the lane's right bound where the lane is narrowest along the platform, and no farther
+    right than the road's edge anywhere on the pull-over's approach (KERBSIDE_APPROACH_M): a lane
+    that widens at the stop (a bay drawn as a bulge of the lane) would otherwise put the spot so far
+    right that the shuttle's corner leaves the narrower road on its way in. The approach may cross
+    lanes (a lane change before the stop), so there the limit is the road's edge, not a lane's.
+    """
     for bay in hdmap.stops:
         if stop.source == "bay" and bay.id == stop.name:
             return bay
+
+    def lane_half(sk: float) -> float:
+        x, y, _ = polyline.point_at(sk)
+        k = int(np.clip(np.searchsorted(starts, sk % polyline.length_m, side="right") - 1, 0, len(path) - 1))
+        lid = hdmap.lanelet_at(x, y)
+        lane = hdmap.lanelets[lid if lid is not None and lid in hdmap.lanelets else path[k]]
+        return abs(float(lane.right.project(x, y).d_m))
+
+    on_platform = np.arange(stop.route_s_m - platform_m / 2, stop.route_s_m + platform_m / 2, 1.0).tolist()
+    half = min(lane_half(sk) for sk in on_platform)
+    # The road's edge right of each approach point: the first probe (every ROAD_EDGE_STEP_M) off it.
+    approach = np.arange(stop.route_s_m - platform_m / 2 - KERBSIDE_APPROACH_M, on_platform[0], 1.0)
+    steps = np.arange(0.0, half, ROAD_EDGE_STEP_M)
+    if len(approach) and len(steps):
+        xy = polyline.points_at(approach)
+        heading = np.array([polyline.heading_at(float(sk)) for sk in approach])
+        right = np.c_[np.sin(heading), -np.cos(heading)]
+        probes = xy[:, None, :] + steps[None, :, None] * right[:, None, :]
+        on_road = road.contains(probes.reshape(-1, 2)).reshape(len(approach), len(steps))
+        first_off = np.where(on_road.all(axis=1), half, steps[np.argmin(on_road, axis=1)])
+        half = min(half, float(first_off.min()))
     s = stop.route_s_m + np.linspace(-platform_m / 2, platform_m / 2, max(int(platform_m), 2) + 1)
     edge = []
     for sk in s.tolist():
         x, y, h = polyline.point_at(sk)
-        k = int(np.clip(np.searchsorted(starts, sk % polyline.length_m, side="right") - 1, 0, len(path) - 1))
-        half = abs(float(hdmap.lanelets[path[k]].right.project(x, y).d_m))
         edge.append((x + half * math.sin(h), y - half * math.cos(h)))  # right of the direction of travel
     return BusStop(
         id=stop.name,

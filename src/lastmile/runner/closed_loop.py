@@ -68,6 +68,8 @@ def build_closed_loop(
         geometry,
         tick_us,
         raw_sensors=config.stack.perception.needs_raw_sensors,
+        map_speed_limits=scenario.map.name == "route",
+        unmapped_speed_limit_mps=service.unmapped_speed_limit_mps,
     )
     layers = service.layers(step_m=1.0)
     vehicle = build_vehicle(

@@ -55,6 +55,10 @@ class Judge:
     service_route: Polyline
     config: JudgeConfig = field(default_factory=JudgeConfig)
     signals: SignalController | None = None
+    map_speed_limits: bool = False
+    """Judge speed against the limit the map states for the lanelet under the shuttle (the route file's
+    ``unmapped_speed_limit_mps`` where it states none) instead of ``config.speed_limit_mps``."""
+    unmapped_speed_limit_mps: float | None = None
     events: list[Event] = field(default_factory=list)
     _colliding: set[int] = field(default_factory=set)
     _line_state: dict[int, _LineState] = field(default_factory=dict)
@@ -235,9 +239,22 @@ class Judge:
                     self._crosswalk_flagged.add(cw_id)
                     break
 
+    def _limit_mps(self) -> float:
+        """The speed limit the referee applies where the shuttle is."""
+        if not self.map_speed_limits:
+            return self.config.speed_limit_mps
+        x, y = self.world.ego_centre()
+        lid = self.world.hdmap.lanelet_at(x, y)
+        mapped = self.world.hdmap.lanelets[lid].speed_limit_mps if lid is not None else math.nan
+        if math.isfinite(mapped):
+            return float(mapped)
+        if self.unmapped_speed_limit_mps is not None:
+            return self.unmapped_speed_limit_mps
+        return self.config.speed_limit_mps  # off the map: the drivable-area rule judges that
+
     def _speed(self) -> None:
         w, c = self.world, self.config
-        if w.ego.state.speed_mps > c.speed_limit_mps + c.speed_tolerance_mps:
+        if w.ego.state.speed_mps > self._limit_mps() + c.speed_tolerance_mps:
             if self._speeding_since is None:
                 self._speeding_since = w.t_s
             if not self._speeding_logged and w.t_s - self._speeding_since >= c.speed_hold_s:

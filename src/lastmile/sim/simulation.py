@@ -55,6 +55,8 @@ class Simulation:
         geometry: VehicleGeometry,
         tick_us: int,
         raw_sensors: bool = False,
+        map_speed_limits: bool = False,
+        unmapped_speed_limit_mps: float | None = None,
     ) -> None:
         self.scenario = scenario
         self.tick_us = tick_us
@@ -91,7 +93,15 @@ class Simulation:
         self.passengers = PassengerModel(
             hdmap.stops, scenario.passengers, component_rng(scenario.seed, "passengers"), geometry.seats
         )
-        self.judge = Judge(self.world, self.passengers, service_route, signals=self.signals)
+        # On a route map the referee judges the limits the map states (the campus keeps its 20 km/h).
+        self.judge = Judge(
+            self.world,
+            self.passengers,
+            service_route,
+            signals=self.signals,
+            map_speed_limits=map_speed_limits,
+            unmapped_speed_limit_mps=unmapped_speed_limit_mps,
+        )
         self.operator = OperatorModel(self.judge)
         self.estop_operator = OperatorEStop(
             scenario.estop_in_state, scenario.estop_release_s, scenario.estop_min_speed_mps

@@ -1,0 +1,60 @@
+"""The service on the two real maps of ../shared/data, in closed loop: it drives and serves a stop.
+
+Short runs (radar object lists): only the seconds needed to reach the first stop with a rider waiting,
+over the BITS loop's bridged 4.4 m gap (the shuttle starts on it) and through the Lanelet2 example
+roundabout's first lane change. The 10-minute services are measured with ``lastmile run --route``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import pytest
+
+from lastmile.evaluation.metrics import compute_metrics
+from lastmile.runner.closed_loop import run_scenario
+from lastmile.sim.passengers import PassengerConfig
+from lastmile.sim.scenario import route_service
+from tests.closed_loop.harness import RADAR
+
+pytestmark = pytest.mark.closed_loop
+ROOT = Path(__file__).resolve().parents[2]
+SHARED_MAPS = ROOT.parent / "shared" / "data" / "maps"
+
+
+def _serve_first_rider(route_file: str, stop: str, minutes: float) -> None:
+    scenario = dataclasses.replace(
+        route_service(route_file, seed=0, minutes=minutes),
+        passengers=PassengerConfig(arrivals_per_stop_per_min=0.0, initial_waiting={stop: 1}),
+    )
+    log = run_scenario(scenario, RADAR)
+    m = compute_metrics(log)
+    assert not log.events_of("stack_crash"), log.events_of("stack_crash")
+    assert m["collisions_total"] == 0, log.events_of("collision")
+    assert m["takeovers"] == 0, log.events_of("takeover")
+    assert m["rule_violations"] == 0, log.events_of("rule_violation")
+    assert m["emergency_stops"] == 0
+    served = log.events_of("stop_served")
+    assert [e.data["stop_id"] for e in served] == [stop], served
+    assert served[0].data["boarded"] == 1
+    # Kerbside stop (no bay mapped): the shuttle's right side ends up beside the lane's right edge.
+    assert 0.0 < served[0].data["curb_gap_m"] <= 0.5, served[0]
+
+
+@pytest.mark.skipif(
+    not (SHARED_MAPS / "campus_shuttle_bits" / "lanelet2_map.osm").is_file(),
+    reason="../shared/data/maps/campus_shuttle_bits is absent (real data lives beside the repository)",
+)
+def test_bits_loop_drives_off_the_bridged_gap_and_serves_a_block(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.chdir(ROOT)  # the route file names its map from the repository root
+    _serve_first_rider("examples/routes/bits_campus_loop.toml", "A Block", minutes=1.25)
+
+
+@pytest.mark.skipif(
+    not (SHARED_MAPS / "lanelet2_example" / "mapping_example.osm").is_file(),
+    reason="../shared/data/maps/lanelet2_example is absent (real data lives beside the repository)",
+)
+def test_lanelet2_example_roundabout_changes_lanes_and_serves_north(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.chdir(ROOT)
+    _serve_first_rider("examples/routes/lanelet2_example_roundabout.toml", "Roundabout North", minutes=0.75)
