@@ -39,6 +39,8 @@ class LongitudinalConfig:
             drive's ~0.25 s lag leaves about j x 0.25 s of it; 0.5 m/s^3 keeps that step's 10 Hz jerk
             near 1.25 m/s^3.
         hold_speed_mps: below this measured speed, with V_des at zero, the brake is held firmly.
+        overshoot_speed_mps: reaching the stop point faster than this is an overshoot, braked for at
+            the urgent rate; slower, the speed loop sheds the rest in proportion to the speed.
         cascaded_pi: parameters of aUToronto's cascaded PI controller (registry name ``cascaded_pi``).
     """
 
@@ -52,7 +54,8 @@ class LongitudinalConfig:
     max_jerk_mps3: float = 1.8
     reference_jerk_mps3: float = 1.5
     stop_jerk_mps3: float = 0.5
-    hold_speed_mps: float = 0.02
+    hold_speed_mps: float = 0.005
+    overshoot_speed_mps: float = 0.5
     cascaded_pi: CascadedPiConfig = field(default_factory=CascadedPiConfig)
 
     def __post_init__(self) -> None:
@@ -126,12 +129,34 @@ class WatonobusLongitudinalController:
     def step(self, dt_s: float, speed_mps: float, v_ref_mps: float, gap_to_stop_m: float | None) -> float:
         """Commanded acceleration (m/s^2) for this step."""
         c = self.config
+        if gap_to_stop_m is not None and gap_to_stop_m <= 0.05:
+            # At the stop point the reference is at rest; the speed loop sheds what is left in
+            # proportion to it (no step), and only a real overshoot brakes at the urgent rate.
+            self.v_des_mps = self.a_ref_mps2 = 0.0
+            urgent = speed_mps > c.overshoot_speed_mps
+        else:
+            urgent = self._update_reference(dt_s, v_ref_mps, gap_to_stop_m)
+        target = self.a_ref_mps2 + c.speed_gain_per_s * (self.v_des_mps - speed_mps)
+        if self.v_des_mps == 0.0 and speed_mps < c.hold_speed_mps:
+            # Hold the vehicle firmly once stopped, rather than creeping on a tiny positive error.
+            target = min(target, -1.0)
+        target = min(max(target, -c.max_decel_mps2), c.max_accel_mps2)
+        step = c.max_jerk_mps3 * dt_s
+        # An urgent stop may ramp its braking in twice as fast: safety first, comfort second.
+        lo = self.accel_cmd_mps2 - (2.0 * step if urgent else step)
+        hi = self.accel_cmd_mps2 + step
+        self.accel_cmd_mps2 = min(max(target, lo), hi)
+        return self.accel_cmd_mps2
+
+    def _update_reference(self, dt_s: float, v_ref_mps: float, gap_to_stop_m: float | None) -> bool:
+        """Advance a_ref and V_des one step (eqs. 1-3, jerk-limited); returns whether the stop is urgent."""
+        c = self.config
         a_target = self._free_accel(v_ref_mps)
         stopping = urgent = False
         if gap_to_stop_m is None:
             self._braking = False
         else:
-            stop = self._stop_accel(dt_s, gap_to_stop_m)
+            stop = self._stop_accel(gap_to_stop_m)
             if stop is not None and stop[0] < a_target:
                 a_target, stopping, urgent = stop[0], True, stop[1]
         ramp = c.reference_jerk_mps3 * dt_s
@@ -146,17 +171,7 @@ class WatonobusLongitudinalController:
         if v_next <= 0.0:
             v_next, self.a_ref_mps2 = 0.0, 0.0
         self.v_des_mps = v_next
-        target = self.a_ref_mps2 + c.speed_gain_per_s * (self.v_des_mps - speed_mps)
-        if self.v_des_mps == 0.0 and speed_mps < c.hold_speed_mps:
-            # Hold the vehicle firmly once stopped, rather than creeping on a tiny positive error.
-            target = min(target, -1.0)
-        target = min(max(target, -c.max_decel_mps2), c.max_accel_mps2)
-        step = c.max_jerk_mps3 * dt_s
-        # An urgent stop may ramp its braking in twice as fast: safety first, comfort second.
-        lo = self.accel_cmd_mps2 - (2.0 * step if urgent else step)
-        hi = self.accel_cmd_mps2 + step
-        self.accel_cmd_mps2 = min(max(target, lo), hi)
-        return self.accel_cmd_mps2
+        return urgent
 
     def _free_accel(self, v_ref_mps: float) -> float:
         """Eq. (1)'s a_nom toward the reference, eased so V_des meets it with zero acceleration."""
@@ -165,7 +180,7 @@ class WatonobusLongitudinalController:
         ease = math.sqrt(2.0 * c.reference_jerk_mps3 * abs(dv))
         return math.copysign(min(c.nominal_accel_mps2, ease), dv)
 
-    def _stop_accel(self, dt_s: float, gap_m: float) -> tuple[float, bool] | None:
+    def _stop_accel(self, gap_m: float) -> tuple[float, bool] | None:
         """Eq. (2) toward the stop point, and whether it is urgent (None: not braking for it yet).
 
         The deceleration is the one needed once the reference acceleration has turned into it at the
@@ -173,8 +188,6 @@ class WatonobusLongitudinalController:
         fades out near rest."""
         c = self.config
         v = self.v_des_mps
-        if gap_m <= 0.05:
-            return -v / dt_s, True
         decel = v**2 / (2.0 * gap_m)
         for _ in range(2):
             ramp_s = max(self.a_ref_mps2 + max(decel, c.brake_trigger_mps2), 0.0) / c.reference_jerk_mps3
