@@ -30,6 +30,8 @@ class LongitudinalConfig:
         max_accel_mps2: the largest acceleration commanded (Snow Lion's envelope: 1.12 m/s^2).
         max_lateral_accel_mps2: comfort bound giving the curvature speed limit v = sqrt(a_lat / kappa).
         speed_gain_per_s: proportional gain from speed error to acceleration (the low-level loop).
+        rest_gain_per_s: the speed loop's gain once V_des is zero (below 1 / (4 x the drive's ~0.25 s
+            lag), so the vehicle settles onto rest without overshooting it).
         max_jerk_mps3: rate limit on the commanded acceleration (Snow Lion's jerk stays within 1.84 m/s^3).
         reference_jerk_mps3: rate limit of the reference acceleration that V_des integrates, below
             ``max_jerk_mps3`` so the speed loop's corrections fit under the command's limit.
@@ -39,6 +41,10 @@ class LongitudinalConfig:
             drive's ~0.25 s lag leaves about j x 0.25 s of it; 0.5 m/s^3 keeps that step's 10 Hz jerk
             near 1.25 m/s^3.
         hold_speed_mps: below this measured speed, with V_des at zero, the brake is held firmly.
+        arrive_m: at rest this close to the stop point counts as there (the fade-out's tail would
+            otherwise creep the last centimetres).
+        restart_gap_m: at rest short of a stop point, the reference starts again only once the point
+            is this far ahead (an obstacle that moved off), not to creep up the last metre.
         overshoot_speed_mps: reaching the stop point faster than this is an overshoot, braked for at
             the urgent rate; slower, the speed loop sheds the rest in proportion to the speed.
         cascaded_pi: parameters of aUToronto's cascaded PI controller (registry name ``cascaded_pi``).
@@ -51,11 +57,14 @@ class LongitudinalConfig:
     max_accel_mps2: float = 1.1
     max_lateral_accel_mps2: float = 1.0
     speed_gain_per_s: float = 1.2
+    rest_gain_per_s: float = 0.6
     max_jerk_mps3: float = 1.8
     reference_jerk_mps3: float = 1.5
     stop_jerk_mps3: float = 0.5
     hold_speed_mps: float = 0.005
     overshoot_speed_mps: float = 0.5
+    restart_gap_m: float = 3.0
+    arrive_m: float = 0.3
     cascaded_pi: CascadedPiConfig = field(default_factory=CascadedPiConfig)
 
     def __post_init__(self) -> None:
@@ -67,6 +76,7 @@ class LongitudinalConfig:
             "max_accel_mps2",
             "max_lateral_accel_mps2",
             "speed_gain_per_s",
+            "rest_gain_per_s",
             "max_jerk_mps3",
             "reference_jerk_mps3",
             "stop_jerk_mps3",
@@ -129,14 +139,20 @@ class WatonobusLongitudinalController:
     def step(self, dt_s: float, speed_mps: float, v_ref_mps: float, gap_to_stop_m: float | None) -> float:
         """Commanded acceleration (m/s^2) for this step."""
         c = self.config
-        if gap_to_stop_m is not None and gap_to_stop_m <= 0.05:
-            # At the stop point the reference is at rest; the speed loop sheds what is left in
-            # proportion to it (no step), and only a real overshoot brakes at the urgent rate.
+        at_rest = speed_mps < c.hold_speed_mps
+        if gap_to_stop_m is not None and (gap_to_stop_m <= 0.05 or (at_rest and gap_to_stop_m < c.arrive_m)):
+            # At the stop point (or at rest within ``arrive_m`` of it) the reference is at rest; the
+            # speed loop sheds what is left in proportion to it (no step), and only a real overshoot
+            # brakes at the urgent rate.
             self.v_des_mps = self.a_ref_mps2 = 0.0
             urgent = speed_mps > c.overshoot_speed_mps
         else:
             urgent = self._update_reference(dt_s, v_ref_mps, gap_to_stop_m)
-        target = self.a_ref_mps2 + c.speed_gain_per_s * (self.v_des_mps - speed_mps)
+        # With the reference at rest the loop alone brings the vehicle to a stop; a softer gain there
+        # keeps that last approach overdamped (with the drive's lag the full gain rings, and the wheels
+        # stop while still braking: a step a rider feels).
+        gain = c.speed_gain_per_s if self.v_des_mps > 0.0 else c.rest_gain_per_s
+        target = self.a_ref_mps2 + gain * (self.v_des_mps - speed_mps)
         if self.v_des_mps == 0.0 and speed_mps < c.hold_speed_mps:
             # Hold the vehicle firmly once stopped, rather than creeping on a tiny positive error.
             target = min(target, -1.0)
@@ -194,9 +210,11 @@ class WatonobusLongitudinalController:
             v_end = max(v + 0.5 * (self.a_ref_mps2 - decel) * ramp_s, 0.0)
             room = gap_m - 0.5 * (v + v_end) * ramp_s
             decel = max(decel, v_end**2 / (2.0 * room) if room > 0.05 else c.max_decel_mps2)
-        # Hysteresis: once braking for it, only a stop point that needs half the trigger releases it.
+        # Hysteresis: once braking for it, only a stop point that needs half the trigger releases it;
+        # once at rest short of it, only one that moved off by ``restart_gap_m`` (no creeping on).
         trigger = c.brake_trigger_mps2 * (0.5 if self._braking else 1.0)
-        self._braking = decel >= trigger or gap_m < 1.0
+        resting = self._braking and v == 0.0 and gap_m < c.restart_gap_m
+        self._braking = decel >= trigger or gap_m < 1.0 or resting
         if not self._braking:
             return None
         if decel > c.comfort_decel_mps2:
