@@ -75,3 +75,48 @@ def test_longitudinal_law_reaches_20_kmh_at_the_nominal_acceleration():
 def test_unknown_lateral_controller_names_the_choices():
     with pytest.raises(ConfigError, match="heading_pid"):
         make_lateral_controller("lqr", VehicleGeometry())
+
+
+def _drive_straight(v0_mps: float, stop_front_x_m: float | None, seconds: float) -> tuple[float, np.ndarray]:
+    """The WATonoBus law on the bicycle model along x toward an optional stop point; returns where the
+    front came to rest (x) and the actual acceleration averaged over 0.1 s windows (the 10 Hz signal
+    the comfort metrics read)."""
+    g = VehicleGeometry()
+    car = KinematicBicycle(g, ActuatorDynamics(), VehicleState(0.0, 0.0, 0.0, speed_mps=v0_mps))
+    lon = WatonobusLongitudinalController()
+    lon.reset(v0_mps)
+    accels = []
+    for _ in range(int(seconds / DT)):
+        front_x = car.state.x_m + g.front_from_rear_axle_m
+        gap = None if stop_front_x_m is None else stop_front_x_m - front_x
+        a = lon.step(DT, car.state.speed_mps, g.max_speed_mps, gap)
+        for _ in range(2):
+            car.step(DT / 2, a, 0.0, 0.0, False)
+            accels.append(car.state.accel_mps2)
+    a_10hz = np.asarray(accels[: len(accels) // 10 * 10]).reshape(-1, 10).mean(axis=1)
+    return car.state.x_m + g.front_from_rear_axle_m, a_10hz
+
+
+def test_start_and_cruise_stay_inside_snow_lions_comfort_envelope() -> None:
+    _, a = _drive_straight(0.0, None, 20.0)
+    jerk = np.diff(a) / 0.1
+    assert a.max() <= 1.12 and a.max() > 0.7  # Snow Lion's 1.12 m/s^2, and not timid
+    assert np.abs(jerk).max() <= 1.84  # reaching cruise eases off instead of dropping a_nom at once
+
+
+@pytest.mark.parametrize("stop_ahead_m", [25.0, 40.0])
+def test_a_planned_stop_comes_to_rest_at_the_point_without_a_jerk(stop_ahead_m: float) -> None:
+    start_front = VehicleGeometry().front_from_rear_axle_m
+    rest_x, a = _drive_straight(20 / 3.6, start_front + stop_ahead_m, 30.0)
+    jerk = np.diff(a) / 0.1
+    assert abs(rest_x - (start_front + stop_ahead_m)) < 0.15
+    assert a.min() >= -1.83
+    # The step from the last deceleration to zero as the wheels stop is the jerk that matters here.
+    assert np.abs(jerk).max() <= 1.84
+
+
+def test_a_stop_point_too_close_for_comfort_is_still_not_passed() -> None:
+    start_front = VehicleGeometry().front_from_rear_axle_m
+    rest_x, a = _drive_straight(20 / 3.6, start_front + 12.0, 15.0)
+    assert rest_x <= start_front + 12.0 + 0.15
+    assert a.min() >= -3.05  # within the law's deepest braking

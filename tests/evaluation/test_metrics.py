@@ -317,3 +317,26 @@ def test_true_runs_are_the_maximal_runs_of_the_mask(bits: list[bool]) -> None:
     assert np.array_equal(rebuilt, mask)
     # Maximal: consecutive runs are separated by at least one False.
     assert all(prev[1] < nxt[0] for prev, nxt in itertools.pairwise(runs))
+
+
+def test_comfort_failure_says_which_limit_by_how_much_and_when() -> None:
+    speed = np.full(1000, 4.0)
+    accel = np.zeros(1000)
+    accel[500:] = -3.5  # from t = 10 s: beyond the 3.0 m/s^2 braking limit and a 35 m/s^3 jerk step
+    out = m.compute_metrics(make_log(speed, accel))
+    why = out["comfort_violation"]
+    assert isinstance(why, str)
+    assert "max_decel_mps2: -3.50 m/s^2 beyond -3.00 at t 10.0 s (normal_driving; 100 samples" in why
+    assert "max_abs_jerk_mps3: -35.00 m/s^3 beyond -2.50 at t 10.0 s (normal_driving; 1 sample " in why
+    assert "max_accel_mps2" not in why
+    assert out["comfort_min_accel_mps2"] == pytest.approx(-3.5)
+    assert out["comfort_min_jerk_mps3"] == pytest.approx(-35.0)
+
+
+def test_snow_lion_envelope_is_tighter_than_the_shuttle_limits() -> None:
+    speed = np.full(1000, 4.0)
+    accel = np.full(1000, 1.5)  # inside the shuttle's 2.0 m/s^2, beyond Snow Lion's 1.12
+    out = m.compute_metrics(make_log(speed, accel))
+    assert out["comfort_compliant"] == 1 and out["comfort_violation"] is None
+    assert out["snow_lion_comfort_compliant"] == 0
+    assert str(out["snow_lion_comfort_violation"]).startswith("max_accel_mps2: +1.50 m/s^2 beyond +1.12")

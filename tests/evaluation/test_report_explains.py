@@ -78,9 +78,13 @@ def test_a_failed_comfort_check_says_which_limit_when_and_by_how_much(tmp_path: 
     metrics = m.compute_metrics(log)
     assert metrics["comfort_compliant"] == 0
     text = r.write_report(log, metrics, tmp_path).read_text()
-    found = re.search(r"- comfort: jerk (\d+\.\d\d) m/s³ at (\d+\.\d) s exceeds 2\.50 \((\d+) samples", text)
+    found = re.search(
+        r"- comfort: max_abs_jerk_mps3: ([+-]\d+\.\d\d) m/s\^3 beyond [+-]2\.50 "
+        r"at t (\d+\.\d) s \(\w+; (\d+) samples",
+        text,
+    )
     assert found is not None, text
-    assert float(found.group(1)) > 2.5 and float(found.group(2)) in (20.0, 21.0)
+    assert abs(float(found.group(1))) > 2.5 and float(found.group(2)) in (20.0, 21.0)
 
 
 def test_a_clean_run_lists_no_failed_check(tmp_path: Path) -> None:

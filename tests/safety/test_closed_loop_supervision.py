@@ -3,12 +3,22 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 from pathlib import Path
 
+import numpy as np
 import pytest
 
-from lastmile.core.safety_messages import FailSafeLevel, MrmKind, SafetyDirective
+from lastmile.core.safety_messages import (
+    FailSafeLevel,
+    MalfunctionKind,
+    MalfunctionSignal,
+    MrmKind,
+    SafetyDirective,
+)
 from lastmile.core.sensor_frames import RadarFrame
+from lastmile.core.stamp import Stamp
+from lastmile.core.vehicle import VehicleGeometry
 from lastmile.recorder.black_box import BlackBoxConfig
 from lastmile.recorder.replay import read_recording
 from lastmile.recorder.run_log import RunMeta
@@ -93,3 +103,50 @@ def test_dead_front_radar_triggers_a_minimal_risk_manoeuvre_that_stops_the_shutt
     assert "no frame" in manual["reason"]
     # Everything from the start (less than 30 s so far) to the merge time after the trigger.
     assert rec.span_us == (0, first * TICK_US + BlackBoxConfig(out_dir=tmp_path).merge_us)
+
+
+def test_a_minimal_risk_manoeuvre_pulls_over_to_the_curb_where_the_map_allows() -> None:
+    """Visibility below the ODD (not a pull-over blocker) at 12 s: the shuttle is at ~5.5 m/s on a
+    road with a curb, so the manoeuvre pulls over, and the shuttle ends at the curb, not in the lane."""
+    scenario = dataclasses.replace(default_service(seed=0), minutes=0.75)
+    loop = build_closed_loop(scenario, RADAR)
+    reliability = loop.safety.supervisor.reliability
+    evaluate = reliability.evaluate
+    fog_us = 12_000_000
+
+    def with_fog(now_us: int) -> tuple[MalfunctionSignal, ...]:
+        signals = evaluate(now_us)
+        if now_us < fog_us:
+            return signals
+        fog = MalfunctionSignal(
+            stamp=Stamp(now_us),
+            source="odd",
+            kind=MalfunctionKind.WEATHER_VISIBILITY,
+            level=FailSafeLevel.MINIMAL_RISK_MANOEUVRE,
+            reason="visibility 20 m < 40 m (injected)",
+        )
+        return (*signals, fog)
+
+    reliability.evaluate = with_fog  # type: ignore[method-assign]
+    # No safety driver on board: the takeover the manoeuvre asks for is not taken (the simulator's
+    # driver would hold the brake at once), so what is tested is the manoeuvre itself.
+    loop.world.operator.step = lambda *args: None  # type: ignore[method-assign]
+    directives, speeds = [], []
+    for record in loop.ticks(round(45.0 * 1e6 / TICK_US)):
+        directives.append(record.verdict.directive)
+        speeds.append(loop.world.ego_state.speed_mps)
+    first = next(i for i, d in enumerate(directives) if d.level >= FailSafeLevel.MINIMAL_RISK_MANOEUVRE)
+    assert directives[first].mrm == MrmKind.PULL_OVER
+    assert speeds[first] > 4.0 and max(speeds[-100:]) < 0.05  # it was driving, and it stopped
+    layers = loop.software.layers  # type: ignore[attr-defined]
+    ego = loop.world.ego_state
+    geometry = VehicleGeometry()
+    # Both axles at the curb: the body's right side within 0.3 m of it, parallel to it.
+    for along_m in (0.0, geometry.wheelbase_m):
+        x = ego.x_m + along_m * math.cos(ego.yaw_rad)
+        y = ego.y_m + along_m * math.sin(ego.yaw_rad)
+        f = layers.centerline.project(x, y)
+        curb_d = float(layers.curb_right_d_m[layers.record_indices(np.array([f.s_m]))[0]])
+        gap = f.d_m - geometry.width_m / 2.0 - curb_d
+        assert 0.0 < gap <= 0.3, (along_m, gap, f.d_m, curb_d)
+        assert f.d_m < -0.5  # out of the lane's middle, not stopped in it

@@ -86,7 +86,8 @@ def test_mrm_pulls_over_where_a_curb_is_near_unless_the_pose_is_in_doubt(
     arb = FailSafeArbiter(layers=straight_layers)
     d = arb.update(0, [_sig(L.MINIMAL_RISK_MANOEUVRE, K.WEATHER_VISIBILITY)], speed_mps=4.0, route_s_m=150.0)
     assert d.mrm == MrmKind.PULL_OVER
-    assert d.mrm_stop_s_m == pytest.approx(150.0 + 4.0**2 / 2.0, abs=1.0)
+    # Past the comfortable stopping point (8 m) and far enough for the planner's move to the curb.
+    assert d.mrm_stop_s_m == pytest.approx(150.0 + FailSafeConfig().pullover_min_ahead_m, abs=1.0)
     arb2 = FailSafeArbiter(layers=straight_layers)
     d2 = arb2.update(
         0, [_sig(L.MINIMAL_RISK_MANOEUVRE, K.LOCALIZATION_COVARIANCE)], speed_mps=4.0, route_s_m=150.0
@@ -137,3 +138,18 @@ def test_hardware_watchdog_trips_on_a_stale_command_repeated_by_a_frozen_loop() 
     stale = _cmd(0)
     outs = [wd.observe(t * 10_000, stale) for t in range(20)]
     assert outs[10] is None and outs[11] is not None
+
+
+def test_mrm_gate_enforces_the_stop_point_rather_than_a_fixed_deceleration() -> None:
+    mrm = FailSafeArbiter().update(0, [_sig(L.MINIMAL_RISK_MANOEUVRE, K.SENSOR_SILENT)], speed_mps=3.0)
+    cruise = _cmd(0, accel=0.0)
+    # Far from the point: the stack's own gentler braking (or coasting) stands, no fixed 1 m/s^2.
+    assert apply_safety_gate(_cmd(0, accel=-0.4), mrm, 3.0, mrm_gap_m=30.0).accel_mps2 == -0.4
+    assert apply_safety_gate(cruise, mrm, 3.0, mrm_gap_m=30.0) is cruise
+    # Too fast for the point: at least the braking that still stops there (v^2 / 2 gap).
+    assert apply_safety_gate(cruise, mrm, 5.0, mrm_gap_m=5.0).accel_mps2 == pytest.approx(-2.5)
+    # Stopped short of the point: it may creep on toward it; at the point the brake is held.
+    assert apply_safety_gate(_cmd(0, accel=0.3), mrm, 0.0, mrm_gap_m=10.0).accel_mps2 == 0.3
+    assert apply_safety_gate(_cmd(0, accel=0.3), mrm, 0.0, mrm_gap_m=0.0).accel_mps2 == pytest.approx(-1.0)
+    # Without the front's position the old rule stands: at least the MRM's deceleration.
+    assert apply_safety_gate(cruise, mrm, 3.0).accel_mps2 == pytest.approx(-1.0)

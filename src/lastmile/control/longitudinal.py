@@ -24,19 +24,71 @@ class LongitudinalConfig:
         nominal_accel_mps2: a_nom of eq. (1), toward the reference speed.
         brake_trigger_mps2: eq. (2) takes over once holding the gap needs at least this deceleration,
             so braking starts early and stays near-constant rather than late and hard.
+        max_decel_mps2: the deepest braking the law commands (a stop point that appears late).
+        comfort_decel_mps2: braking up to this is comfortable (Snow Lion's envelope: -1.83 m/s^2); a
+            stop needing more is urgent, and its braking may ramp in faster than ``max_jerk_mps3``.
+        max_accel_mps2: the largest acceleration commanded (Snow Lion's envelope: 1.12 m/s^2).
         max_lateral_accel_mps2: comfort bound giving the curvature speed limit v = sqrt(a_lat / kappa).
         speed_gain_per_s: proportional gain from speed error to acceleration (the low-level loop).
-        max_jerk_mps3: rate limit on the commanded acceleration (passenger comfort).
+        rest_gain_per_s: the speed loop's gain once V_des is zero (below 1 / (4 x the drive's ~0.25 s
+            lag), so the vehicle settles onto rest without overshooting it).
+        max_jerk_mps3: rate limit on the commanded acceleration (Snow Lion's jerk stays within 1.84 m/s^3).
+        reference_jerk_mps3: rate limit of the reference acceleration that V_des integrates, below
+            ``max_jerk_mps3`` so the speed loop's corrections fit under the command's limit.
+        stop_jerk_mps3: the reference deceleration fades out at this jerk as V_des reaches zero
+            (|a| <= sqrt(2 j v)), so the vehicle comes to rest with almost no deceleration left: the
+            step from the last deceleration to zero when the wheels stop is a jerk a rider feels. The
+            drive's ~0.25 s lag leaves about j x 0.25 s of it; 0.5 m/s^3 keeps that step's 10 Hz jerk
+            near 1.25 m/s^3.
+        hold_speed_mps: below this measured speed, with V_des at zero, the brake is held firmly.
+        arrive_m: at rest this close to the stop point counts as there (the fade-out's tail would
+            otherwise creep the last centimetres).
+        restart_gap_m: at rest short of a stop point, the reference starts again only once the point
+            is this far ahead (an obstacle that moved off), not to creep up the last metre.
+        overshoot_speed_mps: reaching the stop point faster than this is an overshoot, braked for at
+            the urgent rate; slower, the speed loop sheds the rest in proportion to the speed.
         cascaded_pi: parameters of aUToronto's cascaded PI controller (registry name ``cascaded_pi``).
     """
 
     nominal_accel_mps2: float = 0.8
     brake_trigger_mps2: float = 0.6
     max_decel_mps2: float = 3.0
+    comfort_decel_mps2: float = 1.8
+    max_accel_mps2: float = 1.1
     max_lateral_accel_mps2: float = 1.0
     speed_gain_per_s: float = 1.2
+    rest_gain_per_s: float = 0.6
     max_jerk_mps3: float = 1.8
+    reference_jerk_mps3: float = 1.5
+    stop_jerk_mps3: float = 0.5
+    hold_speed_mps: float = 0.005
+    overshoot_speed_mps: float = 0.5
+    restart_gap_m: float = 3.0
+    arrive_m: float = 0.3
     cascaded_pi: CascadedPiConfig = field(default_factory=CascadedPiConfig)
+
+    def __post_init__(self) -> None:
+        for name in (
+            "nominal_accel_mps2",
+            "brake_trigger_mps2",
+            "max_decel_mps2",
+            "comfort_decel_mps2",
+            "max_accel_mps2",
+            "max_lateral_accel_mps2",
+            "speed_gain_per_s",
+            "rest_gain_per_s",
+            "max_jerk_mps3",
+            "reference_jerk_mps3",
+            "stop_jerk_mps3",
+        ):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0.0):
+                raise ConfigError(f"LongitudinalConfig.{name}: expected a positive number, got {value!r}")
+        if self.comfort_decel_mps2 > self.max_decel_mps2:
+            raise ConfigError(
+                "LongitudinalConfig: expected comfort_decel_mps2 <= max_decel_mps2, got "
+                f"{self.comfort_decel_mps2} > {self.max_decel_mps2}"
+            )
 
 
 class WatonobusLongitudinalController:
@@ -46,16 +98,27 @@ class WatonobusLongitudinalController:
     Eqs. (2)-(3): with an obstacle (or stop point) Delta s ahead, a_des = -V_des^2 / (2 (Delta s -
     Delta s_min)) and V_des(k) = V_des(k-1) + a_des * dt. The caller passes the stop point already
     shifted by Delta s_min, so here the gap is ``stop_s - front_s``.
+
+    Ours, for comfort (the paper's law steps its acceleration where V_des meets the reference and where
+    it reaches zero): the acceleration V_des integrates is itself rate-limited (``reference_jerk_mps3``)
+    and aims at the reference speed along an S-curve (|a| <= sqrt(2 j |Delta v|), arriving with zero
+    acceleration); toward a stop it fades out as sqrt(2 j_stop V_des), and eq. (2) aims short of the
+    stop point by the distance that fade-out adds (D^3 / (6 j_stop^2)). A stop that needs more than
+    ``comfort_decel_mps2`` is urgent: its braking ramps in at twice the jerk limit.
     """
 
     def __init__(self, config: LongitudinalConfig | None = None) -> None:
         self.config = config or LongitudinalConfig()
         self.v_des_mps = 0.0
+        self.a_ref_mps2 = 0.0
         self.accel_cmd_mps2 = 0.0
+        self._braking = False
 
     def reset(self, speed_mps: float) -> None:
         self.v_des_mps = speed_mps
+        self.a_ref_mps2 = 0.0
         self.accel_cmd_mps2 = 0.0
+        self._braking = False
 
     def reference_speed_mps(
         self, trajectory: Trajectory | None, path_s_m: float, speed_cap_mps: float
@@ -76,27 +139,91 @@ class WatonobusLongitudinalController:
     def step(self, dt_s: float, speed_mps: float, v_ref_mps: float, gap_to_stop_m: float | None) -> float:
         """Commanded acceleration (m/s^2) for this step."""
         c = self.config
-        a_free = min(max((v_ref_mps - self.v_des_mps) / dt_s, -c.nominal_accel_mps2), c.nominal_accel_mps2)
-        a = a_free
-        if gap_to_stop_m is not None:
-            if gap_to_stop_m <= 0.05:
-                a = -self.v_des_mps / dt_s
-            else:
-                a_des = -(self.v_des_mps**2) / (2.0 * gap_to_stop_m)
-                if -a_des >= c.brake_trigger_mps2 or gap_to_stop_m < 1.0:
-                    a = min(a_free, a_des)
-        self.v_des_mps = max(0.0, self.v_des_mps + a * dt_s)
-        target = a + c.speed_gain_per_s * (self.v_des_mps - speed_mps)
-        if self.v_des_mps == 0.0 and speed_mps < 0.3:
+        at_rest = speed_mps < c.hold_speed_mps
+        if gap_to_stop_m is not None and (gap_to_stop_m <= 0.05 or (at_rest and gap_to_stop_m < c.arrive_m)):
+            # At the stop point (or at rest within ``arrive_m`` of it) the reference is at rest; the
+            # speed loop sheds what is left in proportion to it (no step), and only a real overshoot
+            # brakes at the urgent rate.
+            self.v_des_mps = self.a_ref_mps2 = 0.0
+            urgent = speed_mps > c.overshoot_speed_mps
+        else:
+            urgent = self._update_reference(dt_s, v_ref_mps, gap_to_stop_m)
+        # With the reference at rest the loop alone brings the vehicle to a stop; a softer gain there
+        # keeps that last approach overdamped (with the drive's lag the full gain rings, and the wheels
+        # stop while still braking: a step a rider feels).
+        gain = c.speed_gain_per_s if self.v_des_mps > 0.0 else c.rest_gain_per_s
+        target = self.a_ref_mps2 + gain * (self.v_des_mps - speed_mps)
+        if self.v_des_mps == 0.0 and speed_mps < c.hold_speed_mps:
             # Hold the vehicle firmly once stopped, rather than creeping on a tiny positive error.
             target = min(target, -1.0)
-        target = min(max(target, -c.max_decel_mps2), 1.5)
+        target = min(max(target, -c.max_decel_mps2), c.max_accel_mps2)
         step = c.max_jerk_mps3 * dt_s
-        # Braking harder may ramp twice as fast as easing off: safety first, comfort second.
-        lo = self.accel_cmd_mps2 - 2.0 * step
+        # An urgent stop may ramp its braking in twice as fast: safety first, comfort second.
+        lo = self.accel_cmd_mps2 - (2.0 * step if urgent else step)
         hi = self.accel_cmd_mps2 + step
         self.accel_cmd_mps2 = min(max(target, lo), hi)
         return self.accel_cmd_mps2
+
+    def _update_reference(self, dt_s: float, v_ref_mps: float, gap_to_stop_m: float | None) -> bool:
+        """Advance a_ref and V_des one step (eqs. 1-3, jerk-limited); returns whether the stop is urgent."""
+        c = self.config
+        a_target = self._free_accel(v_ref_mps)
+        stopping = urgent = False
+        if gap_to_stop_m is None:
+            self._braking = False
+        else:
+            stop = self._stop_accel(gap_to_stop_m)
+            if stop is not None and stop[0] < a_target:
+                a_target, stopping, urgent = stop[0], True, stop[1]
+        ramp = c.reference_jerk_mps3 * dt_s
+        if urgent:
+            self.a_ref_mps2 = max(a_target, self.a_ref_mps2 - 2.0 * ramp)
+        else:
+            self.a_ref_mps2 = min(max(a_target, self.a_ref_mps2 - ramp), self.a_ref_mps2 + ramp)
+        v_next = self.v_des_mps + self.a_ref_mps2 * dt_s
+        if not stopping and (v_next - v_ref_mps) * (self.v_des_mps - v_ref_mps) <= 0.0:
+            # Eased onto the reference: land on it (the residual acceleration is ~2 j dt).
+            v_next, self.a_ref_mps2 = v_ref_mps, 0.0
+        if v_next <= 0.0:
+            v_next, self.a_ref_mps2 = 0.0, 0.0
+        self.v_des_mps = v_next
+        return urgent
+
+    def _free_accel(self, v_ref_mps: float) -> float:
+        """Eq. (1)'s a_nom toward the reference, eased so V_des meets it with zero acceleration."""
+        c = self.config
+        dv = v_ref_mps - self.v_des_mps
+        ease = math.sqrt(2.0 * c.reference_jerk_mps3 * abs(dv))
+        return math.copysign(min(c.nominal_accel_mps2, ease), dv)
+
+    def _stop_accel(self, gap_m: float) -> tuple[float, bool] | None:
+        """Eq. (2) toward the stop point, and whether it is urgent (None: not braking for it yet).
+
+        The deceleration is the one needed once the reference acceleration has turned into it at the
+        jerk limit (the ramp covers ground too), so braking starts early enough; a comfortable stop
+        fades out near rest."""
+        c = self.config
+        v = self.v_des_mps
+        decel = v**2 / (2.0 * gap_m)
+        for _ in range(2):
+            ramp_s = max(self.a_ref_mps2 + max(decel, c.brake_trigger_mps2), 0.0) / c.reference_jerk_mps3
+            v_end = max(v + 0.5 * (self.a_ref_mps2 - decel) * ramp_s, 0.0)
+            room = gap_m - 0.5 * (v + v_end) * ramp_s
+            decel = max(decel, v_end**2 / (2.0 * room) if room > 0.05 else c.max_decel_mps2)
+        # Hysteresis: once braking for it, only a stop point that needs half the trigger releases it;
+        # once at rest short of it, only one that moved off by ``restart_gap_m`` (no creeping on).
+        trigger = c.brake_trigger_mps2 * (0.5 if self._braking else 1.0)
+        resting = self._braking and v == 0.0 and gap_m < c.restart_gap_m
+        self._braking = decel >= trigger or gap_m < 1.0 or resting
+        if not self._braking:
+            return None
+        if decel > c.comfort_decel_mps2:
+            return -decel, True  # urgent: no fade-out, the stop point comes first
+        # The fade-out at the end runs D^3 / (6 j^2) further than constant braking: aim short by that.
+        fade_m = decel**3 / (6.0 * c.stop_jerk_mps3**2)
+        if fade_m < 0.5 * gap_m:
+            decel = max(decel, v**2 / (2.0 * (gap_m - fade_m)))
+        return -min(decel, math.sqrt(2.0 * c.stop_jerk_mps3 * v)), False
 
 
 def stopping_gap_m(stop_front_s_m: float | None, front_s_m: float) -> float | None:

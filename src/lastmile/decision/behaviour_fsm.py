@@ -14,10 +14,12 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from lastmile.core.geometry import SE2
 from lastmile.core.polyline import Polyline
 from lastmile.core.route_obstacles import route_obstacles
-from lastmile.core.safety_messages import FailSafeLevel
+from lastmile.core.safety_messages import FailSafeLevel, MrmKind
 from lastmile.core.vehicle import VehicleGeometry
 from lastmile.core.vehicle_messages import BehaviourDecision, BehaviourState, StopReason
 from lastmile.decision.behaviour_memory import BehaviourMemory, Cycle, DecisionContext, Outcome
@@ -156,12 +158,15 @@ class BehaviourStateMachine:
             stop_at = None if binding is None else binding.stop_front_s_m
             risk = -1 if binding is None else binding.track_id
             why = StopReason.NONE if binding is None else binding.reason
+        spot = self._spot_pose()
+        if why == StopReason.MINIMAL_RISK_MANOEUVRE and stop_at is not None:
+            spot = self._mrm_spot_pose(cy, stop_at) or spot
         return BehaviourDecision(
             stamp=cy.inp.stamp,
             state=self.memory.state,
             speed_limit_mps=outcome.speed_cap_mps,
             stop_at_s_m=stop_at,
-            pullover_spot=self._spot_pose(),
+            pullover_spot=spot,
             merge_from_s_m=self.memory.stop.merge_from_s_m,
             door_open=outcome.door_open,
             risk_track_id=risk,
@@ -217,6 +222,20 @@ class BehaviourStateMachine:
         return Outcome(
             0.0, "emergency stop", hold_still=True, risk_track_id=close[0].track_id if close else -1
         )
+
+    def _mrm_spot_pose(self, cy: Cycle, stop_front_s_m: float) -> SE2 | None:
+        """Where the rear axle rests when the safety module's manoeuvre pulls over: at the curb of the
+        stop point, the curb gap kept (None: it stops in lane, or the map has no curb there)."""
+        sd = cy.inp.safety
+        if sd is None or sd.mrm != MrmKind.PULL_OVER:
+            return None
+        curb = float(self.layers.curb_right_d_m[self.layers.record_indices(np.array([stop_front_s_m]))[0]])
+        if not math.isfinite(curb):
+            return None
+        rear_s = stop_front_s_m - self.geometry.front_from_rear_axle_m
+        x, y, yaw = self.context.route.point_at(rear_s)
+        d = self.spot_d_m(curb)
+        return SE2(x - d * math.sin(yaw), y + d * math.cos(yaw), yaw)
 
     def _spot_pose(self) -> SE2 | None:
         visit = self.memory.stop

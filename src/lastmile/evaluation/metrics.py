@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from lastmile.core.errors import ConfigError, LastmileError
-from lastmile.evaluation.run_signals import SHUTTLE_COMFORT, ComfortLimits, RunSignals
+from lastmile.evaluation.run_signals import SHUTTLE_COMFORT, SNOW_LION_COMFORT, ComfortLimits, RunSignals
 from lastmile.recorder import run_log
 
 MetricValue = float | int | str | None
@@ -297,6 +297,38 @@ def _comfort_compliant(sig: RunSignals) -> MetricResult:
     return _ok(int(sig.comfort_compliant)) if sig.rows else INVALID
 
 
+@register_metric("comfort_violation")
+def _comfort_violation(sig: RunSignals) -> MetricResult:
+    """Why ``comfort_compliant`` is 0: each limit broken, its worst value and when (None: compliant)."""
+    if not sig.rows:
+        return INVALID
+    found = sig.comfort_exceedances()
+    return _ok("; ".join(e.describe() for e in found) if found else None)
+
+
+@register_metric("snow_lion_comfort_compliant")
+def _snow_lion_compliant(sig: RunSignals) -> MetricResult:
+    return _ok(int(not sig.comfort_exceedances(SNOW_LION_COMFORT))) if sig.rows else INVALID
+
+
+@register_metric("snow_lion_comfort_violation")
+def _snow_lion_violation(sig: RunSignals) -> MetricResult:
+    if not sig.rows:
+        return INVALID
+    found = sig.comfort_exceedances(SNOW_LION_COMFORT)
+    return _ok("; ".join(e.describe() for e in found) if found else None)
+
+
+def _extreme(values: np.ndarray, pick: Callable[[np.ndarray], np.floating]) -> MetricResult:
+    return _ok(float(pick(values))) if len(values) else INVALID
+
+
+register_metric("comfort_min_accel_mps2")(lambda sig: _extreme(sig.comfort_accel_mps2[1], np.min))
+register_metric("comfort_max_accel_mps2")(lambda sig: _extreme(sig.comfort_accel_mps2[1], np.max))
+register_metric("comfort_min_jerk_mps3")(lambda sig: _extreme(sig.comfort_jerk_mps3[1], np.min))
+register_metric("comfort_max_jerk_mps3")(lambda sig: _extreme(sig.comfort_jerk_mps3[1], np.max))
+
+
 @register_metric("closed_loop_score")
 def _closed_loop_score(sig: RunSignals) -> MetricResult:
     if sig.duration_s <= 0.0:
@@ -353,6 +385,12 @@ def compute_metrics(log: run_log.RunLog, comfort: ComfortLimits = SHUTTLE_COMFOR
       differentiated between adjacent windows. This mirrors an IMU-rate estimate like the logs behind
       Snow Lion's Table 2; differentiating the raw 50 Hz trace would turn every controller step into a
       spike that no passenger feels. ``min_jerk_mps3``/``max_jerk_mps3`` are extremes of that jerk.
+    - ``comfort_min_accel_mps2``/``comfort_max_accel_mps2``/``comfort_min_jerk_mps3``/
+      ``comfort_max_jerk_mps3``: extremes of the 10 Hz acceleration and jerk outside emergencies (what
+      the comfort checks read). ``comfort_violation``: why ``comfort_compliant`` is 0, one clause per
+      limit broken (its worst value, the bound, the time, the state and how many 0.1 s samples), None
+      when compliant. ``snow_lion_comfort_compliant`` / ``snow_lion_comfort_violation``: the same check
+      against Snow Lion's measured envelope (-1.83..1.12 m/s², |jerk| <= 1.84 m/s³).
     - ``hard_braking_events``: entries into episodes where the 10 Hz acceleration is <= -1 m/s² (Snow
       Lion's braking criterion); an episode ends once the acceleration rises above -1 + 0.1 m/s², so a
       signal hovering at the threshold counts once. ``km_per_hard_braking`` and ``km_per_takeover``

@@ -74,6 +74,18 @@ _METRIC_GROUPS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "min_ttc_s",
             "speed_limit_compliance",
             "comfort_compliant",
+            "comfort_violation",
+        ),
+    ),
+    (
+        "Ride comfort (10 Hz, outside emergencies)",
+        (
+            "comfort_min_accel_mps2",
+            "comfort_max_accel_mps2",
+            "comfort_min_jerk_mps3",
+            "comfort_max_jerk_mps3",
+            "snow_lion_comfort_compliant",
+            "snow_lion_comfort_violation",
         ),
     ),
     ("Safety", ("collisions_total", "collisions_at_fault", "collisions_not_at_fault", "emergency_stops")),

@@ -48,7 +48,7 @@ def failed_checks(
             f"{d['ego_speed_mps']:.1f} m/s, {fault}"
         )
     if metrics.get("comfort_compliant") == 0:
-        out += [f"comfort: {reason}" for reason in sig.comfort_exceedances()]
+        out += [f"comfort: {e.describe()}" for e in sig.comfort_exceedances()]
     min_ttc = metrics.get("min_ttc_s")
     if metrics.get("ttc_compliant") == 0 and isinstance(min_ttc, int | float):
         worst = min(log.events_of(EventKind.MIN_TTC), key=lambda e: float(e.data["ttc_s"]))

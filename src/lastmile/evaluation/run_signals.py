@@ -62,6 +62,38 @@ class ComfortLimits:
 SHUTTLE_COMFORT = ComfortLimits()
 """The default comfort limits of a shuttle with standing riders."""
 
+SNOW_LION_COMFORT = ComfortLimits(max_accel_mps2=1.12, max_decel_mps2=1.83, max_abs_jerk_mps3=1.84)
+"""Snow Lion's measured envelope (its Table 2: acceleration -1.83 to 1.12 m/s², jerk up to 1.84 m/s³),
+the target of issue #20's comfort check (``snow_lion_comfort_compliant``)."""
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ComfortExceedance:
+    """The worst 10 Hz sample beyond one comfort limit, outside emergencies.
+
+    Attributes:
+        limit: which limit (``max_accel_mps2``, ``max_decel_mps2`` or ``max_abs_jerk_mps3``).
+        value: the worst value beyond it (m/s² or m/s³, signed as measured).
+        bound: the limit it broke (signed: the deceleration bound is negative).
+        t_s: when (window mean time).
+        state: the behaviour state there (a name of ``run_log.STATE_NAMES``, or ``unknown``).
+        windows: how many 10 Hz samples are beyond this limit.
+    """
+
+    limit: str
+    value: float
+    bound: float
+    t_s: float
+    state: str
+    windows: int
+
+    def describe(self) -> str:
+        unit = "m/s^3" if self.limit == "max_abs_jerk_mps3" else "m/s^2"
+        return (
+            f"{self.limit}: {self.value:+.2f} {unit} beyond {self.bound:+.2f} at t {self.t_s:.1f} s "
+            f"({self.state}; {self.windows} sample{'s' if self.windows != 1 else ''} of 0.1 s)"
+        )
+
 
 def true_runs(mask: np.ndarray) -> list[tuple[int, int]]:
     """(start, stop) index pairs of the maximal runs of True in a 1-D bool array."""
@@ -202,37 +234,53 @@ class RunSignals:
         return count
 
     @cached_property
-    def comfort_compliant(self) -> bool:
-        c = self.comfort
-        keep_a = ~self._windows[3]
-        accel = self.accel_10hz_mps2[keep_a]
-        jerk = self.jerk_mps3[~self._jerk[2]]
-        return bool(
-            np.all(accel <= c.max_accel_mps2)
-            and np.all(accel >= -c.max_decel_mps2)
-            and np.all(np.abs(jerk) <= c.max_abs_jerk_mps3)
-        )
+    def comfort_accel_mps2(self) -> tuple[np.ndarray, np.ndarray]:
+        """(t_s, accel): the 10 Hz acceleration outside emergencies (what the comfort check reads)."""
+        keep = ~self._windows[3]
+        return self.accel_10hz_t_s[keep], self.accel_10hz_mps2[keep]
 
-    def comfort_exceedances(self) -> list[str]:
-        """Why :attr:`comfort_compliant` is false: per limit broken, the worst sample, when, and how many
-        0.1 s samples broke it (emergency windows exempt, as in the check). Empty when compliant."""
-        c = self.comfort
-        keep_a = ~self._windows[3]
-        t_a, accel = self.accel_10hz_t_s[keep_a], self.accel_10hz_mps2[keep_a]
-        t_j, jerk = self.jerk_t_s[~self._jerk[2]], self.jerk_mps3[~self._jerk[2]]
+    @cached_property
+    def comfort_jerk_mps3(self) -> tuple[np.ndarray, np.ndarray]:
+        """(t_s, jerk): the 10 Hz jerk outside emergencies (what the comfort check reads)."""
+        keep = ~self._jerk[2]
+        return self.jerk_t_s[keep], self.jerk_mps3[keep]
+
+    def comfort_exceedances(self, limits: ComfortLimits | None = None) -> list[ComfortExceedance]:
+        """Per limit broken, its worst sample (empty when comfortable); ``limits`` default to the run's."""
+        c = limits or self.comfort
+        t_a, a = self.comfort_accel_mps2
+        t_j, j = self.comfort_jerk_mps3
+        checks = (
+            ("max_accel_mps2", t_a, a, a - c.max_accel_mps2, c.max_accel_mps2),
+            ("max_decel_mps2", t_a, a, -c.max_decel_mps2 - a, -c.max_decel_mps2),
+            ("max_abs_jerk_mps3", t_j, j, np.abs(j) - c.max_abs_jerk_mps3, c.max_abs_jerk_mps3),
+        )
         out = []
-        for name, t, values, over, limit, unit in (
-            ("acceleration", t_a, accel, accel > c.max_accel_mps2, c.max_accel_mps2, "m/s²"),
-            ("braking", t_a, -accel, accel < -c.max_decel_mps2, c.max_decel_mps2, "m/s²"),
-            ("jerk", t_j, np.abs(jerk), np.abs(jerk) > c.max_abs_jerk_mps3, c.max_abs_jerk_mps3, "m/s³"),
-        ):
-            if over.any():
-                worst = int(np.argmax(np.where(over, values, -np.inf)))
-                out.append(
-                    f"{name} {values[worst]:.2f} {unit} at {t[worst]:.1f} s exceeds {limit:.2f} "
-                    f"({int(over.sum())} samples of 0.1 s over)"
+        for name, t, values, excess, bound in checks:
+            over = excess > 0.0
+            if not np.any(over):
+                continue
+            worst = int(np.argmax(excess))
+            value = float(values[worst])
+            row = min(int(np.searchsorted(self.t_s, t[worst])), self.rows - 1)
+            code = int(self.state[row])
+            state = run_log.STATE_NAMES[code] if 0 <= code < len(run_log.STATE_NAMES) else "unknown"
+            signed_bound = -bound if name == "max_abs_jerk_mps3" and value < 0.0 else bound
+            out.append(
+                ComfortExceedance(
+                    limit=name,
+                    value=value,
+                    bound=signed_bound,
+                    t_s=float(t[worst]),
+                    state=state,
+                    windows=int(np.count_nonzero(over)),
                 )
+            )
         return out
+
+    @cached_property
+    def comfort_compliant(self) -> bool:
+        return not self.comfort_exceedances()
 
     # --- rules -----------------------------------------------------------------------------------
     def violations(self, rule: str) -> tuple[run_log.RunEvent, ...]:

@@ -13,7 +13,7 @@ from lastmile.core.geometry import FloatArray
 from lastmile.core.polyline import Polyline
 from lastmile.core.route_obstacles import RouteObstacle
 from lastmile.core.stamp import Stamp
-from lastmile.core.vehicle_messages import BehaviourDecision, BehaviourState, Trajectory
+from lastmile.core.vehicle_messages import BehaviourDecision, BehaviourState, StopReason, Trajectory
 from lastmile.planning.bezier import lateral_transition_m, smooth_through
 from lastmile.planning.potential_field import PotentialFieldConfig, nudge_offsets_m
 
@@ -88,6 +88,14 @@ class LocalPathPlanner:
             ).s_m
             # End the curve a few metres before the spot so the last stretch is straight and parallel to
             # the curb: a lookahead controller needs that run to settle its lateral error before stopping.
+            s1 = _unwrap_near(spot_rear_s, float(s_m[0]), self.route) - c.settle_m
+            return self._off_the_curb(s_m, self._pullover_offsets_m(s_m, s1 - c.pullover_m, s1, spot_d))
+        if decision.stop_reason == StopReason.MINIMAL_RISK_MANOEUVRE and spot_d is not None:
+            # The safety module's pull-over: the same move to the curb as into a bay, to its spot.
+            assert decision.pullover_spot is not None
+            spot_rear_s = self.route.project(
+                decision.pullover_spot.x_m, decision.pullover_spot.y_m, hint_s_m=float(s_m[0]), window_m=80.0
+            ).s_m
             s1 = _unwrap_near(spot_rear_s, float(s_m[0]), self.route) - c.settle_m
             return self._off_the_curb(s_m, self._pullover_offsets_m(s_m, s1 - c.pullover_m, s1, spot_d))
         if decision.state == BehaviourState.MERGING and decision.merge_from_s_m is not None:

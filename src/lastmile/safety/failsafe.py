@@ -64,6 +64,9 @@ class FailSafeConfig:
         pullover_lookahead_m: a curb must be reachable within this route distance past the comfortable
             stopping point for the MRM to pull over.
         pullover_max_curb_d_m: the curb must be at most this far right of the lane centre.
+        pullover_min_ahead_m: a pull-over spot is at least this far ahead of the front: the planner's
+            move to the curb (its ``pullover_m`` 20 m curve and ``settle_m`` 8 m run, laid for the rear
+            axle 3.75 m behind the front) must fit in front of the shuttle.
     """
 
     clear_hold_us: dict[FailSafeLevel, int] = field(
@@ -82,6 +85,7 @@ class FailSafeConfig:
     speed_gain_1ps: float = 1.0
     pullover_lookahead_m: float = 15.0
     pullover_max_curb_d_m: float = 4.0
+    pullover_min_ahead_m: float = 30.0
 
     def __post_init__(self) -> None:
         missing = [
@@ -312,10 +316,21 @@ class FailSafeArbiter:
         stop_s = route_s_m + max(speed_mps, 0.0) ** 2 / (2.0 * c.mrm_decel_mps2)
         if blockers or self.layers is None:
             return MrmKind.STOP_IN_LANE, stop_s
-        spot = self.pullover_s_m(stop_s)
+        spot = self.pullover_s_m(max(stop_s, route_s_m + c.pullover_min_ahead_m))
         if spot is None:
             return MrmKind.STOP_IN_LANE, stop_s
         return MrmKind.PULL_OVER, spot
+
+    def mrm_gap_m(self, front_s_m: float | None) -> float | None:
+        """Route distance from the front bumper to the manoeuvre's stop point (None: no point or no
+        front), the shorter way round on a closed route."""
+        if self._mrm_stop_s is None or front_s_m is None:
+            return None
+        gap = self._mrm_stop_s - front_s_m
+        route = self.layers.centerline if self.layers is not None else None
+        if route is not None and route.closed:
+            gap = route.ds_m(front_s_m, self._mrm_stop_s)
+        return gap
 
     def pullover_s_m(self, from_s_m: float) -> float | None:
         """First route s in [from_s_m, from_s_m + lookahead] with a curb close by on a plain road or bay."""
@@ -336,14 +351,19 @@ def apply_safety_gate(
     directive: SafetyDirective,
     speed_mps: float,
     config: FailSafeConfig | None = None,
+    mrm_gap_m: float | None = None,
 ) -> ActuatorCommand:
     """The actuator-command gate: enforce the directive on the stack's command, whatever the stack did.
 
     - EMERGENCY_STOP: maximum deceleration, ``emergency_brake`` set, steering kept (stay in lane),
       door closed.
-    - MINIMAL_RISK_MANOEUVRE: no acceleration; at least ``mrm_decel_mps2`` of braking while moving
-      (a stronger brake in the command is kept), hold the brake at standstill; steering kept so the
-      stack can still pull over.
+    - MINIMAL_RISK_MANOEUVRE with the front's distance to its stop point (``mrm_gap_m``): the stop
+      point is enforced, not a fixed deceleration. Faster than the speed from which ``mrm_decel_mps2``
+      still stops there, at least the braking that does (v^2 / 2 gap, up to the maximum); slower, the
+      command may not accelerate past that speed (so a pull-over can still reach its spot); at the
+      point, the brake is held. Steering is kept so the stack can pull over.
+    - MINIMAL_RISK_MANOEUVRE without it: no acceleration; at least ``mrm_decel_mps2`` of braking while
+      moving (a stronger brake in the command is kept), hold the brake at standstill.
     - any level with a speed cap: acceleration at most ``speed_gain * (cap - speed)``, floored at the
       comfortable MRM deceleration, so the vehicle settles on the cap without a hard brake.
 
@@ -359,7 +379,7 @@ def apply_safety_gate(
             command, accel_mps2=-c.max_decel_mps2, emergency_brake=True, door_open=door and not moving
         )
     if directive.level >= FailSafeLevel.MINIMAL_RISK_MANOEUVRE:
-        accel = min(accel, -directive.mrm_decel_mps2 if moving else -c.mrm_decel_mps2)
+        accel = min(accel, _mrm_limit_mps2(directive, speed_mps, moving, mrm_gap_m, c))
         door = door and not moving
     if directive.speed_cap_mps is not None:
         limit = max(c.speed_gain_1ps * (directive.speed_cap_mps - speed_mps), -c.mrm_decel_mps2)
@@ -367,3 +387,18 @@ def apply_safety_gate(
     if math.isclose(accel, command.accel_mps2, abs_tol=0.0) and door == command.door_open:
         return command
     return dataclasses.replace(command, accel_mps2=accel, door_open=door)
+
+
+def _mrm_limit_mps2(
+    directive: SafetyDirective, speed_mps: float, moving: bool, gap_m: float | None, c: FailSafeConfig
+) -> float:
+    """The most acceleration a minimal risk manoeuvre allows (see :func:`apply_safety_gate`)."""
+    a_mrm = directive.mrm_decel_mps2
+    if gap_m is None:
+        return -a_mrm if moving else -c.mrm_decel_mps2
+    if gap_m <= 0.05:
+        return -a_mrm if not moving else -min(max(a_mrm, speed_mps**2 / 0.1), c.max_decel_mps2)
+    v_allowed = math.sqrt(2.0 * a_mrm * gap_m)
+    if speed_mps > v_allowed:
+        return -min(speed_mps**2 / (2.0 * gap_m), c.max_decel_mps2)
+    return max(c.speed_gain_1ps * (v_allowed - speed_mps), 0.0) if moving or gap_m > 0.5 else -a_mrm

@@ -96,8 +96,15 @@ class VehicleSafety:
         )
         self.directive = directive
         stream = output.command if output is not None else None
+        front_s = diag.front_route_s_m if diag is not None else None
         command = (
-            apply_safety_gate(stream, directive, self._wheel_speed_mps, self.supervisor.arbiter.config)
+            apply_safety_gate(
+                stream,
+                directive,
+                self._wheel_speed_mps,
+                self.supervisor.arbiter.config,
+                mrm_gap_m=self.supervisor.arbiter.mrm_gap_m(front_s),
+            )
             if stream is not None
             else self._own_brake(now, directive)
         )

@@ -526,7 +526,9 @@ class ShuttleStack:
         emergency = d.state == BehaviourState.EMERGENCY_STOP and est.speed_mps > 0.05
         # In a bay the rear wheels stay straight: counter-steering them would swing the tail into the
         # curb as the shuttle turns out of (or straightens into) the bay.
-        at_curb = d.state in (BehaviourState.PULLOVER, BehaviourState.ONBOARDING, BehaviourState.MERGING)
+        at_curb = d.state in (BehaviourState.PULLOVER, BehaviourState.ONBOARDING, BehaviourState.MERGING) or (
+            d.stop_reason == StopReason.MINIMAL_RISK_MANOEUVRE and d.pullover_spot is not None
+        )
         steer_f, steer_r = self.lateral.step(dt, pose, est.speed_mps, path, rear_steer=not at_curb)
         self._command = ActuatorCommand(
             stamp=now,
