@@ -72,6 +72,29 @@ def run(
     Raises:
         LastmileError: a bad input, naming what was expected and what arrived, before the run starts.
     """
+    spec, run_config = prepare_run(
+        scenario, config, minutes=minutes, seed=seed, weather=weather, perception=perception, route=route
+    )
+    log = run_scenario(spec, run_config, black_box_dir=black_box_dir, stop=stop)
+    return RunResult(log=log, metrics=compute_metrics(log))
+
+
+def prepare_run(
+    scenario: Scenario | str | Path | None = None,
+    config: RunConfig | str | Path | None = None,
+    *,
+    minutes: float | None = None,
+    seed: int | None = None,
+    weather: str | None = None,
+    perception: str | None = None,
+    route: str | Path | None = None,
+) -> tuple[Scenario, RunConfig]:
+    """The scenario and run configuration :func:`run` (and ``lastmile run``) would simulate, with the
+    overrides applied and checked against each other before any work starts (arguments as :func:`run`).
+
+    Raises:
+        LastmileError: a bad input, naming what was expected and what arrived.
+    """
     spec = _scenario(scenario, route)
     overrides: dict[str, Any] = {}
     if minutes is not None:
@@ -84,8 +107,7 @@ def run(
     spec = dataclasses.replace(spec, **overrides)
     run_config = _config(config, perception)
     run_config.check_serves(spec)
-    log = run_scenario(spec, run_config, black_box_dir=black_box_dir, stop=stop)
-    return RunResult(log=log, metrics=compute_metrics(log))
+    return spec, run_config
 
 
 def evaluate(log: RunLog, out: Path | None = None) -> dict[str, MetricValue]:

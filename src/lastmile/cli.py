@@ -115,33 +115,19 @@ def run(
         return
 
     try:
+        from lastmile.api import prepare_run
         from lastmile.core.output_dir import prepare_output_dir
         from lastmile.runner.closed_loop import evaluate_run, load_world_map, run_scenario
         from lastmile.runner.stop_signals import StopSignals
-        from lastmile.sim.scenario import MapSpec, default_service, load_scenario, route_service
-        from lastmile.sim.weather import parse_weather
 
         run_config = _run_config(config, perception, PERCEPTION_OPTIONS["lidar"])
         if not black_box:
             run_config = dataclasses.replace(
                 run_config, loop=dataclasses.replace(run_config.loop, black_box=False)
             )
-        if scenario is not None:
-            spec = load_scenario(scenario)
-            if route is not None:
-                spec = dataclasses.replace(spec, map=MapSpec(name="route", route=str(route)))
-        else:
-            spec = route_service(str(route)) if route is not None else default_service()
-        overrides: dict[str, object] = {}
-        if minutes is not None:
-            overrides["minutes"] = minutes
-        if seed is not None:
-            overrides["seed"] = seed
-        if weather is not None:
-            parse_weather(weather)
-            overrides["weather"] = weather
-        spec = dataclasses.replace(spec, **overrides)  # type: ignore[arg-type]
-        run_config.check_serves(spec)
+        spec, run_config = prepare_run(
+            scenario, run_config, minutes=minutes, seed=seed, weather=weather, route=route
+        )
         world_map = load_world_map(spec.map)  # a bad route or map is found before the run, not after
         prepare_output_dir(out)
         with (

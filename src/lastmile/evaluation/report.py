@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from matplotlib.collections import LineCollection, PolyCollection
+from matplotlib.collections import LineCollection
 from matplotlib.colors import Normalize
 from matplotlib.figure import Figure
 from matplotlib.patches import Patch
@@ -160,31 +160,6 @@ def _event_xy(log: run_log.RunLog, events: Sequence[run_log.RunEvent]) -> np.nda
 
 
 # --- (a) the map ---------------------------------------------------------------------------------------
-def _draw_hdmap(ax: Any, hdmap: HDMap) -> None:
-    bounds = [
-        xy
-        for ll in hdmap.lanelets.values()
-        if ll.subtype != "crosswalk"
-        for xy in (ll.left.xy_m, ll.right.xy_m)
-    ]
-    ax.add_collection(LineCollection(bounds, colors="#9a9a9a", linewidths=0.6, zorder=1))
-    crosswalks = [np.asarray(cw.polygon) for cw in hdmap.crosswalks]
-    if crosswalks:
-        ax.add_collection(
-            PolyCollection(
-                crosswalks, facecolors="none", edgecolors="#606060", hatch="////", linewidths=0.6, zorder=1
-            )
-        )
-    curbs = [stop.curb.xy_m for stop in hdmap.stops]
-    if curbs:
-        ax.add_collection(LineCollection(curbs, colors="#1f4e79", linewidths=2.5, zorder=2))
-        for stop in hdmap.stops:
-            mid = stop.curb.xy_m[len(stop.curb.xy_m) // 2]
-            ax.annotate(
-                stop.id, mid, xytext=(4, -10), textcoords="offset points", fontsize=8, color="#1f4e79"
-            )
-
-
 def _map_figure(log: run_log.RunLog) -> Figure:
     """A figure shaped like the driven area, so that a long straight run is not a strip in a square."""
     width_in = 10.0
@@ -199,7 +174,7 @@ def _plot_map(log: run_log.RunLog, hdmap: HDMap | None, path: Path) -> None:
     fig = _map_figure(log)
     ax = fig.add_subplot()
     if hdmap is not None:
-        _draw_hdmap(ax, hdmap)
+        report_views.draw_hdmap(ax, hdmap, label_stops=True)
     n = len(log)
     if n >= 2:
         idx = _thin(n)

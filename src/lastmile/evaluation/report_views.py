@@ -156,7 +156,9 @@ def places(hdmap: HDMap) -> list[tuple[str, np.ndarray]]:
     return out[:MAX_PLACE_VIEWS]
 
 
-def _draw_map(ax: Any, hdmap: HDMap) -> None:
+def draw_hdmap(ax: Any, hdmap: HDMap, *, label_stops: bool = False) -> None:
+    """The map under a plot: lane bounds, crosswalks, the stops' curbs (named with ``label_stops``) and
+    the stop lines."""
     bounds = [
         xy
         for ll in hdmap.lanelets.values()
@@ -167,11 +169,19 @@ def _draw_map(ax: Any, hdmap: HDMap) -> None:
     crosswalks = [np.asarray(cw.polygon) for cw in hdmap.crosswalks]
     if crosswalks:
         ax.add_collection(
-            PolyCollection(crosswalks, facecolors="none", edgecolors="#606060", hatch="////", linewidths=0.5)
+            PolyCollection(
+                crosswalks, facecolors="none", edgecolors="#606060", hatch="////", linewidths=0.5, zorder=1
+            )
         )
     curbs = [stop.curb.xy_m for stop in hdmap.stops]
     if curbs:
         ax.add_collection(LineCollection(curbs, colors="#1f4e79", linewidths=2.5, zorder=2))
+    if label_stops:
+        for stop in hdmap.stops:
+            mid = stop.curb.xy_m[len(stop.curb.xy_m) // 2]
+            ax.annotate(
+                stop.id, mid, xytext=(4, -10), textcoords="offset points", fontsize=8, color="#1f4e79"
+            )
     lines = [np.asarray(s.line) for s in hdmap.stop_lines]
     if lines:
         ax.add_collection(LineCollection(lines, colors="#000000", linewidths=1.5, zorder=2))
@@ -196,7 +206,7 @@ def plot_places(log: run_log.RunLog, hdmap: HDMap, path: Path) -> bool:
     ego = _ego_xy(log)
     handles: list[Line2D] = []
     for ax, (label, centre) in zip(axes, spots, strict=False):
-        _draw_map(ax, hdmap)
+        draw_hdmap(ax, hdmap)
         if len(ego):
             ax.plot(ego[:, 0], ego[:, 1], color="#08519c", lw=1.2, zorder=3)
         handles = draw_road_users(ax, log) or handles
@@ -234,7 +244,7 @@ def plot_encounters(
         top, bottom = axes[0, k], axes[1, k]
         window = (enc.t_min_s - ENCOUNTER_WINDOW_S, enc.t_min_s + ENCOUNTER_WINDOW_S)
         if hdmap is not None:
-            _draw_map(top, hdmap)
+            draw_hdmap(top, hdmap)
         ego = _ego_xy(log, window)
         top.plot(ego[:, 0], ego[:, 1], color="#08519c", lw=1.5, zorder=3)
         at = np.array([np.interp(enc.t_min_s, t, log.column(c)) for c in ("x_m", "y_m")])
