@@ -21,7 +21,7 @@ from lastmile.core.errors import ConfigError
 from lastmile.core.perception_mode import PerceptionMode
 from lastmile.evaluation.metrics import MetricValue, compute_metrics
 from lastmile.recorder.run_log import RunLog
-from lastmile.runner.closed_loop import evaluate_run, load_world_map, run_scenario
+from lastmile.runner import closed_loop
 from lastmile.runner.run_config import RunConfig, load_run_config
 from lastmile.sim.scenario import MapSpec, Scenario, default_service, load_scenario, route_service
 from lastmile.sim.weather import parse_weather
@@ -75,7 +75,8 @@ def run(
     spec, run_config = prepare_run(
         scenario, config, minutes=minutes, seed=seed, weather=weather, perception=perception, route=route
     )
-    log = run_scenario(spec, run_config, black_box_dir=black_box_dir, stop=stop)
+    # Looked up when called, not bound at import: the API runs what the runner module holds now.
+    log = closed_loop.run_scenario(spec, run_config, black_box_dir=black_box_dir, stop=stop)
     return RunResult(log=log, metrics=compute_metrics(log))
 
 
@@ -117,7 +118,7 @@ def evaluate(log: RunLog, out: Path | None = None) -> dict[str, MetricValue]:
         return compute_metrics(log)
     config = log.meta.config.get("map", {})
     spec = MapSpec(**config) if isinstance(config, dict) else MapSpec()
-    return evaluate_run(log, out, hdmap=load_world_map(spec).hdmap)
+    return closed_loop.evaluate_run(log, out, hdmap=closed_loop.load_world_map(spec).hdmap)
 
 
 def _scenario(scenario: Scenario | str | Path | None, route: str | Path | None) -> Scenario:
