@@ -257,17 +257,46 @@ def _type(ls: Any) -> str:
 
 def _convert(lmap: Any, name: str) -> HDMap:
     rules = ll2_rules.create(ll2_rules.Locations.Germany, ll2_rules.Participants.Vehicle)
+    topology = _topology(lmap, rules)
+    lanelets = topology.lanelets
+    stop_lines, all_way_stops = _regulatory(lmap, lanelets, topology.successor_ids)
+    return HDMap(
+        name=name,
+        lanelets=lanelets,
+        successor_ids=topology.successor_ids,
+        neighbour_ids=topology.neighbour_ids,
+        conflict_ids=topology.conflict_ids,
+        stops=_bus_stops(lmap, lanelets),
+        crosswalks=_crosswalks(lanelets),
+        stop_lines=stop_lines,
+        all_way_stops=all_way_stops,
+        landmarks=_landmarks(lmap),
+        curbs=_curbs(lmap),
+        signals=_signals(lmap, stop_lines),
+        tagged_stops=_tagged_stops(lmap),
+        priority_lanelet_ids=_priority_lanelet_ids(lmap, lanelets),
+        areas=_areas(lmap),
+    )
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class _Topology:
+    """The directed lanelets and their relations, each relation limited to lanelets that were kept."""
+
+    lanelets: dict[int, LaneletInfo]
+    successor_ids: dict[int, tuple[int, ...]]
+    neighbour_ids: dict[int, tuple[int, ...]]
+    conflict_ids: dict[int, tuple[int, ...]]
+
+
+def _topology(lmap: Any, rules: Any) -> _Topology:
     graph = ll2_routing.RoutingGraph(lmap, rules)
     lanelets: dict[int, LaneletInfo] = {}
     successors: dict[int, tuple[int, ...]] = {}
     beside: dict[int, tuple[int, ...]] = {}
     crossing: dict[int, tuple[int, ...]] = {}
     for lanelet in lmap.laneletLayer:
-        # A two-way lanelet is two directed lanelets to a router: the reversed one gets the negated id.
-        directions = [lanelet]
-        if not rules.isOneWay(lanelet) and rules.canPass(lanelet.invert()):
-            directions.append(lanelet.invert())
-        for directed in directions:
+        for directed in _directions(lanelet, rules):
             lid = _directed_id(directed)
             info = _lanelet_info(directed, lid, rules)
             if info is None:
@@ -279,48 +308,63 @@ def _convert(lmap: Any, name: str) -> HDMap:
             crossing[lid] = tuple(
                 _directed_id(c) for c in graph.conflicting(directed) if isinstance(c, ll2.ConstLanelet)
             )
-    successors = {k: tuple(s for s in v if s in lanelets) for k, v in successors.items()}
-    beside = {k: tuple(s for s in v if s in lanelets) for k, v in beside.items() if k in lanelets}
-    crossing = {k: tuple(s for s in v if s in lanelets) for k, v in crossing.items() if k in lanelets}
-    stop_lines, all_way_stops = _regulatory(lmap, lanelets, successors)
-    return HDMap(
-        name=name,
+    return _Topology(
         lanelets=lanelets,
-        successor_ids=successors,
-        neighbour_ids={k: v for k, v in beside.items() if v},
-        conflict_ids={k: v for k, v in crossing.items() if v},
-        stops=_bus_stops(lmap, lanelets),
-        crosswalks=tuple(
-            Crosswalk(id=lid, polygon=info.polygon(), width_m=_mean_gap(info.left, info.right))
-            for lid, info in sorted(lanelets.items())
-            if info.subtype == "crosswalk"
-        ),
-        stop_lines=stop_lines,
-        all_way_stops=all_way_stops,
-        landmarks=_landmarks(lmap),
-        curbs=tuple(
-            line
-            for ls in sorted(lmap.lineStringLayer, key=lambda ls: ls.id)
-            if is_curb_type(_type(ls)) and (line := _polyline(ls)) is not None
-        ),
-        signals=_signals(lmap, stop_lines),
-        tagged_stops=_tagged_stops(lmap),
-        priority_lanelet_ids=frozenset(
-            lid
-            for rule in lmap.regulatoryElementLayer
-            if isinstance(rule, ll2.RightOfWay)
-            for ll in (*rule.rightOfWayLanelets(), *rule.yieldLanelets())
-            if (lid := _directed_id(ll)) in lanelets
-        ),
-        areas=tuple(
-            MapArea(
-                id=a.id,
-                subtype=_attr(a.attributes, "subtype", ""),
-                polygon=_xy(p for ls in a.outerBound for p in ls),
-                name=_attr(a.attributes, "name", ""),
-            )
-            for a in sorted(lmap.areaLayer, key=lambda a: a.id)
-        ),
+        successor_ids=_kept(successors, lanelets, drop_empty=False),
+        neighbour_ids=_kept(beside, lanelets, drop_empty=True),
+        conflict_ids=_kept(crossing, lanelets, drop_empty=True),
+    )
+
+
+def _directions(lanelet: Any, rules: Any) -> list[Any]:
+    """A two-way lanelet is two directed lanelets to a router: the reversed one gets the negated id."""
+    if not rules.isOneWay(lanelet) and rules.canPass(lanelet.invert()):
+        return [lanelet, lanelet.invert()]
+    return [lanelet]
+
+
+def _kept(
+    relation: dict[int, tuple[int, ...]], lanelets: dict[int, LaneletInfo], *, drop_empty: bool
+) -> dict[int, tuple[int, ...]]:
+    kept = {k: tuple(s for s in v if s in lanelets) for k, v in relation.items() if k in lanelets}
+    return {k: v for k, v in kept.items() if v} if drop_empty else kept
+
+
+def _crosswalks(lanelets: dict[int, LaneletInfo]) -> tuple[Crosswalk, ...]:
+    return tuple(
+        Crosswalk(id=lid, polygon=info.polygon(), width_m=_mean_gap(info.left, info.right))
+        for lid, info in sorted(lanelets.items())
+        if info.subtype == "crosswalk"
+    )
+
+
+def _curbs(lmap: Any) -> tuple[Polyline, ...]:
+    return tuple(
+        line
+        for ls in sorted(lmap.lineStringLayer, key=lambda ls: ls.id)
+        if is_curb_type(_type(ls)) and (line := _polyline(ls)) is not None
+    )
+
+
+def _priority_lanelet_ids(lmap: Any, lanelets: dict[int, LaneletInfo]) -> frozenset[int]:
+    return frozenset(
+        lid
+        for rule in lmap.regulatoryElementLayer
+        if isinstance(rule, ll2.RightOfWay)
+        for ll in (*rule.rightOfWayLanelets(), *rule.yieldLanelets())
+        if (lid := _directed_id(ll)) in lanelets
+    )
+
+
+def _areas(lmap: Any) -> tuple[MapArea, ...]:
+    return tuple(
+        MapArea(
+            id=a.id,
+            subtype=_attr(a.attributes, "subtype", ""),
+            polygon=_xy(p for ls in a.outerBound for p in ls),
+            name=_attr(a.attributes, "name", ""),
+        )
+        for a in sorted(lmap.areaLayer, key=lambda a: a.id)
     )
 
 
