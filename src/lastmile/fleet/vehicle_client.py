@@ -199,60 +199,84 @@ class VehicleClient:
     async def _handle(self, msg: dict[str, Any]) -> None:
         kind = msg.get("type")
         if kind == "assignment":
-            trip = msg["trip"]
-            tid = int(trip["id"])
-            if tid in self.assignments or tid in self.finished:
-                self.stats.duplicates_ignored += 1
-            else:
-                a = Assignment(
-                    id=tid,
-                    kind=trip["kind"],
-                    stop_id=trip["stop_id"],
-                    request_id=trip.get("request_id"),
-                    run_id=trip.get("run_id"),
-                    seats=int(trip.get("seats", 0)),
-                )
-                self.assignments[tid] = a
-                self.stats.assignments_received += 1
-                if self.on_assignment is not None:
-                    self.on_assignment(a)
-            if self._ws is not None:
-                await self._ws.send(json.dumps({"type": "ack", "trip_id": tid}))
-        elif kind == "cancel":
-            tid = int(msg["trip_id"])
-            if self.assignments.pop(tid, None) is not None:
-                self.stats.cancels += 1
-                if self.on_cancel is not None:
-                    self.on_cancel(tid)
-        elif kind in ("command", "service"):
-            self.service = msg["service"]
-            if kind == "command":
-                self.stats.commands.append(msg["command"])
-            if self.on_command is not None:
-                self.on_command(msg.get("command", "resume"), self.service)
-        elif kind == "plan":
-            self.plan = [(v["stop_id"], [int(t) for t in v["trip_ids"]]) for v in msg["visits"]]
-            if self.on_plan is not None:
-                self.on_plan(self.plan)
-        elif kind == "done_ack":
-            fut = self._unconfirmed.pop(int(msg["trip_id"]), None)
-            if fut is not None and not fut.done():
-                fut.set_result(not msg.get("duplicate", False))
-        elif kind == "seat_ack":
-            if self._seat_waiters:
-                self._seat_waiters.pop(0).set_result(msg)
-        elif kind == "infrastructure":
-            self.infrastructure[str(msg["node_id"])] = msg
-            if self.on_infrastructure is not None:
-                self.on_infrastructure(msg)
-        elif kind == "pong":
-            if self._pong_waiters:
-                self._pong_waiters.pop(0).set_result(None)
-        elif kind == "resumed":
-            self._resumed.set()
-        elif kind == "error":
-            self.stats.errors.append(str(msg.get("reason")))
+            await self._on_assignment(msg["trip"])  # the one message answered on the link (ack)
+        else:
+            handler = self._handlers.get(str(kind))
+            if handler is not None:
+                handler(msg)
         self._changed.set()
+
+    @property
+    def _handlers(self) -> dict[str, Callable[[dict[str, Any]], None]]:
+        return {
+            "cancel": self._on_cancel,
+            "command": self._on_service,
+            "service": self._on_service,
+            "plan": self._on_plan,
+            "done_ack": self._on_done_ack,
+            "seat_ack": self._on_seat_ack,
+            "infrastructure": self._on_infrastructure,
+            "pong": self._on_pong,
+            "resumed": lambda _msg: self._resumed.set(),
+            "error": lambda msg: self.stats.errors.append(str(msg.get("reason"))),
+        }
+
+    async def _on_assignment(self, trip: dict[str, Any]) -> None:
+        tid = int(trip["id"])
+        if tid in self.assignments or tid in self.finished:
+            self.stats.duplicates_ignored += 1
+        else:
+            a = Assignment(
+                id=tid,
+                kind=trip["kind"],
+                stop_id=trip["stop_id"],
+                request_id=trip.get("request_id"),
+                run_id=trip.get("run_id"),
+                seats=int(trip.get("seats", 0)),
+            )
+            self.assignments[tid] = a
+            self.stats.assignments_received += 1
+            if self.on_assignment is not None:
+                self.on_assignment(a)
+        if self._ws is not None:
+            await self._ws.send(json.dumps({"type": "ack", "trip_id": tid}))
+
+    def _on_cancel(self, msg: dict[str, Any]) -> None:
+        tid = int(msg["trip_id"])
+        if self.assignments.pop(tid, None) is not None:
+            self.stats.cancels += 1
+            if self.on_cancel is not None:
+                self.on_cancel(tid)
+
+    def _on_service(self, msg: dict[str, Any]) -> None:
+        self.service = msg["service"]
+        if msg.get("type") == "command":
+            self.stats.commands.append(msg["command"])
+        if self.on_command is not None:
+            self.on_command(msg.get("command", "resume"), self.service)
+
+    def _on_plan(self, msg: dict[str, Any]) -> None:
+        self.plan = [(v["stop_id"], [int(t) for t in v["trip_ids"]]) for v in msg["visits"]]
+        if self.on_plan is not None:
+            self.on_plan(self.plan)
+
+    def _on_done_ack(self, msg: dict[str, Any]) -> None:
+        fut = self._unconfirmed.pop(int(msg["trip_id"]), None)
+        if fut is not None and not fut.done():
+            fut.set_result(not msg.get("duplicate", False))
+
+    def _on_seat_ack(self, msg: dict[str, Any]) -> None:
+        if self._seat_waiters:
+            self._seat_waiters.pop(0).set_result(msg)
+
+    def _on_infrastructure(self, msg: dict[str, Any]) -> None:
+        self.infrastructure[str(msg["node_id"])] = msg
+        if self.on_infrastructure is not None:
+            self.on_infrastructure(msg)
+
+    def _on_pong(self, msg: dict[str, Any]) -> None:
+        if self._pong_waiters:
+            self._pong_waiters.pop(0).set_result(None)
 
     async def send_status(
         self,
