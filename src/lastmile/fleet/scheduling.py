@@ -220,7 +220,6 @@ class Planner:
         """The cheapest feasible place for a ride in one vehicle's plan, or None within the horizon."""
         cfg, route = self.config, self.route
         ds, load_after = self._profile(vehicle_id, plan, vehicle_s_m, onboard)
-        best: Insertion | None = None
         ride_m = route.stop_ahead_m(origin, destination)
         first = self.first_ahead_m(vehicle_s_m, origin)
         for lap in range(cfg.horizon_laps):
@@ -228,42 +227,24 @@ class Planner:
             q = p + ride_m
             if ds and p > ds[-1] + route.length_m:
                 break  # beyond the plan plus one lap nothing changes but the wait grows
-            before_p = sum(1 for d in ds if d < p - 1e-6)
-            load_at_p = load_after[before_p - 1] if before_p else onboard
-            merged_p = any(abs(d - p) < 1e-6 for d in ds)
-            if merged_p:
-                load_at_p = load_after[[abs(d - p) < 1e-6 for d in ds].index(True)]
-            peak = load_at_p
-            for k, d in enumerate(ds):
-                if p + 1e-6 < d < q - 1e-6:
-                    peak = max(peak, load_after[k])
-            if peak + seats > capacity:
+            if _peak_load(ds, load_after, onboard, p, q) + seats > capacity:
                 continue
-            merged_q = any(abs(d - q) < 1e-6 for d in ds)
-            before_q = sum(1 for d in ds if d < q - 1e-6) + (0 if merged_p else 1)
+            merged_p, merged_q = _visit_at(ds, p) is not None, _visit_at(ds, q) is not None
+            before_p = sum(1 for d in ds if d < p - _SAME_M)
+            before_q = sum(1 for d in ds if d < q - _SAME_M) + (0 if merged_p else 1)
             eta_p = self.time_to_s(p, before_p)
             eta_q = self.time_to_s(q, before_q)
-            # Each new visit makes every rider planned after it wait one more dwell.
-            added = 0.0
-            for k, d in enumerate(ds):
-                riders = plan[k].riders()
-                if not merged_p and d > p + 1e-6:
-                    added += riders * cfg.dwell_s
-                if not merged_q and d > q + 1e-6:
-                    added += riders * cfg.dwell_s
-            cost = eta_p + (eta_q - eta_p) + cfg.delay_weight * added
-            cand = Insertion(
+            added_s = _added_wait_s(plan, ds, (p, merged_p), (q, merged_q), cfg.dwell_s)
+            # The first feasible lap is the cheapest: later laps only add a full loop of waiting.
+            return Insertion(
                 vehicle_id=vehicle_id,
                 pickup_at_m=p,
                 dropoff_at_m=q,
                 eta_pickup_s=eta_p,
                 eta_dropoff_s=eta_q,
-                cost_s=cost,
+                cost_s=eta_p + (eta_q - eta_p) + cfg.delay_weight * added_s,
             )
-            if best is None or cand.cost_s < best.cost_s:
-                best = cand
-            break  # the first feasible lap is the cheapest: later laps only add a full loop of waiting
-        return best
+        return None
 
     def insert(
         self, plan: list[Visit], vehicle_s_m: float, at_m: float, stop_id: str, item: PlanItem
@@ -292,6 +273,47 @@ class Planner:
                 best = (stop_id, d)
         assert best is not None
         return best
+
+
+_SAME_M = 1e-6
+"""Two unrolled distances this close are the same visit."""
+
+
+def _visit_at(ds: list[float], at_m: float) -> int | None:
+    """The index of the planned visit at ``at_m`` ahead, if there is one."""
+    return next((k for k, d in enumerate(ds) if abs(d - at_m) < _SAME_M), None)
+
+
+def _peak_load(ds: list[float], load_after: list[int], onboard: int, p: float, q: float) -> int:
+    """The most seats taken between a pick-up ``p`` and a drop-off ``q`` metres ahead."""
+    at_p = _visit_at(ds, p)
+    if at_p is not None:
+        peak = load_after[at_p]
+    else:
+        before_p = sum(1 for d in ds if d < p - _SAME_M)
+        peak = load_after[before_p - 1] if before_p else onboard
+    for k, d in enumerate(ds):
+        if p + _SAME_M < d < q - _SAME_M:
+            peak = max(peak, load_after[k])
+    return peak
+
+
+def _added_wait_s(
+    plan: list[Visit],
+    ds: list[float],
+    pickup: tuple[float, bool],
+    dropoff: tuple[float, bool],
+    dwell_s: float,
+) -> float:
+    """Each new visit (one not merged with a planned one) makes every rider planned after it wait one
+    more dwell; ``pickup`` and ``dropoff`` are (metres ahead, merged)."""
+    added = 0.0
+    for k, d in enumerate(ds):
+        riders = plan[k].riders()
+        for at_m, merged in (pickup, dropoff):
+            if not merged and d > at_m + _SAME_M:
+                added += riders * dwell_s
+    return added
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
