@@ -32,15 +32,27 @@ def write_sweep_report(summary: dict[str, Any], out_dir: Path, title: str) -> Pa
         *_interruption(summary),
         "![outcomes per group](outcomes.png)",
         "",
-        "## By group",
-        "",
-        "| group | scenarios | passed | failed |",
-        "|---|---:|---:|---:|",
+        *_group_table(groups),
+        *_scenario_table(rows),
+        *_fault_table(rows),
+        *_incident_table(rows),
     ]
+    path = out_dir / "report.md"
+    path.write_text("\n".join(lines) + "\n")
+    _plot(groups, out_dir / "outcomes.png")
+    return path
+
+
+def _group_table(groups: dict[str, list[dict[str, Any]]]) -> list[str]:
+    lines = ["## By group", "", "| group | scenarios | passed | failed |", "|---|---:|---:|---:|"]
     for name, members in groups.items():
         ok = sum(1 for r in members if r["passed"] and not r.get("interrupted"))
         lines.append(f"| {name} | {len(members)} | {ok} | {len(members) - ok} |")
-    lines += [
+    return lines
+
+
+def _scenario_table(rows: list[dict[str, Any]]) -> list[str]:
+    lines = [
         "",
         "## Scenarios",
         "",
@@ -52,30 +64,28 @@ def write_sweep_report(summary: dict[str, Any], out_dir: Path, title: str) -> Pa
         faults = ", ".join(r["faults"]) or "-"
         verdict = "interrupted" if r.get("interrupted") else "PASS" if r["passed"] else "**FAIL**"
         lines.append(f"| `{r['name']}` | {r['weather']} | {faults} | {verdict} | {failed or '-'} |")
-    lines += _fault_table(rows)
-    lines += ["", "## Collisions and rule violations", ""]
+    return lines
+
+
+def _incident_table(rows: list[dict[str, Any]]) -> list[str]:
+    lines = ["", "## Collisions and rule violations", ""]
     incidents = [(r, i) for r in rows for i in r["incidents"] if i["kind"] in ("collision", "rule_violation")]
     if not incidents:
-        lines.append("None.")
-    else:
-        lines += [
-            "| scenario file | t (s) | what | at fault | black-box recording |",
-            "|---|---:|---|---|---|",
-        ]
-        for r, i in incidents:
-            what = i["kind"] if i["kind"] == "collision" else f"rule violation: {i.get('rule', '')}"
-            if i["kind"] == "collision":
-                what += f" with {i.get('agent_class', '?')} {i.get('agent_id', '')}"
-                fault = "yes" if i.get("at_fault") else "no"
-            else:
-                fault = "yes"  # breaking a rule is the shuttle's doing
-            lines.append(
-                f"| `{r['scenario_file']}` | {i['t_s']:.2f} | {what} | {fault} | {r['recording'] or 'none'} |"
-            )
-    path = out_dir / "report.md"
-    path.write_text("\n".join(lines) + "\n")
-    _plot(groups, out_dir / "outcomes.png")
-    return path
+        return [*lines, "None."]
+    lines += [
+        "| scenario file | t (s) | what | at fault | black-box recording |",
+        "|---|---:|---|---|---|",
+    ]
+    for r, i in incidents:
+        what = i["kind"] if i["kind"] == "collision" else f"rule violation: {i.get('rule', '')}"
+        if i["kind"] == "collision":
+            what += f" with {i.get('agent_class', '?')} {i.get('agent_id', '')}"
+            fault = "yes" if i.get("at_fault") else "no"
+        else:
+            fault = "yes"  # breaking a rule is the shuttle's doing
+        recording = r["recording"] or "none"
+        lines.append(f"| `{r['scenario_file']}` | {i['t_s']:.2f} | {what} | {fault} | {recording} |")
+    return lines
 
 
 def _fault_table(rows: list[dict[str, Any]]) -> list[str]:
