@@ -1,6 +1,5 @@
 import dataclasses
 import math
-from dataclasses import dataclass
 
 import numpy as np
 import pytest
@@ -14,82 +13,16 @@ from lastmile.core.stamp import Stamp, stamp_from_s
 from lastmile.localization.ekf import PoseEkf, PoseEkfConfig, _Snap
 from lastmile.localization.ekf_model import kalman_update
 
-R, V = 40.0, 5.0
-W = V / R
-HALF_WHEELBASE = 1.45
+from .circle_drive import HALF_WHEELBASE, Run, V, W, run_circle
+from .circle_drive import all_wheel_steer as _all_wheel_steer
+from .circle_drive import fix as _fix
+from .circle_drive import unicycle as _unicycle
+
 UNICYCLE = PoseEkfConfig(zero_slip_offset_m=0.0)
 
 
-def _unicycle(t):
-    """Rear axle driving a 40 m circle at 5 m/s (front steer: no side slip)."""
-    return R * math.sin(W * t), R - R * math.cos(W * t), W * t
-
-
-def _all_wheel_steer(t):
-    """Opposite-phase all-wheel steer: mid-wheelbase on the circle, rear axle slipping outwards."""
-    yaw = W * t
-    return (
-        R * math.sin(yaw) - HALF_WHEELBASE * math.cos(yaw),
-        R - R * math.cos(yaw) - HALF_WHEELBASE * math.sin(yaw),
-        yaw,
-    )
-
-
-@dataclass
-class Run:
-    ekf: PoseEkf
-    err_m: np.ndarray  # position error at every odometry step
-    valid: np.ndarray
-    pos_std_m: np.ndarray
-    t_s: np.ndarray
-
-
-def _fix(t, truth, rng, sigma=0.03, jump_m=0.0, ok=True):
-    x, y, yaw = truth(t)
-    return GnssInsFrame(
-        stamp=stamp_from_s(t),
-        x_m=x + rng.normal(0, sigma) + jump_m,
-        y_m=y + rng.normal(0, sigma),
-        yaw_rad=yaw + rng.normal(0, 0.004),
-        speed_mps=V + rng.normal(0, 0.02),
-        pos_std_m=sigma,
-        yaw_std_rad=0.004,
-        fix_ok=ok,
-    )
-
-
-def _run(
-    seconds,
-    config=UNICYCLE,
-    truth=_unicycle,
-    outage=None,
-    jump_at_s=None,
-    jump_m=10.0,
-    imu_bias_radps=0.0,
-    odom_scale=1.0,
-    seed=1,
-):
-    """Odometry and IMU at 50 Hz, GNSS at 10 Hz; a jump lasts one fix (or on, when over 50 m)."""
-    rng = np.random.default_rng(seed)
-    ekf = PoseEkf(config)
-    err, valid, std, times = [], [], [], []
-    for k in range(int(seconds * 50)):
-        t = k * 0.02
-        speed = V * odom_scale + rng.normal(0, 0.02)
-        ekf.predict(stamp_from_s(t), speed, W + imu_bias_radps + rng.normal(0, 0.003))
-        if k % 5 == 0:
-            in_outage = outage is not None and outage[0] <= t < outage[1]
-            jump = 0.0
-            if jump_at_s is not None and (abs(t - jump_at_s) < 1e-9 or (jump_m > 50 and t >= jump_at_s)):
-                jump = jump_m
-            ekf.update_gnss(_fix(t, truth, rng, jump_m=jump, ok=not in_outage))
-        est = ekf.estimate(stamp_from_s(t))
-        x, y, _ = truth(t)
-        err.append(math.hypot(est.map_from_base.x_m - x, est.map_from_base.y_m - y))
-        valid.append(est.valid)
-        std.append(est.pos_std_m)
-        times.append(t)
-    return Run(ekf, np.array(err), np.array(valid), np.array(std), np.array(times))
+def _run(seconds, config=UNICYCLE, **kwargs) -> Run:
+    return run_circle(PoseEkf(config), seconds, **kwargs)
 
 
 def test_rtk_fixes_and_odometry_keep_the_error_within_centimetres():
