@@ -7,6 +7,7 @@ objects are in the radar's own frame (x forward along its boresight, y left).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -53,6 +54,16 @@ class GnssInsFrame:
             raise MessageError(
                 f"GnssInsFrame: expected positive std devs, got {self.pos_std_m}, {self.yaw_std_rad}"
             )
+
+    def validate_for_fusion(self) -> None:
+        """``validate``, and what a filter needs besides: finite std devs and a non-negative stamp."""
+        self.validate()
+        if not (math.isfinite(self.pos_std_m) and math.isfinite(self.yaw_std_rad)):
+            raise MessageError(
+                f"GnssInsFrame: expected finite std devs, got {self.pos_std_m}, {self.yaw_std_rad}"
+            )
+        if self.stamp < 0:
+            raise MessageError(f"GnssInsFrame.stamp: expected a non-negative stamp, got {self.stamp}")
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -213,13 +213,7 @@ class PoseEkf:
         Raises:
             MessageError: a non-finite field, a non-positive std dev or a negative stamp.
         """
-        frame.validate()
-        if not (math.isfinite(frame.pos_std_m) and math.isfinite(frame.yaw_std_rad)):
-            raise MessageError(
-                f"GnssInsFrame: expected finite std devs, got {frame.pos_std_m}, {frame.yaw_std_rad}"
-            )
-        if frame.stamp < 0:
-            raise MessageError(f"GnssInsFrame.stamp: expected a non-negative stamp, got {frame.stamp}")
+        frame.validate_for_fusion()
         if not frame.fix_ok:
             return False
         return self._noted(PositionSource.GNSS, frame.stamp, self._insert(int(frame.stamp), _GNSS_INS, frame))
