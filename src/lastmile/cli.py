@@ -111,7 +111,8 @@ def run(
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     if fleet is not None or serve:
-        _run_fleet(fleet, serve, minutes, seed, demand, out, scenario is not None or weather is not None)
+        scenario_given = scenario is not None or weather is not None
+        _run_fleet(fleet, serve, minutes, seed, demand, out, scenario_given, route)
         return
 
     try:
@@ -174,8 +175,9 @@ def _run_fleet(
     demand: float,
     out: Path,
     scenario_given: bool,
+    route: Path | None,
 ) -> None:
-    """``lastmile run --fleet N --serve``: see :mod:`lastmile.runner.fleet_run`."""
+    """``lastmile run --fleet N --serve [--route FILE]``: see :mod:`lastmile.runner.fleet_run`."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     try:
@@ -197,7 +199,12 @@ def _run_fleet(
             minutes=minutes if minutes is not None else 10.0,
             seed=seed if seed is not None else 0,
             demand_per_pair_per_h=demand,
+            route=str(route) if route is not None else "",
         )
+        if route is not None:
+            from lastmile.hdmap.service_route import load_route
+
+            load_route(route)  # a bad route or map is one line here, before the server starts
         prepare_output_dir(out)
         with (
             StopSignals() as stop,
@@ -660,6 +667,10 @@ def serve(
         float,
         typer.Option(min=0.0, help="Hand timetable runs to shuttles this many s before departure; 0: off."),
     ] = 600.0,
+    route: Annotated[
+        Path | None,
+        typer.Option(help="Route file (TOML): dispatch on its loop and stops instead of the campus."),
+    ] = None,
 ) -> None:
     """Run the dispatch server (HTTP + WebSocket API, web dashboard) until interrupted."""
     from lastmile.core.output_dir import prepare_output_dir
@@ -675,6 +686,7 @@ def serve(
             runs=runs,
             timetable_lead_s=timetable_lead,
             announce=typer.echo,
+            route=route,
         )
     except LastmileError as exc:
         typer.echo(f"lastmile serve: {exc}", err=True)
