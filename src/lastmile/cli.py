@@ -263,6 +263,10 @@ def sweep(
         Path | None,
         typer.Option(help="Run configuration TOML for every case (each suite case may set its speed)."),
     ] = None,
+    route: Annotated[
+        Path | None,
+        typer.Option(help="--generate: run them on this route file's map, encounters on its own stretches."),
+    ] = None,
 ) -> None:
     """Run many scenarios; writes summary.json, report.md and every scenario file under OUT."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
@@ -281,6 +285,11 @@ def sweep(
             raise ConfigError(f"sweep --seed: expected a non-negative integer, got {seed}")
         if engine not in ENGINES:
             raise ConfigError(f"sweep --engine: expected one of {', '.join(ENGINES)}, got {engine!r}")
+        if route is not None and generate is None:
+            raise ConfigError(
+                "sweep --route: expected it with --generate (a suite is the campus's; scenario files "
+                "name their own map), got it without"
+            )
         chosen = [x for x in (suite, generate, scenarios) if x is not None]
         if len(chosen) != 1:
             raise ConfigError(
@@ -294,7 +303,8 @@ def sweep(
         elif generate is not None:
             if generate < 1:
                 raise ConfigError(f"sweep --generate: expected at least 1 scenario, got {generate}")
-            cases = generic_cases(sample_scenarios(ScenarioSpace(), generate, seed))
+            space = ScenarioSpace(route=str(route) if route is not None else "")
+            cases = generic_cases(sample_scenarios(space, generate, seed))
             title = f"Sweep: {generate} generated scenarios (seed {seed})"
         else:
             assert scenarios is not None
