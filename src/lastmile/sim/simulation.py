@@ -234,6 +234,10 @@ class Simulation:
                 longitudinal_error_m=v.longitudinal_error_m,
                 boarded=v.boarded,
                 alighted=v.alighted,
+                # Who is still at the stop as the door closes: riders the shuttle had no seat for,
+                # or who arrived after the last one boarded.
+                left_waiting=len(p.waiting[v.stop_id]),
+                seats_free=p.seats - len(p.onboard),
             )
             p.visit = None
         self.sensors.door_open = p.door_position > 0.0
