@@ -14,15 +14,16 @@ from lastmile.evaluation import metrics as m
 from lastmile.evaluation import report as r
 from lastmile.evaluation import report_pose
 from lastmile.evaluation.pose_errors import POSE_METRICS, pose_errors, source_spans
-from lastmile.recorder.run_log import RunLog, RunMeta
+from lastmile.recorder.run_log import STATE_NAMES, RunLog, RunMeta
 from lastmile.recorder.run_log_writer import RunLogWriter
 from lastmile.runner.closed_loop import run_scenario
 from lastmile.runner.run_config import RunConfig
 from lastmile.sim.scenario import Scenario
 
 
-def _log(rows: list[tuple[float, ...]]) -> RunLog:
-    """Ego trace of 4 s along x, plus the given localization rows."""
+def _log(rows: list[tuple[float, ...]], pullover_from_s: float = math.inf) -> RunLog:
+    """Ego trace of 4 s along x (in the pullover state from ``pullover_from_s``), plus the given
+    localization rows."""
     w = RunLogWriter(
         RunMeta(
             seed=1,
@@ -35,7 +36,8 @@ def _log(rows: list[tuple[float, ...]]) -> RunLog:
         )
     )
     for i in range(200):
-        w.add_ego_row(i * 0.02, i * 0.02, 0.0, 0.0, 1.0, 0.0, 0.0, 0, i * 0.02)
+        state = STATE_NAMES.index("pullover") if i * 0.02 >= pullover_from_s else 0
+        w.add_ego_row(i * 0.02, i * 0.02, 0.0, 0.0, 1.0, 0.0, 0.0, state, i * 0.02)
     for row in rows:
         w.add_localization_row(*row)
     return w.finish()
@@ -84,6 +86,21 @@ def test_cross_track_figures_are_of_the_absolute_offsets() -> None:
     assert metrics["cross_track_error_path_max_m"] == pytest.approx(0.5)
     expected_p95 = float(np.percentile(np.abs(np.linspace(-1.0, 0.5, 21)), 95.0))
     assert metrics["cross_track_error_route_p95_m"] == pytest.approx(expected_p95)
+
+
+def test_a_pull_over_leaves_the_route_centre_line_on_purpose_and_is_not_a_cross_track_error(
+    tmp_path: Path,
+) -> None:
+    # In lane (0.1 m off) until 2 s, then pulled over 3.5 m to the right of the centre line.
+    rows = [_row(0.1 * k, 0.0, 0.0, 0.0, 0.1, 0, 0.1 if k < 20 else -3.5) for k in range(1, 31)]
+    log = _log(rows, pullover_from_s=2.0)
+    metrics = m.compute_metrics(log)
+    assert metrics["cross_track_error_route_max_m"] == pytest.approx(0.1)
+    assert metrics["cross_track_error_path_max_m"] == pytest.approx(1.75)  # the plan followed the bay
+    r.write_report(log, metrics, tmp_path)
+    text = (tmp_path / r.REPORT_FILE).read_text()
+    assert "| cross-track from the route centre line, in lane | 0.100 | 0.100 | 0.100 |" in text
+    assert "| cross-track from the route centre line, all | 0.100 | 3.500 | 3.500 |" in text
 
 
 def test_a_log_without_the_table_gives_none_for_the_new_keys_only() -> None:

@@ -17,7 +17,11 @@ from types import MappingProxyType
 import numpy as np
 
 from lastmile.recorder.run_localization import INVALID_SOURCE, POSITION_SOURCES
-from lastmile.recorder.run_log import RunLog
+from lastmile.recorder.run_log import STATE_NAMES, RunLog
+
+IN_LANE_STATES = (STATE_NAMES.index("normal_driving"), STATE_NAMES.index("intersection"))
+"""Behaviour-state codes in which the shuttle means to follow the route's centre line (pull-overs,
+stops at the curb and merges leave it on purpose)."""
 
 BAND_SIGMAS = 1.96
 """Half-width of the stack's band in sigmas: the two-sided 95 % interval of a Gaussian axis."""
@@ -36,6 +40,8 @@ class PoseErrors:
         source_code: (M,) int64, index into ``POSITION_SOURCES``, -1 when the estimate was invalid.
         route_d_m: the true rear axle's signed offset from the route's centre line, m.
         path_d_m: the true rear axle's signed offset from the latest planned path, m.
+        in_lane: (M,) bool, the behaviour state (the ego trace's latest at or before the row) was one
+            of :data:`IN_LANE_STATES`.
     """
 
     t_s: np.ndarray
@@ -46,6 +52,7 @@ class PoseErrors:
     source_code: np.ndarray
     route_d_m: np.ndarray
     path_d_m: np.ndarray
+    in_lane: np.ndarray
 
     def __len__(self) -> int:
         return len(self.t_s)
@@ -64,6 +71,10 @@ def pose_errors(log: RunLog) -> PoseErrors:
     ex = np.where(valid, loc.column("est_x_m") - loc.column("true_x_m"), np.nan)
     ey = np.where(valid, loc.column("est_y_m") - loc.column("true_y_m"), np.nan)
     yaw = loc.column("true_yaw_rad")
+    t = loc.column("t_s")
+    ego_t = log.column("t_s")
+    row = np.clip(np.searchsorted(ego_t, t, side="right") - 1, 0, max(len(ego_t) - 1, 0))
+    state = log.column("state_code")[row] if len(ego_t) else np.full(len(t), -1.0)
     c, s = np.cos(yaw), np.sin(yaw)
     return PoseErrors(
         t_s=loc.column("t_s").copy(),
@@ -74,6 +85,7 @@ def pose_errors(log: RunLog) -> PoseErrors:
         source_code=code,
         route_d_m=loc.column("route_d_m").copy(),
         path_d_m=loc.column("path_d_m").copy(),
+        in_lane=np.isin(state, IN_LANE_STATES),
     )
 
 
@@ -127,13 +139,13 @@ POSE_METRICS: Mapping[str, Callable[[PoseErrors], float | None]] = MappingProxyT
         "localization_lateral_outside_band_share": _outside_band_share,
         "cross_track_error_path_p95_m": lambda e: _p95(e.path_d_m),
         "cross_track_error_path_max_m": lambda e: _max(e.path_d_m),
-        "cross_track_error_route_p95_m": lambda e: _p95(e.route_d_m),
-        "cross_track_error_route_max_m": lambda e: _max(e.route_d_m),
+        "cross_track_error_route_p95_m": lambda e: _p95(e.route_d_m[e.in_lane]),
+        "cross_track_error_route_max_m": lambda e: _max(e.route_d_m[e.in_lane]),
     }
 )
 """The summary figures ``metrics.json`` gains (None where the log has no valid row to measure):
 p95 and maximum of the absolute total, lateral and along-track localization error over valid
 estimates; the share of valid estimates whose lateral error leaves the stack's 1.96-sigma band (at
 most about 0.05 for a consistent filter); p95 and maximum of the true cross-track error against the
-planned path (what the controllers track) and against the route's centre line (which includes the
-planned pull-overs into stops)."""
+planned path (what the controllers track) and against the route's centre line while in lane (normal
+driving or an intersection: pull-overs, curb stops and merges leave the centre line on purpose)."""
