@@ -61,6 +61,29 @@ class LateFusionConfig:
             raise ConfigError(f"LateFusionConfig: expected min_iou in (0, 1], score in [0, 1], got {self}")
 
 
+RADAR_CONFIRMED_SCORE = 0.6
+"""Score of a fused object a radar confirmed and no camera box classified."""
+UNCONFIRMED_SCORE = 0.5
+"""Score of a LiDAR cluster neither a radar nor a camera confirmed."""
+
+
+def radar_detections(frame: RadarFrame, map_from_radar: SE2, size_m: float = 1.0) -> DetectedObjects:
+    """A radar frame's objects as the detections a radar-only tracker consumes (map frame).
+
+    Radar object lists carry no class and no extent: each object is ``UNKNOWN``, a ``size_m`` square
+    (the fusion's ``radar_only_size_m``) heading along its velocity, scored like a radar-confirmed
+    object without a camera box (:data:`RADAR_CONFIRMED_SCORE`).
+    """
+    xyv = radar_in_base(frame, map_from_radar)
+    out = np.zeros((len(xyv), len(DETECTION_COLUMNS)))
+    out[:, 0:4] = xyv
+    out[:, 4] = out[:, 5] = size_m
+    out[:, 6] = np.arctan2(xyv[:, 3], xyv[:, 2])
+    out[:, 7] = int(ObjectClass.UNKNOWN)
+    out[:, 8] = RADAR_CONFIRMED_SCORE
+    return DetectedObjects(stamp=frame.stamp, frame="map", source=f"radar_{frame.sensor_id}", table=out)
+
+
 def radar_in_base(frame: RadarFrame, base_from_radar: SE2) -> np.ndarray:
     """(N, 4) x, y, vx, vy of a radar frame's objects in the base frame."""
     o = frame.objects
@@ -166,7 +189,7 @@ def fuse_objects(
         rows = np.vstack([rows, add])
     n = len(rows)
     cls = np.full(n, int(ObjectClass.UNKNOWN))
-    score = np.where(rows[:, 9] > 0, 0.6, 0.5)
+    score = np.where(rows[:, 9] > 0, RADAR_CONFIRMED_SCORE, UNCONFIRMED_SCORE)
     camera_ok = np.zeros(n, dtype=bool)
     by_id = {c.camera_id: c for c in cameras}
     for det in camera_detections:

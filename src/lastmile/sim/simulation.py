@@ -230,17 +230,9 @@ class Simulation:
             j.emit(kind, **data)
         if was_closed and p.door_position > 0.0 and at_stop is not None and p.visit is None:
             p.visit = j.open_visit(at_stop)
-        if p.door_position == 0.0 and p.visit is not None:
-            v = p.visit
-            j.emit(
-                EventKind.STOP_SERVED,
-                stop_id=v.stop_id,
-                curb_gap_m=v.curb_gap_m,
-                longitudinal_error_m=v.longitudinal_error_m,
-                boarded=v.boarded,
-                alighted=v.alighted,
-            )
-            p.visit = None
+        served = p.end_visit()
+        if served is not None:
+            j.emit(EventKind.STOP_SERVED, **served)
         self.sensors.door_open = p.door_position > 0.0
         self.sensors.person_in_doorway = p.person_in_doorway
 

@@ -34,7 +34,7 @@ from lastmile.core.camera_model import PinholeCamera
 from lastmile.core.errors import ConfigError, MessageError
 from lastmile.core.geometry import SE2
 from lastmile.core.object_class import ObjectClass
-from lastmile.core.objects import TRACK_COLUMNS, TrackedObjects
+from lastmile.core.objects import TRACK_COLUMNS, DetectedObjects, TrackedObjects
 from lastmile.core.sensor_frames import CameraDetections, LidarSweep, RadarFrame
 from lastmile.core.stamp import Stamp
 from lastmile.hdmap.drivable import DrivableRaster
@@ -167,6 +167,7 @@ class RawPerception:
         self.tracker = AutoTrack(config.tracker)
         self.stats = RawPerceptionStats()
         self.last_result: LidarPipelineResult | None = None
+        self._detections: list[DetectedObjects] = []
         self._sets: dict[int, dict[str, LidarSweep]] = {}
         self._set_first_seen_us: dict[int, int] = {}
         self._radar: dict[str, RadarFrame] = {}
@@ -213,6 +214,11 @@ class RawPerception:
             self._process([sweeps[k] for k in sorted(sweeps)], pose_at, route_s_m)
             done += 1
         return done
+
+    def drain_detections(self) -> tuple[DetectedObjects, ...]:
+        """The fused detections given to the tracker since the last call (map frame), oldest first."""
+        out, self._detections = tuple(self._detections), []
+        return out
 
     def tracks(self, now: Stamp) -> TrackedObjects:
         """Published tracks at ``now``, map frame (scenery left out)."""
@@ -291,6 +297,7 @@ class RawPerception:
         fused = fuse_objects(
             ref, result.clusters, radar, mounts, self.cameras, cams, map_from_base, self.config.fusion
         )
+        self._detections.append(fused.objects)
         o = fused.objects.table
         z_lo, z_hi = fused.z_min_m, fused.z_max_m
         height = np.maximum(z_hi - z_lo, 0.1)

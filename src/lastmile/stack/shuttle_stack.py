@@ -29,7 +29,7 @@ from lastmile.control.longitudinal import LongitudinalConfig, make_longitudinal_
 from lastmile.core.camera_model import PinholeCamera
 from lastmile.core.errors import ConfigError, MessageError
 from lastmile.core.geometry import SE2, FloatArray
-from lastmile.core.objects import TrackedObjects, empty_tracks
+from lastmile.core.objects import DetectedObjects, TrackedObjects, empty_tracks
 from lastmile.core.perception_mode import PerceptionMode
 from lastmile.core.polyline import Polyline
 from lastmile.core.predictions import PredictedPaths
@@ -69,6 +69,7 @@ from lastmile.hdmap.layers import SLayerDatabase
 from lastmile.localization.ekf import PoseEkf
 from lastmile.localization.ekf_config import PoseEkfConfig
 from lastmile.localization.odometry_ekf import OdometryEkf, OdometryEkfConfig
+from lastmile.perception.late_fusion import radar_detections
 from lastmile.planning.local_path import LocalPathConfig
 from lastmile.planning.planners import PlannerInputs, PlannerName, make_path_planner
 from lastmile.safety.reliability_config import ReliabilityConfig, default_sensor_specs
@@ -243,6 +244,7 @@ class ShuttleStack:
         self._trajectory: Trajectory | None = None
         self._path: Polyline | None = None
         self._tracks: TrackedObjects = empty_tracks(Stamp(0))
+        self._detections: list[DetectedObjects] = []
         self._command = ActuatorCommand(
             stamp=Stamp(0), accel_mps2=-1.0, steer_front_rad=0.0, steer_rear_rad=0.0
         )
@@ -320,7 +322,15 @@ class ShuttleStack:
             stop_reason=self._stop_reason,
             tracks=self._tracks if planning_cycle else None,
             trajectory=self._trajectory if planning_cycle else None,
+            detections=self._drain_detections() if planning_cycle else None,
         )
+
+    def _drain_detections(self) -> tuple[DetectedObjects, ...]:
+        """What the tracker consumed since the last planning cycle (radar lists or fused objects)."""
+        if self.raw is not None:
+            return self.raw.drain_detections()
+        out, self._detections = tuple(self._detections), []
+        return out
 
     def report(self) -> VehicleReport:
         """Compute time per module, the stack's counters and the raw perception's summary."""
@@ -436,6 +446,8 @@ class ShuttleStack:
         mount = self.config.radar_mounts.get(frame.sensor_id)
         if est.valid and mount is not None:
             self.tracker.update(frame, est.map_from_base, mount)
+            size_m = self.config.raw_perception.fusion.radar_only_size_m
+            self._detections.append(radar_detections(frame, est.map_from_base.compose(mount), size_m))
 
     def _on_door(self, frame: DoorSensorFrame) -> None:
         self._door_open = frame.door_open
