@@ -724,12 +724,15 @@ def perceive(
     out: Annotated[Path, typer.Option(help="Directory for labels/, objects.mcap, timing.json.")] = Path(
         "runs/perceive"
     ),
+    detector: Annotated[
+        Path | None, typer.Option(help="A LiDAR detector .onnx model (BEV contract; [detector] in --config).")
+    ] = None,
 ) -> None:
     """Run the LiDAR pipeline on point-cloud files: KITTI object labels, a Foxglove MCAP, timing."""
     from lastmile.perception.perceive import load_perceive_config, perceive_files, summary_lines
 
     try:
-        frames = perceive_files(files, load_perceive_config(config), out)
+        frames = perceive_files(files, load_perceive_config(config, detector), out)
     except (LastmileError, OSError) as exc:
         typer.echo(f"lastmile perceive: {exc}", err=True)
         raise typer.Exit(2) from None

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import sys
 from pathlib import Path
 
@@ -284,3 +285,47 @@ def test_a_camera_box_without_a_class_leaves_the_lidar_detectors_class_but_a_nam
             lidar_score=np.ones(1),
         )
         assert fused.camera_matched.all() and int(fused.objects.table[0, 7]) == int(expected)
+
+
+def test_lastmile_perceive_with_a_detector_labels_its_boxes_with_its_class(tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from lastmile.cli import app
+    from tests.perception import cloud_fixtures as fx
+
+    # The box's face 6 m ahead of a VLP-16 1.5 m up; the model calls any peak above 0.5 m a pedestrian.
+    grid = BevGrid(x_min_m=0.0, x_max_m=20.0, y_min_m=-10.0, y_max_m=10.0, z_min_m=0.0, cell_m=0.5,
+                   channels=(BevChannel.MAX_HEIGHT,))  # fmt: skip
+    model = bev_peak_detector(
+        tmp_path / "peaks.onnx",
+        grid,
+        threshold=0.5,
+        class_id=int(ObjectClass.PEDESTRIAN),
+        box_lwh_m=(1.6, 1.6, 1.6),
+    )
+    cloud = fx.write_kitti_bin(tmp_path / "000000.bin", fx.spinning_scan())
+    config = tmp_path / "perceive.toml"
+    config.write_text(
+        '[sensor.model]\nname = "vlp16"\nazimuth_resolution_deg = 2.0\n'
+        f"[sensor.mount]\nz_m = {fx.SENSOR_HEIGHT_M}\n"
+        "[pipeline.crop]\nego_x_min_m = -0.5\nego_x_max_m = 0.5\nego_half_width_m = 0.5\n"
+        '[detector]\nmodel = "replaced by --detector"\npoints = "non_ground"\n'
+        "[detector.grid]\nx_min_m = 0.0\nx_max_m = 20.0\ny_min_m = -10.0\ny_max_m = 10.0\nz_min_m = 0.0\n"
+        'cell_m = 0.5\nchannels = ["max_height"]\n'
+    )
+    out = tmp_path / "out"
+    args = ["perceive", str(cloud), "--config", str(config), "--out", str(out)]
+    result = CliRunner().invoke(app, [*args, "--detector", str(model)])
+    assert result.exit_code == 0, result.output
+    rows = [line.split() for line in (out / "labels" / "000000.txt").read_text().splitlines()]
+    near = [r for r in rows if abs(float(r[13]) - 6.25) < 0.6 and abs(float(r[11])) < 0.6]
+    assert [r[0] for r in near] == ["Pedestrian"] and float(near[0][15]) == 1.0, rows
+    timing = json.loads((out / "timing.json").read_text())
+    assert timing[0]["stage_ms"]["detector"] > 0
+    # Without --detector the file's own [detector] model is used, and it does not exist: one line.
+    bad = CliRunner().invoke(app, args)
+    assert bad.exit_code == 2 and "Traceback" not in bad.output
+    assert bad.output.strip() == (
+        "lastmile perceive: LiDAR detector model replaced by --detector: "
+        "expected an ONNX model file, got no such file"
+    )

@@ -35,6 +35,7 @@ from lastmile.core.object_class import ObjectClass
 from lastmile.perception.bev_raster import BevGrid, bev_tensor
 from lastmile.perception.cluster_geometry import CLUSTER_COLUMNS, ClusterKind, ClusterSet
 from lastmile.perception.onnx_model import OnnxModel, TensorSpec, check_detections
+from lastmile.perception.pipeline import LidarPipelineResult
 
 CIRCLE_NMS_RADIUS_M = {
     ObjectClass.CAR: 4.0,
@@ -247,6 +248,33 @@ def merge_with_clusters(clusters: ClusterSet, det: LidarDetections, merge: Detec
         from_detector=np.concatenate([np.zeros(n_kept, dtype=bool), np.ones(len(b), dtype=bool)]),
         replaced_clusters=len(t) - n_kept,
     )
+
+
+def clusters_only(clusters: ClusterSet) -> MergedObjects:
+    """The clustering's objects alone, as :func:`merge_with_clusters` would give them (no detector)."""
+    n = len(clusters)
+    return MergedObjects(
+        clusters=clusters,
+        class_id=np.full(n, int(ObjectClass.UNKNOWN), dtype=np.int64),
+        score=np.zeros(n),
+        from_detector=np.zeros(n, dtype=bool),
+        replaced_clusters=0,
+    )
+
+
+def frame_objects(
+    result: LidarPipelineResult, detector: OnnxLidarDetector | None
+) -> tuple[MergedObjects, int]:
+    """One frame's objects: the pipeline's clusters, with ``detector``'s boxes merged in when given
+    (its configured points rasterised); also how many detections the model gave."""
+    if detector is None:
+        return clusters_only(result.clusters), 0
+    cfg = detector.config
+    pts = result.cloud.points
+    if cfg.points is DetectorPoints.NON_GROUND:
+        pts = pts[~(result.ground | result.noise)]
+    det = detector.detect(pts[:, 0:3], pts[:, 3])
+    return merge_with_clusters(result.clusters, det, cfg.merge), len(det)
 
 
 def _footprint(box: np.ndarray) -> np.ndarray:

@@ -46,11 +46,10 @@ from lastmile.hdmap.layers import SLayerDatabase
 from lastmile.localization.ekf import LocalizationEstimate
 from lastmile.perception.late_fusion import LateFusionConfig, fuse_objects
 from lastmile.perception.lidar_detector import (
-    DetectorPoints,
     LidarDetectorConfig,
     MergedObjects,
     OnnxLidarDetector,
-    merge_with_clusters,
+    frame_objects,
 )
 from lastmile.perception.map_curbs import MapCurbIndex
 from lastmile.perception.motion_compensation import PoseTrajectory
@@ -337,22 +336,8 @@ class RawPerception:
 
     def _objects(self, result: LidarPipelineResult) -> MergedObjects:
         """The clusters, with the learned detector's boxes merged in when one is configured."""
-        clusters = result.clusters
-        if self.detector is None or self.config.detector is None:
-            n = len(clusters)
-            return MergedObjects(
-                clusters=clusters,
-                class_id=np.full(n, int(ObjectClass.UNKNOWN), dtype=np.int64),
-                score=np.zeros(n),
-                from_detector=np.zeros(n, dtype=bool),
-                replaced_clusters=0,
-            )
-        pts = result.cloud.points
-        if self.config.detector.points is DetectorPoints.NON_GROUND:
-            pts = pts[~(result.ground | result.noise)]
-        det = self.detector.detect(pts[:, 0:3], pts[:, 3])
-        merged = merge_with_clusters(clusters, det, self.config.detector.merge)
-        self.stats.detections += len(det)
+        merged, detections = frame_objects(result, self.detector)
+        self.stats.detections += detections
         self.stats.clusters_replaced += merged.replaced_clusters
         return merged
 
