@@ -498,6 +498,9 @@ def eval_tracking(
     results: Annotated[
         Path | None, typer.Option(help="Write the tracks as KITTI tracking results <seq>.txt here.")
     ] = None,
+    track_score: Annotated[
+        str | None, typer.Option(help="Published track score: last (default), evidence, mean, refined.")
+    ] = None,
 ) -> None:
     """Track KITTI detections with aUToTrack and print CLEAR MOT and sAMOTA/AMOTA per class (3D IoU 0.25)."""
     import json
@@ -518,7 +521,10 @@ def eval_tracking(
         seqs = [s.strip() for s in sequences.split(",") if s.strip()] if sequences else list_sequences(labels)
         if not seqs:
             raise ConfigError(f"--sequences: expected names like 0000,0002, got {sequences!r}")
-        run_result = run_kitti(detections, labels, seqs)
+        from lastmile.tracking.autotrack import AutoTrackConfig
+
+        tracker = AutoTrackConfig(track_score=track_score) if track_score is not None else None
+        run_result = run_kitti(detections, labels, seqs, tracker)
         if results is not None:
             results.mkdir(parents=True, exist_ok=True)
             for name, rows in run_result.results.items():
