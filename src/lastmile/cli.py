@@ -512,7 +512,9 @@ def eval_tracking(
         from lastmile.core.output_dir import prepare_output_dir, prepare_output_file
         from lastmile.evaluation.kitti_io import list_sequences, write_results
         from lastmile.runner.kitti_tracking import run_kitti
+        from lastmile.tracking.autotrack import AutoTrackConfig
 
+        tracker = AutoTrackConfig(track_score=track_score) if track_score is not None else None
         if results is not None:
             prepare_output_dir(results, "--results")
         if json_out is not None:
@@ -521,9 +523,6 @@ def eval_tracking(
         seqs = [s.strip() for s in sequences.split(",") if s.strip()] if sequences else list_sequences(labels)
         if not seqs:
             raise ConfigError(f"--sequences: expected names like 0000,0002, got {sequences!r}")
-        from lastmile.tracking.autotrack import AutoTrackConfig
-
-        tracker = AutoTrackConfig(track_score=track_score) if track_score is not None else None
         run_result = run_kitti(detections, labels, seqs, tracker)
         if results is not None:
             results.mkdir(parents=True, exist_ok=True)
