@@ -515,6 +515,9 @@ def eval_tracking(
     results: Annotated[
         Path | None, typer.Option(help="Write the tracks as KITTI tracking results <seq>.txt here.")
     ] = None,
+    track_score: Annotated[
+        str | None, typer.Option(help="Published track score: last (default), evidence, mean, refined.")
+    ] = None,
 ) -> None:
     """Track KITTI detections with aUToTrack and print CLEAR MOT and sAMOTA/AMOTA per class (3D IoU 0.25)."""
     import json
@@ -526,7 +529,9 @@ def eval_tracking(
         from lastmile.core.output_dir import prepare_output_dir, prepare_output_file
         from lastmile.evaluation.kitti_io import list_sequences, write_results
         from lastmile.runner.kitti_tracking import run_kitti
+        from lastmile.tracking.autotrack import AutoTrackConfig
 
+        tracker = AutoTrackConfig(track_score=track_score) if track_score is not None else None
         if results is not None:
             prepare_output_dir(results, "--results")
         if json_out is not None:
@@ -535,7 +540,7 @@ def eval_tracking(
         seqs = [s.strip() for s in sequences.split(",") if s.strip()] if sequences else list_sequences(labels)
         if not seqs:
             raise ConfigError(f"--sequences: expected names like 0000,0002, got {sequences!r}")
-        run_result = run_kitti(detections, labels, seqs)
+        run_result = run_kitti(detections, labels, seqs, tracker)
         if results is not None:
             results.mkdir(parents=True, exist_ok=True)
             for name, rows in run_result.results.items():
@@ -746,12 +751,15 @@ def perceive(
     out: Annotated[Path, typer.Option(help="Directory for labels/, objects.mcap, timing.json.")] = Path(
         "runs/perceive"
     ),
+    detector: Annotated[
+        Path | None, typer.Option(help="A LiDAR detector .onnx model (BEV contract; [detector] in --config).")
+    ] = None,
 ) -> None:
     """Run the LiDAR pipeline on point-cloud files: KITTI object labels, a Foxglove MCAP, timing."""
     from lastmile.perception.perceive import load_perceive_config, perceive_files, summary_lines
 
     try:
-        frames = perceive_files(files, load_perceive_config(config), out)
+        frames = perceive_files(files, load_perceive_config(config, detector), out)
     except (LastmileError, OSError) as exc:
         typer.echo(f"lastmile perceive: {exc}", err=True)
         raise typer.Exit(2) from None

@@ -347,6 +347,9 @@ class ShuttleStack:
                 "curb_valid_frames": st.curb_valid,
                 "curb_offset_median_m": float(np.median(offsets)) if offsets else None,
             }
+            if self.raw.detector is not None:
+                perception["detections_per_frame"] = st.detections / max(st.rig_frames, 1)
+                perception["clusters_replaced_per_frame"] = st.clusters_replaced / max(st.rig_frames, 1)
         return VehicleReport(modules=self.profiler.summary(), counters=counters, perception=perception)
 
     def _guarded(self, module: str, now: Stamp, fn: Callable[..., object], *args: object) -> object:

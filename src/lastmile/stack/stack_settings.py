@@ -12,10 +12,12 @@ from enum import StrEnum
 from lastmile.control.lateral import LateralConfig, LateralControllerName
 from lastmile.control.longitudinal import LongitudinalConfig, LongitudinalControllerName
 from lastmile.core.config import check_range
+from lastmile.core.errors import ConfigError
 from lastmile.core.perception_mode import PerceptionMode
 from lastmile.decision.decision_config import DecisionConfig
 from lastmile.localization.ekf_config import PoseEkfConfig
 from lastmile.localization.odometry_ekf import OdometryEkfConfig
+from lastmile.perception.lidar_detector import LidarDetectorConfig
 from lastmile.planning.local_path import LocalPathConfig
 from lastmile.planning.planners import PlannerName
 from lastmile.safety.failsafe import FailSafeConfig
@@ -91,6 +93,9 @@ class StackSettings:
         decision, path, longitudinal, lateral: the modules' parameters (their defaults).
         ekf, inertial_ekf: the parameters of the ``ekf`` and ``inertial_ekf`` localization modes.
         safety: the vehicle safety's parameters.
+        lidar_detector: a learned LiDAR detector (``[stack.lidar_detector]``, an ONNX model file and
+            its BEV grid; :mod:`lastmile.perception.lidar_detector`) run on every rig frame beside
+            the clustering, its boxes going through late fusion to the tracker (raw perception only).
     """
 
     perception: PerceptionMode = PerceptionMode.LIDAR_CAMERA_RADAR
@@ -107,8 +112,14 @@ class StackSettings:
     ekf: OdometryEkfConfig = field(default_factory=OdometryEkfConfig)
     inertial_ekf: PoseEkfConfig = field(default_factory=PoseEkfConfig)
     safety: SafetySettings = field(default_factory=SafetySettings)
+    lidar_detector: LidarDetectorConfig | None = None
 
     def __post_init__(self) -> None:
+        if self.lidar_detector is not None and not self.perception.needs_raw_sensors:
+            raise ConfigError(
+                f"stack.lidar_detector: expected perception = '{PerceptionMode.LIDAR_CAMERA_RADAR}' (the "
+                f"detector reads the LiDAR sweeps), got perception = '{self.perception}'"
+            )
         if self.cruise_speed_mps is not None:
             # The shuttle's operating speeds: up to its 20 km/h top speed.
             check_range("stack.cruise_speed_mps", self.cruise_speed_mps, 0.5, 20.0 / 3.6 + 1e-9)
