@@ -128,3 +128,19 @@ def test_bad_input_names_what_was_expected(clouds) -> None:
         calibrate_by_icp(ref, other, nominal * 2.0)
     with pytest.raises(CalibrationError, match="at least 500 points"):
         calibrate_by_icp(ref[:100], other, nominal)
+
+
+def test_ground_and_one_wall_leave_a_direction_free_and_say_so(clouds) -> None:
+    ref, other = clouds
+    other_base = to_base(other, TRUE_MOUNT)
+
+    def flat_or_wall(points: np.ndarray) -> np.ndarray:
+        return (points[:, 2] < 0.1) | (points[:, 0] > 14.9)
+
+    # The ground holds z, roll and pitch, the wall x = 15 holds x and yaw; nothing holds y.
+    with pytest.raises(CalibrationError, match=r"degenerate overlap") as err:
+        calibrate_by_icp(
+            ref[flat_or_wall(ref)], other[flat_or_wall(other_base)], perturbed(TRUE_MOUNT, 0.2, 2.0)
+        )
+    message = str(err.value)
+    assert "translation along (+0.00, +1.00" in message or "translation along (-0.00, -1.00" in message

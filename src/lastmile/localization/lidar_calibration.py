@@ -55,6 +55,9 @@ class IcpCalibrationConfig:
             within this of it, m (more than the ring spacing of a 16-channel LiDAR 10 m away, 0.35 m).
         min_fitness: fewer of the other cloud's points overlapping the reference than this share means
             the two sensors do not see enough of the same surfaces.
+        min_constraint_share: every translation direction and rotation axis must be held by pairs whose
+            information along it is at least this share of the pairs (as if that share of the points
+            lay on surfaces facing it; scan matching's 1 %, ``ScanMatchConfig.min_constraint_share``).
         max_rmse_m: a final inlier RMSE above this means the clouds were not brought together, m.
         min_points: a cloud needs at least this many points.
     """
@@ -67,6 +70,7 @@ class IcpCalibrationConfig:
     translation_epsilon_m: float = 1e-5
     overlap_m: float = 0.5
     min_fitness: float = 0.3
+    min_constraint_share: float = 0.01
     max_rmse_m: float = 0.05
     min_points: int = 500
 
@@ -78,7 +82,7 @@ class IcpCalibrationConfig:
                 f"got {len(self.voxels_m)} and {len(self.max_correspondences_m)}"
             )
         values = [*stages[0], *stages[1], self.rotation_epsilon_rad, self.translation_epsilon_m]
-        values += [self.max_rmse_m, self.overlap_m]
+        values += [self.max_rmse_m, self.overlap_m, self.min_constraint_share]
         if not all(v > 0 and math.isfinite(v) for v in values):
             raise ConfigError(f"IcpCalibrationConfig: expected positive finite sizes, got {values}")
         if self.neighbours < 5 or self.max_iterations < 1 or self.min_points < 10:
@@ -239,22 +243,9 @@ def _register(
         pose = np.array(result.T_target_source, dtype=np.float64)
         iterations += int(result.iterations)
     assert result is not None  # at least one stage (checked by the config)
-    fitness, rmse_m = _fit_quality(target, source, pose, c.overlap_m)
-    if not bool(result.converged):
-        raise CalibrationError(
-            f"{method.value} calibration: expected the registration to converge within "
-            f"{c.max_iterations} iterations, got no convergence (fitness {fitness:.2f}, RMSE {rmse_m:.3f} m)"
-        )
-    if fitness < c.min_fitness:
-        raise CalibrationError(
-            f"{method.value} calibration: expected at least {c.min_fitness:.0%} of the other LiDAR's "
-            f"points within {c.overlap_m} m of the reference cloud, got {fitness:.1%} "
-            "(too little overlap, or the nominal mount is too far off)"
-        )
-    if rmse_m > c.max_rmse_m:
-        raise CalibrationError(
-            f"{method.value} calibration: expected an inlier RMSE within {c.max_rmse_m} m, got {rmse_m:.3f} m"
-        )
+    quality = _fit_quality(target, source, pose, c.overlap_m)
+    _check(quality, bool(result.converged), c, method)
+    fitness, rmse_m = quality.fitness, quality.rmse_m
     corr_m, corr_rad = mount_difference(nominal, pose)
     return LidarCalibration(
         base_from_sensor=pose,
@@ -269,12 +260,56 @@ def _register(
     )
 
 
-def _fit_quality(
-    target: object, source: object, pose: np.ndarray, max_distance_m: float
-) -> tuple[float, float]:
-    """Share of the source's points within ``max_distance_m`` of the target, and their RMS distance to
-    the target's local plane, m (the same measure for both costs: GICP's own error is a Mahalanobis
-    distance, not metres)."""
+def _check(quality: _Quality, converged: bool, c: IcpCalibrationConfig, method: CalibrationMethod) -> None:
+    """Raise the first failed check, the most basic first: overlap, constraint, convergence, residual."""
+    fitness, rmse_m = quality.fitness, quality.rmse_m
+    label = f"{method.value} calibration"
+    if fitness < c.min_fitness:
+        raise CalibrationError(
+            f"{label}: expected at least {c.min_fitness:.0%} of the other LiDAR's "
+            f"points within {c.overlap_m} m of the reference cloud, got {fitness:.1%} "
+            "(too little overlap, or the nominal mount is too far off)"
+        )
+    if quality.weakest_share < c.min_constraint_share:
+        axis = ", ".join(f"{v:+.2f}" for v in quality.weakest_axis)
+        way = "along" if quality.weakest_kind == "translation" else "about"
+        raise CalibrationError(
+            f"{label}: expected the surfaces both LiDARs see to hold every direction of "
+            f"the mount (at least {c.min_constraint_share:.0%} of the pairs), got {quality.weakest_kind} "
+            f"{way} ({axis}) held by {quality.weakest_share:.2%} (degenerate overlap: Snow Lion's "
+            "wall corner and the ground in view of both hold all six)"
+        )
+    if not converged:
+        raise CalibrationError(
+            f"{label}: expected the registration to converge within "
+            f"{c.max_iterations} iterations, got no convergence (fitness {fitness:.2f}, RMSE {rmse_m:.3f} m)"
+        )
+    if rmse_m > c.max_rmse_m:
+        raise CalibrationError(
+            f"{label}: expected an inlier RMSE within {c.max_rmse_m} m, got {rmse_m:.3f} m"
+        )
+
+
+@dataclass(frozen=True, slots=True)
+class _Quality:
+    fitness: float
+    rmse_m: float
+    weakest_share: float
+    weakest_kind: str
+    weakest_axis: np.ndarray
+
+
+def _fit_quality(target: object, source: object, pose: np.ndarray, max_distance_m: float) -> _Quality:
+    """How well, and how firmly, the registered source lies on the target.
+
+    Fitness is the share of the source's points within ``max_distance_m`` of the target; the RMSE is
+    their distance to the target's local plane, m (the same measure for both costs: GICP's own error
+    is a Mahalanobis distance, not metres). The constraint is that of point-to-plane pairs (Zhang et
+    al., ICRA 2016): a translation along ``v`` moves a pair's residual by ``n . v`` and a small rotation
+    about ``w`` through the sensor by ``(p x n) . w`` (``p`` from the sensor, taken per metre of range);
+    the smallest eigenvalue of each 3x3 mean information, as a share of the pairs, says how firmly the
+    least held direction is held.
+    """
     from scipy.spatial import cKDTree
 
     tgt = np.asarray(target.points(), dtype=np.float64)[:, :3]  # type: ignore[attr-defined]
@@ -283,10 +318,24 @@ def _fit_quality(
     moved = src @ pose[:3, :3].T + pose[:3, 3]
     dist, idx = cKDTree(tgt).query(moved, distance_upper_bound=max_distance_m)
     paired = np.isfinite(dist)
-    if not paired.any():
-        return 0.0, math.inf
-    residual = np.einsum("ij,ij->i", moved[paired] - tgt[idx[paired]], normals[idx[paired]])
-    return float(paired.mean()), float(np.sqrt(np.mean(residual**2)))
+    if paired.sum() < 6:
+        return _Quality(float(paired.mean()), math.inf, 0.0, "translation", np.array([1.0, 0.0, 0.0]))
+    n = normals[idx[paired]]
+    residual = np.einsum("ij,ij->i", moved[paired] - tgt[idx[paired]], n)
+    arm = moved[paired] - pose[:3, 3]
+    lever = np.cross(arm, n) / np.maximum(np.linalg.norm(arm, axis=1), 1e-6)[:, None]
+    weakest = (math.inf, "translation", np.zeros(3))
+    for kind, rows in (("translation", n), ("rotation", lever)):
+        vals, vecs = np.linalg.eigh(rows.T @ rows / rows.shape[0])
+        if vals[0] < weakest[0]:
+            weakest = (float(vals[0]), kind, vecs[:, 0])
+    return _Quality(
+        fitness=float(paired.mean()),
+        rmse_m=float(np.sqrt(np.mean(residual**2))),
+        weakest_share=weakest[0],
+        weakest_kind=weakest[1],
+        weakest_axis=weakest[2],
+    )
 
 
 def _points(what: str, points: np.ndarray, minimum: int) -> np.ndarray:
