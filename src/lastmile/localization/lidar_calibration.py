@@ -5,8 +5,11 @@
   point-to-plane ICP, coarse to fine.
 - :func:`calibrate_by_planes` (Snow Lion, "Multilidar calibration"): three independent planes per cloud
   (seeded RANSAC, ``lidar_planes.py``), matched under the nominal mount, a closed-form estimate (Kabsch on
-  the normals, a linear solve of the offsets), then plane-to-plane ICP (generalized ICP, which is the
-  plane-to-plane ICP of Segal et al., RSS 2009) from that estimate.
+  the normals, a linear solve of the offsets), then a plane-to-plane refinement: the other cloud's plane
+  points onto the matched reference planes, each plane fitted to all its inliers
+  (``lidar_planes.refine_on_planes``). A nearest-neighbour ICP (point-to-plane or GICP) as the
+  refinement was tried and dropped: on a ring LiDAR's ground, where neighbourhoods are lines, it moved a
+  0.2 cm closed-form estimate to 3.7 cm and 0.6 degrees on the simulator's rig.
 
 Both return the corrected 6-DoF mount (base_from_sensor) with its fitness (share of the other cloud's
 points paired with the reference) and inlier RMSE, and raise :class:`CalibrationError` in one line when
@@ -29,6 +32,7 @@ from lastmile.localization.lidar_planes import (
     extract_planes,
     independent_triple,
     match_planes,
+    refine_on_planes,
 )
 
 
@@ -69,7 +73,7 @@ class IcpCalibrationConfig:
     rotation_epsilon_rad: float = 1e-5
     translation_epsilon_m: float = 1e-5
     overlap_m: float = 0.5
-    min_fitness: float = 0.3
+    min_fitness: float = 0.1
     min_constraint_share: float = 0.01
     max_rmse_m: float = 0.05
     min_points: int = 500
@@ -105,7 +109,7 @@ class LidarCalibration:
         correction_rad: angle of the rotation between them, rad.
         fitness: share of the other cloud's (downsampled) points within ``overlap_m`` of the reference.
         rmse_m: root-mean-square distance of those points to the reference's local planes, m.
-        iterations: registration iterations over all stages.
+        iterations: registration iterations over all stages (0 for the plane refinement).
         method: how it was estimated.
         initial_base_from_sensor: (4, 4) the closed-form three-plane estimate the ICP started from
             (the nominal mount for :attr:`CalibrationMethod.ICP`).
@@ -162,7 +166,8 @@ def calibrate_by_planes(
         other_sensor: (M, 3) the other LiDAR's points in its own frame, m.
         nominal_base_from_sensor: (4, 4) the other LiDAR's nominal mount; it matches the planes.
         reference_origin_base: (3,) the reference LiDAR's origin in the base frame (orients normals).
-        config: refinement parameters.
+        config: the overlap (``overlap_m``, ``min_fitness``, ``voxels_m[-1]``) and residual
+            (``max_rmse_m``) checks.
         planes: extraction and matching parameters.
 
     Raises:
@@ -196,7 +201,37 @@ def calibrate_by_planes(
         ) from None
     chosen = [pair for pair in native if any(pair[0] is t for t in triple)]
     initial = closed_form_mount(chosen)
-    return _register(ref, oth, initial, nominal, c, CalibrationMethod.THREE_PLANES, "GICP")
+    pose, rmse_m, converged = refine_on_planes(native, initial)
+    # Every matched plane pair holds the mount along its normal, and three of them are independent:
+    # the constraint is that of the planes, so only overlap, convergence and residual are checked.
+    fitness = _overlap(ref, oth, pose, c)
+    quality = _Quality(fitness, rmse_m, math.inf, "translation", np.zeros(3))
+    _check(quality, converged, c, CalibrationMethod.THREE_PLANES)
+    corr_m, corr_rad = mount_difference(nominal, pose)
+    return LidarCalibration(
+        base_from_sensor=pose,
+        nominal_base_from_sensor=nominal,
+        correction_m=corr_m,
+        correction_rad=corr_rad,
+        fitness=fitness,
+        rmse_m=rmse_m,
+        iterations=0,
+        method=CalibrationMethod.THREE_PLANES,
+        initial_base_from_sensor=initial,
+    )
+
+
+def _overlap(ref: np.ndarray, oth: np.ndarray, pose: np.ndarray, c: IcpCalibrationConfig) -> float:
+    """Share of the other cloud's points (downsampled to the finest voxel) near a reference point."""
+    import small_gicp
+    from scipy.spatial import cKDTree
+
+    voxel_m = c.voxels_m[-1]
+    tgt = np.asarray(small_gicp.voxelgrid_sampling(ref, voxel_m).points(), dtype=np.float64)[:, :3]
+    src = np.asarray(small_gicp.voxelgrid_sampling(oth, voxel_m).points(), dtype=np.float64)[:, :3]
+    moved = src @ pose[:3, :3].T + pose[:3, 3]
+    dist, _ = cKDTree(tgt).query(moved, distance_upper_bound=c.overlap_m)
+    return float(np.isfinite(dist).mean())
 
 
 def mount_difference(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
