@@ -770,7 +770,9 @@ app.add_typer(calibrate_app, name="calibrate")
 def calibrate_lidar(
     recording: Annotated[Path, typer.Argument(help="Black-box MCAP with LiDAR clouds and /tf.")],
     reference: Annotated[str, typer.Option(help="LiDAR whose recorded mount is trusted.")] = "lidar_front",
-    method: Annotated[str, typer.Option(help="icp (point-to-plane) or planes (Snow Lion).")] = "icp",
+    method: Annotated[
+        str, typer.Option(help="planes (Snow Lion's wall corner) or icp (small_gicp point-to-plane).")
+    ] = "planes",
     frames: Annotated[int, typer.Option(help="Sweep pairs to calibrate on (least motion first).")] = 3,
     out: Annotated[Path | None, typer.Option(help="Write the mounts as [[lidar_mount]] TOML here.")] = None,
 ) -> None:
@@ -788,8 +790,7 @@ def calibrate_lidar(
         if out is not None:
             prepare_output_file(out, "--out")
         results, ref_mount = lc.calibrate_recording(recording, reference, methods[method], frames)
-        if out is not None:
-            lc.write_mounts(out, reference, ref_mount, results)
+        wrote = out is not None and lc.write_mounts(out, reference, ref_mount, results)
     except (LastmileError, OSError) as exc:
         typer.echo(f"lastmile calibrate lidar: {exc}", err=True)
         raise typer.Exit(2) from None
@@ -799,8 +800,10 @@ def calibrate_lidar(
     for row in lc.table_rows(results):
         table.add_row(*row)
     Console(width=200).print(table)
-    if out is not None:
+    if wrote:
         typer.echo(f"wrote {out}")
+    elif out is not None:
+        typer.echo(f"no LiDAR calibrated: {out} not written", err=True)
     if any(r.calibrated is None for r in results):
         raise typer.Exit(1)
 

@@ -40,17 +40,18 @@ def _map_from_base(t_us: int) -> SE2:
     return SE2(-3.0 + SPEED_MPS * t_s, -1.0, 0.05 + YAW_RATE_RADPS * t_s)
 
 
-def _sweep(rng: np.random.Generator, t_us: int, sensor_id: str, mount: np.ndarray) -> LidarSweep:
+def _sweep(
+    rng: np.random.Generator, t_us: int, sensor_id: str, mount: np.ndarray, corner: bool = True
+) -> LidarSweep:
     base = _map_from_base(t_us)
     map_from_sensor = planar_matrix(base.x_m, base.y_m, base.yaw_rad) @ mount
-    xyz = sweep(rng, map_from_sensor, density=20.0)
+    xyz = sweep(rng, map_from_sensor, density=20.0, corner=corner)
     points = np.zeros((len(xyz), 6), dtype=np.float32)
     points[:, :3] = xyz
     return LidarSweep(stamp=Stamp(t_us), sensor_id=sensor_id, points=points)
 
 
-@pytest.fixture(scope="module")
-def recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
+def _write(path: Path, corner: bool, times_us: tuple[int, ...]) -> Path:
     rng = np.random.default_rng(11)
     entries: list[tuple[int, str, object]] = []
     for t_us in range(0, 1_000_001, 25_000):
@@ -64,16 +65,21 @@ def recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
             valid=True,
         )
         entries.append((t_us, "/localization", est))
-    for t_us in (200_000, 500_000):
-        entries.append((t_us, "/sensors/lidar/front", _sweep(rng, t_us, "front", REFERENCE)))
-        entries.append((t_us + 50_000, "/sensors/lidar/left", _sweep(rng, t_us + 50_000, "left", TRUE_MOUNT)))
+    for t_us in times_us:
+        entries.append((t_us, "/sensors/lidar/front", _sweep(rng, t_us, "front", REFERENCE, corner)))
+        left = _sweep(rng, t_us + 50_000, "left", TRUE_MOUNT, corner)
+        entries.append((t_us + 50_000, "/sensors/lidar/left", left))
     entries.sort(key=lambda e: e[0])
     views = ViewBuilder(
         sensor_mounts={"lidar_front": REFERENCE, "lidar_left": perturbed(TRUE_MOUNT, 0.2, 2.0)}
     )
-    path = tmp_path_factory.mktemp("rec") / "calib.mcap"
     write_mcap(path, entries, views=views)
     return path
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return _write(tmp_path_factory.mktemp("rec") / "calib.mcap", True, (200_000, 500_000))
 
 
 def _mount(row: dict[str, object]) -> np.ndarray:
@@ -128,3 +134,14 @@ def test_bad_input_is_one_line(recording: Path, tmp_path: Path) -> None:
     not_mcap = tmp_path / "x.mcap"
     not_mcap.write_text("hello")
     assert "lacks MCAP's magic bytes" in runner.invoke(app, ["calibrate", "lidar", str(not_mcap)]).output
+
+
+def test_no_wall_corner_fails_with_the_reason_and_writes_nothing(tmp_path: Path) -> None:
+    flat = _write(tmp_path / "flat.mcap", False, (200_000,))
+    out = tmp_path / "calib.toml"
+    result = CliRunner().invoke(app, ["calibrate", "lidar", str(flat), "--out", str(out)])
+    assert result.exit_code == 1, result.output
+    # The table wraps the reason over its cell's lines.
+    assert "reference cloud: expected three mutually" in result.output
+    assert "independent three" in result.output
+    assert "not written" in result.output and not out.exists()

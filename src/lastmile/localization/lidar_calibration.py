@@ -58,7 +58,8 @@ class IcpCalibrationConfig:
         overlap_m: a point of the other cloud overlaps the reference cloud when a reference point lies
             within this of it, m (more than the ring spacing of a 16-channel LiDAR 10 m away, 0.35 m).
         min_fitness: fewer of the other cloud's points overlapping the reference than this share means
-            the two sensors do not see enough of the same surfaces.
+            the two sensors do not see enough of the same surfaces (10 %: a side unit of a
+            WATonoBus-style rig shares about a quarter of its view with the front unit).
         min_constraint_share: every translation direction and rotation axis must be held by pairs whose
             information along it is at least this share of the pairs (as if that share of the points
             lay on surfaces facing it; scan matching's 1 %, ``ScanMatchConfig.min_constraint_share``).

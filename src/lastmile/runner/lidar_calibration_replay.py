@@ -243,8 +243,14 @@ def mount_row(frame_id: str, mount: np.ndarray) -> dict[str, Any]:
     }
 
 
-def write_mounts(path: Path, reference: str, ref_mount: np.ndarray, results: list[SensorResult]) -> None:
-    """Write ``[[lidar_mount]]`` tables: the reference's recorded mount and each calibrated one."""
+def write_mounts(path: Path, reference: str, ref_mount: np.ndarray, results: list[SensorResult]) -> bool:
+    """Write ``[[lidar_mount]]`` tables: the reference's recorded mount and each calibrated one.
+
+    Returns:
+        False, and nothing written, when no LiDAR was calibrated.
+    """
+    if all(r.calibrated is None for r in results):
+        return False
     rows = [{**mount_row(reference, ref_mount), "source": "reference"}]
     for r in results:
         if r.calibrated is None:
@@ -265,6 +271,7 @@ def write_mounts(path: Path, reference: str, ref_mount: np.ndarray, results: lis
         "# LiDAR mounts (base_from_sensor) from `lastmile calibrate lidar`.\n"
         + tomli_w.dumps({"lidar_mount": rows})
     )
+    return True
 
 
 TABLE_COLUMNS = (
