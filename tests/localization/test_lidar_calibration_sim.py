@@ -2,8 +2,9 @@
 
 The 32-channel front unit (rear half blocked by the body) and the 16-channel left blind-spot unit see a
 wall corner ahead on the left (Snow Lion's target: two walls and the ground) in a flat world, standing
-still. Their sweeps have the model's ring pattern, 2 cm range noise and their own beams, so no point is
-shared. The left unit's nominal mount is 0.2 m and 2 degrees off.
+still (``benchmarks/lidar_calibration.py`` runs both side units over seeds). Their sweeps have the
+model's ring pattern, 2 cm range noise and their own beams, so no point is shared. The left unit's
+nominal mount is 0.2 m and 2 degrees off.
 """
 
 from __future__ import annotations
@@ -33,11 +34,12 @@ from .lidar_scene import perturbed
 
 GEOMETRY = VehicleGeometry()
 RIG = {spec.sensor_id: spec for spec in default_lidar_rig(GEOMETRY)}
-# Walls (x0, y0, x1, y1), 3 m high: one along the road 6 m to the left, one across it 12 m ahead.
-CORNER = ((2.0, 6.0, 12.0, 6.0), (12.0, 6.0, 12.0, -2.0))
+# Walls (x0, y0, x1, y1), 3 m high: one along the road 6 m to each side, one across it 12 m ahead; a
+# wall corner ahead on the left and one on the right.
+CORNER = ((2.0, 6.0, 12.0, 6.0), (12.0, 6.0, 12.0, -6.0), (12.0, -6.0, 2.0, -6.0))
 
 
-def _corner_scene() -> StaticLidarScene:
+def corner_scene() -> StaticLidarScene:
     ends = np.array(CORNER, dtype=float)
     n = len(ends)
     label = np.full(n, int(PointLabel.BUILDING), dtype=np.int8)
@@ -58,7 +60,7 @@ def _corner_scene() -> StaticLidarScene:
 @pytest.fixture(scope="module")
 def sweeps() -> tuple[np.ndarray, np.ndarray]:
     """The front unit's sweep in the base frame, the left unit's in its own frame."""
-    lidar = LidarSimulator(_corner_scene(), tuple(RIG.values()), LidarWeather(), 0, GEOMETRY)
+    lidar = LidarSimulator(corner_scene(), tuple(RIG.values()), LidarWeather(), 0, GEOMETRY)
     still = EgoTrack.constant(0, 0.0, 0.0, 0.0)
     front = lidar.sweep("front", Stamp(0), still, DynamicObjects.empty(), 0)
     left = lidar.sweep("left", Stamp(0), still, DynamicObjects.empty(), 0)
