@@ -27,9 +27,9 @@ class PlaneConfig:
     Attributes:
         distance_m: a point within this of a plane is its inlier, m (about three times a LiDAR's
             1-sigma range noise of 2-3 cm, Velodyne VLP-32C / Ouster OS1 datasheets).
-        iterations: RANSAC hypotheses per plane (three-point samples); 200 find a plane holding 10 % of
-            the points with probability 1 - (1 - 0.1^3)^200 = 18 %, and one holding 30 % with 99.6 %;
-            calibration targets are the large surfaces.
+        iterations: RANSAC hypotheses per plane (three-point samples); 200 find a plane holding 30 % of
+            the remaining points with probability 1 - (1 - 0.3^3)^200 = 99.6 %. Extraction is sequential:
+            once the ground (most of a sweep) is removed, a wall is a large share of what remains.
         min_points: a plane needs at least this many inliers.
         max_planes: planes extracted per cloud, largest first.
         min_independence: three normals are independent when the smallest singular value of the 3x3
