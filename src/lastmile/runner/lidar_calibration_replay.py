@@ -162,18 +162,23 @@ def calibrate_recording(
 def _quiet_pairs(
     ref: list[LidarSweep], other: list[LidarSweep], stamps: np.ndarray, poses: np.ndarray, n: int
 ) -> list[tuple[LidarSweep, LidarSweep]]:
-    """The ``n`` (reference, other) pairs, nearest in time, over which the vehicle moved least."""
+    """The ``n`` (reference, other) pairs, nearest in time, over which the vehicle moved least.
+
+    Pairs where either sweep is nearly empty (fewer than 100 points: a blocked or blinded unit) come
+    last, so they are used only when nothing else is left (and then fail with their reason).
+    """
     ref_t = np.array([int(s.stamp) for s in ref], dtype=np.int64)
     scored = []
     for oth in other:
         t = int(oth.stamp)
         k = int(np.argmin(np.abs(ref_t - t)))
         # Motion between the captures plus over one sweep period (the skew within a sweep).
-        sweep_us = int(max(float(np.max(oth.points[:, 5])), 1.0))
+        sweep_us = int(max(float(np.max(oth.points[:, 5], initial=0.0)), 1.0))
         moved = _moved_m(stamps, poses, int(ref_t[k]), t) + _moved_m(stamps, poses, t, t + sweep_us)
-        scored.append((moved, t, ref[k], oth))
-    scored.sort(key=lambda s: (s[0], s[1]))
-    return [(r, o) for _, _, r, o in scored[:n]]
+        sparse = min(len(oth.points), len(ref[k].points)) < 100
+        scored.append((sparse, moved, t, ref[k], oth))
+    scored.sort(key=lambda s: (s[0], s[1], s[2]))
+    return [(r, o) for _, _, _, r, o in scored[:n]]
 
 
 def _calibrate_pair(
