@@ -150,9 +150,9 @@ def test_no_wall_corner_fails_with_the_reason_and_writes_nothing(tmp_path: Path)
 def test_frames_are_the_pairs_with_least_motion_and_enough_points() -> None:
     from lastmile.runner.lidar_calibration_replay import _quiet_pairs
 
-    # The vehicle stands until 0.5 s, then drives off at 2 m/s.
-    stamps = np.arange(0, 1_000_001, 50_000, dtype=np.int64)
-    poses = np.array([planar_matrix(2.0 * max(t / 1e6 - 0.5, 0.0), 0.0, 0.0) for t in stamps])
+    # The vehicle stands until 0.5 s, then drives off at 4 m/s^2.
+    stamps = np.arange(0, 1_000_001, 10_000, dtype=np.int64)
+    poses = np.array([planar_matrix(2.0 * max(t / 1e6 - 0.5, 0.0) ** 2, 0.0, 0.0) for t in stamps])
 
     def scan(t_us: int, sensor_id: str, n: int) -> LidarSweep:
         return LidarSweep(stamp=Stamp(t_us), sensor_id=sensor_id, points=np.ones((n, 6), dtype=np.float32))
@@ -163,6 +163,6 @@ def test_frames_are_the_pairs_with_least_motion_and_enough_points() -> None:
         scan(t + 20_000, "left", 0 if t == 300_000 else 1000) for t in (100_000, 300_000, 700_000, 900_000)
     ]
     pairs = _quiet_pairs(ref, other, stamps, poses, 3)
-    # Standing first; then the two driving pairs (equal motion, by time); the empty sweep is not used.
+    # Standing first, then the slower of the driving pairs; the empty sweep is not used.
     assert [int(o.stamp) for _, o in pairs] == [120_000, 720_000, 920_000]
     assert all(int(r.stamp) + 20_000 == int(o.stamp) for r, o in pairs)
