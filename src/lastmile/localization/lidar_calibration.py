@@ -160,7 +160,7 @@ def calibrate_by_planes(
     config: IcpCalibrationConfig | None = None,
     planes: PlaneConfig | None = None,
 ) -> LidarCalibration:
-    """Snow Lion's method: three matched planes, closed form (Kabsch + offsets), plane-to-plane ICP.
+    """Snow Lion's method: three matched planes, closed form (Kabsch + offsets), plane-to-plane refinement.
 
     Args:
         reference_base: (N, 3) the reference LiDAR's points in the base frame, m.
