@@ -768,6 +768,54 @@ def perceive(
     typer.echo(f"wrote {out / 'labels'}/, {out / 'objects.mcap'} and {out / 'timing.json'}")
 
 
+calibrate_app = typer.Typer(
+    no_args_is_help=True, rich_markup_mode=PLAIN_HELP, help="Calibrate sensors from recorded data."
+)
+app.add_typer(calibrate_app, name="calibrate")
+
+
+@calibrate_app.command("lidar")
+def calibrate_lidar(
+    recording: Annotated[Path, typer.Argument(help="Black-box MCAP with LiDAR clouds and /tf.")],
+    reference: Annotated[str, typer.Option(help="LiDAR whose recorded mount is trusted.")] = "lidar_front",
+    method: Annotated[
+        str, typer.Option(help="planes (Snow Lion's wall corner) or icp (small_gicp point-to-plane).")
+    ] = "planes",
+    frames: Annotated[int, typer.Option(help="Sweep pairs to calibrate on (least motion first).")] = 3,
+    out: Annotated[Path | None, typer.Option(help="Write the mounts as [[lidar_mount]] TOML here.")] = None,
+) -> None:
+    """Calibrate each other LiDAR's mount against a reference LiDAR; print before/after; write TOML."""
+    from rich.console import Console
+    from rich.table import Table
+
+    from lastmile.core.output_dir import prepare_output_file
+    from lastmile.runner import lidar_calibration_replay as lc
+
+    try:
+        methods = {m.value: m for m in lc.Method}
+        if method not in methods:
+            raise ConfigError(f"--method: expected one of {', '.join(methods)}, got {method!r}")
+        if out is not None:
+            prepare_output_file(out, "--out")
+        results, ref_mount = lc.calibrate_recording(recording, reference, methods[method], frames)
+        wrote = out is not None and lc.write_mounts(out, reference, ref_mount, results)
+    except (LastmileError, OSError) as exc:
+        typer.echo(f"lastmile calibrate lidar: {exc}", err=True)
+        raise typer.Exit(2) from None
+    table = Table(title=f"{recording.name}: LiDAR mounts against {reference} ({method})")
+    for col in lc.TABLE_COLUMNS:
+        table.add_column(col)
+    for row in lc.table_rows(results):
+        table.add_row(*row)
+    Console(width=200).print(table)
+    if wrote:
+        typer.echo(f"wrote {out}")
+    elif out is not None:
+        typer.echo(f"no LiDAR calibrated: {out} not written", err=True)
+    if any(r.calibrated is None for r in results):
+        raise typer.Exit(1)
+
+
 @app.command()
 def warmup() -> None:
     """Compile the perception kernels into the user's cache, once per install: the first frame is fast."""
