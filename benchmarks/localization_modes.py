@@ -228,7 +228,7 @@ def main() -> None:
     probe = ModeProbe(shadows, args.drive)
     load_before = os.getloadavg()
     wall0 = time.perf_counter()
-    log = run_scenario(scenario, config, callbacks=(probe,))
+    log = run_scenario(scenario, config, extra_callbacks=(probe,))
     wall_s = time.perf_counter() - wall0
     out_dir = Path(args.out) if args.out else None
     metrics = evaluate_run(log, out_dir) if out_dir is not None else {}

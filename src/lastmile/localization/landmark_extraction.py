@@ -36,8 +36,8 @@ from lastmile.core.errors import MessageError
 class LandmarkExtractionConfig:
     """Attributes (defaults from datasheets and standards, not fitted to a drive):
     range_std_m: LiDAR range noise, one sigma (Ouster OS1 / Velodyne VLP-32C datasheets: 1.5-3 cm).
-    azimuth_step_deg: the LiDAR's column spacing (1024-2048 columns per turn: 0.18-0.35 deg); the
-        angle of a return is quantised to it.
+    azimuth_step_deg: the LiDAR's column spacing (Velodyne VLP-32C at 10 Hz: 0.2 deg; set it to your
+        unit's); the angle of a return is quantised to it.
     pole_max_diameter_m: largest horizontal extent of a pole's returns (EN 40 column bases, 0.3 m,
         plus a column of range noise and beam width on each side).
     pole_min_height_m: smallest vertical extent of a pole's returns.
@@ -55,7 +55,7 @@ class LandmarkExtractionConfig:
     """
 
     range_std_m: float = 0.03
-    azimuth_step_deg: float = 0.35
+    azimuth_step_deg: float = 0.2
     pole_max_diameter_m: float = 0.6
     pole_min_height_m: float = 2.5
     pole_base_max_z_m: float = 1.0
@@ -172,26 +172,29 @@ def _pole(pts: np.ndarray, c: LandmarkExtractionConfig) -> tuple[float, float, f
     ray = mean / rng
     across = xy @ np.array([-ray[1], ray[0]])
     n = len(xy)
-    # Radius from the spread across the ray, clipped to the standard's column radii.
+    step_m = rng * math.radians(c.azimuth_step_deg)
+    # Radius from the extent across the ray (each outermost column lies uniformly within one step
+    # inside its edge), clipped to the standard's column radii.
     r_lo, r_hi = c.pole_radius_range_m
-    radius = float(np.clip(math.sqrt(3.0) * float(np.std(across)), r_lo, r_hi))
+    radius = float(np.clip((float(across.max() - across.min()) + step_m) / 2.0, r_lo, r_hi))
     centre = mean + ray * radius * math.pi / 4.0
-    az_std_m = rng * math.radians(c.azimuth_step_deg) / math.sqrt(12.0)
-    # Along the ray: range noise averaged over the returns, and the radius's own uncertainty (its
-    # spread estimate is quantised by the azimuth step). Across: the azimuth quantisation.
-    radial_var = c.range_std_m**2 / n + ((az_std_m + radius / math.sqrt(2.0 * n)) * math.pi / 4.0) ** 2
-    tangential_var = az_std_m**2 / n + (az_std_m * 0.5) ** 2
+    az_std_m = step_m / math.sqrt(12.0)
+    # Along the ray: range noise averaged over the returns, and the radius's error (the two edge
+    # columns' quantisation, each step/sqrt(12)) times pi/4. Across: the quantisation of the columns.
+    radial_var = c.range_std_m**2 / n + (az_std_m / math.sqrt(2.0) * math.pi / 4.0) ** 2
+    tangential_var = az_std_m**2 / 2.0
     std = math.sqrt(max(radial_var, tangential_var) + c.map_accuracy_m**2)
     return float(centre[0]), float(centre[1]), std
 
 
 def _cells(xy: np.ndarray, cell_m: float) -> np.ndarray:
     """Mean of the returns in each occupied grid cell (a wall's columns of returns become one point)."""
-    keys = np.floor(xy / cell_m).astype(np.int64)
-    _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
-    inverse = inverse.reshape(-1)
-    sums = np.zeros((len(counts), 2))
-    np.add.at(sums, inverse, xy)
+    ij = np.floor(xy / cell_m).astype(np.int64)
+    ij -= ij.min(axis=0)
+    # One integer key per cell: np.unique on rows (axis=0) is several times slower.
+    key = ij[:, 0] * (int(ij[:, 1].max()) + 1) + ij[:, 1]
+    _, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
+    sums = np.column_stack([np.bincount(inverse, weights=xy[:, k]) for k in (0, 1)])
     return sums / counts[:, None]
 
 
@@ -216,21 +219,22 @@ def _facade_lines(xy: np.ndarray, c: LandmarkExtractionConfig) -> list[tuple[flo
 def _ransac_line(pts: np.ndarray, tol_m: float, trials: int = 40) -> np.ndarray:
     """Inlier mask of the line through two of ``pts`` that holds the most (pairs in a fixed order)."""
     n = len(pts)
-    best = np.zeros(n, dtype=bool)
-    # Pairs far apart along the cloud give well-conditioned lines; a fixed stride keeps it repeatable.
+    # Pairs spread along the cloud give well-conditioned lines; fixed strides keep it repeatable.
     order = np.argsort(pts[:, 0] + 1e-3 * pts[:, 1])
-    for t in range(trials):
-        i = order[(t * 7919) % n]
-        j = order[(t * 104729 + n // 2) % n]
-        d = pts[j] - pts[i]
-        length = float(np.hypot(*d))
-        if length < 1.0:
-            continue
-        normal = np.array([-d[1], d[0]]) / length
-        mask = np.abs((pts - pts[i]) @ normal) <= tol_m
-        if mask.sum() > best.sum():
-            best = mask
-    return best
+    t = np.arange(trials)
+    a = pts[order[(t * 7919) % n]]
+    b = pts[order[(t * 104729 + n // 2) % n]]
+    d = b - a
+    length = np.hypot(d[:, 0], d[:, 1])
+    ok = length >= 1.0
+    if not ok.any():
+        return np.zeros(n, dtype=bool)
+    a, d, length = a[ok], d[ok], length[ok]
+    normal = np.column_stack([-d[:, 1], d[:, 0]]) / length[:, None]
+    # (trials, n) distances of every point to every candidate line.
+    dist = np.abs(pts @ normal.T - np.einsum("ij,ij->i", a, normal)).T
+    inliers = dist <= tol_m
+    return inliers[int(np.argmax(inliers.sum(axis=1)))]
 
 
 def _fit_line(pts: np.ndarray, c: LandmarkExtractionConfig) -> tuple[float, float, float, float] | None:
