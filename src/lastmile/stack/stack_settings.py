@@ -129,7 +129,7 @@ def check_localization_inputs(mode: LocalizationMode, perception: PerceptionMode
     """Raise a :class:`ConfigError` if ``mode`` needs sensor data that ``perception`` does not give."""
     if mode is LocalizationMode.LANDMARKS and not perception.needs_raw_sensors:
         raise ConfigError(
-            f"{where}.localization: 'landmarks' expects raw LiDAR perception (perception = "
-            f"'{PerceptionMode.LIDAR_CAMERA_RADAR}'), got perception '{perception}' "
+            f"{where}.localization 'landmarks': expected raw LiDAR perception "
+            f"'{PerceptionMode.LIDAR_CAMERA_RADAR}', got perception '{perception}' "
             "(radars give object lists only)"
         )
