@@ -77,9 +77,9 @@ def test_a_perception_mode_the_scenario_cannot_serve_is_refused_before_the_run(t
 
 def test_the_landmarks_mode_with_radar_perception_from_the_command_line_is_refused(tmp_path: Path) -> None:
     # Radars give object lists only: nothing to find poles and facades in.
-    path = tmp_path / "landmarks.toml"
-    path.write_text('[stack]\nlocalization = "landmarks"\n')
-    assert load_run_config(path).stack.perception is PerceptionMode.LIDAR_CAMERA_RADAR
+    path = EXAMPLES / "configs" / "landmarks.toml"
+    stack = load_run_config(path).stack
+    assert stack.localization == "landmarks" and stack.perception is PerceptionMode.LIDAR_CAMERA_RADAR
     out = tmp_path / "o"
     _one_line_exit_2(
         ["run", "--config", str(path), "--perception", "radar", "--out", str(out)],
