@@ -11,7 +11,8 @@ the map and the stack's own sensor data are used, never the simulator's truth.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import time
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -32,6 +33,9 @@ class LandmarkFusionStats:
     pole_updates: int = 0
     facade_updates: int = 0
     rejected: int = 0
+    cpu_ms: list[float] = field(default_factory=list)
+    """This thread's CPU time per fused cloud (reporting only: on a shared machine the wall time also
+    counts the time other processes held the core)."""
 
 
 class LandmarkFusion:
@@ -50,6 +54,12 @@ class LandmarkFusion:
         if self._last_stamp_us == int(stamp) or route_s_m is None:
             return
         self._last_stamp_us = int(stamp)
+        start = time.thread_time()
+        self._fuse(ekf, result, route_s_m)
+        self.stats.cpu_ms.append((time.thread_time() - start) * 1e3)
+
+    def _fuse(self, ekf: PoseEkf, result: LidarPipelineResult, route_s_m: float) -> None:
+        stamp = result.cloud.stamp
         found = extract_landmarks(result.cloud.points[:, :3], result.labels, self.config)
         st = self.stats
         st.clouds += 1
@@ -76,6 +86,10 @@ class LandmarkFusion:
             )
             st.facade_updates += ekf.update_pose(facades)
         st.rejected = ekf.rejected_pose_measurements
+
+    def cpu_p50_ms(self) -> float | None:
+        """Median CPU time per fused cloud (extraction, association, EKF update), ms."""
+        return float(np.median(self.stats.cpu_ms)) if self.stats.cpu_ms else None
 
     def counters(self) -> dict[str, int]:
         """The stack report's counters of this mode."""

@@ -355,6 +355,7 @@ class ShuttleStack:
             }
         if self.landmarks is not None:
             counters.update(self.landmarks.counters())
+            perception["landmark_update_cpu_p50_ms"] = self.landmarks.cpu_p50_ms()
         return VehicleReport(modules=self.profiler.summary(), counters=counters, perception=perception)
 
     def _guarded(self, module: str, now: Stamp, fn: Callable[..., object], *args: object) -> object:
