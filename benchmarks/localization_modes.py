@@ -302,6 +302,7 @@ def print_table(report: dict[str, Any]) -> None:
             "-" if ms is None else f"{ms:.3f}",
             "-" if ms is None else f"{ms * 1e3 / ref_us:.0f}",
             "-" if wall_ms is None else f"{wall_ms:.3f}",
+            f"{r['mean_speed_outage_mps']:.2f}",
         )
     console.print(t)
     for name, why in report["not_runnable"].items():
