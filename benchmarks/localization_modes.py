@@ -267,6 +267,11 @@ def main() -> None:
     print_table(report)
     if args.json:
         Path(args.json).write_text(json.dumps(report, indent=2))
+        # The series behind the table: t_s, lateral, longitudinal error, sigma, landmarks, dead
+        # reckoning, valid, true speed per planning cycle and mode.
+        np.savez_compressed(
+            Path(args.json).with_suffix(".npz"), **{k: np.array(v) for k, v in probe.rows.items()}
+        )
 
 
 def print_table(report: dict[str, Any]) -> None:
