@@ -275,7 +275,7 @@ def main() -> None:
 
 
 def print_table(report: dict[str, Any]) -> None:
-    console = Console(width=140)
+    console = Console(width=180)
     start_s, duration_s = report["outage_s"]
     where = f"{report['scenario']} ({report['weather']}, seed {report['seed']})"
     t = Table(
