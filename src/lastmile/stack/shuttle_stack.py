@@ -68,16 +68,18 @@ from lastmile.decision.mission import MissionManager
 from lastmile.hdmap.layers import SLayerDatabase
 from lastmile.localization.ekf import PoseEkf
 from lastmile.localization.ekf_config import PoseEkfConfig
+from lastmile.localization.landmark_extraction import LandmarkExtractionConfig
 from lastmile.localization.odometry_ekf import OdometryEkf, OdometryEkfConfig
 from lastmile.perception.late_fusion import radar_detections
 from lastmile.planning.local_path import LocalPathConfig
 from lastmile.planning.planners import PlannerInputs, PlannerName, make_path_planner
 from lastmile.safety.reliability_config import ReliabilityConfig, default_sensor_specs
 from lastmile.stack.hmi import HmiComposer
+from lastmile.stack.landmark_fusion import LandmarkFusion
 from lastmile.stack.module_guard import ModuleGuard
 from lastmile.stack.profiler import ModuleProfiler
 from lastmile.stack.raw_perception import RawPerception, RawPerceptionConfig
-from lastmile.stack.stack_settings import LocalizationMode
+from lastmile.stack.stack_settings import LocalizationMode, check_localization_inputs
 from lastmile.stack.v2i import AnticipationConfig, CrossingAnticipation
 from lastmile.tracking.prediction import MapAwarePredictor, PredictionConfig
 from lastmile.tracking.radar_tracker import RadarObjectTracker, RadarTrackerConfig
@@ -125,6 +127,7 @@ class StackConfig:
     localization: LocalizationMode = LocalizationMode.EKF
     ekf: OdometryEkfConfig = field(default_factory=OdometryEkfConfig)
     inertial_ekf: PoseEkfConfig = field(default_factory=PoseEkfConfig)
+    landmarks: LandmarkExtractionConfig = field(default_factory=LandmarkExtractionConfig)
     tracker: RadarTrackerConfig = field(default_factory=RadarTrackerConfig)
     reliability: ReliabilityConfig = field(default_factory=lambda: ReliabilityConfig(sensors=DEFAULT_SENSORS))
     v2i: AnticipationConfig = field(default_factory=AnticipationConfig)
@@ -150,6 +153,7 @@ class StackConfig:
                 f"StackConfig.perception_mode: expected one of {[m.value for m in PerceptionMode]}, "
                 f"got {self.perception_mode!r}"
             )
+        check_localization_inputs(self.localization, self.perception_mode, "StackConfig")
         if self.perception_mode.needs_raw_sensors and not self.lidar_mounts:
             raise ConfigError(
                 f"StackConfig: perception_mode '{self.perception_mode}' expects lidar_mounts (the LiDAR "
@@ -193,9 +197,10 @@ class ShuttleStack:
         # The EKF's zero-slip point is where the body has no sideways velocity: mid-wheelbase when the
         # rear wheels steer opposite to the front, the rear axle otherwise. A property of the vehicle.
         zero_slip_m = geometry.wheelbase_m / 2.0 if geometry.all_wheel_steer else 0.0
+        inertial = config.localization in (LocalizationMode.INERTIAL_EKF, LocalizationMode.LANDMARKS)
         self.ekf: OdometryEkf | PoseEkf = (
             PoseEkf(dataclasses.replace(config.inertial_ekf, zero_slip_offset_m=zero_slip_m))
-            if config.localization is LocalizationMode.INERTIAL_EKF
+            if inertial
             else OdometryEkf(dataclasses.replace(config.ekf, zero_slip_offset_m=zero_slip_m))
         )
         self.tracker = RadarObjectTracker(config.tracker)
@@ -204,6 +209,12 @@ class ShuttleStack:
                 config.raw_perception, layers, config.lidar_mounts, config.cameras, config.radar_mounts
             )
             if config.perception_mode.needs_raw_sensors
+            else None
+        )
+        # WATonoBus GNSS-denied mode: the raw chain's clusters correct the inertial EKF.
+        self.landmarks = (
+            LandmarkFusion(config.landmarks, layers)
+            if config.localization is LocalizationMode.LANDMARKS and isinstance(self.ekf, PoseEkf)
             else None
         )
         self.light_tracker = (
@@ -268,6 +279,7 @@ class ShuttleStack:
         return {
             "estimation": tick_ms,
             "perception": 100.0,
+            "landmarks": 100.0,
             **dict.fromkeys(("tracking", "prediction", "decision", "planning"), planning_ms),
             "control": config.control_period_ticks * tick_ms,
         }
@@ -290,7 +302,11 @@ class ShuttleStack:
         if raw is not None and raw.pending:
             with p.measure("perception"):
                 # Perception and tracking are one module for the watchdog: the chain ends in tracks.
-                self._guarded("tracking", now, raw.step, now, self.ekf.estimate, self._route_s)
+                done = self._guarded("tracking", now, raw.step, now, self.ekf.estimate, self._route_s)
+            if done and self.landmarks is not None and raw.last_result is not None:
+                with p.measure("landmarks"):
+                    fuse = self.landmarks.fuse
+                    self._guarded("localization", now, fuse, self.ekf, raw.last_result, self._route_s)
         if planning_cycle:
             with p.measure("tracking"):
                 source = raw.tracks if raw is not None else self.tracker.tracks
@@ -350,6 +366,9 @@ class ShuttleStack:
             if self.raw.detector is not None:
                 perception["detections_per_frame"] = st.detections / max(st.rig_frames, 1)
                 perception["clusters_replaced_per_frame"] = st.clusters_replaced / max(st.rig_frames, 1)
+        if self.landmarks is not None:
+            counters.update(self.landmarks.counters())
+            perception["landmark_update_cpu_p50_ms"] = self.landmarks.cpu_p50_ms()
         return VehicleReport(modules=self.profiler.summary(), counters=counters, perception=perception)
 
     def _guarded(self, module: str, now: Stamp, fn: Callable[..., object], *args: object) -> object:
