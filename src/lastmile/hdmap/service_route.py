@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -44,6 +45,15 @@ KERBSIDE_APPROACH_M = 32.0
 """Route length a pull-over needs before its spot (the decision layer's ``transition_m``): a kerbside
 stop's edge is the lane's narrowest over this approach and the platform."""
 ROAD_EDGE_STEP_M = 0.1  # resolution of the road's edge beside a kerbside stop's approach
+DOCK_SAGITTA_M = 0.2
+"""A kerbside platform must be a place the straight body can lie along: over the shuttle's length the
+route may bow away from the body's chord by at most this (the curb gap a pull-over keeps, the decision
+layer's ``curb_gap_target_m``), i.e. a curvature of at most 8 * DOCK_SAGITTA_M / length^2 (0.076 /m,
+13 m radius, for the 4.6 m shuttle)."""
+MAX_PLATFORM_SHIFT_M = 20.0
+"""How far along its lane a kerbside stop on a sharper bend is moved, at most, to the nearest place
+where platform and the body's length before it are straight enough (a transit agency sites kerbside
+stops on straight kerbs); farther, it stays where given."""
 INTERSECTION_REACH_M = 30.0
 """Branches and merges this close along the route are one place (a junction box of a few lanes each
 way, or a roundabout's arms)."""
@@ -76,7 +86,10 @@ class ServiceStop:
         x_m, y_m: where the route file (or the map) put it, map frame.
         snap: its lanelet, and how far it was from it.
         route_s_m: along ``ServiceRoute.polyline``; a stop whose platform would straddle the loop's
-            start (s = 0) is moved along the lane until it does not (at most half a platform).
+            start (s = 0) is moved along the lane until it does not (at most half a platform); a
+            kerbside stop on a bend sharper than the body can lie along is moved to the nearest
+            straight enough place within MAX_PLATFORM_SHIFT_M.
+        moved_m: how far (route s, signed) the stop was moved from where it snapped.
         source: "file", "bay" (a mapped ``lastmile:bus_stop`` bay), "lastmile:bus_stop" (a tagged
             node) or "autoware:bus_stop_area".
     """
@@ -87,6 +100,7 @@ class ServiceStop:
     snap: Snap
     route_s_m: float
     source: str
+    moved_m: float = 0.0
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -151,6 +165,7 @@ class ServiceRoute:
             closed=True,
             unmapped_speed_limit_mps=self.unmapped_speed_limit_mps,
             keep_clear=self.keep_clear,
+            steerable=True,
         )
 
 
@@ -237,19 +252,32 @@ def build_service(spec: RouteSpec, hdmap: HDMap) -> ServiceRoute:
         closed=True,
         unmapped_speed_limit_mps=spec.unmapped_speed_limit_mps,
         keep_clear=keep_clear,
+        steerable=True,
     )
     pieces = route_pieces(hdmap, path, closed=True)
     starts = lanelet_starts_m(hdmap, path) * (polyline.length_m / lanelet_starts_m(hdmap, path)[-1])
+    road = RoadOutline(hdmap)
     stops = []
     for name, (x, y), snap, k, source in zip(names, xy, snaps, at, sources, strict=True):
         hint = float(starts[k]) + max(snap.lanelet_s_m - pieces[k].s0_m, 0.0)
         s = polyline.project(*_on_lane(hdmap, snap), hint_s_m=hint, window_m=20.0).s_m
         # A platform is kept within one lap of route s (consumers compare s_start < s_end): one that
         # would straddle the loop's start slides forward, or back, to end there.
+        snapped = float(s)
+        if source != "bay":
+            s = _off_bends(
+                polyline,
+                snapped,
+                spec.platform_length_m,
+                VehicleGeometry().length_m,
+                lambda c: _kerb_half(hdmap, road, polyline, c, spec.platform_length_m, path, starts),
+            )
         half = spec.platform_length_m / 2 + PLATFORM_MARGIN_M
         s = min(max(float(s), half), polyline.length_m - half)
-        stops.append(ServiceStop(name=name, x_m=x, y_m=y, snap=snap, route_s_m=float(s), source=source))
-    road = RoadOutline(hdmap)
+        moved = float(s) - snapped
+        stops.append(
+            ServiceStop(name=name, x_m=x, y_m=y, snap=snap, route_s_m=float(s), source=source, moved_m=moved)
+        )
     bus_stops = tuple(
         _bus_stop(hdmap, road, polyline, st, spec.platform_length_m, path, starts) for st in stops
     )
@@ -538,6 +566,71 @@ def _connector(lid: int, a: LaneletInfo, b: LaneletInfo) -> LaneletInfo:
     )
 
 
+def _off_bends(
+    polyline: Polyline, s_m: float, platform_m: float, length_m: float, kerb_half: Callable[[float], float]
+) -> float:
+    """The nearest route s (within MAX_PLATFORM_SHIFT_M, downstream first on a tie) whose platform and
+    the body's length before it bend no more than a straight body can lie along (DOCK_SAGITTA_M) and
+    whose kerbside edge (``kerb_half``) is no nearer the route than where the stop was given: a move
+    must not trade a bend for less room to pull over. ``s_m`` itself when it is straight enough or
+    no such place is near."""
+    limit = 8.0 * DOCK_SAGITTA_M / length_m**2
+    step = 0.5
+    # Route curvature every half metre from a platform length plus a body length behind s to half a
+    # platform plus the largest shift ahead: each candidate reads its window from this one array.
+    lo = s_m - MAX_PLATFORM_SHIFT_M - platform_m / 2.0 - length_m
+    grid = np.arange(lo, s_m + MAX_PLATFORM_SHIFT_M + platform_m / 2.0 + step, step)
+    kappa = np.array([abs(polyline.curvature_at(float(q), window_m=1.0)) for q in grid])
+
+    def straight(c: float) -> bool:
+        inside = (grid >= c - platform_m / 2.0 - length_m) & (grid <= c + platform_m / 2.0)
+        return bool(kappa[inside].max(initial=0.0) <= limit)
+
+    if straight(s_m):
+        return s_m
+    given = kerb_half(s_m)
+    for k in range(1, int(MAX_PLATFORM_SHIFT_M / step) + 1):
+        for c in (s_m + k * step, s_m - k * step):
+            if straight(c) and kerb_half(c) >= given:
+                return c
+    return s_m
+
+
+def _kerb_half(
+    hdmap: HDMap,
+    road: RoadOutline,
+    polyline: Polyline,
+    s_m: float,
+    platform_m: float,
+    path: tuple[int, ...],
+    starts: np.ndarray,
+) -> float:
+    """Distance right of the route to a kerbside platform's edge centred at route ``s_m`` (see
+    ``_bus_stop``)."""
+
+    def lane_half(sk: float) -> float:
+        x, y, _ = polyline.point_at(sk)
+        k = int(np.clip(np.searchsorted(starts, sk % polyline.length_m, side="right") - 1, 0, len(path) - 1))
+        lid = hdmap.lanelet_at(x, y)
+        lane = hdmap.lanelets[lid if lid is not None and lid in hdmap.lanelets else path[k]]
+        return abs(float(lane.right.project(x, y).d_m))
+
+    on_platform = np.arange(s_m - platform_m / 2, s_m + platform_m / 2, 1.0).tolist()
+    half = min(lane_half(sk) for sk in on_platform)
+    # The road's edge right of each approach point: the first probe (every ROAD_EDGE_STEP_M) off it.
+    approach = np.arange(s_m - platform_m / 2 - KERBSIDE_APPROACH_M, on_platform[0], 1.0)
+    steps = np.arange(0.0, half, ROAD_EDGE_STEP_M)
+    if len(approach) and len(steps):
+        xy = polyline.points_at(approach)
+        heading = np.array([polyline.heading_at(float(sk)) for sk in approach])
+        right = np.c_[np.sin(heading), -np.cos(heading)]
+        probes = xy[:, None, :] + steps[None, :, None] * right[:, None, :]
+        on_road = road.contains(probes.reshape(-1, 2)).reshape(len(approach), len(steps))
+        first_off = np.where(on_road.all(axis=1), half, steps[np.argmin(on_road, axis=1)])
+        half = min(half, float(first_off.min()))
+    return half
+
+
 def _bus_stop(
     hdmap: HDMap,
     road: RoadOutline,
@@ -559,26 +652,7 @@ def _bus_stop(
         if stop.source == "bay" and bay.id == stop.name:
             return bay
 
-    def lane_half(sk: float) -> float:
-        x, y, _ = polyline.point_at(sk)
-        k = int(np.clip(np.searchsorted(starts, sk % polyline.length_m, side="right") - 1, 0, len(path) - 1))
-        lid = hdmap.lanelet_at(x, y)
-        lane = hdmap.lanelets[lid if lid is not None and lid in hdmap.lanelets else path[k]]
-        return abs(float(lane.right.project(x, y).d_m))
-
-    on_platform = np.arange(stop.route_s_m - platform_m / 2, stop.route_s_m + platform_m / 2, 1.0).tolist()
-    half = min(lane_half(sk) for sk in on_platform)
-    # The road's edge right of each approach point: the first probe (every ROAD_EDGE_STEP_M) off it.
-    approach = np.arange(stop.route_s_m - platform_m / 2 - KERBSIDE_APPROACH_M, on_platform[0], 1.0)
-    steps = np.arange(0.0, half, ROAD_EDGE_STEP_M)
-    if len(approach) and len(steps):
-        xy = polyline.points_at(approach)
-        heading = np.array([polyline.heading_at(float(sk)) for sk in approach])
-        right = np.c_[np.sin(heading), -np.cos(heading)]
-        probes = xy[:, None, :] + steps[None, :, None] * right[:, None, :]
-        on_road = road.contains(probes.reshape(-1, 2)).reshape(len(approach), len(steps))
-        first_off = np.where(on_road.all(axis=1), half, steps[np.argmin(on_road, axis=1)])
-        half = min(half, float(first_off.min()))
+    half = _kerb_half(hdmap, road, polyline, stop.route_s_m, platform_m, path, starts)
     s = stop.route_s_m + np.linspace(-platform_m / 2, platform_m / 2, max(int(platform_m), 2) + 1)
     edge = []
     for sk in s.tolist():
