@@ -27,9 +27,7 @@ ROOT = Path(__file__).resolve().parents[2]
 SHARED_MAPS = ROOT.parent / "shared" / "data" / "maps"
 
 
-def _serve_first_rider(
-    route_file: str, stop: str, minutes: float, start_route_s_m: float = 0.0, max_gap_m: float = 0.5
-) -> None:
+def _serve_first_rider(route_file: str, stop: str, minutes: float, start_route_s_m: float = 0.0) -> None:
     scenario = dataclasses.replace(
         route_service(route_file, seed=0, minutes=minutes),
         start_route_s_m=start_route_s_m,
@@ -45,8 +43,10 @@ def _serve_first_rider(
     served = log.events_of("stop_served")
     assert [e.data["stop_id"] for e in served] == [stop], served
     assert served[0].data["boarded"] == 1
-    # Kerbside stop (no bay mapped): the shuttle's right side ends up beside the lane's right edge.
-    assert 0.0 < served[0].data["curb_gap_m"] <= max_gap_m, served[0]
+    # Kerbside stop (no bay mapped): the door ends up beside the lane's right edge, and no part of the
+    # body's right side is over it.
+    assert 0.0 < served[0].data["curb_gap_m"] <= 0.5, served[0]
+    assert served[0].data["body_gap_m"] > 0.0, served[0]
 
 
 @pytest.mark.skipif(
@@ -64,10 +64,8 @@ def test_bits_loop_drives_off_the_bridged_gap_and_serves_a_block(monkeypatch: py
 )
 def test_lanelet2_example_roundabout_changes_lanes_and_serves_north(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.chdir(ROOT)
-    # North's platform is on the roundabout's curve: the rest offset keeps the whole straight body off
-    # the edge, so the rear corner's gap (what is measured) is wider than on a straight curb.
     route = "examples/routes/lanelet2_example_roundabout.toml"
-    _serve_first_rider(route, "Roundabout North", minutes=0.75, max_gap_m=0.65)
+    _serve_first_rider(route, "Roundabout North", minutes=0.75)
 
 
 @pytest.mark.skipif(
@@ -77,11 +75,11 @@ def test_lanelet2_example_roundabout_changes_lanes_and_serves_north(monkeypatch:
 def test_lanelet2_example_pulls_over_on_a_curving_curb_without_leaving_the_road(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    """Roundabout West: the straight body at rest keeps the gap along the whole curving edge (the
-    gap is measured at the rear corner, farther from a curb that bends away: up to 1 m here)."""
+    """Roundabout West: the straight body at rest keeps the gap along the whole curving edge, and the
+    platform sits where that leaves the door within the target (moved 1.5 m off the vertex)."""
     monkeypatch.chdir(ROOT)
     route = "examples/routes/lanelet2_example_roundabout.toml"
-    _serve_first_rider(route, "Roundabout West", minutes=0.75, start_route_s_m=40.0, max_gap_m=1.0)
+    _serve_first_rider(route, "Roundabout West", minutes=0.75, start_route_s_m=40.0)
 
 
 @pytest.mark.skipif(

@@ -23,7 +23,6 @@ from lastmile.core.safety_messages import FailSafeLevel, MrmKind
 from lastmile.core.vehicle import VehicleGeometry
 from lastmile.core.vehicle_messages import BehaviourDecision, BehaviourState, StopReason
 from lastmile.decision.behaviour_memory import BehaviourMemory, Cycle, DecisionContext, Outcome
-from lastmile.decision.curb_fit import spot_offset_m
 from lastmile.decision.decision_config import DecisionConfig, DecisionInput
 from lastmile.decision.intersection_handling import AllWayStops, handle_intersection, next_all_way_stop_line
 from lastmile.decision.mission import MissionManager
@@ -42,6 +41,7 @@ from lastmile.decision.stop_service import (
     next_requested_stop,
 )
 from lastmile.decision.traffic_light_rule import TrafficLightRule
+from lastmile.hdmap.curb_fit import spot_offset_m
 from lastmile.hdmap.layers import SLayerDatabase
 
 SPOT_CACHE_SIZE = 64

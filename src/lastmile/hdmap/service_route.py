@@ -22,6 +22,7 @@ from lastmile.core.errors import ConfigError, MapError, RoutingError
 from lastmile.core.geometry import point_in_polygon
 from lastmile.core.polyline import Polyline
 from lastmile.core.vehicle import VehicleGeometry
+from lastmile.hdmap.curb_fit import CURB_GAP_TARGET_M, rest_door_gap_m
 from lastmile.hdmap.lane_change import KeepClear, RoadOutline
 from lastmile.hdmap.layers import SLayerDatabase
 from lastmile.hdmap.loader import load_campus_map, load_projected_map
@@ -45,15 +46,10 @@ KERBSIDE_APPROACH_M = 32.0
 """Route length a pull-over needs before its spot (the decision layer's ``transition_m``): a kerbside
 stop's edge is the lane's narrowest over this approach and the platform."""
 ROAD_EDGE_STEP_M = 0.1  # resolution of the road's edge beside a kerbside stop's approach
-DOCK_SAGITTA_M = 0.2
-"""A kerbside platform must be a place the straight body can lie along: over the shuttle's length the
-route may bow away from the body's chord by at most this (the curb gap a pull-over keeps, the decision
-layer's ``curb_gap_target_m``), i.e. a curvature of at most 8 * DOCK_SAGITTA_M / length^2 (0.076 /m,
-13 m radius, for the 4.6 m shuttle)."""
-MAX_PLATFORM_SHIFT_M = 20.0
-"""How far along its lane a kerbside stop on a sharper bend is moved, at most, to the nearest place
-where platform and the body's length before it are straight enough (a transit agency sites kerbside
-stops on straight kerbs); farther, it stays where given."""
+DOOR_SPREAD_M = 0.5
+"""A kerbside place must keep the door gap for a door this far either side of where it is aimed (the
+pull-over's longitudinal stopping error): on a mapped polygon the gap can change sharply at a vertex."""
+MOVE_STEP_M = 0.5  # places tried along the lane when a kerbside stop is moved off a bend
 INTERSECTION_REACH_M = 30.0
 """Branches and merges this close along the route are one place (a junction box of a few lanes each
 way, or a roundabout's arms)."""
@@ -87,9 +83,13 @@ class ServiceStop:
         snap: its lanelet, and how far it was from it.
         route_s_m: along ``ServiceRoute.polyline``; a stop whose platform would straddle the loop's
             start (s = 0) is moved along the lane until it does not (at most half a platform); a
-            kerbside stop on a bend sharper than the body can lie along is moved to the nearest
-            straight enough place within MAX_PLATFORM_SHIFT_M.
+            kerbside stop where the door cannot come within ``RouteSpec.max_door_gap_m`` of the kerb
+            (a bend the straight body cannot lie along) is moved to the nearest place where it can,
+            within ``RouteSpec.max_stop_move_m``.
         moved_m: how far (route s, signed) the stop was moved from where it snapped.
+        door_gap_m: the door's gap to the kerb a pull-over at the platform's middle is expected to
+            leave (``curb_fit.rest_door_gap_m``), where the stop ends up; None for a mapped bay.
+        door_gap_given_m: the same where the stop was given (differs from ``door_gap_m`` if moved).
         source: "file", "bay" (a mapped ``lastmile:bus_stop`` bay), "lastmile:bus_stop" (a tagged
             node) or "autoware:bus_stop_area".
     """
@@ -101,6 +101,8 @@ class ServiceStop:
     route_s_m: float
     source: str
     moved_m: float = 0.0
+    door_gap_m: float | None = None
+    door_gap_given_m: float | None = None
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -264,19 +266,28 @@ def build_service(spec: RouteSpec, hdmap: HDMap) -> ServiceRoute:
         # A platform is kept within one lap of route s (consumers compare s_start < s_end): one that
         # would straddle the loop's start slides forward, or back, to end there.
         snapped = float(s)
+        door: tuple[float | None, float | None] = (None, None)
         if source != "bay":
-            s = _off_bends(
+            s, door = _dockable(
                 polyline,
                 snapped,
-                spec.platform_length_m,
-                VehicleGeometry().length_m,
+                spec,
                 lambda c: _kerb_half(hdmap, road, polyline, c, spec.platform_length_m, path, starts),
             )
         half = spec.platform_length_m / 2 + PLATFORM_MARGIN_M
         s = min(max(float(s), half), polyline.length_m - half)
-        moved = float(s) - snapped
         stops.append(
-            ServiceStop(name=name, x_m=x, y_m=y, snap=snap, route_s_m=float(s), source=source, moved_m=moved)
+            ServiceStop(
+                name=name,
+                x_m=x,
+                y_m=y,
+                snap=snap,
+                route_s_m=float(s),
+                source=source,
+                moved_m=float(s) - snapped,
+                door_gap_m=door[0],
+                door_gap_given_m=door[1],
+            )
         )
     bus_stops = tuple(
         _bus_stop(hdmap, road, polyline, st, spec.platform_length_m, path, starts) for st in stops
@@ -566,34 +577,37 @@ def _connector(lid: int, a: LaneletInfo, b: LaneletInfo) -> LaneletInfo:
     )
 
 
-def _off_bends(
-    polyline: Polyline, s_m: float, platform_m: float, length_m: float, kerb_half: Callable[[float], float]
-) -> float:
-    """The nearest route s (within MAX_PLATFORM_SHIFT_M, downstream first on a tie) whose platform and
-    the body's length before it bend no more than a straight body can lie along (DOCK_SAGITTA_M) and
-    whose kerbside edge (``kerb_half``) is no nearer the route than where the stop was given: a move
-    must not trade a bend for less room to pull over. ``s_m`` itself when it is straight enough or
-    no such place is near."""
-    limit = 8.0 * DOCK_SAGITTA_M / length_m**2
-    step = 0.5
-    # Route curvature every half metre from a platform length plus a body length behind s to half a
-    # platform plus the largest shift ahead: each candidate reads its window from this one array.
-    lo = s_m - MAX_PLATFORM_SHIFT_M - platform_m / 2.0 - length_m
-    grid = np.arange(lo, s_m + MAX_PLATFORM_SHIFT_M + platform_m / 2.0 + step, step)
-    kappa = np.array([abs(polyline.curvature_at(float(q), window_m=1.0)) for q in grid])
+def _dockable(
+    polyline: Polyline, s_m: float, spec: RouteSpec, kerb_half: Callable[[float], float]
+) -> tuple[float, tuple[float, float]]:
+    """Where a kerbside stop given at route ``s_m`` goes, and (door gap there, door gap where given).
 
-    def straight(c: float) -> bool:
-        inside = (grid >= c - platform_m / 2.0 - length_m) & (grid <= c + platform_m / 2.0)
-        return bool(kappa[inside].max(initial=0.0) <= limit)
+    A platform's door gap (``curb_fit.rest_door_gap_m`` against its kerb ``kerb_half``, worst over
+    a door DOOR_SPREAD_M either side of the platform's middle) above ``spec.max_door_gap_m`` is a
+    bend the straight body cannot lie along with the door at the kerb: the stop moves to the nearest
+    place (every MOVE_STEP_M, downstream first on a tie, at most ``spec.max_stop_move_m``) that keeps
+    it, and whose kerb is no nearer the route than where it was given (a move must not trade a bend
+    for less room to pull over). No such place: it stays, and its door gap says what to expect.
+    """
+    geometry = VehicleGeometry()
 
-    if straight(s_m):
-        return s_m
-    given = kerb_half(s_m)
-    for k in range(1, int(MAX_PLATFORM_SHIFT_M / step) + 1):
-        for c in (s_m + k * step, s_m - k * step):
-            if straight(c) and kerb_half(c) >= given:
-                return c
-    return s_m
+    def door_gap(c: float, half: float) -> float:
+        doors = (c - DOOR_SPREAD_M, c, c + DOOR_SPREAD_M)
+        return max(rest_door_gap_m(polyline, q, -half, CURB_GAP_TARGET_M, geometry) for q in doors)
+
+    given_half = kerb_half(s_m)
+    given = door_gap(s_m, given_half)
+    if given <= spec.max_door_gap_m:
+        return s_m, (given, given)
+    for k in range(1, int(spec.max_stop_move_m / MOVE_STEP_M) + 1):
+        for c in (s_m + k * MOVE_STEP_M, s_m - k * MOVE_STEP_M):
+            half = kerb_half(c)
+            if half < given_half:
+                continue
+            gap = door_gap(c, half)
+            if gap <= spec.max_door_gap_m:
+                return c, (gap, given)
+    return s_m, (given, given)
 
 
 def _kerb_half(

@@ -45,6 +45,7 @@ class StopVisit:
     stop_id: str
     opened_s: float
     curb_gap_m: float
+    body_gap_m: float
     longitudinal_error_m: float
     boarded: int = 0
     alighted: int = 0

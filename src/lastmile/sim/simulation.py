@@ -231,6 +231,7 @@ class Simulation:
                 EventKind.STOP_SERVED,
                 stop_id=v.stop_id,
                 curb_gap_m=v.curb_gap_m,
+                body_gap_m=v.body_gap_m,
                 longitudinal_error_m=v.longitudinal_error_m,
                 boarded=v.boarded,
                 alighted=v.alighted,

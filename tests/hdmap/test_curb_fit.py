@@ -10,7 +10,7 @@ import pytest
 from lastmile.core.geometry import rectangle_corners_m
 from lastmile.core.polyline import Polyline
 from lastmile.core.vehicle import VehicleGeometry
-from lastmile.decision.curb_fit import body_side_clearance_m, spot_offset_m
+from lastmile.hdmap.curb_fit import body_side_clearance_m, spot_offset_m
 
 GEOMETRY = VehicleGeometry()
 GAP_M = 0.2
