@@ -55,3 +55,22 @@ def test_curved_curb_keeps_the_gap_along_the_whole_body(left: bool) -> None:
     assert _worst_corner_gap_m(route, rear_s, d, curb) >= GAP_M - 0.01
     if left:  # the case that left the road on the Lanelet2 example map: the front corner swings out
         assert _worst_corner_gap_m(route, rear_s, plain, curb) < 0.0
+
+
+def test_the_door_gap_is_the_target_on_a_straight_kerb_and_grows_with_the_bend() -> None:
+    """The door (the middle of the body's side) of a body kept ``GAP_M`` off the kerb: exactly the
+    target beside a straight kerb; beside a kerb on the outside of a bend, the body's corners are its
+    nearest points and the door is farther by about the sagitta b^2 / 2R of half the body (b = 2.3 m),
+    more when the body rests at the rear axle's heading; the tighter the bend, the farther."""
+    from lastmile.hdmap.curb_fit import rest_door_gap_m
+
+    straight = Polyline(np.c_[np.arange(0.0, 60.0, 1.0), np.zeros(60)])
+    assert rest_door_gap_m(straight, 30.0, -1.8, GAP_M, GEOMETRY) == pytest.approx(GAP_M, abs=1e-9)
+    b = GEOMETRY.length_m / 2.0
+    gaps = []
+    for radius in (60.0, 12.0, 6.0):
+        route = _arc(radius, left=True)
+        door = rest_door_gap_m(route, 20.0 + 15.0, -1.8, GAP_M, GEOMETRY)  # well into the arc
+        assert door >= GAP_M + b**2 / (2.0 * (radius + 1.8)) - 0.02
+        gaps.append(door)
+    assert gaps[0] < gaps[1] < gaps[2] and gaps[2] > 0.5  # a 6 m bend: no kerbside stop there

@@ -444,3 +444,31 @@ def test_utm_stops_land_where_lanelet2_puts_the_map() -> None:
     for (x, y), la, lo in zip(ours, lat, lon, strict=True):
         p = lanelet2_utm.forward(GPSPoint(float(la), float(lo)))
         assert (x, y) == pytest.approx((p.x, p.y), abs=1e-3)
+
+
+def test_a_kerbside_stop_on_a_bend_the_body_cannot_lie_along_is_moved_and_said_so(tmp_path: Path) -> None:
+    """A stop given at a U-turn's apex (2.5 m radius): the straight body kept off the kerb leaves the
+    door far from it, so the stop moves back onto the straight, within one platform length; with no
+    move allowed it stays, and map check and ``lastmile run`` say what its door gap will be."""
+    from lastmile.hdmap.map_check import kerbside_lines
+
+    b = OsmBuilder()
+    stadium(b)
+    stops = _stop("A", 20, -1.0) + _stop("Apex", 103.5, 2.5)
+    route = load_route(_write(tmp_path, b, stops))
+    apex = route.stops[1]
+    assert apex.door_gap_given_m is not None and apex.door_gap_given_m > 0.4
+    assert apex.door_gap_m is not None and apex.door_gap_m <= 0.4
+    assert -12.0 <= apex.moved_m < -2.0  # back onto the eastbound straight, the nearest place
+    x, _, _ = route.polyline.point_at(apex.route_s_m)
+    assert x < 100.0  # the door on the straight, before the turn
+    assert route.stops[0].moved_m == 0.0 and route.stops[0].door_gap_m == pytest.approx(0.2, abs=1e-6)
+    (line,) = kerbside_lines(route)
+    assert line.startswith(f"Apex: moved {apex.moved_m:+.1f} m along its lane")
+
+    stay = load_route(_write(tmp_path, b, stops, header=HEADER + "[service]\nmax_stop_move_m = 0.0\n"))
+    assert stay.stops[1].moved_m == 0.0
+    (line,) = kerbside_lines(stay)
+    assert "Apex: the door will be" in line and "over 0.40 m" in line
+    with pytest.raises(ConfigError, match=r"service\.max_door_gap_m: expected \(0, 2\] m, got -1"):
+        load_route(_write(tmp_path, b, stops, header=HEADER + "[service]\nmax_door_gap_m = -1.0\n"))

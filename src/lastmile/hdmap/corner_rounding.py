@@ -7,11 +7,11 @@ laid along it (a stop just after the corner) cannot be driven, so the door never
 Here every stretch whose turning over a wheelbase exceeds the curvature a lane change may use
 (``lane_change.STEER_SHARE`` of the vehicle's tightest) becomes a circular fillet of exactly that
 curvature, tangent to the straight runs either side (taken further out until the fillet fits
-between them), as a road designer rounds a corner; the fillet is checked with the shuttle's
-half-width on both sides against the drivable lanelets and kept only if it is no more off the road
-than the line as mapped. Corners between two runs that are not straight (an S drawn without a
-straight between its bends) are left as drawn. Lines without such corners (the built-in campus
-loop) are returned as they are, bit for bit.
+between them, as far as the line goes), as a road designer rounds a corner; the fillet is checked
+with the shuttle's half-width on both sides against the drivable lanelets and kept only if it is no
+more off the road than the line as mapped. Corners between two runs that are not straight (an S
+drawn without a straight between its bends) are left as drawn. Lines without such corners (the
+built-in campus loop) are returned as they are, bit for bit.
 """
 
 from __future__ import annotations
@@ -30,8 +30,6 @@ MERGE_GAP_M = 1.0
 """Sharp vertices closer than this along the line are one corner."""
 EXTEND_STEP_M = 0.5
 """How far the straight run either side of a corner grows per try, until the arc fits between them."""
-MAX_EXTEND_M = 30.0
-"""The longest straight run either side taken into a fillet; a corner that needs more is left as drawn."""
 
 
 def max_curvature_per_m(geometry: VehicleGeometry) -> float:
@@ -80,10 +78,15 @@ def _fillet(
 ) -> tuple[float, float, np.ndarray] | None:
     """(a, b, points strictly between): the line from arc a to b replaced by straight, arc of
     ``radius_m``, straight, tangent to the runs of ``run_m`` before a and after b. None when the
-    corner crosses the line's ends, the runs are not straight, or no fillet fits within MAX_EXTEND_M."""
+    corner crosses the line's ends or no fillet fits before them.
+
+    The runs grow until the fillet fits, with no length limit of their own: a bend drawn as several
+    kinks needs its tangents far out (26.5 m on the BITS loop), and what keeps a long fillet honest
+    is the road check its caller makes (never more off the drivable lanelets than the mapped line).
+    """
     total = float(arc[-1])
     ext = 0.0
-    while ext <= MAX_EXTEND_M:
+    while True:
         a, b = lo - ext, hi + ext
         ext += EXTEND_STEP_M
         if a - run_m < 0.0 or b + run_m > total:
@@ -124,7 +127,6 @@ def _fillet(
             if len(tail) > 1
             else np.vstack([lead[1:], curve[1:-1]]),
         )
-    return None
 
 
 def _line(p: np.ndarray, q: np.ndarray) -> np.ndarray:

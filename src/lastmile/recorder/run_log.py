@@ -27,7 +27,8 @@ this table are accepted with any JSON-able data, so new sources can log without 
 - ``rule_violation`` {rule: str, detail: str} with rule "stop_line" | "right_of_way" | "speed_limit" |
   "drivable_area" | "crosswalk_yield"
 - ``stop_served`` {stop_id: str, curb_gap_m: float (the door, on the shuttle's right side, to the curb
-  when stopped), body_gap_m: float (the least gap of the whole right side; < 0: over the curb line),
+  when stopped), body_gap_m: float, optional (the least gap of the whole right side; < 0: over the curb
+  line; logs before it lack it),
   longitudinal_error_m: float, boarded: int, alighted: int}
 - ``stop_missed`` {stop_id: str, waiting: int}
 - ``passenger_boarded`` {passenger_id: int, stop_id: str, wait_s: float}
@@ -102,7 +103,6 @@ EVENT_SCHEMAS: dict[EventKind, dict[str, str]] = {
     EventKind.STOP_SERVED: {
         "stop_id": "str",
         "curb_gap_m": "float",
-        "body_gap_m": "float",
         "longitudinal_error_m": "float",
         "boarded": "int",
         "alighted": "int",
