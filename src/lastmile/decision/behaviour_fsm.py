@@ -131,7 +131,7 @@ class BehaviourStateMachine:
         speed_cap = min(c.cruise_speed_mps, self.layers.speed_limit_at(front_s))
         # The planned path, once per cycle: the corridor both obstacle checks sweep.
         path = Polyline(inp.trajectory.points[:, :2]) if inp.trajectory is not None else None
-        constraints = in_path_constraints(obstacles, inp.speed_mps, path, g, c)
+        constraints = in_path_constraints(obstacles, inp.speed_mps, path, g, c, front_s)
         constraints += cut_in_constraints(
             obstacles, inp.predictions, ctx.route, path, front_s, inp.speed_mps, g, c
         )
