@@ -231,8 +231,9 @@ def _route(route: ServiceRoute) -> CheckItem:
 
 
 def kerbside_lines(route: ServiceRoute) -> list[str]:
-    """One line per kerbside stop the route build moved off a bend, or could not: where the straight
-    body kept off the kerb leaves the door farther from it than the route's ``max_door_gap_m``."""
+    """One line per kerbside stop the route build moved off a bend (``service_route._dockable``), or
+    could not: where the straight body kept off the kerb leaves the door farther from it than the
+    route's ``max_door_gap_m``."""
     if route.spec is None:
         return []
     limit = route.spec.max_door_gap_m
@@ -240,10 +241,10 @@ def kerbside_lines(route: ServiceRoute) -> list[str]:
     for st in route.stops:
         if st.door_gap_m is None or st.door_gap_given_m is None:
             continue
-        if st.door_gap_given_m > limit and st.door_gap_m <= limit:
+        if st.door_gap_m != st.door_gap_given_m and st.door_gap_m <= limit:
             out.append(
-                f"{st.name}: moved {st.moved_m:+.1f} m along its lane (a bend there left the door "
-                f"{st.door_gap_given_m:.2f} m from the kerb; {st.door_gap_m:.2f} m where moved)"
+                f"{st.name}: moved {st.moved_m:+.1f} m along its lane off a bend (the door "
+                f"{st.door_gap_given_m:.2f} m from the kerb where given, {st.door_gap_m:.2f} m where moved)"
             )
         elif st.door_gap_m > limit:
             out.append(

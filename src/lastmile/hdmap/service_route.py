@@ -47,6 +47,11 @@ KERBSIDE_APPROACH_M = 32.0
 stop's edge is the lane's narrowest over this approach and the platform."""
 ROAD_EDGE_STEP_M = 0.1  # resolution of the road's edge beside a kerbside stop's approach
 DOOR_SPREAD_M = 0.5
+SETTLE_RUN_M = 8.0
+"""The straight run along the kerb the planner ends its pull-over with before the spot
+(``planning.local_path.LocalPathConfig.settle_m``): a bend towards the kerb there off-tracks the rear
+axle onto it (K-Block on the BITS loop, on the exit of the S-bend's fillet: the door ended 0.06 m over
+the kerb line and the stop was missed with five waiting)."""
 """A kerbside place must keep the door gap for a door this far either side of where it is aimed (the
 pull-over's longitudinal stopping error): on a mapped polygon the gap can change sharply at a vertex."""
 MOVE_STEP_M = 0.5  # places tried along the lane when a kerbside stop is moved off a bend
@@ -584,12 +589,30 @@ def _dockable(
 
     A platform's door gap (``curb_fit.rest_door_gap_m`` against its kerb ``kerb_half``, worst over
     a door DOOR_SPREAD_M either side of the platform's middle) above ``spec.max_door_gap_m`` is a
-    bend the straight body cannot lie along with the door at the kerb: the stop moves to the nearest
+    bend the straight body cannot lie along with the door at the kerb, and a bend towards the kerb
+    over the settle run before the spot (SETTLE_RUN_M) off-tracks the rear axle onto it: the stop
+    moves to the nearest
     place (every MOVE_STEP_M, downstream first on a tie, at most ``spec.max_stop_move_m``) that keeps
     it, and whose kerb is no nearer the route than where it was given (a move must not trade a bend
     for less room to pull over). No such place: it stays, and its door gap says what to expect.
     """
     geometry = VehicleGeometry()
+    wheelbase = geometry.wheelbase_m
+    door_from_rear = geometry.length_m / 2.0 - geometry.rear_overhang_m
+    # The rear wheels are kept straight at a kerb, so on a bend towards the kerb (a right turn for a
+    # kerb on the right) the rear axle off-tracks towards it by wheelbase^2 / 2R; over the settle run
+    # before the spot that must stay within the gap the pull-over keeps: R >= wheelbase^2 / (2 gap).
+    toward_kerb_limit = 2.0 * CURB_GAP_TARGET_M / wheelbase**2
+
+    def offtracks(c: float) -> bool:
+        rear = c - door_from_rear
+        for q in np.arange(rear - SETTLE_RUN_M, rear + 1e-9, MOVE_STEP_M).tolist():
+            turn = (polyline.heading_at(q + wheelbase) - polyline.heading_at(q) + math.pi) % (
+                2 * math.pi
+            ) - math.pi
+            if -turn / wheelbase > toward_kerb_limit:
+                return True
+        return False
 
     def door_gap(c: float, half: float) -> float:
         doors = (c - DOOR_SPREAD_M, c, c + DOOR_SPREAD_M)
@@ -597,16 +620,21 @@ def _dockable(
 
     given_half = kerb_half(s_m)
     given = door_gap(s_m, given_half)
-    if given <= spec.max_door_gap_m:
-        return s_m, (given, given)
-    for k in range(1, int(spec.max_stop_move_m / MOVE_STEP_M) + 1):
-        for c in (s_m + k * MOVE_STEP_M, s_m - k * MOVE_STEP_M):
-            half = kerb_half(c)
-            if half < given_half:
-                continue
-            gap = door_gap(c, half)
-            if gap <= spec.max_door_gap_m:
-                return c, (gap, given)
+    # First a place where the door keeps the limit and the settle run does not off-track the rear
+    # onto the kerb; failing that (a kerb on a long bend), one where at least the door does.
+    for check_offtrack in (True, False):
+        if given <= spec.max_door_gap_m and not (check_offtrack and offtracks(s_m)):
+            return s_m, (given, given)
+        for k in range(1, int(spec.max_stop_move_m / MOVE_STEP_M) + 1):
+            for c in (s_m + k * MOVE_STEP_M, s_m - k * MOVE_STEP_M):
+                if check_offtrack and offtracks(c):
+                    continue
+                half = kerb_half(c)
+                if half < given_half:
+                    continue
+                gap = door_gap(c, half)
+                if gap <= spec.max_door_gap_m:
+                    return c, (gap, given)
     return s_m, (given, given)
 
 
