@@ -130,6 +130,10 @@ def run(
             scenario, run_config, minutes=minutes, seed=seed, weather=weather, route=route
         )
         world_map = load_world_map(spec.map)  # a bad route or map is found before the run, not after
+        from lastmile.hdmap.map_check import kerbside_lines
+
+        for line in kerbside_lines(world_map):  # stops the route build moved off a bend
+            typer.echo(f"lastmile run: {line}", err=True)
         prepare_output_dir(out)
         with (
             StopSignals() as stop,

@@ -26,7 +26,9 @@ def test_riders_board_one_at_a_time_and_press_the_seat_button(straight_map):
         straight_map.stops, PassengerConfig(initial_waiting={"S1": 2}), component_rng(0, "p"), seats=6
     )
     assert model.new_calls == [("S1", "stop_button")]
-    model.visit = StopVisit(stop_id="S1", opened_s=0.0, curb_gap_m=0.1, longitudinal_error_m=0.0)
+    model.visit = StopVisit(
+        stop_id="S1", opened_s=0.0, curb_gap_m=0.1, body_gap_m=0.1, longitudinal_error_m=0.0
+    )
     events = []
     t = 0.0
     while t < 12.0:

@@ -26,9 +26,11 @@ this table are accepted with any JSON-able data, so new sources can log without 
   "stack_request"
 - ``rule_violation`` {rule: str, detail: str} with rule "stop_line" | "right_of_way" | "speed_limit" |
   "drivable_area" | "crosswalk_yield"
-- ``stop_served`` {stop_id: str, curb_gap_m: float (shuttle's right side to the curb when stopped),
-  longitudinal_error_m: float, boarded: int, alighted: int}, logged as the door closes; runs since
-  issue #21 add left_waiting: int (riders still waiting at the stop then) and seats_free: int
+- ``stop_served`` {stop_id: str, curb_gap_m: float (the door, on the shuttle's right side, to the curb
+  when stopped), body_gap_m: float, optional (the least gap of the whole right side; < 0: over the curb
+  line; logs before it lack it), longitudinal_error_m: float, boarded: int, alighted: int}, logged as the
+  door closes; runs since issue #21 add left_waiting: int (riders still waiting at the stop then) and
+  seats_free: int
 - ``stop_missed`` {stop_id: str, waiting: int}
 - ``passenger_boarded`` {passenger_id: int, stop_id: str, wait_s: float}
 - ``passenger_alighted`` {passenger_id: int, stop_id: str, ride_s: float}

@@ -45,6 +45,7 @@ class StopVisit:
     stop_id: str
     opened_s: float
     curb_gap_m: float
+    body_gap_m: float
     longitudinal_error_m: float
     boarded: int = 0
     alighted: int = 0
@@ -156,6 +157,7 @@ class PassengerModel:
         return {
             "stop_id": v.stop_id,
             "curb_gap_m": v.curb_gap_m,
+            "body_gap_m": v.body_gap_m,
             "longitudinal_error_m": v.longitudinal_error_m,
             "boarded": v.boarded,
             "alighted": v.alighted,
