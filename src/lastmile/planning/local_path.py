@@ -39,6 +39,9 @@ class LocalPathConfig:
         rear_axle_on_spot: remove what the rear axle's lag still lacks of the pull-over spot's offset
             over the settling run, so that the path reaches the spot's line at the spot (off, it ended
             0.09 m short at S1, and a law tracking it exactly stopped 0.3 m from the curb).
+        exact_body_clearance: check the pull-over's clearance with the body placed exactly along the
+            path (off: to first order, which at S1's 0.4 rad turn-in put the front corner of a body
+            tracking the path exactly over the taper's curb).
     """
 
     behind_m: float = 5.0
@@ -51,6 +54,7 @@ class LocalPathConfig:
     curb_clearance_m: float = 0.08
     route_anchored_waypoints: bool = False
     rear_axle_on_spot: bool = False
+    exact_body_clearance: bool = False
     field: PotentialFieldConfig = field(default_factory=PotentialFieldConfig)
 
 
@@ -173,11 +177,48 @@ class LocalPathPlanner:
             front = np.maximum(front, floor)
         alpha = 1.0 - math.exp(-step / ahead)
         rear = lfilter([alpha], [1.0, alpha - 1.0], front)  # rear += alpha * (front - rear), from 0
+        if self.config.exact_body_clearance and self.curb_right_d_m is not None:
+            rear = self._clear_of_the_curb(grid, front, rear, alpha)
         if self.config.rear_axle_on_spot:
             toward = rear - _lag_residual_m(grid, rear, s1_m, s1_m + self.config.settle_m, spot_d_m)
             side = math.copysign(1.0, -spot_d_m)  # the side of the spot line the path comes from
             rear = spot_d_m + side * np.maximum(side * (toward - spot_d_m), 0.0)  # never past the line
         return np.where(s_m < grid[0], 0.0, np.interp(s_m, grid, rear))
+
+    def _clear_of_the_curb(
+        self, grid: FloatArray, front: FloatArray, rear: FloatArray, alpha: float
+    ) -> FloatArray:
+        """Lift the front's curve until the right side of the rigid body, placed exactly (rear axle on
+        the path, body along its tangent), keeps ``curb_clearance_m`` from the curb.
+
+        The front's floor above holds only to first order: at the 0.4 rad of S1's turn-in the front
+        corner sits l (1 - cos psi) = 0.3 m further back than d + l d' assumes, where the taper is
+        shallower, and a law that tracked the path exactly put that corner over the curb. Each pass
+        raises the front by the worst shortfall of the body side over the next ``ahead`` metres and
+        lags the rear anew; a few passes converge (the lift only moves the path away from the curb).
+        """
+        assert self.curb_right_d_m is not None
+        c = self.config
+        along = self._body_offsets  # rear overhang .. front, on the body axis
+        half = self.half_width_m
+        span = max(1, round(float(along[-1]) / (grid[1] - grid[0])))
+        lift = np.zeros_like(front)
+        for _ in range(6):
+            psi = np.arctan(np.gradient(rear, grid))
+            cos, sin = np.cos(psi)[:, None], np.sin(psi)[:, None]
+            side_s = grid[:, None] + along[None, :] * cos + half * sin
+            side_d = rear[:, None] + along[None, :] * sin - half * cos
+            curb = self.curb_right_d_m(side_s.ravel()).reshape(side_s.shape)
+            short = np.where(np.isnan(curb), -np.inf, curb + c.curb_clearance_m - side_d).max(axis=1)
+            if not np.any(short > 1e-3):
+                break
+            # The front at grid i leads the rear by ``ahead``: lift it over the stretch whose body
+            # reaches the shortfall.
+            need = np.maximum(short, 0.0)
+            ahead_need = np.array([need[i : i + span + 1].max() for i in range(len(need))])
+            lift = lift + ahead_need
+            rear = lfilter([alpha], [1.0, alpha - 1.0], front + lift)
+        return rear
 
     def _off_the_curb(self, s_m: FloatArray, d_m: FloatArray) -> FloatArray:
         if self.curb_right_d_m is None:

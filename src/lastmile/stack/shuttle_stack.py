@@ -178,17 +178,19 @@ def _injected_fault() -> None:
 def _path_config(config: StackConfig) -> LocalPathConfig:
     """The planner's settings for the selected lateral controller.
 
-    Every controller but the default gets the path on route-anchored waypoints, with the rear axle
-    brought onto the pull-over spot's line: the legacy grid makes the bay's turn-in swing by up to
-    0.3 m between cycles, which the default's 4 m lookahead averages out and a front-axle law or a
-    2-3 m aim point chases off the road, and the legacy pull-over ends 0.09 m short of the spot's line,
-    which the default's lookahead cuts and an exact tracker does not. The default keeps the legacy
-    path only so that its runs stay bit-identical to the previous release; switching both on for it
-    too is the intended next step.
+    Every controller but the default gets the revised pull-over path (``LocalPathConfig``):
+    route-anchored waypoints (the legacy grid swung S1's turn-in by up to 0.3 m between cycles), the
+    body's clearance checked exactly (to first order, a body following the path exactly put its front
+    corner over S1's taper) and the rear axle brought onto the spot's line (it ended 0.09 m short).
+    The default's 4 m lookahead averages the swing out and runs outside the planned line, so it never
+    met the other two; it keeps the legacy path only so that its runs stay bit-identical to the
+    previous release. Switching the three on for it too is the intended next step.
     """
     if config.lateral_controller == LateralControllerName.HEADING_PID:
         return config.path
-    return dataclasses.replace(config.path, route_anchored_waypoints=True, rear_axle_on_spot=True)
+    return dataclasses.replace(
+        config.path, route_anchored_waypoints=True, rear_axle_on_spot=True, exact_body_clearance=True
+    )
 
 
 class ShuttleStack:
