@@ -215,7 +215,8 @@ class LocalPathPlanner:
             # The front at grid i leads the rear by ``ahead``: lift it over the stretch whose body
             # reaches the shortfall.
             need = np.maximum(short, 0.0)
-            ahead_need = np.array([need[i : i + span + 1].max() for i in range(len(need))])
+            padded = np.concatenate([need, np.zeros(span)])
+            ahead_need = np.lib.stride_tricks.sliding_window_view(padded, span + 1).max(axis=1)
             lift = lift + ahead_need
             rear = lfilter([alpha], [1.0, alpha - 1.0], front + lift)
         return rear
