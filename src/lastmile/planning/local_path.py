@@ -42,8 +42,6 @@ class LocalPathConfig:
         exact_body_clearance: check the pull-over's clearance with the body placed exactly along the
             path (off: to first order, which at S1's 0.4 rad turn-in put the front corner of a body
             tracking the path exactly over the taper's curb).
-        curb_lookup_step_m: length of the stretches the curb lookup holds one value for (the map's
-            s-layer records, 1 m); the exact check takes the nearer curb of a stretch and the next.
     """
 
     behind_m: float = 5.0
@@ -57,7 +55,6 @@ class LocalPathConfig:
     route_anchored_waypoints: bool = False
     rear_axle_on_spot: bool = False
     exact_body_clearance: bool = False
-    curb_lookup_step_m: float = 1.0
     field: PotentialFieldConfig = field(default_factory=PotentialFieldConfig)
 
 
@@ -179,26 +176,17 @@ class LocalPathPlanner:
             floor = np.where(np.isnan(curb), -np.inf, curb) + self.config.curb_clearance_m + self.half_width_m
             front = np.maximum(front, floor)
         alpha = 1.0 - math.exp(-step / ahead)
-
-        def rear_of(front_m: FloatArray) -> FloatArray:
-            rear = lfilter([alpha], [1.0, alpha - 1.0], front_m)  # rear += alpha * (front - rear), from 0
-            if self.config.rear_axle_on_spot:
-                toward = rear - _lag_residual_m(grid, rear, s1_m, s1_m + self.config.settle_m, spot_d_m)
-                side = math.copysign(1.0, -spot_d_m)  # the side of the spot line the path comes from
-                rear = spot_d_m + side * np.maximum(side * (toward - spot_d_m), 0.0)  # never past the line
-            return rear
-
-        rear = rear_of(front)
+        rear = lfilter([alpha], [1.0, alpha - 1.0], front)  # rear += alpha * (front - rear), from 0
         if self.config.exact_body_clearance and self.curb_right_d_m is not None:
-            rear = self._clear_of_the_curb(grid, front, rear, rear_of)
+            rear = self._clear_of_the_curb(grid, front, rear, alpha)
+        if self.config.rear_axle_on_spot:
+            toward = rear - _lag_residual_m(grid, rear, s1_m, s1_m + self.config.settle_m, spot_d_m)
+            side = math.copysign(1.0, -spot_d_m)  # the side of the spot line the path comes from
+            rear = spot_d_m + side * np.maximum(side * (toward - spot_d_m), 0.0)  # never past the line
         return np.where(s_m < grid[0], 0.0, np.interp(s_m, grid, rear))
 
     def _clear_of_the_curb(
-        self,
-        grid: FloatArray,
-        front: FloatArray,
-        rear: FloatArray,
-        rear_of: Callable[[FloatArray], FloatArray],
+        self, grid: FloatArray, front: FloatArray, rear: FloatArray, alpha: float
     ) -> FloatArray:
         """Lift the front's curve until the right side of the rigid body, placed exactly (rear axle on
         the path, body along its tangent), keeps ``curb_clearance_m`` from the curb.
@@ -207,8 +195,7 @@ class LocalPathPlanner:
         corner sits l (1 - cos psi) = 0.3 m further back than d + l d' assumes, where the taper is
         shallower, and a law that tracked the path exactly put that corner over the curb. Each pass
         raises the front by the worst shortfall of the body side over the next ``ahead`` metres and
-        lays the rear anew (``rear_of``: the lag, and the approach onto the spot's line, so the check
-        covers that too); a few passes converge (the lift only moves the path away from the curb).
+        lags the rear anew; a few passes converge (the lift only moves the path away from the curb).
         """
         assert self.curb_right_d_m is not None
         c = self.config
@@ -221,11 +208,7 @@ class LocalPathPlanner:
             cos, sin = np.cos(psi)[:, None], np.sin(psi)[:, None]
             side_s = grid[:, None] + along[None, :] * cos + half * sin
             side_d = rear[:, None] + along[None, :] * sin - half * cos
-            # The lookup holds the curb of a stretch at its start; where it steps back toward the lane
-            # (a bay's exit taper) the next stretch's value is the nearer: take the nearer of the two.
-            flat = side_s.ravel()
-            curb = np.fmax(self.curb_right_d_m(flat), self.curb_right_d_m(flat + c.curb_lookup_step_m))
-            curb = curb.reshape(side_s.shape)
+            curb = self.curb_right_d_m(side_s.ravel()).reshape(side_s.shape)
             short = np.where(np.isnan(curb), -np.inf, curb + c.curb_clearance_m - side_d).max(axis=1)
             if not np.any(short > 1e-3):
                 break
@@ -235,7 +218,7 @@ class LocalPathPlanner:
             padded = np.concatenate([need, np.zeros(span)])
             ahead_need = np.lib.stride_tricks.sliding_window_view(padded, span + 1).max(axis=1)
             lift = lift + ahead_need
-            rear = rear_of(front + lift)
+            rear = lfilter([alpha], [1.0, alpha - 1.0], front + lift)
         return rear
 
     def _off_the_curb(self, s_m: FloatArray, d_m: FloatArray) -> FloatArray:
