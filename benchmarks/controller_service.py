@@ -6,9 +6,10 @@ Run: python benchmarks/controller_service.py [--minutes 4] [--seeds 0] [--weathe
 Each pair is selected in the run configuration (``[stack] lateral_controller`` and
 ``longitudinal_controller``) and run on the loop engine, vehicle safety included; everything else is
 the default stack with radar-tracking perception. Reported per run: the referee's takeovers, rule
-violations and collisions, stops served (and missed) with their curb gaps, route progress, and the
-comfort figures as the evaluation measures them (the shuttle's acceleration averaged over 0.1 s
-windows; jerk from adjacent windows) against Snow Lion's measured envelope (-1.83..1.12 m/s^2,
+violations and collisions, stops served (and missed) with their curb gaps, the peak cross-track error
+against the stack's planned path (10 Hz, at the point the path is laid for, boarding excluded), route
+progress, and the comfort figures as the evaluation measures them (the shuttle's acceleration averaged
+over 0.1 s windows; jerk from adjacent windows) against Snow Lion's measured envelope (-1.83..1.12 m/s^2,
 |jerk| <= 1.84 m/s^3), outside emergencies as the evaluation counts them (the emergency-stop state or
 brake and the 3 s after, with their count). The reference is the default pair
 (``heading_pid:watonobus``) in the same run: progress as a ratio.
@@ -21,6 +22,7 @@ import argparse
 import collections
 import dataclasses
 import json
+import math
 import os
 import time
 from pathlib import Path
@@ -65,16 +67,28 @@ def run(pair: str, seed: int, minutes: float, weather: str) -> dict[str, object]
     )
     loop = build_closed_loop(scenario, RunConfig(stack=stack))
     sim = loop.world
-    accel, emergency, events = [], [], []
+    accel, emergency, events, xte = [], [], [], []
+    stack = loop.software
+    geometry = stack.geometry
+    per = round(100_000 / loop.tick_us)
     cpu0 = time.process_time()
     for record in loop.ticks(round(minutes * 60e6 / loop.tick_us)):
         accel.append(sim.ego_state.accel_mps2)
+        # Cross-track error against the stack's planned path (the evaluation reads it; the stack never
+        # reads truth), at the point the path is laid for: the rear axle at a curb (rear wheels
+        # straight), the centre of the wheelbase elsewhere (all-wheel steer).
+        path = stack._path
+        if record.tick % per == 0 and path is not None and record.state != BehaviourState.ONBOARDING:
+            e = sim.ego_state
+            at_curb = record.state in (BehaviourState.PULLOVER, BehaviourState.MERGING)
+            lead = 0.0 if at_curb or not geometry.all_wheel_steer else geometry.wheelbase_m / 2.0
+            x, y = e.x_m + lead * math.cos(e.yaw_rad), e.y_m + lead * math.sin(e.yaw_rad)
+            xte.append(abs(path.project(x, y).d_m))
         emergency.append(
             record.verdict.command.emergency_brake or record.state == BehaviourState.EMERGENCY_STOP
         )
         events += record.events
     a = np.asarray(accel)
-    per = round(100_000 / loop.tick_us)
     k = len(a) // per * per
     # As the evaluation: rows in an emergency stop and the 3 s after it are exempt from comfort.
     e = np.asarray(emergency)
@@ -99,6 +113,7 @@ def run(pair: str, seed: int, minutes: float, weather: str) -> dict[str, object]
         "stops_served": len(gaps),
         "stops_missed": kinds.get("stop_missed", 0),
         "curb_gap_max_m": max(gaps) if gaps else None,
+        "xte_peak_m": max(xte) if xte else None,
         "progress_m": float(sim.route_progress_m),
         "emergency_episodes": episodes,
         "accel_min_mps2": float(kept.min()),
@@ -123,12 +138,23 @@ def main() -> None:
     )
     args = ap.parse_args()
     load_before = os.getloadavg()
-    rows = [run(p, s, args.minutes, w) for w in args.weather for s in args.seeds for p in args.pairs]
+    rows = []
+    for w in args.weather:
+        for s in args.seeds:
+            for p in args.pairs:
+                rows.append(run(p, s, args.minutes, w))
+                r = rows[-1]
+                print(
+                    f"{p} {w} seed {s}: takeovers {r['takeovers']} violations {r['rule_violations']} "
+                    f"collisions {r['collisions']} stops {r['stops_served']} missed {r['stops_missed']} "
+                    f"max curb gap {r['curb_gap_max_m']} peak xte {r['xte_peak_m']}",
+                    flush=True,
+                )
     base = {(r["seed"], r["weather"]): r["progress_m"] for r in rows if r["pair"] == "heading_pid:watonobus"}
     table = Table(title=f"default service, {args.minutes} min per run, radar-tracking perception")
     columns = ("pair", "weather", "seed", "takeovers", "violations", "collisions", "emergencies", "stops")
     columns += ("missed",)
-    columns += ("max curb gap m",)
+    columns += ("max curb gap m", "peak xte m")
     columns += ("progress m", "vs default", "accel min..max", "jerk min..max", "comfort", "CPU s")
     for col in columns:
         table.add_column(col, justify="right")
@@ -140,6 +166,7 @@ def main() -> None:
             str(r["collisions"]), str(r["emergency_episodes"]), str(r["stops_served"]),
             str(r["stops_missed"]),
             "-" if gap is None else f"{gap:.2f}",
+            "-" if r["xte_peak_m"] is None else f"{r['xte_peak_m']:.2f}",
             f"{r['progress_m']:.0f}", "-" if ref is None else f"{float(r['progress_m']) / ref:.3f}x",
             f"{r['accel_min_mps2']:.2f}..{r['accel_max_mps2']:.2f}",
             f"{r['jerk_min_mps3']:.2f}..{r['jerk_max_mps3']:.2f}",

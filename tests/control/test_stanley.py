@@ -1,5 +1,6 @@
 """aUToronto's Stanley law and Model Predictive Stanley."""
 
+import dataclasses
 import math
 
 import numpy as np
@@ -92,3 +93,26 @@ def test_mps_config_is_checked():
         MpsConfig(horizon_min_steps=5, horizon_max_steps=2)
     with pytest.raises(ConfigError, match="curvature_straight_1pm"):
         MpsConfig(curvature_straight_1pm=0.3)
+
+
+def test_front_axle_and_cg_are_fed_the_path_their_own_point_traces():
+    """The planner lays the rear axle's path (mid-wheelbase with all-wheel steer); Stanley's front axle
+    and the MPC's centre of gravity follow it shifted forward along its tangent."""
+    from lastmile.control.coupled_mpc import SnowLionMpcController
+    from lastmile.control.lateral import LookaheadHeadingPid
+    from lastmile.control.path_errors import path_ahead_of
+
+    g = VehicleGeometry()
+    front_steer = dataclasses.replace(g, all_wheel_steer=False)
+    assert StanleyController(front_steer).path_lead_m() == g.wheelbase_m
+    assert StanleyController(g).path_lead_m(rear_steer=True) == pytest.approx(
+        g.wheelbase_m / 2 if g.all_wheel_steer else g.wheelbase_m
+    )
+    assert StanleyController(g).path_lead_m(rear_steer=False) == g.wheelbase_m
+    assert SnowLionMpcController(front_steer).path_lead_m() == pytest.approx(g.wheelbase_m / 2)
+    assert LookaheadHeadingPid(g).path_lead_m() == 0.0
+    # On a circle of radius R the point l ahead of a point on it runs on radius sqrt(R^2 + l^2).
+    t = np.linspace(0.0, 2 * np.pi, 400, endpoint=False)
+    circle = Polyline(np.c_[10.0 * np.cos(t), 10.0 * np.sin(t)], closed=True)
+    shifted = path_ahead_of(circle, 2.9)
+    assert np.allclose(np.hypot(*shifted.xy_m.T), math.hypot(10.0, 2.9), atol=1e-3)

@@ -107,3 +107,17 @@ def test_gain_scales_down_below_the_reference_speed_and_gems_law_is_kept_on_requ
     assert d_pub == pytest.approx(math.atan(3.0 * theta * g.wheelbase_m / 1.0), abs=1e-6)
     # Scaled: the wheel angle GEM's law gives at 3 m/s for the same bearing error.
     assert d_scaled == pytest.approx(math.atan(3.0 * theta * g.wheelbase_m / 3.0), abs=1e-6)
+
+
+def test_live_path_speed_cap_is_gems_sqrt_half_radius_reached_by_braking():
+    """Straight for 20 m, then an arc of radius 8 m: on the arc the cap is sqrt(0.5 r) = 2 m/s; before
+    it, whatever braking at 0.8 m/s^2 still reaches that (the other controllers leave the cap alone)."""
+    t = np.linspace(0.0, np.pi / 2, 60)
+    arc = np.c_[20.0 + 8.0 * np.sin(t), 8.0 - 8.0 * np.cos(t)]
+    path = Polyline(np.r_[np.c_[np.arange(0.0, 20.0, 1.0), np.zeros(20)], arc[1:]])
+    gem = GemWaypointFollower(VehicleGeometry())
+    on_arc = gem.speed_cap_mps(path, 24.0, 5.5, 0.8)
+    assert on_arc == pytest.approx(2.0, rel=0.03)
+    before = gem.speed_cap_mps(path, 10.0, 5.5, 0.8)
+    assert before == pytest.approx(math.sqrt(2.0**2 + 2 * 0.8 * 10.0), rel=0.05)
+    assert gem.speed_cap_mps(STRAIGHT, 10.0, 5.5, 0.8) == 5.5

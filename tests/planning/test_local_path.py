@@ -8,7 +8,7 @@ from lastmile.core.route_obstacles import RouteObstacle
 from lastmile.core.stamp import Stamp
 from lastmile.core.vehicle_messages import BehaviourDecision, BehaviourState
 from lastmile.planning.bezier import cubic_bezier, lateral_transition_m, smooth_through
-from lastmile.planning.local_path import LocalPathPlanner
+from lastmile.planning.local_path import LocalPathConfig, LocalPathPlanner
 from lastmile.planning.potential_field import PotentialFieldConfig, nudge_offsets_m
 
 ROUTE = Polyline(np.array([[0.0, 0.0], [500.0, 0.0]]))
@@ -88,3 +88,86 @@ def test_bezier_chain_equals_one_cubic_per_segment_exactly():
         seg = cubic_bezier(p0, p1, p2, p3, 9)
         pieces.append(seg if i == len(padded) - 3 else seg[:-1])
     assert np.array_equal(smooth_through(pts), np.vstack(pieces))
+
+
+def _bay_planner(**flags):
+    """A bay: the curb at d -1.75 steps out through a 6 m taper to d -4.75 from s 40 on."""
+
+    def curb(s):
+        s = np.asarray(s, dtype=float)
+        return -1.75 - 3.0 * np.clip((s - 34.0) / 6.0, 0.0, 1.0)
+
+    config = LocalPathConfig(**flags)
+    return LocalPathPlanner(
+        ROUTE, half_width_m=1.0, config=config, curb_right_d_m=curb, body_behind_m=0.85, body_ahead_m=3.75
+    )
+
+
+def _y_at(traj, x):
+    return float(np.interp(x, traj.points[:, 0], traj.points[:, 1]))
+
+
+def test_route_anchored_waypoints_keep_the_pullover_path_in_place_as_the_shuttle_moves():
+    spot = SE2(60.0, -3.5, 0.0)
+    probes = np.arange(30.0, 50.0, 1.0)
+    # S1's real taper made the legacy path swing 0.3 m in closed loop; this straight one, 2 cm.
+    for anchored, bound in ((False, 0.01), (True, 1e-9)):
+        planner = _bay_planner(route_anchored_waypoints=anchored)
+        ys = np.array(
+            [
+                [_y_at(planner.plan(Stamp(0), ego, 0.0, _decision(BehaviourState.PULLOVER, spot=spot), []), x)
+                 for x in probes]
+                for ego in np.arange(20.0, 22.0, 0.25)
+            ]
+        )  # fmt: skip
+        swing = float(np.max(ys.max(axis=0) - ys.min(axis=0)))
+        if anchored:
+            assert swing <= bound, swing
+        else:
+            assert swing > bound, swing  # the legacy grid moves the path with the shuttle's phase
+
+
+def test_rear_axle_on_spot_brings_the_path_onto_the_spot_line_at_the_spot():
+    spot = SE2(52.0, -3.5, 0.0)
+    decision = _decision(BehaviourState.PULLOVER, spot=spot)
+    legacy = _bay_planner(route_anchored_waypoints=True).plan(Stamp(0), 20.0, 0.0, decision, [])
+    exact = _bay_planner(route_anchored_waypoints=True, rear_axle_on_spot=True).plan(
+        Stamp(0), 20.0, 0.0, decision, []
+    )
+    assert _y_at(legacy, 52.0) - -3.5 > 0.02  # the lag alone ends short of the line
+    assert abs(_y_at(exact, 52.0) - -3.5) < 0.01
+    # Toward the line, never past it (but for the waypoint smoothing's millimetres), and identical
+    # before the settling run.
+    assert np.all(exact.points[:, 1] >= -3.5 - 0.005)
+    assert abs(_y_at(exact, 40.0) - _y_at(legacy, 40.0)) < 1e-9
+
+
+BODY_SIDE_M = np.linspace(-0.85, 3.75, 19)
+
+
+def _body_side_clearance_m(traj, curb, half=1.0, along=BODY_SIDE_M):
+    """Least gap between the body's right side, placed exactly along the path, and the curb (the
+    route runs along x, so the curb is a function of x)."""
+    x, y, yaw = traj.points[:, 0], traj.points[:, 1], traj.points[:, 2]
+    sx = x[:, None] + along[None] * np.cos(yaw)[:, None] + half * np.sin(yaw)[:, None]
+    sy = y[:, None] + along[None] * np.sin(yaw)[:, None] - half * np.cos(yaw)[:, None]
+    return float((sy - curb(sx)).min())
+
+
+def test_exact_body_clearance_keeps_the_placed_body_off_a_steep_taper():
+    """A 3 m deep bay behind a 4 m taper: the first-order floor lets the body's side cross the curb
+    by 0.3 m when the path is followed exactly; checked exactly, it keeps most of its 0.08 m."""
+
+    def curb(s):
+        return -1.75 - 3.0 * np.clip((np.asarray(s, dtype=float) - 34.0) / 4.0, 0.0, 1.0)
+
+    decision = _decision(BehaviourState.PULLOVER, spot=SE2(50.0, -3.6, 0.0))
+    gaps = {}
+    for exact in (False, True):
+        config = LocalPathConfig(route_anchored_waypoints=True, exact_body_clearance=exact)
+        planner = LocalPathPlanner(
+            ROUTE, half_width_m=1.0, config=config, curb_right_d_m=curb, body_behind_m=0.85, body_ahead_m=3.75
+        )
+        gaps[exact] = _body_side_clearance_m(planner.plan(Stamp(0), 20.0, 0.0, decision, []), curb)
+    assert gaps[False] < -0.1, gaps
+    assert gaps[True] >= 0.05, gaps

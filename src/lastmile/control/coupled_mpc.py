@@ -24,6 +24,7 @@ import scipy.linalg
 import scipy.sparse as sp
 
 from lastmile.control.path_errors import PathTracker, check_speed, curvature_profile, point_ahead
+from lastmile.control.speed_reference import NoSpeedLaw
 from lastmile.core.errors import ConfigError
 from lastmile.core.geometry import SE2
 from lastmile.core.polyline import Polyline
@@ -157,7 +158,7 @@ def steady_state(
     return sol[0], sol[1]
 
 
-class SnowLionMpcController:
+class SnowLionMpcController(NoSpeedLaw):
     """Coupled lateral/longitudinal MPC; a lateral controller whose solve also yields the acceleration.
 
     ``step`` is the lateral-controller interface (wheel angles); the acceleration of the same solve is
@@ -184,6 +185,12 @@ class SnowLionMpcController:
         self.solver_failures = 0
         self.last_command: MpcCommand | None = None
         self._build()
+
+    def path_lead_m(self, rear_steer: bool = True) -> float:
+        """The centre of gravity, where the error model is measured, ahead of the planned point (the rear
+        axle; the centre of the wheelbase with all-wheel steer): the stack feeds the CG's own path."""
+        g = self.geometry
+        return self.lr_m - (g.wheelbase_m / 2.0 if g.all_wheel_steer and rear_steer else 0.0)
 
     # ---- QP structure (built once) -------------------------------------------------------------
     def _build(self) -> None:

@@ -11,7 +11,8 @@ from enum import StrEnum
 from typing import Protocol
 
 from lastmile.control.coupled_mpc import CoupledMpcConfig, SnowLionMpcController
-from lastmile.control.speed_reference import SteersFromPathAlone
+from lastmile.control.path_errors import PlannedPointLaw
+from lastmile.control.speed_reference import NoSpeedLaw, SteersFromPathAlone
 from lastmile.control.stanley import (
     ModelPredictiveStanleyController,
     MpsConfig,
@@ -63,6 +64,17 @@ class LateralController(Protocol):
         """The longitudinal controller's speed (and its rate) for the next step; None holds the speed."""
         ...
 
+    def speed_cap_mps(self, path: Polyline, path_s_m: float, cap_mps: float, decel_mps2: float) -> float:
+        """The speed cap lowered by the controller's own speed law, if its source has one (GEM's
+        v_max = sqrt(0.5 r)), reachable braking at ``decel_mps2``; otherwise ``cap_mps``."""
+        ...
+
+    def path_lead_m(self, rear_steer: bool = True) -> float:
+        """How far ahead of the point the planner lays its path for (the rear axle; the centre of the
+        wheelbase with all-wheel steer) the law measures its errors (m); the stack then feeds it that
+        point's own path (``control.path_errors.path_ahead_of``)."""
+        ...
+
 
 def _reference_pose(map_from_base: SE2, geometry: VehicleGeometry, all_wheel: bool) -> SE2:
     """The point that follows the path: the rear axle with front steer, mid-wheelbase with all-wheel steer."""
@@ -93,7 +105,7 @@ def _aim(
     return error, max(math.hypot(lx - ref.x_m, ly - ref.y_m), 1e-3), lookahead
 
 
-class LookaheadHeadingPid(SteersFromPathAlone):
+class LookaheadHeadingPid(SteersFromPathAlone, PlannedPointLaw, NoSpeedLaw):
     """WATonoBus: PID on the heading error to a lookahead point; rear = -delta with all-wheel steer."""
 
     def __init__(self, geometry: VehicleGeometry, config: LateralConfig | None = None) -> None:
@@ -123,7 +135,7 @@ class LookaheadHeadingPid(SteersFromPathAlone):
         return delta, (-delta if all_wheel else 0.0)
 
 
-class PurePursuitController(SteersFromPathAlone):
+class PurePursuitController(SteersFromPathAlone, PlannedPointLaw, NoSpeedLaw):
     """Pure pursuit (NUS golf car): the arc through the lookahead point, front steer or all-wheel steer."""
 
     def __init__(self, geometry: VehicleGeometry, config: LateralConfig | None = None) -> None:

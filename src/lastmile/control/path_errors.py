@@ -87,6 +87,37 @@ def point_ahead(map_from_base: SE2, distance_m: float) -> SE2:
     return map_from_base.compose(SE2(distance_m, 0.0, 0.0))
 
 
+def path_ahead_of(path: Polyline, ahead_m: float) -> Polyline:
+    """The path traced by the body point ``ahead_m`` ahead of the point that traces ``path``.
+
+    A body point whose velocity lies along the body axis (the rear axle with front steer, the centre of
+    the wheelbase with all-wheel steer) keeps the body's heading on the path's tangent; a point l ahead
+    of it then traces p(s) + l t(s). Its derivative, t + l kappa n, never vanishes, so the shifted line
+    has no cusp however tight the curve.
+    """
+    s = path.s_m
+    a = path.points_at(s - _HEADING_CHORD_M)
+    b = path.points_at(s + _HEADING_CHORD_M)
+    heading = np.arctan2(b[:, 1] - a[:, 1], b[:, 0] - a[:, 0])
+    xy = path.xy_m + ahead_m * np.c_[np.cos(heading), np.sin(heading)]
+    return Polyline(xy[:-1] if path.closed else xy, closed=path.closed)
+
+
+class PlannedPointLaw:
+    """Mixin of the lateral laws whose own point is the one the planner lays its path for.
+
+    The local planner lays the path of the rear axle (of the centre of the wheelbase with all-wheel
+    steer, where the body's velocity lies along its axis). A law measured at another point (Stanley's
+    front axle, the MPC's centre of gravity) overrides :meth:`path_lead_m`, and the stack feeds it the
+    path that point must trace (:func:`path_ahead_of`).
+    """
+
+    def path_lead_m(self, rear_steer: bool = True) -> float:
+        """How far ahead of the planned point the law's own point sits (m): none here."""
+        del rear_steer
+        return 0.0
+
+
 def steer_for_curvature_rad(curvature_1pm: float, geometry: VehicleGeometry, all_wheel: bool) -> float:
     """Kinematic front wheel angle for a path curvature (rear = -front with all-wheel steer)."""
     if all_wheel:

@@ -7,6 +7,17 @@ accepts the reference, so the stack hands it over without asking which controlle
 
 from __future__ import annotations
 
+from lastmile.core.polyline import Polyline
+
+
+class NoSpeedLaw:
+    """Mixin of the lateral controllers whose source sets no speed of its own (GEM's does)."""
+
+    def speed_cap_mps(self, path: Polyline, path_s_m: float, cap_mps: float, decel_mps2: float) -> float:
+        """The cap, unchanged: the longitudinal controller's curve limit alone applies."""
+        del path, path_s_m, decel_mps2
+        return cap_mps
+
 
 class SteersFromPathAlone:
     """Mixin of the lateral controllers that take no speed reference."""

@@ -15,8 +15,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from lastmile.control.command_filters import SteeringOutput
-from lastmile.control.path_errors import PathTracker, check_speed, curvature_profile, path_errors, point_ahead
-from lastmile.control.speed_reference import SteersFromPathAlone
+from lastmile.control.path_errors import (
+    PathTracker,
+    check_speed,
+    curvature_profile,
+    path_errors,
+    point_ahead,
+)
+from lastmile.control.speed_reference import NoSpeedLaw, SteersFromPathAlone
 from lastmile.core.errors import ConfigError
 from lastmile.core.geometry import SE2, wrap_angle_rad
 from lastmile.core.polyline import Polyline
@@ -116,7 +122,7 @@ def bicycle_step(
     return SE2(cx - half * math.cos(yaw), cy - half * math.sin(yaw), yaw)
 
 
-class StanleyController(SteersFromPathAlone):
+class StanleyController(SteersFromPathAlone, NoSpeedLaw):
     """aUToronto's baseline: eq. (2) at the front axle; rear = -delta with all-wheel steer."""
 
     def __init__(self, geometry: VehicleGeometry, config: StanleyConfig | None = None) -> None:
@@ -126,6 +132,12 @@ class StanleyController(SteersFromPathAlone):
             geometry.max_steer_rad, geometry.max_steer_rate_radps, self.config.steer_lowpass_tau_s
         )
         self._front = PathTracker()
+
+    def path_lead_m(self, rear_steer: bool = True) -> float:
+        """The front axle, where the law is measured, ahead of the planned point (the rear axle; the
+        centre of the wheelbase with all-wheel steer): the stack feeds the front axle's own path."""
+        g = self.geometry
+        return g.wheelbase_m / 2.0 if g.all_wheel_steer and rear_steer else g.wheelbase_m
 
     def step(
         self, dt_s: float, map_from_base: SE2, speed_mps: float, path: Polyline, rear_steer: bool = True
@@ -143,7 +155,7 @@ class StanleyController(SteersFromPathAlone):
         return delta, (-delta if all_wheel else 0.0)
 
 
-class ModelPredictiveStanleyController(SteersFromPathAlone):
+class ModelPredictiveStanleyController(SteersFromPathAlone, NoSpeedLaw):
     """aUToronto's MPS (eq. 3) with the horizon scheduled by the curvature ahead."""
 
     def __init__(self, geometry: VehicleGeometry, config: MpsConfig | None = None) -> None:
@@ -154,6 +166,12 @@ class ModelPredictiveStanleyController(SteersFromPathAlone):
         )
         self._front = PathTracker()
         self.last_horizon_steps = self.config.horizon_max_steps
+
+    def path_lead_m(self, rear_steer: bool = True) -> float:
+        """The front axle, where the law is measured, ahead of the planned point (the rear axle; the
+        centre of the wheelbase with all-wheel steer): the stack feeds the front axle's own path."""
+        g = self.geometry
+        return g.wheelbase_m / 2.0 if g.all_wheel_steer and rear_steer else g.wheelbase_m
 
     def horizon_steps(self, path: Polyline, s_front_m: float, speed_mps: float) -> int:
         """Steps in the horizon: the longest on straight road, shorter as the curvature ahead grows."""

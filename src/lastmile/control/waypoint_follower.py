@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from lastmile.control.command_filters import SteeringOutput
-from lastmile.control.path_errors import PathTracker, check_speed
+from lastmile.control.path_errors import PathTracker, PlannedPointLaw, check_speed
 from lastmile.control.speed_reference import SteersFromPathAlone
 from lastmile.core.errors import ConfigError, MessageError
 from lastmile.core.geometry import SE2, wrap_angle_rad
@@ -162,7 +162,7 @@ def read_waypoint_file(
     return WaypointFile(xy_m=xy, speed_mps=speeds)
 
 
-class GemWaypointFollower(SteersFromPathAlone):
+class GemWaypointFollower(SteersFromPathAlone, PlannedPointLaw):
     """GEM: omega_c = K_p theta_error toward the current waypoint, delta from the bicycle model.
 
     Controllers receive a new path each planning cycle: its waypoints are the path sampled every
@@ -202,6 +202,24 @@ class GemWaypointFollower(SteersFromPathAlone):
             target_s += c.spacing_m
         self._target_s_m = target_s
         return x, y
+
+    def speed_cap_mps(self, path: Polyline, path_s_m: float, cap_mps: float, decel_mps2: float) -> float:
+        """GEM's speed law on the live path: the waypoints ahead (every ``spacing_m``) capped by
+        v_max = sqrt(0.5 r), and the lowest of them that braking at ``decel_mps2`` still reaches.
+
+        GEM caps the speeds of its recorded file once; the stack's path is planned anew each cycle, so
+        the same cap is applied to it here. Without it the follower entered a bay at the 1 m/s^2 curve
+        speed of the default law (3.5 m/s, 0.08 /m) and its 2 m aim point swung the body off the road.
+        """
+        c = self.config
+        reach = cap_mps**2 / (2.0 * decel_mps2) + c.switch_radius_m
+        end = path_s_m + reach if path.closed else min(path.length_m, path_s_m + reach)
+        s = np.arange(path_s_m, end + 1e-9, c.spacing_m)
+        if len(s) < 3:
+            return cap_mps
+        capped = curvature_capped_speeds_mps(path.points_at(s), np.full(len(s), cap_mps))
+        reachable = np.sqrt(capped**2 + 2.0 * decel_mps2 * (s - path_s_m))
+        return float(min(cap_mps, reachable.min()))
 
     def step(
         self, dt_s: float, map_from_base: SE2, speed_mps: float, path: Polyline, rear_steer: bool = True

@@ -30,6 +30,18 @@ class LocalPathConfig:
             which the rear swings in parallel.
         lane_half_width_m: half the lane width used to bound the nudge when the map has no layer.
         curb_clearance_m: the least gap the planned body keeps to the curb, tapers included.
+        route_anchored_waypoints: lay the shifted waypoints on route stations that are multiples of
+            ``waypoint_step_m`` rather than starting at the rear axle. Off, the smoothed curve through
+            them moves with the rear axle's position between two waypoints: through a bay's turn-in
+            the planned path at a fixed place swings by up to 0.3 m from one 10 Hz cycle to the next
+            (a 2 m period in the shuttle's position). A lookahead of 4 m and more averages that out; a
+            law measured at the front axle or aiming 2-3 m ahead chases it off the road.
+        rear_axle_on_spot: remove what the rear axle's lag still lacks of the pull-over spot's offset
+            over the settling run, so that the path reaches the spot's line at the spot (off, it ended
+            0.09 m short at S1, and a law tracking it exactly stopped 0.3 m from the curb).
+        exact_body_clearance: check the pull-over's clearance with the body placed exactly along the
+            path (off: to first order, which at S1's 0.4 rad turn-in put the front corner of a body
+            tracking the path exactly over the taper's curb).
     """
 
     behind_m: float = 5.0
@@ -40,6 +52,9 @@ class LocalPathConfig:
     merge_m: float = 18.0
     lane_half_width_m: float = 1.75
     curb_clearance_m: float = 0.08
+    route_anchored_waypoints: bool = False
+    rear_axle_on_spot: bool = False
+    exact_body_clearance: bool = False
     field: PotentialFieldConfig = field(default_factory=PotentialFieldConfig)
 
 
@@ -117,7 +132,12 @@ class LocalPathPlanner:
         obstacles: list[RouteObstacle],
     ) -> Trajectory:
         c = self.config
-        s = np.arange(ego_s_m - c.behind_m, ego_s_m + c.ahead_m + 1e-9, c.waypoint_step_m)
+        s0 = ego_s_m - c.behind_m
+        if c.route_anchored_waypoints:
+            # The same route stations every cycle: the curve through them no longer moves with the
+            # rear axle's phase between two waypoints (it did by up to 0.3 m in a bay's turn-in).
+            s0 = math.floor(s0 / c.waypoint_step_m) * c.waypoint_step_m
+        s = np.arange(s0, ego_s_m + c.ahead_m + 1e-9, c.waypoint_step_m)
         d = self.offsets_m(s, decision, obstacles, ego_d_m)
         base = self.route.points_at(s)
         headings = _headings(base, self.route.closed)
@@ -157,7 +177,49 @@ class LocalPathPlanner:
             front = np.maximum(front, floor)
         alpha = 1.0 - math.exp(-step / ahead)
         rear = lfilter([alpha], [1.0, alpha - 1.0], front)  # rear += alpha * (front - rear), from 0
+        if self.config.exact_body_clearance and self.curb_right_d_m is not None:
+            rear = self._clear_of_the_curb(grid, front, rear, alpha)
+        if self.config.rear_axle_on_spot:
+            toward = rear - _lag_residual_m(grid, rear, s1_m, s1_m + self.config.settle_m, spot_d_m)
+            side = math.copysign(1.0, -spot_d_m)  # the side of the spot line the path comes from
+            rear = spot_d_m + side * np.maximum(side * (toward - spot_d_m), 0.0)  # never past the line
         return np.where(s_m < grid[0], 0.0, np.interp(s_m, grid, rear))
+
+    def _clear_of_the_curb(
+        self, grid: FloatArray, front: FloatArray, rear: FloatArray, alpha: float
+    ) -> FloatArray:
+        """Lift the front's curve until the right side of the rigid body, placed exactly (rear axle on
+        the path, body along its tangent), keeps ``curb_clearance_m`` from the curb.
+
+        The front's floor above holds only to first order: at the 0.4 rad of S1's turn-in the front
+        corner sits l (1 - cos psi) = 0.3 m further back than d + l d' assumes, where the taper is
+        shallower, and a law that tracked the path exactly put that corner over the curb. Each pass
+        raises the front by the worst shortfall of the body side over the next ``ahead`` metres and
+        lags the rear anew; a few passes converge (the lift only moves the path away from the curb).
+        """
+        assert self.curb_right_d_m is not None
+        c = self.config
+        along = self._body_offsets  # rear overhang .. front, on the body axis
+        half = self.half_width_m
+        span = max(1, round(float(along[-1]) / (grid[1] - grid[0])))
+        lift = np.zeros_like(front)
+        for _ in range(6):
+            psi = np.arctan(np.gradient(rear, grid))
+            cos, sin = np.cos(psi)[:, None], np.sin(psi)[:, None]
+            side_s = grid[:, None] + along[None, :] * cos + half * sin
+            side_d = rear[:, None] + along[None, :] * sin - half * cos
+            curb = self.curb_right_d_m(side_s.ravel()).reshape(side_s.shape)
+            short = np.where(np.isnan(curb), -np.inf, curb + c.curb_clearance_m - side_d).max(axis=1)
+            if not np.any(short > 1e-3):
+                break
+            # The front at grid i leads the rear by ``ahead``: lift it over the stretch whose body
+            # reaches the shortfall.
+            need = np.maximum(short, 0.0)
+            padded = np.concatenate([need, np.zeros(span)])
+            ahead_need = np.lib.stride_tricks.sliding_window_view(padded, span + 1).max(axis=1)
+            lift = lift + ahead_need
+            rear = lfilter([alpha], [1.0, alpha - 1.0], front + lift)
+        return rear
 
     def _off_the_curb(self, s_m: FloatArray, d_m: FloatArray) -> FloatArray:
         if self.curb_right_d_m is None:
@@ -172,6 +234,21 @@ class LocalPathPlanner:
         if spot is None:
             return None
         return self.route.project(spot.x_m, spot.y_m).d_m
+
+
+def _lag_residual_m(
+    grid: FloatArray, rear: FloatArray, s1_m: float, spot_s_m: float, spot_d_m: float
+) -> FloatArray:
+    """What the lagged rear axle still lacks of the spot's offset at the spot, faded in from ``s1_m``.
+
+    A first-order lag never quite arrives: held out by a bay's taper, the front reaches the platform
+    line late and the rear axle was 0.09 m short of it at S1's spot, so a law tracking the path exactly
+    stopped 0.3 m from the curb. Removing the residual along a smoothstep over the settling run brings
+    the rear axle onto the spot's line at the spot (the caller clamps the result at the line).
+    """
+    residual = float(np.interp(spot_s_m, grid, rear)) - spot_d_m
+    t = np.clip((grid - s1_m) / max(spot_s_m - s1_m, 1e-6), 0.0, 1.0)
+    return residual * t * t * (3.0 - 2.0 * t)
 
 
 def _headings(points: FloatArray, closed: bool) -> FloatArray:
