@@ -104,7 +104,11 @@ def test_pedestrian_on_the_crosswalk_makes_the_shuttle_yield_before_it(straight_
     d = fsm.step(_inp(0.0, 60.0, v=5.0, tracks=ped))
     assert d.stop_at_s_m is not None and d.stop_at_s_m <= 98.0
     assert d.state == BehaviourState.NORMAL_DRIVING
-    assert d.stop_reason is StopReason.OBSTACLE  # standing in the lane: the in-path rule binds first
+    # Standing on the crossing: the crosswalk's point binds, short of where the in-path rule keeps.
+    assert d.stop_reason is StopReason.CROSSWALK
+    # Close, the same person still orders the emergency stop (the in-path point may, a rule's not).
+    d = _fsm(straight_layers).step(_inp(0.0, 92.0, v=5.0, tracks=ped))
+    assert d.state == BehaviourState.EMERGENCY_STOP and d.risk_track_id == 3
 
 
 def test_pedestrian_walking_to_the_crosswalk_is_yielded_to_before_reaching_the_kerb(straight_layers):
@@ -163,3 +167,15 @@ def test_a_slow_pedestrian_the_map_sends_to_the_crosswalk_is_yielded_to(straight
         dataclasses.replace(_inp(0.0, 70.0, v=5.5, tracks=leaving), predictions=paths)
     )
     assert d.stop_at_s_m is None
+
+
+def test_the_crosswalk_stop_is_where_the_pedestrian_in_the_path_will_keep_the_shuttle(straight_layers):
+    # Walking across at 1.3 m/s, 7 m beside the lane, then in it: the stop point the shuttle is braking
+    # for must not move nearer as they step in (it did by ~0.5 m, late in a stop at ~1 m/s).
+    approaching = _tracks([(3, 100.0, 7.0, 0.0, -1.3, ObjectClass.PEDESTRIAN)])
+    before = _fsm(straight_layers).step(_inp(0.0, 85.0, v=1.0, tracks=approaching))
+    assert before.stop_reason is StopReason.CROSSWALK and before.stop_at_s_m is not None
+    in_lane = _tracks([(3, 100.0, 0.0, 0.0, -1.3, ObjectClass.PEDESTRIAN)])
+    after = _fsm(straight_layers).step(_inp(0.0, 85.0, v=1.0, tracks=in_lane))
+    assert after.stop_at_s_m is not None and after.risk_track_id == 3
+    assert before.stop_at_s_m <= after.stop_at_s_m + 1e-9

@@ -87,10 +87,15 @@ class BehaviourStateMachine:
         if outcome.hold_still:
             return self._decision(cy, outcome, None)
         binding = min(cy.constraints, key=lambda k: k.stop_front_s_m, default=None)
-        if self._too_close(binding, cy):
-            assert binding is not None
+        # The emergency test reads the nearest point that may order one, even when a rule's point
+        # (a crosswalk stopping short of the same pedestrian) binds the comfortable stop.
+        urgent = min(
+            (k for k in cy.constraints if k.emergency_ok), key=lambda k: k.stop_front_s_m, default=None
+        )
+        if self._too_close(urgent, cy):
+            assert urgent is not None
             self.memory.enter(
-                BehaviourState.EMERGENCY_STOP, cy.t_s, f"{binding.kind} {binding.track_id} too close"
+                BehaviourState.EMERGENCY_STOP, cy.t_s, f"{urgent.kind} {urgent.track_id} too close"
             )
             return self._decision(cy, self._emergency(cy), None)
         return self._decision(cy, outcome, binding)

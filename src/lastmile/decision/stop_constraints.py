@@ -139,6 +139,7 @@ def crosswalk_constraints(
             predictions,
             margin_m=config.crosswalk_margin_m,
             lookahead_s=config.crosswalk_lookahead_s,
+            gap_m=config.min_gap_m,
         )
     ]
 
