@@ -179,3 +179,10 @@ def test_the_crosswalk_stop_is_where_the_pedestrian_in_the_path_will_keep_the_sh
     after = _fsm(straight_layers).step(_inp(0.0, 85.0, v=1.0, tracks=in_lane))
     assert after.stop_at_s_m is not None and after.risk_track_id == 3
     assert before.stop_at_s_m <= after.stop_at_s_m + 1e-9
+    # Past that point (restarting after a yield when someone else steps up): back to the line ahead,
+    # never a stop point behind the front.
+    front_from_rear = VehicleGeometry().front_from_rear_axle_m
+    rear = before.stop_at_s_m - front_from_rear + 0.3
+    again = _fsm(straight_layers).step(_inp(0.0, rear, v=1.0, tracks=approaching))
+    assert again.stop_reason is StopReason.CROSSWALK and again.stop_at_s_m is not None
+    assert again.stop_at_s_m > rear + front_from_rear

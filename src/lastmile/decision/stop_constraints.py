@@ -140,6 +140,7 @@ def crosswalk_constraints(
             margin_m=config.crosswalk_margin_m,
             lookahead_s=config.crosswalk_lookahead_s,
             gap_m=config.min_gap_m,
+            comfort_decel_mps2=config.traffic_lights.comfort_decel_mps2,
         )
     ]
 
