@@ -210,7 +210,11 @@ class WatonobusLongitudinalController:
         v = self.v_des_mps
         decel = v**2 / (2.0 * gap_m)
         for _ in range(2):
-            ramp_s = max(self.a_ref_mps2 + max(decel, c.brake_trigger_mps2), 0.0) / c.reference_jerk_mps3
+            # Not yet braking, the ramp runs at least to the trigger (so braking starts early enough);
+            # braking already, only to what is needed: near rest, ramping to the trigger left no room
+            # and turned the end of every stop urgent (at a bay, clear seed 0: -0.49 m/s^2 at 0.1 m/s).
+            aim = max(decel, c.brake_trigger_mps2) if not self._braking else decel
+            ramp_s = max(self.a_ref_mps2 + aim, 0.0) / c.reference_jerk_mps3
             v_end = max(v + 0.5 * (self.a_ref_mps2 - decel) * ramp_s, 0.0)
             room = gap_m - 0.5 * (v + v_end) * ramp_s
             decel = max(decel, v_end**2 / (2.0 * room) if room > 0.05 else c.max_decel_mps2)
