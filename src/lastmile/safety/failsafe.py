@@ -61,9 +61,6 @@ class FailSafeConfig:
         max_decel_mps2: deceleration of the emergency stop (the vehicle's maximum).
         standstill_mps: below this the vehicle counts as stopped.
         speed_gain_1ps: the gate's proportional gain bringing speed down to the cap.
-        cap_jerk_mps3: a speed cap alone (no manoeuvre, no e-stop) lowers the command no faster than
-            this (Snow Lion's measured comfort envelope, 1.84 m/s^3): a SPEED_LIMIT is a degraded mode
-            with passengers standing, not an emergency (``ramp_speed_cap``).
         pullover_lookahead_m: a curb must be reachable within this route distance past the comfortable
             stopping point for the MRM to pull over.
         pullover_max_curb_d_m: the curb must be at most this far right of the lane centre.
@@ -86,7 +83,6 @@ class FailSafeConfig:
     max_decel_mps2: float = 5.0
     standstill_mps: float = 0.05
     speed_gain_1ps: float = 1.0
-    cap_jerk_mps3: float = 1.84
     pullover_lookahead_m: float = 15.0
     pullover_max_curb_d_m: float = 4.0
     pullover_min_ahead_m: float = 30.0
@@ -99,7 +95,7 @@ class FailSafeConfig:
             raise ConfigError(
                 f"FailSafeConfig.clear_hold_us: expected a hold for every level, missing {missing}"
             )
-        for name in ("mrm_decel_mps2", "max_decel_mps2", "speed_gain_1ps", "cap_jerk_mps3"):
+        for name in ("mrm_decel_mps2", "max_decel_mps2", "speed_gain_1ps"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"FailSafeConfig.{name}: expected > 0, got {getattr(self, name)}")
         if self.mrm_decel_mps2 > self.max_decel_mps2:
@@ -391,34 +387,6 @@ def apply_safety_gate(
     if math.isclose(accel, command.accel_mps2, abs_tol=0.0) and door == command.door_open:
         return command
     return dataclasses.replace(command, accel_mps2=accel, door_open=door)
-
-
-def ramp_speed_cap(
-    gated: ActuatorCommand,
-    stream: ActuatorCommand,
-    previous: ActuatorCommand | None,
-    directive: SafetyDirective,
-    config: FailSafeConfig | None = None,
-) -> ActuatorCommand:
-    """A speed cap's braking ramped in at ``cap_jerk_mps3`` from the last actuated command.
-
-    :func:`apply_safety_gate` floors the command at once (a SPEED_LIMIT raised at 3.5 m/s stepped it
-    from 0 to -1 m/s^2 in one tick: a jerk of -3.2 m/s^3 at 10 Hz, clear seed 2). Only a cap alone is
-    ramped: a minimal risk manoeuvre and an e-stop are enforced as the gate has them; a command the
-    stack itself lowered further passes unchanged.
-    """
-    c = config or FailSafeConfig()
-    if (
-        previous is None
-        or directive.level >= FailSafeLevel.MINIMAL_RISK_MANOEUVRE
-        or directive.speed_cap_mps is None
-        or gated.accel_mps2 >= stream.accel_mps2
-    ):
-        return gated
-    dt_s = max(int(gated.stamp) - int(previous.stamp), 0) / 1e6
-    floor = previous.accel_mps2 - c.cap_jerk_mps3 * dt_s
-    accel = max(gated.accel_mps2, min(floor, stream.accel_mps2))
-    return gated if accel == gated.accel_mps2 else dataclasses.replace(gated, accel_mps2=accel)
 
 
 def _mrm_limit_mps2(

@@ -23,7 +23,7 @@ from lastmile.core.safety_messages import (
 from lastmile.core.sensor_frames import SensorFrame, WheelOdometryFrame
 from lastmile.core.stamp import Stamp
 from lastmile.core.vehicle_messages import ActuatorCommand, SafetyVerdict, StackOutput
-from lastmile.safety.failsafe import apply_safety_gate, ramp_speed_cap
+from lastmile.safety.failsafe import apply_safety_gate
 from lastmile.safety.hardware_watchdog import HardwareWatchdog
 from lastmile.safety.supervisor import SafetySupervisor
 
@@ -43,7 +43,6 @@ class VehicleSafety:
         # The safety reads the wheel speed itself: the gate must not depend on the software it gates.
         self._wheel_speed_mps = 0.0
         self._last_command: ActuatorCommand | None = None
-        self._actuated: ActuatorCommand | None = None
 
     def observe(self, now: Stamp, frames: Sequence[SensorFrame]) -> None:
         """The frames delivered at ``now``, before the software sees them."""
@@ -98,20 +97,13 @@ class VehicleSafety:
         self.directive = directive
         stream = output.command if output is not None else None
         front_s = diag.front_route_s_m if diag is not None else None
-        c = self.supervisor.arbiter.config
         command = (
-            ramp_speed_cap(
-                apply_safety_gate(
-                    stream,
-                    directive,
-                    self._wheel_speed_mps,
-                    c,
-                    mrm_gap_m=self.supervisor.arbiter.mrm_gap_m(front_s),
-                ),
+            apply_safety_gate(
                 stream,
-                self._actuated,
                 directive,
-                c,
+                self._wheel_speed_mps,
+                self.supervisor.arbiter.config,
+                mrm_gap_m=self.supervisor.arbiter.mrm_gap_m(front_s),
             )
             if stream is not None
             else self._own_brake(now, directive)
@@ -119,11 +111,10 @@ class VehicleSafety:
         if stream is not None:
             self._last_command = stream
         brake = self.watchdog.observe(int(now), stream)
-        self._actuated = brake if brake is not None else command
         return SafetyVerdict(
             stamp=now,
             directive=directive,
-            command=self._actuated,
+            command=brake if brake is not None else command,
             watchdog_tripped=self.watchdog.tripped,
             stack_failed=output is None,
         )
