@@ -111,6 +111,27 @@ def test_pedestrian_on_the_crosswalk_makes_the_shuttle_yield_before_it(straight_
     assert d.state == BehaviourState.EMERGENCY_STOP and d.risk_track_id == 3
 
 
+def test_a_shuttle_standing_for_a_crosswalk_waits_until_it_has_been_clear_for_a_while(straight_layers):
+    # Seed 2: the shuttle restarted the moment the person it yielded to left the crossing, and the
+    # next person, a confirmed track 1.5 s later, stopped it again 2 m on with a 9.4 m/s^3 jerk.
+    fsm = _fsm(straight_layers)
+    ped = _tracks([(3, 100.0, 1.0, 0.0, 1.2, ObjectClass.PEDESTRIAN)])
+    d = fsm.step(_inp(0.0, 80.0, v=0.0, tracks=ped))
+    stop = d.stop_at_s_m
+    assert stop is not None and d.stop_reason is StopReason.CROSSWALK
+    clear = fsm.config.crosswalk_clear_s
+    d = fsm.step(_inp(0.5, 80.0, v=0.0))  # gone: still standing for it
+    assert d.stop_at_s_m == stop and d.stop_reason is StopReason.CROSSWALK and d.risk_track_id == 3
+    d = fsm.step(_inp(clear - 0.1, 80.0, v=0.0))
+    assert d.stop_at_s_m == stop
+    d = fsm.step(_inp(clear + 0.1, 80.0, v=0.0))
+    assert d.stop_at_s_m is None
+    # One that yields while moving (it would have braked, not stood) holds nothing once clear.
+    moving = _fsm(straight_layers)
+    assert moving.step(_inp(0.0, 60.0, v=5.0, tracks=ped)).stop_at_s_m is not None
+    assert moving.step(_inp(0.1, 60.5, v=5.0)).stop_at_s_m is None
+
+
 def test_pedestrian_walking_to_the_crosswalk_is_yielded_to_before_reaching_the_kerb(straight_layers):
     # 4.75 m beyond the crosswalk's end, walking towards it at 1.3 m/s: at the kerb zone in about 2 s,
     # on the lane in about 4 s, when a shuttle 24 m away at 5.5 m/s would be on the crossing.
