@@ -3,7 +3,9 @@
 Run: python benchmarks/black_box_cost.py [--seconds 40] [--lidar-points 5000] [--repeats 3] [--json out.json]
 
 A synthetic stack stream at the loop's 100 Hz (IMU 50 Hz, radar 20 Hz, GNSS, LiDAR, pose, tracks, path,
-decision and status at 10 Hz, a command every tick) is built first, so only recording is timed. Compared,
+decision and status at 10 Hz, the detections the tracker consumed as the stack outputs them: two radar
+lists of 8 objects per planning cycle; a command every tick) is built first, so only recording is timed.
+Compared,
 per tick of the loop (median and p95 over ticks, then the median over repeats):
 
 - black box: ``BlackBox.record_frames`` + ``record_output`` + ``record`` (references into a deque);
@@ -36,7 +38,7 @@ from rich.console import Console
 from rich.table import Table
 
 from lastmile.core.geometry import SE2
-from lastmile.core.objects import TRACK_COLUMNS, TrackedObjects
+from lastmile.core.objects import DETECTION_COLUMNS, TRACK_COLUMNS, DetectedObjects, TrackedObjects
 from lastmile.core.sensor_frames import GnssInsFrame, ImuFrame, LidarSweep, RadarFrame
 from lastmile.core.stamp import Stamp
 from lastmile.core.vehicle_messages import (
@@ -49,6 +51,7 @@ from lastmile.core.vehicle_messages import (
 )
 from lastmile.recorder import mcap_codec
 from lastmile.recorder.black_box import BlackBox, BlackBoxConfig, sensor_topic
+from lastmile.recorder.topic_recorder import DETECTIONS_TOPIC
 
 TICK_US = 10_000
 
@@ -74,6 +77,7 @@ def build_stream(seconds: float, lidar_points: int, seed: int) -> list[Tick]:
                 RadarFrame(stamp=Stamp(now), sensor_id="radar_front", objects=rng.normal(size=(8, 6)))
             )
         decision = None
+        detections = None
         if tick % 10 == 0:
             frames.append(
                 GnssInsFrame(
@@ -119,11 +123,20 @@ def build_stream(seconds: float, lidar_points: int, seed: int) -> list[Tick]:
                 risk_track_id=-1,
                 reason="cruise",
             )
+            det_table = rng.normal(size=(8, len(DETECTION_COLUMNS)))
+            det_table[:, DETECTION_COLUMNS.index("class_id")] = 0.0
+            detections = tuple(
+                DetectedObjects(
+                    stamp=Stamp(now - k * 50_000), frame="map", source="radar_front", table=det_table
+                )
+                for k in (1, 0)
+            )
         out = StackOutput(
             command=ActuatorCommand(
                 stamp=Stamp(now), accel_mps2=0.1, steer_front_rad=0.0, steer_rear_rad=0.0
             ),
             decision=decision,
+            detections=detections,
         )
         ticks.append((now, frames, out, extra))
     return ticks
@@ -226,6 +239,8 @@ def run_sync_mcap(ticks: list[Tick], out_dir: Path) -> dict[str, float]:
                 write(now, "/stack/command", out.command)
             if out.decision is not None:
                 write(now, "/decision/behaviour", out.decision)
+            for det in out.detections or ():
+                write(now, DETECTIONS_TOPIC, det)
             for topic, msg in extra:
                 write(now, topic, msg)
             per_tick.append(clock() - t0)

@@ -111,7 +111,8 @@ def run(
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     if fleet is not None or serve:
-        _run_fleet(fleet, serve, minutes, seed, demand, out, scenario is not None or weather is not None)
+        scenario_given = scenario is not None or weather is not None
+        _run_fleet(fleet, serve, minutes, seed, demand, out, scenario_given, route)
         return
 
     try:
@@ -129,6 +130,10 @@ def run(
             scenario, run_config, minutes=minutes, seed=seed, weather=weather, route=route
         )
         world_map = load_world_map(spec.map)  # a bad route or map is found before the run, not after
+        from lastmile.hdmap.map_check import kerbside_lines
+
+        for line in kerbside_lines(world_map):  # stops the route build moved off a bend
+            typer.echo(f"lastmile run: {line}", err=True)
         prepare_output_dir(out)
         with (
             StopSignals() as stop,
@@ -174,8 +179,9 @@ def _run_fleet(
     demand: float,
     out: Path,
     scenario_given: bool,
+    route: Path | None,
 ) -> None:
-    """``lastmile run --fleet N --serve``: see :mod:`lastmile.runner.fleet_run`."""
+    """``lastmile run --fleet N --serve [--route FILE]``: see :mod:`lastmile.runner.fleet_run`."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     try:
@@ -197,7 +203,12 @@ def _run_fleet(
             minutes=minutes if minutes is not None else 10.0,
             seed=seed if seed is not None else 0,
             demand_per_pair_per_h=demand,
+            route=str(route) if route is not None else "",
         )
+        if route is not None:
+            from lastmile.hdmap.service_route import load_route
+
+            load_route(route)  # a bad route or map is one line here, before the server starts
         prepare_output_dir(out)
         with (
             StopSignals() as stop,
@@ -256,6 +267,10 @@ def sweep(
         Path | None,
         typer.Option(help="Run configuration TOML for every case (each suite case may set its speed)."),
     ] = None,
+    route: Annotated[
+        Path | None,
+        typer.Option(help="--generate: run them on this route file's map, encounters on its own stretches."),
+    ] = None,
 ) -> None:
     """Run many scenarios; writes summary.json, report.md and every scenario file under OUT."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
@@ -274,6 +289,11 @@ def sweep(
             raise ConfigError(f"sweep --seed: expected a non-negative integer, got {seed}")
         if engine not in ENGINES:
             raise ConfigError(f"sweep --engine: expected one of {', '.join(ENGINES)}, got {engine!r}")
+        if route is not None and generate is None:
+            raise ConfigError(
+                "sweep --route: expected it with --generate (a suite is the campus's; scenario files "
+                "name their own map), got it without"
+            )
         chosen = [x for x in (suite, generate, scenarios) if x is not None]
         if len(chosen) != 1:
             raise ConfigError(
@@ -287,7 +307,8 @@ def sweep(
         elif generate is not None:
             if generate < 1:
                 raise ConfigError(f"sweep --generate: expected at least 1 scenario, got {generate}")
-            cases = generic_cases(sample_scenarios(ScenarioSpace(), generate, seed))
+            space = ScenarioSpace(route=str(route) if route is not None else "")
+            cases = generic_cases(sample_scenarios(space, generate, seed))
             title = f"Sweep: {generate} generated scenarios (seed {seed})"
         else:
             assert scenarios is not None
@@ -498,6 +519,9 @@ def eval_tracking(
     results: Annotated[
         Path | None, typer.Option(help="Write the tracks as KITTI tracking results <seq>.txt here.")
     ] = None,
+    track_score: Annotated[
+        str | None, typer.Option(help="Published track score: last (default), evidence, mean, refined.")
+    ] = None,
 ) -> None:
     """Track KITTI detections with aUToTrack and print CLEAR MOT and sAMOTA/AMOTA per class (3D IoU 0.25)."""
     import json
@@ -509,7 +533,9 @@ def eval_tracking(
         from lastmile.core.output_dir import prepare_output_dir, prepare_output_file
         from lastmile.evaluation.kitti_io import list_sequences, write_results
         from lastmile.runner.kitti_tracking import run_kitti
+        from lastmile.tracking.autotrack import AutoTrackConfig
 
+        tracker = AutoTrackConfig(track_score=track_score) if track_score is not None else None
         if results is not None:
             prepare_output_dir(results, "--results")
         if json_out is not None:
@@ -518,7 +544,7 @@ def eval_tracking(
         seqs = [s.strip() for s in sequences.split(",") if s.strip()] if sequences else list_sequences(labels)
         if not seqs:
             raise ConfigError(f"--sequences: expected names like 0000,0002, got {sequences!r}")
-        run_result = run_kitti(detections, labels, seqs)
+        run_result = run_kitti(detections, labels, seqs, tracker)
         if results is not None:
             results.mkdir(parents=True, exist_ok=True)
             for name, rows in run_result.results.items():
@@ -660,6 +686,10 @@ def serve(
         float,
         typer.Option(min=0.0, help="Hand timetable runs to shuttles this many s before departure; 0: off."),
     ] = 600.0,
+    route: Annotated[
+        Path | None,
+        typer.Option(help="Route file (TOML): dispatch on its loop and stops instead of the campus."),
+    ] = None,
 ) -> None:
     """Run the dispatch server (HTTP + WebSocket API, web dashboard) until interrupted."""
     from lastmile.core.output_dir import prepare_output_dir
@@ -675,6 +705,7 @@ def serve(
             runs=runs,
             timetable_lead_s=timetable_lead,
             announce=typer.echo,
+            route=route,
         )
     except LastmileError as exc:
         typer.echo(f"lastmile serve: {exc}", err=True)
@@ -724,18 +755,69 @@ def perceive(
     out: Annotated[Path, typer.Option(help="Directory for labels/, objects.mcap, timing.json.")] = Path(
         "runs/perceive"
     ),
+    detector: Annotated[
+        Path | None, typer.Option(help="A LiDAR detector .onnx model (BEV contract; [detector] in --config).")
+    ] = None,
 ) -> None:
     """Run the LiDAR pipeline on point-cloud files: KITTI object labels, a Foxglove MCAP, timing."""
     from lastmile.perception.perceive import load_perceive_config, perceive_files, summary_lines
 
     try:
-        frames = perceive_files(files, load_perceive_config(config), out)
+        frames = perceive_files(files, load_perceive_config(config, detector), out)
     except (LastmileError, OSError) as exc:
         typer.echo(f"lastmile perceive: {exc}", err=True)
         raise typer.Exit(2) from None
     for line in summary_lines(frames):
         typer.echo(line)
     typer.echo(f"wrote {out / 'labels'}/, {out / 'objects.mcap'} and {out / 'timing.json'}")
+
+
+calibrate_app = typer.Typer(
+    no_args_is_help=True, rich_markup_mode=PLAIN_HELP, help="Calibrate sensors from recorded data."
+)
+app.add_typer(calibrate_app, name="calibrate")
+
+
+@calibrate_app.command("lidar")
+def calibrate_lidar(
+    recording: Annotated[Path, typer.Argument(help="Black-box MCAP with LiDAR clouds and /tf.")],
+    reference: Annotated[str, typer.Option(help="LiDAR whose recorded mount is trusted.")] = "lidar_front",
+    method: Annotated[
+        str, typer.Option(help="planes (Snow Lion's wall corner) or icp (small_gicp point-to-plane).")
+    ] = "planes",
+    frames: Annotated[int, typer.Option(help="Sweep pairs to calibrate on (least motion first).")] = 3,
+    out: Annotated[Path | None, typer.Option(help="Write the mounts as [[lidar_mount]] TOML here.")] = None,
+) -> None:
+    """Calibrate each other LiDAR's mount against a reference LiDAR; print before/after; write TOML."""
+    from rich.console import Console
+    from rich.table import Table
+
+    from lastmile.core.output_dir import prepare_output_file
+    from lastmile.runner import lidar_calibration_replay as lc
+
+    try:
+        methods = {m.value: m for m in lc.Method}
+        if method not in methods:
+            raise ConfigError(f"--method: expected one of {', '.join(methods)}, got {method!r}")
+        if out is not None:
+            prepare_output_file(out, "--out")
+        results, ref_mount = lc.calibrate_recording(recording, reference, methods[method], frames)
+        wrote = out is not None and lc.write_mounts(out, reference, ref_mount, results)
+    except (LastmileError, OSError) as exc:
+        typer.echo(f"lastmile calibrate lidar: {exc}", err=True)
+        raise typer.Exit(2) from None
+    table = Table(title=f"{recording.name}: LiDAR mounts against {reference} ({method})")
+    for col in lc.TABLE_COLUMNS:
+        table.add_column(col)
+    for row in lc.table_rows(results):
+        table.add_row(*row)
+    Console(width=200).print(table)
+    if wrote:
+        typer.echo(f"wrote {out}")
+    elif out is not None:
+        typer.echo(f"no LiDAR calibrated: {out} not written", err=True)
+    if any(r.calibrated is None for r in results):
+        raise typer.Exit(1)
 
 
 @app.command()

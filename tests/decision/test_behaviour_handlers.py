@@ -57,7 +57,7 @@ def test_in_path_stops_for_what_is_in_the_corridor_within_the_lookahead(straight
     def stops(x: float, y: float, vx: float = 0.0, vy: float = 0.0, cls=ObjectClass.CAR) -> list[float]:
         inp = _inp(0.0, 50.0, v=5.0, tracks=_tracks([(9, x, y, vx, vy, cls)]))
         obstacles = route_obstacles(inp.tracks, ctx.route, 50.0, G.front_from_rear_axle_m)
-        return [k.stop_front_s_m for k in in_path_constraints(obstacles, 5.0, None, G, C)]
+        return [k.stop_front_s_m for k in in_path_constraints(obstacles, 5.0, None, G, C, front)]
 
     assert stops(front + 20.0, 0.0) == [front + 20.0 - 2.25 - C.min_gap_m]
     assert stops(front + 20.0, 5.0) == []  # beside the lane
@@ -66,6 +66,23 @@ def test_in_path_stops_for_what_is_in_the_corridor_within_the_lookahead(straight
     assert len(stops(front + 20.0, 4.0, vy=-1.5, cls=ObjectClass.PEDESTRIAN)) == 1
     # Alongside, behind the front and going our way: not stopped for.
     assert stops(front - 3.0, 0.0, vx=5.0) == []
+
+
+def test_in_path_stop_past_the_loops_start_is_ahead_not_a_lap_behind() -> None:
+    """Near the end of a loop, an obstacle just past its start (route s near 0) is ahead: its stop
+    point is in the front's lap. Taken from its own route s it read a lap behind the front, an
+    emergency stop that never cleared (the Lanelet2 example's 192 m loop, raw perception in snow)."""
+    layers = _campus_layers()
+    ctx = _ctx(layers)
+    route = ctx.route
+    rear_s = route.length_m - 10.0
+    front = rear_s + G.front_from_rear_axle_m
+    x, y, _ = route.point_at(12.0)  # 22 m ahead of the rear axle, across s = 0
+    inp = _inp(0.0, rear_s, v=5.0, tracks=_tracks([(9, x, y, 0.0, 0.0, ObjectClass.CAR)]))
+    obstacles = route_obstacles(inp.tracks, route, rear_s, G.front_from_rear_axle_m)
+    (k,) = in_path_constraints(obstacles, 5.0, None, G, C, front)
+    assert k.stop_front_s_m == pytest.approx(route.length_m + 12.0 - 2.25 - C.min_gap_m, abs=0.05)
+    assert k.stop_front_s_m > front
 
 
 def test_safety_directive_caps_the_speed_and_adds_the_manoeuvre_stop() -> None:

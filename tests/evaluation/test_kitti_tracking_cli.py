@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 from typer.testing import CliRunner
 
@@ -73,3 +74,48 @@ def test_eval_tracking_reports_a_malformed_label_line(tmp_path: Path) -> None:
     )
     assert result.exit_code == 2
     assert "0001.txt:1: expected 17 fields, got 6" in result.output
+
+
+def test_eval_tracking_refuses_an_unknown_track_score_in_one_line(tmp_path: Path) -> None:
+    result = CliRunner().invoke(
+        app,
+        [
+            "eval",
+            "tracking",
+            "--detections",
+            str(tmp_path),
+            "--labels",
+            str(tmp_path),
+            "--track-score",
+            "median",
+        ],
+    )
+    assert result.exit_code == 2
+    lines = result.output.strip().splitlines()
+    assert (
+        len(lines) == 1 and "track_score: expected one of ('last', 'evidence', 'mean', 'refined')" in lines[0]
+    )
+
+
+@pytest.mark.skipif(not DATA.is_dir(), reason=f"KITTI tracking data not found at {DATA}")
+def test_eval_tracking_publishes_the_chosen_track_score(tmp_path: Path) -> None:
+    scores = {}
+    for mode in ("last", "refined"):
+        res = tmp_path / mode
+        args = [
+            "--detections",
+            str(DATA / "detections"),
+            "--labels",
+            str(DATA / "labels"),
+            "--sequences",
+            "0000",
+        ]
+        result = CliRunner().invoke(
+            app, ["eval", "tracking", *args, "--track-score", mode, "--results", str(res)]
+        )
+        assert result.exit_code == 0, result.output
+        scores[mode] = [float(line.split()[17]) for line in (res / "0000.txt").read_text().splitlines()]
+    # Same tracks, other scores: the refined confidence (log-odds of the noisy-OR of the track's
+    # detections) is at least the last detection's own, with the same coasting penalty on both.
+    last, refined = np.array(scores["last"]), np.array(scores["refined"])
+    assert len(last) == len(refined) and (refined >= last - 1e-6).all() and (refined > last + 0.1).any()

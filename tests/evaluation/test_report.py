@@ -69,7 +69,9 @@ def test_report_without_map_writes_markdown_and_plots(tmp_path: Path) -> None:
     assert "ablation" in text
     assert f"| collisions_not_at_fault | {metrics['collisions_not_at_fault']} |" in text
     assert f"| distance_m | {metrics['distance_m']:.3f} |" in text
-    assert "| S1 | 30.0 | " in text and "| 0.23 | 0.40 | 1 | 0 | - |" in text  # the stops table
+    assert (
+        "| S1 | 30.0 | " in text and "| 0.23 | 0.40 | 1 | 0 | n/a |" in text
+    )  # stops (no left_waiting: an older log)
     assert "ran stop line 3 \\| fast" in text  # a pipe in a detail must not split the table row
     assert "| planning | 300 | 2.500 | 4.000 | 9.500 |" in text
     assert "Real-time factor (simulated / wall-clock time): 7.250" in text

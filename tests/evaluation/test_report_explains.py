@@ -160,3 +160,19 @@ def test_latency_histograms_show_each_module_against_its_budget(tmp_path: Path) 
     assert "| budget [ms] | over budget |" in text
     assert f"![per-module latency histograms against the cycle budget]({r.LATENCY_PNG})" in text
     assert (tmp_path / r.LATENCY_PNG).stat().st_size > 10_000
+
+
+def test_each_stop_visit_says_how_many_riders_were_left_waiting_and_whether_the_shuttle_was_full(
+    tmp_path: Path,
+) -> None:
+    served = {"curb_gap_m": 0.2, "longitudinal_error_m": 0.1, "boarded": 1, "alighted": 0}
+    log = _log(
+        [
+            (10.0, "stop_served", {"stop_id": "S1", **served, "left_waiting": 2, "seats_free": 0}),
+            (30.0, "stop_served", {"stop_id": "S2", **served, "left_waiting": 1, "seats_free": 3}),
+            (50.0, "stop_served", {"stop_id": "S3", **served, "left_waiting": 0, "seats_free": 3}),
+        ]
+    )
+    r.write_report(log, m.compute_metrics(log), tmp_path)
+    rows = [ln for ln in (tmp_path / r.REPORT_FILE).read_text().splitlines() if ln.startswith("| S")]
+    assert [row.rsplit("|", 2)[1].strip() for row in rows] == ["2 (full)", "1", "0"]

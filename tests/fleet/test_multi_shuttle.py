@@ -12,7 +12,7 @@ import sqlalchemy as sa
 
 from lastmile.fleet.scheduling import CAPACITY_SEATS, LoopRoute
 from lastmile.fleet.vehicle_client import VehicleClient
-from lastmile.hdmap.loader import load_campus_map
+from lastmile.hdmap.service_route import campus_service
 from tests.fleet.conftest import ServerProcess, db_engine
 
 N_RIDES = 24
@@ -67,7 +67,7 @@ class ScriptedShuttle:
 
 def test_three_shuttles_serve_every_ride_within_capacity(durable_server: ServerProcess) -> None:
     server = durable_server
-    route = LoopRoute(load_campus_map())
+    route = LoopRoute(campus_service())
     rng = np.random.default_rng(6)
 
     async def scenario() -> list[dict[str, object]]:

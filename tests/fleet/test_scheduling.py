@@ -18,13 +18,13 @@ from lastmile.fleet.scheduling import (
     Visit,
     build_timetable,
 )
-from lastmile.hdmap.loader import load_campus_map
+from lastmile.hdmap.service_route import campus_service
 
 
 @pytest.fixture(scope="module")
 def planner() -> Planner:
     return Planner(
-        LoopRoute(load_campus_map()), SchedulingConfig(cruise_mps=3.0, dwell_s=20.0, horizon_laps=2)
+        LoopRoute(campus_service()), SchedulingConfig(cruise_mps=3.0, dwell_s=20.0, horizon_laps=2)
     )
 
 

@@ -10,7 +10,7 @@ from lastmile.fleet import storage
 from lastmile.fleet.auth import Principal
 from lastmile.fleet.dispatcher import Dispatcher
 from lastmile.fleet.scheduling import LoopRoute, Planner, due_runs
-from lastmile.hdmap.loader import load_campus_map
+from lastmile.hdmap.service_route import campus_service
 
 
 def test_due_runs_are_those_departing_within_the_lead_time_soonest_first() -> None:
@@ -21,7 +21,7 @@ def test_due_runs_are_those_departing_within_the_lead_time_soonest_first() -> No
 
 
 def test_the_clock_hands_out_each_run_once_per_day_even_across_a_restart(tmp_path: Path) -> None:
-    route = LoopRoute(load_campus_map())
+    route = LoopRoute(campus_service())
     url = storage.default_sqlite_url(tmp_path)
     seven_55 = 7 * 3600 + 55 * 60.0
 

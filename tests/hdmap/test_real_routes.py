@@ -65,6 +65,10 @@ def test_bits_loop_serves_the_ten_waypoint_stops_in_order() -> None:
     assert [rs.stop.id for rs in db.stops] == WAYPOINT_NAMES
     assert np.all(np.isnan(db.curb_right_d_m))  # the BITS map has lane lines, no curbs
     assert set(db.road_type.tolist()) <= {codes.NORMAL, codes.BUS_BAY}
+    # Every kerbside door within the route's 0.4 m: the stops given on bends moved by a few metres.
+    assert all(st.door_gap_m is not None and st.door_gap_m <= 0.4 for st in route.stops)
+    off_bends = [st.moved_m for st in route.stops if st.name not in ("Main Gate", "Security (End)")]
+    assert max(abs(m) for m in off_bends) <= 12.0  # those two also keep clear of the loop's start
 
 
 @needs_example
@@ -82,6 +86,10 @@ def test_lanelet2_example_loop_passes_the_roundabout_arms_and_builds_its_layers(
     assert np.isfinite(db.curb_right_d_m).mean() > 0.3  # the roundabout's kerbs are mapped
     assert (db.intersection_type == codes.UNCONTROLLED).any()
     assert [rs.stop.id for rs in db.stops] == [s.name for s in route.stops]
+    # Roundabout West was given at a vertex of the polygonal roundabout (door 0.67 m off): moved.
+    west = next(st for st in route.stops if st.name == "Roundabout West")
+    assert west.door_gap_given_m is not None and west.door_gap_given_m > 0.4
+    assert west.door_gap_m is not None and west.door_gap_m <= 0.4 and 0.0 < abs(west.moved_m) <= 12.0
 
 
 @needs_example

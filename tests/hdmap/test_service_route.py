@@ -444,3 +444,60 @@ def test_utm_stops_land_where_lanelet2_puts_the_map() -> None:
     for (x, y), la, lo in zip(ours, lat, lon, strict=True):
         p = lanelet2_utm.forward(GPSPoint(float(la), float(lo)))
         assert (x, y) == pytest.approx((p.x, p.y), abs=1e-3)
+
+
+def test_a_kerbside_stop_on_a_bend_the_body_cannot_lie_along_is_moved_and_said_so(tmp_path: Path) -> None:
+    """A stop given at a U-turn's apex (2.5 m radius): the straight body kept off the kerb leaves the
+    door far from it, so the stop moves back onto the straight, within one platform length; with no
+    move allowed it stays, and map check and ``lastmile run`` say what its door gap will be."""
+    from lastmile.hdmap.map_check import kerbside_lines
+
+    b = OsmBuilder()
+    stadium(b)
+    stops = _stop("A", 20, -1.0) + _stop("Apex", 103.5, 2.5)
+    route = load_route(_write(tmp_path, b, stops))
+    apex = route.stops[1]
+    assert apex.door_gap_given_m is not None and apex.door_gap_given_m > 0.4
+    assert apex.door_gap_m is not None and apex.door_gap_m <= 0.4
+    assert -12.0 <= apex.moved_m < -2.0  # back onto the eastbound straight, the nearest place
+    x, _, _ = route.polyline.point_at(apex.route_s_m)
+    assert x < 100.0  # the door on the straight, before the turn
+    assert route.stops[0].moved_m == 0.0 and route.stops[0].door_gap_m == pytest.approx(0.2, abs=1e-6)
+    (line,) = kerbside_lines(route)
+    assert line.startswith(f"Apex: moved {apex.moved_m:+.1f} m along its lane")
+
+    stay = load_route(_write(tmp_path, b, stops, header=HEADER + "[service]\nmax_stop_move_m = 0.0\n"))
+    assert stay.stops[1].moved_m == 0.0
+    (line,) = kerbside_lines(stay)
+    assert "Apex: the door will be" in line and "over 0.40 m" in line
+    with pytest.raises(ConfigError, match=r"service\.max_door_gap_m: expected \(0, 2\] m, got -1"):
+        load_route(_write(tmp_path, b, stops, header=HEADER + "[service]\nmax_door_gap_m = -1.0\n"))
+
+
+def test_a_kerbside_stop_just_past_a_bend_towards_the_kerb_moves_off_its_settle_run() -> None:
+    """The rear wheels are straight at a kerb, so a right turn over the run before the spot
+    off-tracks the rear axle towards a right kerb (K-Block after the BITS S-bend's fillet: the door
+    ended over the kerb line, the stop missed). A stop given 2 m past a 9.5 m radius right turn moves
+    forward until its settle run is straight; the same stop after a left turn stays."""
+    import types
+
+    from lastmile.core.polyline import Polyline
+    from lastmile.hdmap.service_route import SETTLE_RUN_M, _dockable
+
+    def line(sign: float) -> Polyline:
+        r = 9.5
+        phi = np.arange(0.0, 1.0, 0.25 / r)
+        arc = np.c_[40.0 + r * np.sin(phi), sign * r * (1.0 - np.cos(phi))]
+        h = sign * phi[-1]
+        tail = arc[-1] + np.arange(0.25, 40.0, 0.25)[:, None] * np.array([math.cos(h), math.sin(h)])
+        return Polyline(np.vstack([np.c_[np.arange(0.0, 40.0, 0.25), np.zeros(160)], arc, tail]))
+
+    spec = types.SimpleNamespace(max_door_gap_m=0.4, max_stop_move_m=12.0)
+    given = 40.0 + 9.5 + 2.0
+    right, _ = _dockable(line(-1.0), given, spec, lambda c: 1.75)  # type: ignore[arg-type]
+    door_from_rear = VehicleGeometry().length_m / 2.0 - VehicleGeometry().rear_overhang_m
+    # The settle run (rear axle) starts where at most a little of the turn is left within a wheelbase.
+    assert right - door_from_rear - SETTLE_RUN_M >= 40.0 + 9.5 - VehicleGeometry().wheelbase_m
+    assert 4.0 < right - given <= 12.0
+    left, _ = _dockable(line(1.0), given, spec, lambda c: 1.75)  # type: ignore[arg-type]
+    assert left == given

@@ -56,7 +56,18 @@ def test_fixes_the_gate_rejects_do_not_hold_the_position():
     assert src[5.0] is PositionSource.DEAD_RECKONING and src[6.5] is PositionSource.DEAD_RECKONING
 
 
-def test_the_newest_source_within_the_timeout_wins():
+def test_current_landmarks_hold_the_pose_before_a_newer_fix_and_lapse_to_gnss_then_dead_reckoning():
+    # Both at 10 Hz: a fix newer than the last landmark update must not make the pose depend on the
+    # receiver (its loss would then read as the loss of the position).
+    upd = AbsoluteUpdates(timeout_s=1.0)
+    upd.note(PositionSource.LANDMARKS, 1_000_000)
+    upd.note(PositionSource.GNSS, 1_050_000)
+    assert upd.source_at(1_060_000) is PositionSource.LANDMARKS
+    assert upd.source_at(2_020_000) is PositionSource.GNSS  # landmarks lapsed, the fix still holds
+    assert upd.source_at(2_060_000) is PositionSource.DEAD_RECKONING
+
+
+def test_a_source_holds_the_pose_only_within_the_timeout():
     upd = AbsoluteUpdates(timeout_s=1.0)
     assert upd.source_at(0) is PositionSource.DEAD_RECKONING
     upd.note(PositionSource.GNSS, 1_000_000)

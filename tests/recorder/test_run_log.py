@@ -14,6 +14,7 @@ from lastmile.recorder.run_log import (
     AGENTS_FILE,
     EGO_COLUMNS,
     EGO_FILE,
+    LOCALIZATION_FILE,
     RUN_LOG_FILE,
     STATE_NAMES,
     RunLog,
@@ -46,6 +47,8 @@ def _sample_log() -> RunLog:
         w.add_ego_row(t, 1.5 * t, 0.25, 0.1, 1.5, 0.0, steer, i % len(STATE_NAMES), 1.5 * t)
     w.add_agent_rows(0.0, [4, 9], np.array([[10.0, 1.0], [20.0, -2.0]]))
     w.add_agent_rows(0.5, np.array([4]), [[10.5, 1.0]])
+    w.add_localization_row(0.0, 0.1, 0.2, 0.1, 5.0, 0.1, -1, 0.0, 0.25, 0.1, 0.25, float("nan"))
+    w.add_localization_row(0.1, 0.2, 0.3, 0.1, 0.05, 0.01, 0, 0.15, 0.25, 0.1, 0.25, 0.01)
     w.add_event(2.0, "takeover", reason="stall")
     w.add_event(1.0, "collision", agent_id=np.int64(4), agent_class="car", at_fault=True, ego_speed_mps=1.5)
     w.add_event(1.5, "state_change", **{"from": "normal_driving", "to": "pullover", "reason": "stop S1"})
@@ -61,9 +64,10 @@ def test_state_names_follow_behaviour_state_order() -> None:
 def test_save_then_load_reads_back_the_same_log(tmp_path: Path) -> None:
     log = _sample_log()
     log.save(tmp_path)
-    assert {p.name for p in tmp_path.iterdir()} == {RUN_LOG_FILE, EGO_FILE, AGENTS_FILE}
+    assert {p.name for p in tmp_path.iterdir()} == {RUN_LOG_FILE, EGO_FILE, AGENTS_FILE, LOCALIZATION_FILE}
     back = RunLog.load(tmp_path)
     assert back == log
+    assert len(back.localization) == 2 and np.isnan(back.localization.column("path_d_m")[0])
     assert np.isnan(back.column("steer_front_rad")[3])
     assert back.agents.xy_m.dtype == np.float32 and len(back.agents) == 3
     assert back.timing["modules"]["planning"]["calls"] == 40
@@ -215,3 +219,27 @@ def test_referee_event_triples_are_added_as_they_come() -> None:
     w = RunLogWriter(_meta())
     with pytest.raises(RunLogError, match="loop_completed event expected field 'loop'"):
         w.add_events([(0.2, "loop_completed", {"laps": 1})])
+
+
+def test_a_run_directory_from_before_the_localization_table_reads_with_an_empty_one(tmp_path: Path) -> None:
+    log = _sample_log()
+    log.save(tmp_path)
+    (tmp_path / LOCALIZATION_FILE).unlink()
+    back = RunLog.load(tmp_path)
+    assert len(back.localization) == 0 and len(back) == len(log)
+
+
+def test_a_valid_estimate_without_a_position_is_refused_naming_the_column() -> None:
+    w = RunLogWriter(_meta())
+    w.add_ego_row(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0, 0.0)
+    w.add_localization_row(0.0, float("nan"), 0.2, 0.1, 0.05, 0.01, 0, 0.0, 0.2, 0.1, 0.2, 0.0)
+    with pytest.raises(RunLogError, match="expected finite est_x_m, got nan in row 0"):
+        w.finish()
+
+
+def test_localization_rows_going_back_in_time_are_refused() -> None:
+    w = RunLogWriter(_meta())
+    for t in (0.2, 0.1):
+        w.add_localization_row(t, 0.1, 0.2, 0.1, 0.05, 0.01, 0, 0.0, 0.2, 0.1, 0.2, 0.0)
+    with pytest.raises(RunLogError, match=r"expected strictly increasing t_s, got 0\.1 after 0\.2"):
+        w.finish()

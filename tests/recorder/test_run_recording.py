@@ -104,6 +104,7 @@ def test_every_channel_uses_a_foxglove_schema_or_a_documented_one_of_ours(
         "/tf": "foxglove.FrameTransforms",
         "/pose": "foxglove.PoseInFrame",
         "/viz/tracking/tracks": "foxglove.SceneUpdate",
+        "/viz/perception/detections": "foxglove.SceneUpdate",
         "/viz/planning/trajectory": "foxglove.SceneUpdate",
         "/viz/sensors/radar/front": "foxglove.PointCloud",
         "/route": "foxglove.SceneUpdate",
@@ -114,6 +115,33 @@ def test_every_channel_uses_a_foxglove_schema_or_a_documented_one_of_ours(
     assert {t: schemas.get(t) for t in expected} == expected
     foxglove_share = sum(s.startswith("foxglove.") for s in schemas.values())
     assert foxglove_share >= 9, schemas
+
+
+def test_the_detections_the_tracker_consumed_are_boxes_with_class_score_and_source(
+    estop_run: tuple[Path, RunLog],
+) -> None:
+    decoders = DecoderFactory()
+    entities = []
+    lossless = 0
+    with open(_recordings(estop_run)[0], "rb") as fh:
+        for schema, channel, message in make_reader(fh).iter_messages(
+            topics=["/viz/perception/detections", "/perception/detections"]
+        ):
+            if channel.topic == "/perception/detections":
+                lossless += 1
+                continue
+            assert schema is not None
+            entities += decoders.decoder_for(channel.message_encoding, schema)(message.data).entities  # type: ignore[misc]
+    assert lossless > 0 and len(entities) > 0
+    sources = set()
+    for e in entities:
+        meta = {kv.key: kv.value for kv in e.metadata}
+        assert e.frame_id == "map" and len(e.cubes) == 1
+        assert meta["class"] == "unknown" and 0.0 < float(meta["score"]) <= 1.0  # radar lists carry no class
+        assert e.id.startswith(f"/perception/detections/{meta['source']}/")
+        sources.add(meta["source"])
+    # Both radars' object lists, each kept apart (one would otherwise replace the other in a viewer).
+    assert sources == {"radar_front", "radar_rear"}
 
 
 def _tree_and_frames(path: Path) -> tuple[dict[str, tuple[str, np.ndarray]], set[str]]:

@@ -47,6 +47,10 @@ def test_the_example_configuration_loads_and_round_trips_through_toml(tmp_path: 
         ('[stack]\nperception = "oracle"\n', "expected one of ['lidar_camera_radar', 'radar_tracking']"),
         ("[loop]\ntick_us = 3000\n", "loop.tick_us: expected a divisor of 10000"),
         ("[stack.safety]\nmrm_decel_mps2 = 9.0\n", "stack.safety.mrm_decel_mps2: expected a value in"),
+        (
+            '[stack]\nlocalization = "landmarks"\nperception = "radar_tracking"\n',
+            "stack.localization 'landmarks': expected raw LiDAR perception",
+        ),
     ],
 )
 def test_a_bad_configuration_is_one_line_and_exit_2(tmp_path: Path, text: str, expected: str) -> None:
@@ -67,6 +71,19 @@ def test_a_perception_mode_the_scenario_cannot_serve_is_refused_before_the_run(t
     _one_line_exit_2(
         ["run", "--scenario", str(scenario), "--perception", "radar", "--out", str(out)],
         "perception 'radar_tracking' cannot serve scenario 'snow_cover'",
+    )
+    assert not out.exists()
+
+
+def test_the_landmarks_mode_with_radar_perception_from_the_command_line_is_refused(tmp_path: Path) -> None:
+    # Radars give object lists only: nothing to find poles and facades in.
+    path = EXAMPLES / "configs" / "landmarks.toml"
+    stack = load_run_config(path).stack
+    assert stack.localization == "landmarks" and stack.perception is PerceptionMode.LIDAR_CAMERA_RADAR
+    out = tmp_path / "o"
+    _one_line_exit_2(
+        ["run", "--config", str(path), "--perception", "radar", "--out", str(out)],
+        "'landmarks': expected raw LiDAR perception 'lidar_camera_radar', got perception 'radar_tracking'",
     )
     assert not out.exists()
 

@@ -26,7 +26,9 @@ def test_riders_board_one_at_a_time_and_press_the_seat_button(straight_map):
         straight_map.stops, PassengerConfig(initial_waiting={"S1": 2}), component_rng(0, "p"), seats=6
     )
     assert model.new_calls == [("S1", "stop_button")]
-    model.visit = StopVisit(stop_id="S1", opened_s=0.0, curb_gap_m=0.1, longitudinal_error_m=0.0)
+    model.visit = StopVisit(
+        stop_id="S1", opened_s=0.0, curb_gap_m=0.1, body_gap_m=0.1, longitudinal_error_m=0.0
+    )
     events = []
     t = 0.0
     while t < 12.0:
@@ -65,3 +67,31 @@ def test_poisson_arrivals_match_the_rate(straight_map):
 def test_a_map_with_one_stop_cannot_host_riders(straight_map):
     with pytest.raises(ConfigError, match="at least 2 stops"):
         PassengerModel(straight_map.stops[:1], PassengerConfig(), component_rng(0, "p"), seats=6)
+
+
+def test_a_visit_ends_as_the_door_closes_with_the_riders_left_waiting(straight_map):
+    # One seat, three riders: one boards, two are left; a fourth arriving later is counted too.
+    model = PassengerModel(
+        straight_map.stops, PassengerConfig(initial_waiting={"S1": 3}), component_rng(0, "p"), seats=1
+    )
+    model.visit = StopVisit(stop_id="S1", opened_s=0.0, curb_gap_m=0.1, longitudinal_error_m=0.2)
+    t = 0.0
+    while t < 10.0:
+        model.step_door(t, 0.01, door_cmd_open=True, at_stop="S1", stopped=True)
+        t += 0.01
+    assert model.end_visit() is None  # the door is still open
+    model._add("S1", t)
+    while model.door_position > 0.0:
+        model.step_door(t, 0.01, door_cmd_open=False, at_stop="S1", stopped=True)
+        t += 0.01
+    served = model.end_visit()
+    assert served == {
+        "stop_id": "S1",
+        "curb_gap_m": 0.1,
+        "longitudinal_error_m": 0.2,
+        "boarded": 1,
+        "alighted": 0,
+        "left_waiting": 3,
+        "seats_free": 0,
+    }
+    assert model.visit is None and model.end_visit() is None

@@ -11,6 +11,7 @@ from lastmile.core.boxes3d import DetectedBoxes
 from lastmile.core.errors import ConfigError, MessageError
 from lastmile.core.geometry import SE2
 from lastmile.core.object_class import ObjectClass
+from lastmile.core.objects import DetectedObjects
 from lastmile.core.perception_mode import PerceptionMode
 from lastmile.core.sensor_frames import LidarSweep
 from lastmile.core.stamp import Stamp
@@ -23,6 +24,7 @@ from lastmile.stack.shuttle_stack import ShuttleStack, StackConfig
 
 _CURB_LINE_FRAMES: list[int] = []
 _LAST_CURB_LINES: list[object] = []
+_DETECTIONS: list[DetectedObjects] = []
 
 
 @functools.cache
@@ -48,6 +50,8 @@ def _obstacle_run() -> tuple[list[tuple[float, float, int, float]], float, float
     trace = []
     for record in loop.ticks(round(30e6 / loop.tick_us)):
         tick = record.tick
+        assert record.output is not None
+        _DETECTIONS.extend(record.output.detections or ())
         if tick % 10 == 0 and stack._route_s is not None:
             near = [float(np.hypot(r[0] - box.x_m, r[1] - box.y_m)) for r in stack._tracks.table.tolist()]
             trace.append((tick / 100.0, stack._route_s, len(near), min(near, default=np.inf)))
@@ -65,6 +69,16 @@ def test_the_stack_stops_for_a_box_it_only_sees_in_its_lidar_clusters() -> None:
     assert 45.0 < final_s < 60.0 - 4.0, trace[-5:]
     assert raw.stats.rig_frames >= 290 and raw.stats.incomplete_frames == 0
     assert raw.stats.skipped_no_pose <= 1  # the first frame may precede the first fix
+
+
+def test_the_stack_outputs_the_fused_detections_its_tracker_consumed() -> None:
+    _, box_x, box_y, raw = _obstacle_run()
+    # One message per processed rig frame, each the late fusion's output in the map frame (a frame
+    # processed after the last planning cycle waits for the next one).
+    assert len(_DETECTIONS) + len(raw.drain_detections()) == raw.stats.rig_frames
+    assert {(d.source, d.frame) for d in _DETECTIONS} == {("fusion", "map")}
+    dist = [np.hypot(d.table[:, 0] - box_x, d.table[:, 1] - box_y).min() for d in _DETECTIONS if len(d)]
+    assert sum(x < 0.5 for x in dist) > raw.stats.rig_frames // 2
 
 
 def test_the_stack_gives_the_pipeline_the_map_curb_lines_and_curb_faces_are_not_objects() -> None:

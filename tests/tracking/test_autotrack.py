@@ -162,6 +162,28 @@ def test_track_score_reports_last_detection_summed_evidence_or_shrunk_mean() -> 
     assert tr.tracks(Stamp(200_000)).score[0] == pytest.approx(2.0 - 0.2 * 5.0)
 
 
+def test_the_refined_track_score_is_the_log_odds_of_benbarkas_multiplicative_update() -> None:
+    def published(scores: tuple[float, ...]) -> float:
+        tr = AutoTrack(replace(_config(t_birth_s=0.0), track_score="refined"))
+        for k, s in enumerate(scores):
+            tr.update(_msg(0.1 * k, [(10.0, 0.0)], score=s))
+        out = tr.tracks(Stamp(round(0.1 * (len(scores) - 1) * 1e6)))
+        assert len(out) == 1
+        return float(out.score[0])
+
+    def sigmoid(x: float) -> float:
+        return 1.0 / (1.0 + np.exp(-x))
+
+    # c <- 1 - (1 - c)(1 - p) from p = sigmoid(score), published as log-odds.
+    c = 1.0 - (1.0 - sigmoid(2.0)) * (1.0 - sigmoid(-1.0)) * (1.0 - sigmoid(0.5))
+    assert published((2.0, -1.0, 0.5)) == pytest.approx(np.log(c / (1.0 - c)), rel=1e-12)
+    assert published((2.0,)) == pytest.approx(2.0, rel=1e-12)  # one detection: its own score
+    # A doubtful detection never lowers the confidence (the summed evidence would drop by 3).
+    assert published((2.0, -3.0)) > published((2.0,))
+    # Long confident tracks stay finite and ordered (no overflow of the probability).
+    assert np.isfinite(published((40.0,) * 5)) and published((40.0,) * 5) > published((40.0,) * 4)
+
+
 def test_radar_doppler_velocity_sets_the_track_velocity_at_once() -> None:
     tr = AutoTrack(_config(t_birth_s=0.0))
     tr.update(_msg(0.0, [(10.0, 0.0)], velocity=[(3.0, -1.0)]))

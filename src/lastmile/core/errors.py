@@ -27,3 +27,7 @@ def expect(condition: bool, error: type[LastmileError], what: str, expected: str
     """Raise ``error`` with a message naming what was expected and what arrived, unless ``condition``."""
     if not condition:
         raise error(f"{what}: expected {expected}, got {got!r}")
+
+
+class CalibrationError(LastmileError):
+    """A sensor calibration cannot be trusted: too little overlap, too few planes, no convergence."""

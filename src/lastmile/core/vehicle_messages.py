@@ -11,7 +11,7 @@ import numpy as np
 from lastmile.core.arrays import frozen_array
 from lastmile.core.errors import MessageError
 from lastmile.core.geometry import SE2
-from lastmile.core.objects import TrackedObjects
+from lastmile.core.objects import DetectedObjects, TrackedObjects
 from lastmile.core.safety_messages import SafetyDirective
 from lastmile.core.stamp import Stamp
 
@@ -296,6 +296,10 @@ class StackOutput:
         tracks: the tracks decision and planning used, on planning cycles (None otherwise); for the
             black box, never read by the vehicle's safety.
         trajectory: the planned trajectory, on planning cycles that planned (None otherwise); likewise.
+        detections: on planning cycles, the detections the tracker consumed since the previous one, map
+            frame, one message per frame fused (radar object lists in radar mode, the LiDAR/camera/radar
+            late fusion's output with raw sensors); empty when none arrived, None off planning cycles.
+            For the black box, never read by the vehicle's safety.
     """
 
     command: ActuatorCommand | None
@@ -307,3 +311,4 @@ class StackOutput:
     stop_reason: StopReason = StopReason.NONE
     tracks: TrackedObjects | None = None
     trajectory: Trajectory | None = None
+    detections: tuple[DetectedObjects, ...] | None = None

@@ -41,7 +41,11 @@ from lastmile.decision.stop_service import (
     next_requested_stop,
 )
 from lastmile.decision.traffic_light_rule import TrafficLightRule
+from lastmile.hdmap.curb_fit import spot_offset_m
 from lastmile.hdmap.layers import SLayerDatabase
+
+SPOT_CACHE_SIZE = 64
+"""Rest offsets remembered (a committed spot is asked for every cycle; the search projects ~40 points)."""
 
 
 @dataclass
@@ -64,6 +68,7 @@ class BehaviourStateMachine:
         )
         self.junctions = AllWayStops.from_layers(self.layers, self.config.entry_heading_back_m)
         self.lights = TrafficLightRule(self.layers, self.config.traffic_lights)
+        self._spot_d_cache: dict[tuple[float, float], float] = {}
 
     @property
     def state(self) -> BehaviourState:
@@ -105,9 +110,17 @@ class BehaviourStateMachine:
         if self.memory.state != BehaviourState.EMERGENCY_STOP:
             self.memory.enter(BehaviourState.EMERGENCY_STOP, t_s, why)
 
-    def spot_d_m(self, curb_d_m: float) -> float:
-        """Route d of the shuttle's centre line when pulled over (curb gap target kept)."""
-        return curb_d_m + self.config.curb_gap_target_m + self.geometry.width_m / 2.0
+    def spot_d_m(self, curb_d_m: float, rear_s_m: float) -> float:
+        """Route d of the rear axle when pulled over with its rear axle at ``rear_s_m``: the curb gap
+        target kept along the whole straight body, also where the curb curves (``curb_fit``)."""
+        key = (curb_d_m, rear_s_m)
+        if key not in self._spot_d_cache:  # a committed spot is asked for every cycle
+            if len(self._spot_d_cache) > SPOT_CACHE_SIZE:
+                self._spot_d_cache.clear()
+            self._spot_d_cache[key] = spot_offset_m(
+                self.context.route, rear_s_m, curb_d_m, self.config.curb_gap_target_m, self.geometry
+            )
+        return self._spot_d_cache[key]
 
     # --- the cycle ------------------------------------------------------------------------------
     def _cycle(self, inp: DecisionInput) -> Cycle:
@@ -123,7 +136,7 @@ class BehaviourStateMachine:
         speed_cap = min(c.cruise_speed_mps, self.layers.speed_limit_at(front_s))
         # The planned path, once per cycle: the corridor both obstacle checks sweep.
         path = Polyline(inp.trajectory.points[:, :2]) if inp.trajectory is not None else None
-        constraints = in_path_constraints(obstacles, inp.speed_mps, path, g, c)
+        constraints = in_path_constraints(obstacles, inp.speed_mps, path, g, c, front_s)
         constraints += cut_in_constraints(
             obstacles, inp.predictions, ctx.route, path, front_s, inp.speed_mps, g, c
         )
@@ -264,7 +277,7 @@ class BehaviourStateMachine:
             return None
         rear_s = stop_front_s_m - self.geometry.front_from_rear_axle_m
         x, y, yaw = self.context.route.point_at(rear_s)
-        d = self.spot_d_m(curb)
+        d = self.spot_d_m(curb, rear_s)
         return SE2(x - d * math.sin(yaw), y + d * math.cos(yaw), yaw)
 
     def _spot_pose(self) -> SE2 | None:
@@ -274,7 +287,7 @@ class BehaviourStateMachine:
         rs = self.layers.stops[visit.stop_index]
         rear_s = visit.spot_front_s_m - self.geometry.front_from_rear_axle_m
         x, y, yaw = self.context.route.point_at(rear_s)
-        d = self.spot_d_m(rs.curb_d_m)
+        d = self.spot_d_m(rs.curb_d_m, rear_s)
         return SE2(x - d * math.sin(yaw), y + d * math.cos(yaw), yaw)
 
 

@@ -14,6 +14,7 @@ from lastmile.core.stamp import Stamp
 from lastmile.core.traffic_light_messages import TrafficLightStates
 from lastmile.core.vehicle_messages import Trajectory
 from lastmile.decision.traffic_light_rule import TrafficLightRuleConfig
+from lastmile.hdmap.curb_fit import CURB_GAP_TARGET_M
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -134,7 +135,7 @@ class DecisionConfig:
     doorway_clear_s: float = 3.0
     rear_check_m: float = 60.0
     rear_tta_s: float = 7.0
-    curb_gap_target_m: float = 0.2
+    curb_gap_target_m: float = CURB_GAP_TARGET_M
     crosswalk_margin_m: float = 2.0
     crosswalk_lookahead_s: float = 6.0
     offroad_unknown_horizon_s: float = 6.0

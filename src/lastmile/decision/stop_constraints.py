@@ -52,8 +52,14 @@ def in_path_constraints(
     path: Polyline | None,
     geometry: VehicleGeometry,
     config: DecisionConfig,
+    front_s_m: float,
 ) -> list[StopConstraint]:
-    """Obstacles in (or about to enter) the corridor swept along the planned path ``path``."""
+    """Obstacles in (or about to enter) the corridor swept along the planned path ``path``.
+
+    Stop points are in the front's lap (``front_s_m`` plus the obstacle's distance ahead), never the
+    obstacle's own route s: on a loop, an obstacle just past the loop's start, seen from just before
+    it, has a route s near 0, and a stop point there reads as a whole lap behind the front (an
+    emergency stop that never clears; the 192 m Lanelet2 example loop in snow, raw perception)."""
     g, c = geometry, config
     steps = c.in_path_prediction_steps
     out: list[StopConstraint] = []
@@ -74,7 +80,8 @@ def in_path_constraints(
             continue
         if o.ds_m < -c.behind_front_ignore_m and o.v_s_mps > 0.0:
             continue  # behind the front, moving with us: not ours to stop for
-        stop_s = lead_stop_s_m(o.s_m, o.length_m, o.v_s_mps, c.lead_decel_mps2) - c.min_gap_m
+        s_in_lap = front_s_m + o.ds_m  # o.ds_m: from the front, along the loop
+        stop_s = lead_stop_s_m(s_in_lap, o.length_m, o.v_s_mps, c.lead_decel_mps2) - c.min_gap_m
         out.append(StopConstraint(stop_s, o.cls.name.lower(), o.track_id, reason=StopReason.OBSTACLE))
     return out
 
@@ -106,7 +113,13 @@ def cut_in_constraints(
     )
     return [
         StopConstraint(
-            lead_stop_s_m(k.entry_s_m, k.length_m, k.speed_along_mps, c.lead_decel_mps2) - c.min_gap_m,
+            lead_stop_s_m(
+                front_s_m + route.ds_m(front_s_m, k.entry_s_m),  # in the front's lap (see in_path)
+                k.length_m,
+                k.speed_along_mps,
+                c.lead_decel_mps2,
+            )
+            - c.min_gap_m,
             "cut-in",
             k.track_id,
             emergency_ok=False,

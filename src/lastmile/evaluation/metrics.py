@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from lastmile.core.errors import ConfigError, LastmileError
+from lastmile.evaluation.pose_errors import POSE_METRICS, PoseErrors
 from lastmile.evaluation.run_signals import SHUTTLE_COMFORT, SNOW_LION_COMFORT, ComfortLimits, RunSignals
 from lastmile.recorder import run_log
 
@@ -348,6 +349,18 @@ def _closed_loop_score(sig: RunSignals) -> MetricResult:
     return _ok(multiplier * weighted)
 
 
+def _pose_metric(fn: Callable[[PoseErrors], float | None]) -> MetricFn:
+    def metric(sig: RunSignals) -> MetricResult:
+        value = fn(sig.pose_errors)
+        return INVALID if value is None else _ok(value)
+
+    return metric
+
+
+for _name, _fn in POSE_METRICS.items():
+    register_metric(_name)(_pose_metric(_fn))
+
+
 def _clean(result: MetricResult, name: str) -> MetricValue:
     if not result.valid or result.value is None:
         return None
@@ -399,6 +412,9 @@ def compute_metrics(log: run_log.RunLog, comfort: ComfortLimits = SHUTTLE_COMFOR
     - ``passengers_served``: passengers picked up (``passenger_boarded`` events);
       ``passengers_alighted`` counts drop-offs. Riders still waiting at the end of the run have no
       wait time in the log, so ``mean_wait_s``/``max_wait_s`` cover boarded riders only.
+    - ``localization_*`` and ``cross_track_error_*``: the stack's localization error against the
+      true pose and the true cross-track error, from the log's localization table (definitions in
+      ``pose_errors.POSE_METRICS``); None for a log without one.
     - ``min_ttc_s``: the smallest time-to-collision logged; ``None`` when it never fell below the
       simulator's 3 s logging threshold.
     - ``closed_loop_score`` (in [0, 1], in the spirit of nuPlan's):

@@ -16,7 +16,7 @@ from matplotlib.patches import Patch
 from lastmile.core import vehicle_messages
 from lastmile.core.errors import LastmileError
 from lastmile.evaluation import metrics as metrics_mod
-from lastmile.evaluation import report_html, report_tables, report_views, run_signals
+from lastmile.evaluation import report_html, report_pose, report_tables, report_views, run_signals
 from lastmile.evaluation.localization_timeline import localization_lines
 from lastmile.recorder import run_log
 
@@ -420,6 +420,7 @@ def write_report(
     has_places = hdmap is not None and report_views.plot_places(log, hdmap, out / report_views.PLACES_PNG)
     closest = report_views.closest(report_views.encounters(log))
     has_encounters = report_views.plot_encounters(log, hdmap, closest, out / report_views.ENCOUNTERS_PNG)
+    has_pose_plot = report_pose.plot_pose_errors(sig.pose_errors, out / report_pose.POSE_PNG)
     meta = log.meta
     lines = [
         f"# Run report: {_md(meta.scenario_name)}",
@@ -489,6 +490,9 @@ def write_report(
         "## Localization",
         "",
         *localization_lines(log, sig.duration_s),
+        "### Localization and cross-track error",
+        "",
+        *report_pose.pose_error_lines(sig.pose_errors, has_pose_plot),
         "## Behaviour states",
         "",
         *report_tables.state_timeline(log, MAX_EVENT_ROWS),

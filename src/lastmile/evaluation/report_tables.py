@@ -4,6 +4,7 @@ events with their real cause (an operator's e-stop, not "stack_request"), encoun
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -128,9 +129,19 @@ def events_table(log: run_log.RunLog, max_rows: int) -> list[str]:
     return [*lines, ""]
 
 
+def _left_waiting(data: Mapping[str, Any]) -> str:
+    """Riders still at the stop when the door closed, "(full)" when no seat was free; "n/a" for a log
+    written before the field existed."""
+    left = data.get("left_waiting")
+    if not isinstance(left, int):
+        return "n/a"
+    return f"{left} (full)" if left and data.get("seats_free") == 0 else str(left)
+
+
 def stops_table(log: run_log.RunLog) -> list[str]:
     """One row per stop visit: arrival (doors open), dwell until the shuttle moved on, curb gap,
-    longitudinal error, riders boarded and alighted; missed stops with the riders left waiting."""
+    longitudinal error, riders boarded and alighted, riders left waiting as the door closed (no seat,
+    or arrived after boarding ended); missed stops with the riders left waiting."""
     served = log.events_of(EventKind.STOP_SERVED)
     missed = log.events_of(EventKind.STOP_MISSED)
     if not served and not missed:
@@ -145,7 +156,7 @@ def stops_table(log: run_log.RunLog) -> list[str]:
             (
                 e.t_s,
                 f"| {md(str(d['stop_id']))} | {e.t_s:.1f} | {dwell} | {d['curb_gap_m']:.2f} | "
-                f"{d['longitudinal_error_m']:.2f} | {d['boarded']} | {d['alighted']} | - |",
+                f"{d['longitudinal_error_m']:.2f} | {d['boarded']} | {d['alighted']} | {_left_waiting(d)} |",
             )
         )
     for e in missed:

@@ -9,6 +9,7 @@ from functools import cached_property
 import numpy as np
 
 from lastmile.core.errors import ConfigError
+from lastmile.evaluation.pose_errors import PoseErrors, pose_errors
 from lastmile.recorder import run_log
 
 RESAMPLE_PERIOD_S = 0.1
@@ -125,6 +126,11 @@ class RunSignals:
     @property
     def rows(self) -> int:
         return len(self.t_s)
+
+    @cached_property
+    def pose_errors(self) -> PoseErrors:
+        """Localization and cross-track errors per localization-table row."""
+        return pose_errors(self.log)
 
     @cached_property
     def dt_s(self) -> np.ndarray:

@@ -1,4 +1,4 @@
-"""The campus map as plain JSON for the dashboard to draw (no tiles: everything comes from the HD map)."""
+"""The service's map as plain JSON for the dashboard to draw (no tiles: everything comes from the HD map)."""
 
 from __future__ import annotations
 

@@ -12,12 +12,12 @@ planned) wins. This is the classic insertion heuristic restricted to the order t
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field
 
 from lastmile.core.errors import ConfigError, RoutingError
 from lastmile.core.polyline import Polyline
-from lastmile.hdmap import routing
-from lastmile.hdmap.model import HDMap
+from lastmile.hdmap.service_route import ServiceRoute
 
 CAPACITY_SEATS = 6  # Snow Lion carries up to six passengers
 # Table 1 of Snow Lion: three two-hour shifts a day (morning, noon, evening), 20-minute headway.
@@ -71,22 +71,53 @@ class StopInfo:
     route_s_m: float
 
 
-class LoopRoute:
-    """The campus loop as a closed polyline with its stops in driving order."""
+FLEET_STOP_ID = re.compile(r"^[A-Za-z0-9_-]{1,16}$")
+"""What the dispatch API, its database and its dashboard take as a stop id (``api_models.StopId``)."""
 
-    def __init__(self, hdmap: HDMap) -> None:
-        ids = routing.campus_shuttle_loop(hdmap)
-        self.polyline: Polyline = routing.route_polyline(hdmap, ids, closed=True)
+
+def fleet_stop_ids(service: ServiceRoute) -> dict[str, str]:
+    """The dispatch id of each of the service's stops, by its id in the map (``BusStop.id``).
+
+    A map id the API can carry is kept (the campus's S1-S4, "K-Block"); a stop named in words by a
+    route file ("Roundabout West", "Library (return)") becomes ``S<k>``, k its place in service order,
+    so riders, operators and the database see a short safe id while the name is still shown.
+    """
+    names = [stop.name for stop in service.stops]
+    kept = {name for name in names if FLEET_STOP_ID.match(name)}
+    ids: dict[str, str] = {}
+    for k, name in enumerate(names, start=1):
+        if name in kept:
+            ids[name] = name
+            continue
+        fleet_id, suffix = f"S{k}", 0
+        while fleet_id in kept or fleet_id in ids.values():  # a kept map id may itself be S<k>
+            suffix += 1
+            fleet_id = f"S{k}_{suffix}"
+        ids[name] = fleet_id
+    return ids
+
+
+class LoopRoute:
+    """A service's loop as a closed polyline with its stops in driving order (the campus loop, or the
+    loop of a route file: see ``hdmap.service_route``)."""
+
+    def __init__(self, service: ServiceRoute) -> None:
+        self.polyline: Polyline = service.polyline
         self.length_m = self.polyline.length_m
-        stops = []
-        for stop in hdmap.stops:
-            xy = stop.curb.xy_m[len(stop.curb.xy_m) // 2]
-            s = self.polyline.project(float(xy[0]), float(xy[1])).s_m
-            stops.append(
-                StopInfo(id=stop.id, name=stop.name, x_m=float(xy[0]), y_m=float(xy[1]), route_s_m=s)
+        names = {bay.id: bay.name for bay in service.hdmap.stops}
+        self.fleet_ids = fleet_stop_ids(service)
+        stops = [
+            StopInfo(
+                id=self.fleet_ids[stop.name],
+                name=names.get(stop.name, stop.name),
+                x_m=stop.x_m,
+                y_m=stop.y_m,
+                route_s_m=stop.route_s_m,
             )
+            for stop in service.stops
+        ]
         if not stops:
-            raise RoutingError(f"LoopRoute: expected bus stops in map {hdmap.name!r}, got none")
+            raise RoutingError(f"LoopRoute: expected stops on service {service.name!r}, got none")
         stops.sort(key=lambda s: s.route_s_m)
         self.stops: dict[str, StopInfo] = {s.id: s for s in stops}
         self.order: tuple[str, ...] = tuple(s.id for s in stops)

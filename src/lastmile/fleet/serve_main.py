@@ -96,16 +96,20 @@ def serve(
     runs: Path,
     timetable_lead_s: float,
     announce: Callable[[str], None],
+    route: Path | None = None,
 ) -> None:
     """Validate everything, then serve until interrupted.
 
     Raises:
-        ConfigError: a bad address, port or database (one line, password hidden).
+        ConfigError: a bad address, port or database (one line, password hidden); a bad route file.
+        MapError, RoutingError: the route's map or its stops (see ``hdmap.service_route.load_route``).
     """
     import uvicorn
 
     from lastmile.fleet.server import ServerConfig, create_app
+    from lastmile.hdmap.service_route import load_route
 
+    service = load_route(route) if route is not None else None  # a bad route is one line, before binding
     sock = listen_socket(host, port)
     try:
         url = db or default_sqlite_url(out)
@@ -116,9 +120,11 @@ def serve(
             engine.dispose()
         announce(
             f"lastmile serve: http://{host}:{port}/ (database {redact_url(url)}; "
-            f"first-start tokens in {out}/tokens.json)"
+            f"first-start tokens in {out}/tokens.json; service {service.name if service else 'campus'})"
         )
-        config = ServerConfig(db_url=url, out_dir=out, runs_dir=runs, timetable_lead_s=timetable_lead_s)
+        config = ServerConfig(
+            db_url=url, out_dir=out, runs_dir=runs, timetable_lead_s=timetable_lead_s, route=service
+        )
         # uvicorn.Config sets up logging; the filter goes on the handlers after that, since a filter on
         # a logger misses what its children propagate.
         server = uvicorn.Server(

@@ -47,7 +47,7 @@ from lastmile.fleet.rate_limit import RateLimit, TokenBuckets, charge_token, def
 from lastmile.fleet.request_guard import RequestGuard, validation_error_without_input
 from lastmile.fleet.scheduling import LoopRoute, Planner, SchedulingConfig
 from lastmile.fleet.service_views import ride_view, vehicle_view
-from lastmile.hdmap.loader import load_campus_map
+from lastmile.hdmap.service_route import ServiceRoute, campus_service
 
 log = logging.getLogger(__name__)
 STATIC = Path(__file__).with_name("static")
@@ -70,6 +70,8 @@ class ServerConfig:
             the API is under 1 kB).
         body_timeout_s: time a request body has to arrive in full (408 beyond).
         rate_limits: requests per token, by the token's role (429 with Retry-After beyond).
+        route: the service the fleet runs (a route file's, loaded by the caller so that a bad one is an
+            error before the server starts); None: the campus loop.
     """
 
     db_url: str
@@ -81,6 +83,7 @@ class ServerConfig:
     max_body_bytes: int = 65_536
     body_timeout_s: float = 10.0
     rate_limits: dict[str, RateLimit] = field(default_factory=default_limits)
+    route: ServiceRoute | None = None
 
 
 def _principal(request: Request, creds: HTTPAuthorizationCredentials | None) -> Principal:
@@ -132,8 +135,8 @@ def create_app(config: ServerConfig) -> FastAPI:
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         engine = db.make_engine(config.db_url)
         writer = db.Writer(engine, max_batch=config.commit_batch)
-        hdmap = load_campus_map()
-        route = LoopRoute(hdmap)
+        service = config.route if config.route is not None else campus_service()
+        route = LoopRoute(service)
         dispatcher = Dispatcher(engine, writer, route, Planner(route, config.scheduling))
         created = dispatcher.load()
         if created:
@@ -147,7 +150,7 @@ def create_app(config: ServerConfig) -> FastAPI:
         dispatcher.push = hub.push_vehicle
         app.state.dispatcher = dispatcher
         app.state.hub = hub
-        app.state.map = map_json(hdmap, route)
+        app.state.map = map_json(service.hdmap, route)
         hub.start()
         clock = (
             asyncio.create_task(_timetable_clock(dispatcher, config)) if config.timetable_lead_s > 0 else None

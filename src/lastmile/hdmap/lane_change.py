@@ -160,18 +160,24 @@ def smooth_lane_changes(
         d = float(_signed_from(np.array([arc[k]]), centre, total, closed)[0])
         lo, hi = min(-length / 2.0, d), max(length / 2.0, d)
         spans.append((centre + (lo + hi) / 2.0, hi - lo))
-    out = _smooth_spans(out, arc, spans, total, closed)
+    out = smooth_spans(out, arc, spans, total, closed)
     return out[:-1] if closed and np.hypot(*(out[0] - out[-1])) < 1e-9 else out
 
 
-def _smooth_spans(
-    xy: np.ndarray, arc: np.ndarray, spans: list[tuple[float, float]], total: float, closed: bool
+def smooth_spans(
+    xy: np.ndarray,
+    arc: np.ndarray,
+    spans: list[tuple[float, float]],
+    total: float,
+    closed: bool,
+    sigma_m: float = SMOOTH_SIGMA_M,
 ) -> np.ndarray:
-    """Gaussian smoothing (SMOOTH_SIGMA_M along the line) over each transition: where the two lanes
-    meet at an angle (an outer lane bending away to an exit), the joined line has a heading kink that
-    the lateral transition alone does not remove."""
+    """Gaussian smoothing (``sigma_m`` along the line) over each (centre, length) span of arc: where
+    two lanes meet at an angle (an outer lane bending away to an exit), the joined line has a heading
+    kink that the lateral transition alone does not remove; ``corner_rounding`` uses it with a wider
+    kernel on corners the vehicle cannot steer."""
     out = xy.copy()
-    reach = 3.0 * SMOOTH_SIGMA_M
+    reach = 3.0 * sigma_m
     # Each vertex weighs the length of line it stands for: vertices crowded at a mapped point (or
     # the two ends of a jump, now one place) must not pull the average towards themselves.
     measure = np.gradient(arc)
@@ -183,7 +189,7 @@ def _smooth_spans(
         support = np.flatnonzero(np.abs(rel) <= length / 2.0 + 2.0 * reach)
         for i in inside.tolist():
             d = _signed_from(arc[support], float(arc[i]), total, closed)
-            w = np.exp(-0.5 * (d / SMOOTH_SIGMA_M) ** 2) * measure[support]
+            w = np.exp(-0.5 * (d / sigma_m) ** 2) * measure[support]
             # Full smoothing inside the transition, fading out (smoothly) over the reach beyond it.
             fade = float(_sigma(np.array([(length / 2.0 + reach - abs(float(rel[i]))) / reach]))[0])
             out[i] = (1.0 - fade) * src[i] + fade * (w[:, None] * src[support]).sum(axis=0) / w.sum()

@@ -46,6 +46,7 @@ def build_layers(
     closed: bool,
     unmapped_speed_limit_mps: float | None = None,
     keep_clear: tuple[KeepClear, ...] = (),
+    steerable: bool = False,
 ) -> SLayerDatabase:
     if not (math.isfinite(step_m) and step_m > 0):
         raise MapError(f"SLayerDatabase.build step_m: expected a positive step, got {step_m}")
@@ -56,6 +57,7 @@ def build_layers(
         closed=closed,
         unmapped_speed_limit_mps=unmapped_speed_limit_mps,
         keep_clear=keep_clear,
+        steerable=steerable,
     )
     starts = lanelet_starts_m(hdmap, lanelet_ids)
     # Lanelet lengths sum to the joined line's length up to rounding; scale so s maps exactly.

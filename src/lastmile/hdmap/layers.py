@@ -110,6 +110,7 @@ class SLayerDatabase:
         closed: bool = False,
         unmapped_speed_limit_mps: float | None = None,
         keep_clear: tuple[KeepClear, ...] = (),
+        steerable: bool = False,
     ) -> SLayerDatabase:
         """Cut the route through ``lanelet_ids`` every ``step_m`` and fill every layer from the map.
 
@@ -117,13 +118,16 @@ class SLayerDatabase:
             unmapped_speed_limit_mps: the limit on route lanelets whose map states none (the route
                 file's); None: such a lanelet is an error.
             keep_clear: stretches the route's lane changes keep out of (``routing.route_polyline``).
+            steerable: corners the shuttle cannot steer rounded (``routing.route_polyline``).
 
         Raises:
             MapError: a bad step, a route lanelet without a mapped speed limit and no limit given.
         """
         from lastmile.hdmap.layer_builder import build_layers  # the builder needs this class itself
 
-        return build_layers(cls, hdmap, lanelet_ids, step_m, closed, unmapped_speed_limit_mps, keep_clear)
+        return build_layers(
+            cls, hdmap, lanelet_ids, step_m, closed, unmapped_speed_limit_mps, keep_clear, steerable
+        )
 
     @property
     def length_m(self) -> float:

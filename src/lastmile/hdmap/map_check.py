@@ -103,6 +103,7 @@ def check(map_path: Path | None, projector: str | None, route_path: Path | None)
             items.append(CheckItem(layer="route", status=Status.ERROR, detail=str(exc)))
     if route is not None:
         items.append(_route(route))
+        items.append(kerbside_item(route))
         try:
             db = route.layers()
         except LastmileError as exc:
@@ -227,6 +228,46 @@ def _route(route: ServiceRoute) -> CheckItem:
         f"{len(route.lanelet_ids)} lanelets, {changes} lane changes, {len(route.junctions)} branches/merges "
         f"at {len(route.intersections())} places; farthest snap {far:.1f} m{gaps}. Stops: {stops}",
     )
+
+
+def kerbside_lines(route: ServiceRoute) -> list[str]:
+    """One line per kerbside stop the route build moved off a bend (``service_route._dockable``), or
+    could not: where the straight body kept off the kerb leaves the door farther from it than the
+    route's ``max_door_gap_m``."""
+    if route.spec is None:
+        return []
+    limit = route.spec.max_door_gap_m
+    out = []
+    for st in route.stops:
+        if st.door_gap_m is None or st.door_gap_given_m is None:
+            continue
+        if st.door_gap_m != st.door_gap_given_m and st.door_gap_m <= limit:
+            out.append(
+                f"{st.name}: moved {st.moved_m:+.1f} m along its lane off a bend (the door "
+                f"{st.door_gap_given_m:.2f} m from the kerb where given, {st.door_gap_m:.2f} m where moved)"
+            )
+        elif st.door_gap_m > limit:
+            out.append(
+                f"{st.name}: the door will be {st.door_gap_m:.2f} m from the kerb (over {limit:.2f} m): no "
+                f"place within {route.spec.max_stop_move_m:.0f} m of it is straight enough"
+            )
+    return out
+
+
+def kerbside_item(route: ServiceRoute) -> CheckItem:
+    lines = kerbside_lines(route)
+    unmet = [ln for ln in lines if "will be" in ln]
+    kerbside = sum(1 for st in route.stops if st.door_gap_m is not None)
+    detail = f"{kerbside} kerbside stops, door within {route.spec.max_door_gap_m if route.spec else 0:.2f} m"
+    detail += "".join(f"; {ln}" for ln in lines)
+    if unmet:
+        return CheckItem(
+            layer="kerbside stops",
+            status=Status.MISSING,
+            detail=detail,
+            off="the curb-gap target at those stops: move them in the route file to a straighter kerb",
+        )
+    return CheckItem(layer="kerbside stops", status=Status.OK, detail=detail)
 
 
 def _speed(hdmap: HDMap, route: ServiceRoute | None, db: SLayerDatabase | None) -> CheckItem:

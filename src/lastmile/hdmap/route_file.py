@@ -14,6 +14,8 @@ connect_gaps_m = 5.0           # join a lanelet's end to a lanelet starting this
 pattern = "loop"               # "loop" (through the stops in order and back to the first) or "out_and_back"
 stops_from = "file"            # "file" ([[stops]] below) or "map" (tagged stops; order = [names])
 platform_length_m = 12.0       # kerbside length of a stop without a mapped bay
+max_door_gap_m = 0.4           # a kerbside stop where the door cannot come this near the kerb is moved
+max_stop_move_m = 12.0         # ... at most this far along its lane (default: one platform length)
 waypoints = "drive.csv"        # optional: a GEM-style recorded drive (lat, lon, speed) the path follows
 
 [[stops]]
@@ -47,6 +49,11 @@ MAX_SNAP_M = 5.0
 
 DEFAULT_PLATFORM_LENGTH_M = 12.0
 """Kerbside length of a stop without a mapped bay: one standard 12 m bus (a shuttle is shorter)."""
+DEFAULT_MAX_DOOR_GAP_M = 0.4
+"""The door gap a kerbside stop must allow (``curb_fit.rest_door_gap_m``): 0.5 m is the most a served
+stop is accepted at (the closed-loop tests' bound), less 0.1 m for the pull-over's own lateral
+stopping error; a platform on a bend where the straight body kept off the kerb leaves the door
+farther is moved."""
 
 
 class ServicePattern(enum.Enum):
@@ -100,6 +107,8 @@ class _ServiceTable:
     stops_from: StopSource = StopSource.FILE
     order: tuple[str, ...] = ()
     platform_length_m: float = DEFAULT_PLATFORM_LENGTH_M
+    max_door_gap_m: float = DEFAULT_MAX_DOOR_GAP_M
+    max_stop_move_m: float | None = None
     waypoints: str = ""
 
 
@@ -120,6 +129,11 @@ class RouteSpec:
         connect_gaps_m: a lanelet's end is joined to a lanelet starting within this distance, in about
             the same heading (0: only Lanelet2's own successors).
         order: with stops from the map, their names in service order (empty: map order).
+        max_door_gap_m: a kerbside stop whose door cannot come this near its kerb (a bend the
+            straight body cannot lie along) is moved along its lane to where it can.
+        max_stop_move_m: how far such a stop may move (default: one platform length, so the door
+            stays within reach of a rider waiting anywhere on the given platform); farther, it stays
+            and ``lastmile map check`` says what its door gap will be.
         waypoints_path: a GEM-style recorded drive the path follows (None: A* between the stops).
     """
 
@@ -135,6 +149,8 @@ class RouteSpec:
     unmapped_speed_limit_mps: float | None
     connect_gaps_m: float
     waypoints_path: Path | None
+    max_door_gap_m: float = DEFAULT_MAX_DOOR_GAP_M
+    max_stop_move_m: float = DEFAULT_PLATFORM_LENGTH_M
 
 
 def read_route_file(path: str | Path) -> RouteSpec:
@@ -164,6 +180,11 @@ def read_route_file(path: str | Path) -> RouteSpec:
         raise ConfigError(
             f"{source}: service.platform_length_m: expected 2 to 60 m, got {svc.platform_length_m}"
         )
+    if not (0.0 < svc.max_door_gap_m <= 2.0):
+        raise ConfigError(f"{source}: service.max_door_gap_m: expected (0, 2] m, got {svc.max_door_gap_m}")
+    move = svc.platform_length_m if svc.max_stop_move_m is None else svc.max_stop_move_m
+    if not (0.0 <= move <= 100.0):
+        raise ConfigError(f"{source}: service.max_stop_move_m: expected 0 to 100 m, got {move}")
     if svc.stops_from is StopSource.FILE and len(table.stops) < 2:
         raise ConfigError(
             f"{source}: expected at least two [[stops]] (or service.stops_from = 'map'), "
@@ -194,6 +215,8 @@ def read_route_file(path: str | Path) -> RouteSpec:
         ),
         connect_gaps_m=m.connect_gaps_m,
         waypoints_path=_resolve(source, svc.waypoints, "service.waypoints") if svc.waypoints else None,
+        max_door_gap_m=svc.max_door_gap_m,
+        max_stop_move_m=move,
     )
 
 

@@ -17,7 +17,7 @@ import numpy as np
 
 from lastmile.core.errors import RoutingError
 from lastmile.core.polyline import Polyline
-from lastmile.hdmap import campus_layout, lane_change
+from lastmile.hdmap import campus_layout, corner_rounding, lane_change
 from lastmile.hdmap.model import HDMap
 
 JOIN_TOLERANCE_M = 1e-6
@@ -173,6 +173,7 @@ def route_polyline(
     closed: bool = False,
     unmapped_speed_limit_mps: float | None = None,
     keep_clear: tuple[lane_change.KeepClear, ...] = (),
+    steerable: bool = False,
 ) -> Polyline:
     """The route's centre line: the lanelets' centre lines joined end to end; a lane change is a
     smooth lateral transition from one lane's line to the other's (``lane_change``), as long as its
@@ -182,6 +183,8 @@ def route_polyline(
         unmapped_speed_limit_mps: the speed on lanelets whose map states no limit (a route file's);
             only lane changes need a speed.
         keep_clear: stretches (stop platforms) lane changes keep out of where the road allows.
+        steerable: round the corners the shuttle cannot steer (``corner_rounding``): a shuttle's
+            service route; other road users' paths keep the mapped lines.
 
     Raises:
         RoutingError: the sequence is empty, names an unknown lanelet, or skips a successor link; a
@@ -215,6 +218,8 @@ def route_polyline(
         xy = xy[:-1]
     if jumps:
         xy = lane_change.smooth_lane_changes(hdmap, xy, jumps, closed, keep_clear=keep_clear)
+    if steerable:
+        xy = corner_rounding.round_corners(hdmap, xy, closed)
     return Polyline(xy, closed=closed)
 
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -21,6 +22,7 @@ from lastmile.core.errors import ConfigError, MapError, RoutingError
 from lastmile.core.geometry import point_in_polygon
 from lastmile.core.polyline import Polyline
 from lastmile.core.vehicle import VehicleGeometry
+from lastmile.hdmap.curb_fit import CURB_GAP_TARGET_M, rest_door_gap_m
 from lastmile.hdmap.lane_change import KeepClear, RoadOutline
 from lastmile.hdmap.layers import SLayerDatabase
 from lastmile.hdmap.loader import load_campus_map, load_projected_map
@@ -44,6 +46,15 @@ KERBSIDE_APPROACH_M = 32.0
 """Route length a pull-over needs before its spot (the decision layer's ``transition_m``): a kerbside
 stop's edge is the lane's narrowest over this approach and the platform."""
 ROAD_EDGE_STEP_M = 0.1  # resolution of the road's edge beside a kerbside stop's approach
+DOOR_SPREAD_M = 0.5
+SETTLE_RUN_M = 8.0
+"""The straight run along the kerb the planner ends its pull-over with before the spot
+(``planning.local_path.LocalPathConfig.settle_m``): a bend towards the kerb there off-tracks the rear
+axle onto it (K-Block on the BITS loop, on the exit of the S-bend's fillet: the door ended 0.06 m over
+the kerb line and the stop was missed with five waiting)."""
+"""A kerbside place must keep the door gap for a door this far either side of where it is aimed (the
+pull-over's longitudinal stopping error): on a mapped polygon the gap can change sharply at a vertex."""
+MOVE_STEP_M = 0.5  # places tried along the lane when a kerbside stop is moved off a bend
 INTERSECTION_REACH_M = 30.0
 """Branches and merges this close along the route are one place (a junction box of a few lanes each
 way, or a roundabout's arms)."""
@@ -76,7 +87,14 @@ class ServiceStop:
         x_m, y_m: where the route file (or the map) put it, map frame.
         snap: its lanelet, and how far it was from it.
         route_s_m: along ``ServiceRoute.polyline``; a stop whose platform would straddle the loop's
-            start (s = 0) is moved along the lane until it does not (at most half a platform).
+            start (s = 0) is moved along the lane until it does not (at most half a platform); a
+            kerbside stop where the door cannot come within ``RouteSpec.max_door_gap_m`` of the kerb
+            (a bend the straight body cannot lie along) is moved to the nearest place where it can,
+            within ``RouteSpec.max_stop_move_m``.
+        moved_m: how far (route s, signed) the stop was moved from where it snapped.
+        door_gap_m: the door's gap to the kerb a pull-over at the platform's middle is expected to
+            leave (``curb_fit.rest_door_gap_m``), where the stop ends up; None for a mapped bay.
+        door_gap_given_m: the same where the stop was given (differs from ``door_gap_m`` if moved).
         source: "file", "bay" (a mapped ``lastmile:bus_stop`` bay), "lastmile:bus_stop" (a tagged
             node) or "autoware:bus_stop_area".
     """
@@ -87,6 +105,9 @@ class ServiceStop:
     snap: Snap
     route_s_m: float
     source: str
+    moved_m: float = 0.0
+    door_gap_m: float | None = None
+    door_gap_given_m: float | None = None
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -151,6 +172,7 @@ class ServiceRoute:
             closed=True,
             unmapped_speed_limit_mps=self.unmapped_speed_limit_mps,
             keep_clear=self.keep_clear,
+            steerable=True,
         )
 
 
@@ -237,19 +259,41 @@ def build_service(spec: RouteSpec, hdmap: HDMap) -> ServiceRoute:
         closed=True,
         unmapped_speed_limit_mps=spec.unmapped_speed_limit_mps,
         keep_clear=keep_clear,
+        steerable=True,
     )
     pieces = route_pieces(hdmap, path, closed=True)
     starts = lanelet_starts_m(hdmap, path) * (polyline.length_m / lanelet_starts_m(hdmap, path)[-1])
+    road = RoadOutline(hdmap)
     stops = []
     for name, (x, y), snap, k, source in zip(names, xy, snaps, at, sources, strict=True):
         hint = float(starts[k]) + max(snap.lanelet_s_m - pieces[k].s0_m, 0.0)
         s = polyline.project(*_on_lane(hdmap, snap), hint_s_m=hint, window_m=20.0).s_m
         # A platform is kept within one lap of route s (consumers compare s_start < s_end): one that
         # would straddle the loop's start slides forward, or back, to end there.
+        snapped = float(s)
+        door: tuple[float | None, float | None] = (None, None)
+        if source != "bay":
+            s, door = _dockable(
+                polyline,
+                snapped,
+                spec,
+                lambda c: _kerb_half(hdmap, road, polyline, c, spec.platform_length_m, path, starts),
+            )
         half = spec.platform_length_m / 2 + PLATFORM_MARGIN_M
         s = min(max(float(s), half), polyline.length_m - half)
-        stops.append(ServiceStop(name=name, x_m=x, y_m=y, snap=snap, route_s_m=float(s), source=source))
-    road = RoadOutline(hdmap)
+        stops.append(
+            ServiceStop(
+                name=name,
+                x_m=x,
+                y_m=y,
+                snap=snap,
+                route_s_m=float(s),
+                source=source,
+                moved_m=float(s) - snapped,
+                door_gap_m=door[0],
+                door_gap_given_m=door[1],
+            )
+        )
     bus_stops = tuple(
         _bus_stop(hdmap, road, polyline, st, spec.platform_length_m, path, starts) for st in stops
     )
@@ -538,6 +582,97 @@ def _connector(lid: int, a: LaneletInfo, b: LaneletInfo) -> LaneletInfo:
     )
 
 
+def _dockable(
+    polyline: Polyline, s_m: float, spec: RouteSpec, kerb_half: Callable[[float], float]
+) -> tuple[float, tuple[float, float]]:
+    """Where a kerbside stop given at route ``s_m`` goes, and (door gap there, door gap where given).
+
+    A platform's door gap (``curb_fit.rest_door_gap_m`` against its kerb ``kerb_half``, worst over
+    a door DOOR_SPREAD_M either side of the platform's middle) above ``spec.max_door_gap_m`` is a
+    bend the straight body cannot lie along with the door at the kerb, and a bend towards the kerb
+    over the settle run before the spot (SETTLE_RUN_M) off-tracks the rear axle onto it: the stop
+    moves to the nearest
+    place (every MOVE_STEP_M, downstream first on a tie, at most ``spec.max_stop_move_m``) that keeps
+    it, and whose kerb is no nearer the route than where it was given (a move must not trade a bend
+    for less room to pull over). No such place: it stays, and its door gap says what to expect.
+    """
+    geometry = VehicleGeometry()
+    wheelbase = geometry.wheelbase_m
+    door_from_rear = geometry.length_m / 2.0 - geometry.rear_overhang_m
+    # The rear wheels are kept straight at a kerb, so on a bend towards the kerb (a right turn for a
+    # kerb on the right) the rear axle off-tracks towards it by wheelbase^2 / 2R; over the settle run
+    # before the spot that must stay within the gap the pull-over keeps: R >= wheelbase^2 / (2 gap).
+    toward_kerb_limit = 2.0 * CURB_GAP_TARGET_M / wheelbase**2
+
+    def offtracks(c: float) -> bool:
+        rear = c - door_from_rear
+        for q in np.arange(rear - SETTLE_RUN_M, rear + 1e-9, MOVE_STEP_M).tolist():
+            turn = (polyline.heading_at(q + wheelbase) - polyline.heading_at(q) + math.pi) % (
+                2 * math.pi
+            ) - math.pi
+            if -turn / wheelbase > toward_kerb_limit:
+                return True
+        return False
+
+    def door_gap(c: float, half: float) -> float:
+        doors = (c - DOOR_SPREAD_M, c, c + DOOR_SPREAD_M)
+        return max(rest_door_gap_m(polyline, q, -half, CURB_GAP_TARGET_M, geometry) for q in doors)
+
+    given_half = kerb_half(s_m)
+    given = door_gap(s_m, given_half)
+    # First a place where the door keeps the limit and the settle run does not off-track the rear
+    # onto the kerb; failing that (a kerb on a long bend), one where at least the door does.
+    for check_offtrack in (True, False):
+        if given <= spec.max_door_gap_m and not (check_offtrack and offtracks(s_m)):
+            return s_m, (given, given)
+        for k in range(1, int(spec.max_stop_move_m / MOVE_STEP_M) + 1):
+            for c in (s_m + k * MOVE_STEP_M, s_m - k * MOVE_STEP_M):
+                if check_offtrack and offtracks(c):
+                    continue
+                half = kerb_half(c)
+                if half < given_half:
+                    continue
+                gap = door_gap(c, half)
+                if gap <= spec.max_door_gap_m:
+                    return c, (gap, given)
+    return s_m, (given, given)
+
+
+def _kerb_half(
+    hdmap: HDMap,
+    road: RoadOutline,
+    polyline: Polyline,
+    s_m: float,
+    platform_m: float,
+    path: tuple[int, ...],
+    starts: np.ndarray,
+) -> float:
+    """Distance right of the route to a kerbside platform's edge centred at route ``s_m`` (see
+    ``_bus_stop``)."""
+
+    def lane_half(sk: float) -> float:
+        x, y, _ = polyline.point_at(sk)
+        k = int(np.clip(np.searchsorted(starts, sk % polyline.length_m, side="right") - 1, 0, len(path) - 1))
+        lid = hdmap.lanelet_at(x, y)
+        lane = hdmap.lanelets[lid if lid is not None and lid in hdmap.lanelets else path[k]]
+        return abs(float(lane.right.project(x, y).d_m))
+
+    on_platform = np.arange(s_m - platform_m / 2, s_m + platform_m / 2, 1.0).tolist()
+    half = min(lane_half(sk) for sk in on_platform)
+    # The road's edge right of each approach point: the first probe (every ROAD_EDGE_STEP_M) off it.
+    approach = np.arange(s_m - platform_m / 2 - KERBSIDE_APPROACH_M, on_platform[0], 1.0)
+    steps = np.arange(0.0, half, ROAD_EDGE_STEP_M)
+    if len(approach) and len(steps):
+        xy = polyline.points_at(approach)
+        heading = np.array([polyline.heading_at(float(sk)) for sk in approach])
+        right = np.c_[np.sin(heading), -np.cos(heading)]
+        probes = xy[:, None, :] + steps[None, :, None] * right[:, None, :]
+        on_road = road.contains(probes.reshape(-1, 2)).reshape(len(approach), len(steps))
+        first_off = np.where(on_road.all(axis=1), half, steps[np.argmin(on_road, axis=1)])
+        half = min(half, float(first_off.min()))
+    return half
+
+
 def _bus_stop(
     hdmap: HDMap,
     road: RoadOutline,
@@ -559,26 +694,7 @@ def _bus_stop(
         if stop.source == "bay" and bay.id == stop.name:
             return bay
 
-    def lane_half(sk: float) -> float:
-        x, y, _ = polyline.point_at(sk)
-        k = int(np.clip(np.searchsorted(starts, sk % polyline.length_m, side="right") - 1, 0, len(path) - 1))
-        lid = hdmap.lanelet_at(x, y)
-        lane = hdmap.lanelets[lid if lid is not None and lid in hdmap.lanelets else path[k]]
-        return abs(float(lane.right.project(x, y).d_m))
-
-    on_platform = np.arange(stop.route_s_m - platform_m / 2, stop.route_s_m + platform_m / 2, 1.0).tolist()
-    half = min(lane_half(sk) for sk in on_platform)
-    # The road's edge right of each approach point: the first probe (every ROAD_EDGE_STEP_M) off it.
-    approach = np.arange(stop.route_s_m - platform_m / 2 - KERBSIDE_APPROACH_M, on_platform[0], 1.0)
-    steps = np.arange(0.0, half, ROAD_EDGE_STEP_M)
-    if len(approach) and len(steps):
-        xy = polyline.points_at(approach)
-        heading = np.array([polyline.heading_at(float(sk)) for sk in approach])
-        right = np.c_[np.sin(heading), -np.cos(heading)]
-        probes = xy[:, None, :] + steps[None, :, None] * right[:, None, :]
-        on_road = road.contains(probes.reshape(-1, 2)).reshape(len(approach), len(steps))
-        first_off = np.where(on_road.all(axis=1), half, steps[np.argmin(on_road, axis=1)])
-        half = min(half, float(first_off.min()))
+    half = _kerb_half(hdmap, road, polyline, stop.route_s_m, platform_m, path, starts)
     s = stop.route_s_m + np.linspace(-platform_m / 2, platform_m / 2, max(int(platform_m), 2) + 1)
     edge = []
     for sk in s.tolist():

@@ -13,6 +13,7 @@ inputs and posteriors lets late inputs be inserted at their stamps and the newer
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -493,7 +494,7 @@ class PoseEkf:
         h = np.zeros((m, N_STATES))
         h[:, :3] = h3
         s_cov = h @ snap.p @ h.T + r
-        if float(innovation @ np.linalg.solve(s_cov, innovation)) > float(chi2.ppf(0.999, m)):
+        if float(innovation @ np.linalg.solve(s_cov, innovation)) > _pose_gate(m):
             self.rejected_pose_measurements += first_time
             return snap, False
         s, p = kalman_update(snap.s, snap.p, h, innovation, r)
@@ -585,6 +586,13 @@ class PoseEkf:
         base_x, base_y = fix.x_m - (cs * lf - sn * ll), fix.y_m - (sn * lf + cs * ll)
         snap = self._set_position(snap, base_x, base_y, r_base, yaw, yaw_var)
         return snap._replace(anchor=None)
+
+
+@functools.lru_cache(maxsize=64)
+def _pose_gate(dof: int) -> float:
+    """The 0.999 chi-square quantile of ``dof`` degrees of freedom (SciPy's ppf costs about a
+    millisecond; a landmark frame's dimension repeats)."""
+    return float(chi2.ppf(0.999, dof))
 
 
 def _check_inputs(where: str, stamp: Stamp, **values: float) -> None:

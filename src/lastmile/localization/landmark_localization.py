@@ -91,9 +91,11 @@ class PoleDetections:
     Attributes:
         stamp: capture time, µs.
         points_base: (k, 2) pole centres in the base frame (x forward, y left), m.
-        std_m: one-sigma detection error per axis, m.
+        std_m: one-sigma detection error per axis, m (every point's, unless ``point_std_m``).
         landmarks: the mapped landmarks to associate with.
         ambiguity_ratio: the second-nearest map pole must be this many times farther (Mahalanobis).
+        point_std_m: (k,) one-sigma error per axis of each point (a near pole is seen better than a
+            far one); None: ``std_m`` for all.
     """
 
     stamp: Stamp
@@ -101,6 +103,7 @@ class PoleDetections:
     std_m: float
     landmarks: MapLandmarks
     ambiguity_ratio: float = 2.0
+    point_std_m: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         pts = np.asarray(self.points_base, dtype=float)
@@ -108,15 +111,23 @@ class PoleDetections:
             raise MessageError(f"PoleDetections.points_base: expected finite (k, 2), got shape {pts.shape}")
         if not (self.std_m > 0 and math.isfinite(self.std_m)):
             raise MessageError(f"PoleDetections.std_m: expected a positive number, got {self.std_m}")
+        if self.point_std_m is not None:
+            std = np.asarray(self.point_std_m, dtype=float)
+            if std.shape != (len(pts),) or not (np.isfinite(std).all() and (std > 0).all()):
+                raise MessageError(
+                    f"PoleDetections.point_std_m: expected {len(pts)} positive numbers, got shape {std.shape}"
+                )
 
     def linearize(self, pose: np.ndarray, covariance: np.ndarray) -> Linearised | None:
         x, y, yaw = (float(v) for v in pose)
         c, s = math.cos(yaw), math.sin(yaw)
         rot = np.array([[c, -s], [s, c]])
-        r_det = self.std_m**2 * np.eye(2)
+        pts = np.asarray(self.points_base, dtype=float)
+        stds = np.full(len(pts), self.std_m) if self.point_std_m is None else np.asarray(self.point_std_m)
         innovations, rows, blocks = [], [], []
         poles = self.landmarks.poles
-        for p in np.asarray(self.points_base, dtype=float):
+        for p, std in zip(pts, stds, strict=True):
+            r_det = float(std) ** 2 * np.eye(2)
             predicted = np.array([x, y]) + rot @ p
             # d(map point)/d(pose) = [I, dR/dyaw p]: the detection's map position moves with the pose.
             h = np.array([[1.0, 0.0, -s * p[0] - c * p[1]], [0.0, 1.0, c * p[0] - s * p[1]]])
@@ -146,9 +157,12 @@ class FacadeDetections:
         stamp: capture time, µs.
         lines_base: (k, 2): distance from the base origin to the line (m, > 0) and the angle of the
             normal pointing from the base to the line (rad, base frame).
-        distance_std_m, angle_std_rad: one-sigma errors of the fitted line.
+        distance_std_m, angle_std_rad: one-sigma errors of the fitted line (every line's, unless
+            ``line_std``).
         landmarks: the mapped landmarks to associate with.
         ambiguity_ratio: as for poles.
+        line_std: (k, 2) one-sigma distance (m) and angle (rad) errors of each line; None: the
+            scalars for all.
     """
 
     stamp: Stamp
@@ -157,6 +171,7 @@ class FacadeDetections:
     angle_std_rad: float
     landmarks: MapLandmarks
     ambiguity_ratio: float = 2.0
+    line_std: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         lines = np.asarray(self.lines_base, dtype=float)
@@ -165,13 +180,26 @@ class FacadeDetections:
                 "FacadeDetections.lines_base: expected finite (k, 2) with positive distances, "
                 f"got shape {lines.shape}"
             )
+        if self.line_std is not None:
+            std = np.asarray(self.line_std, dtype=float)
+            if std.shape != (len(lines), 2) or not (np.isfinite(std).all() and (std > 0).all()):
+                raise MessageError(
+                    f"FacadeDetections.line_std: expected ({len(lines)}, 2) positive numbers, "
+                    f"got shape {std.shape}"
+                )
 
     def linearize(self, pose: np.ndarray, covariance: np.ndarray) -> Linearised | None:
         x, y, yaw = (float(v) for v in pose)
-        r = np.diag([self.distance_std_m**2, self.angle_std_rad**2])
-        innovations, rows = [], []
+        lines = np.asarray(self.lines_base, dtype=float)
+        stds = (
+            np.tile([self.distance_std_m, self.angle_std_rad], (len(lines), 1))
+            if self.line_std is None
+            else np.asarray(self.line_std, dtype=float)
+        )
+        innovations, rows, blocks = [], [], []
         segs = self.landmarks.segments
-        for rho, alpha in np.asarray(self.lines_base, dtype=float):
+        for (rho, alpha), std in zip(lines, stds, strict=True):
+            r = np.diag(std**2)
             candidates = []
             for a, b in segs:
                 pred = _line_in_base(a, b, x, y, yaw)
@@ -186,9 +214,13 @@ class FacadeDetections:
                 continue
             innovations.append(candidates[k][1])
             rows.append(candidates[k][2])
+            blocks.append(r)
         if not rows:
             return None
-        return np.concatenate(innovations), np.vstack(rows), np.kron(np.eye(len(rows)), r)
+        r_all = np.zeros((2 * len(blocks), 2 * len(blocks)))
+        for i, b in enumerate(blocks):
+            r_all[2 * i : 2 * i + 2, 2 * i : 2 * i + 2] = b
+        return np.concatenate(innovations), np.vstack(rows), r_all
 
 
 def _line_in_base(a: np.ndarray, b: np.ndarray, x: float, y: float, yaw: float):

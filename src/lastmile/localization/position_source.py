@@ -31,10 +31,16 @@ class AbsoluteUpdates:
         self._last_us.clear()
 
     def source_at(self, stamp_us: int) -> PositionSource:
-        """The newest source whose last correction is within the timeout of ``stamp_us``, else dead
-        reckoning (an estimate for a past stamp counts the corrections up to now: replayed history)."""
-        best, best_us = PositionSource.DEAD_RECKONING, -1
-        for source, at_us in self._last_us.items():
-            if stamp_us - at_us <= self._timeout_us and at_us > best_us:
-                best, best_us = source, at_us
-        return best
+        """LANDMARKS while landmark corrections are current (within the timeout of ``stamp_us``), else
+        GNSS while fixes are, else dead reckoning. Landmarks come first: while they hold the pose it
+        does not depend on the receiver, so the loss of a fix must not read as the loss of the
+        position (with both at 10 Hz the newest of the two would flip with their phase). An estimate
+        for a past stamp counts the corrections up to now (replayed history)."""
+        for source in _PRIORITY:
+            at_us = self._last_us.get(source)
+            if at_us is not None and stamp_us - at_us <= self._timeout_us:
+                return source
+        return PositionSource.DEAD_RECKONING
+
+
+_PRIORITY = (PositionSource.LANDMARKS, PositionSource.GNSS)

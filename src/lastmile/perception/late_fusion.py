@@ -13,7 +13,9 @@
    map frame. With ``confirm_with_radar`` only radar-confirmed objects or camera-confirmed ones are
    kept (the paper's false-alarm removal in bad weather); by default LiDAR-only objects stay, since
    geese and other small things barely show on radar. Scores: 0.5 LiDAR only, 0.6 radar-confirmed,
-   the camera detection's score when higher.
+   the camera detection's score when higher. A learned LiDAR detector's rows
+   (:mod:`lastmile.perception.lidar_detector`) come with their class and score: a camera box that
+   names a class replaces the detector's, one of class UNKNOWN leaves it.
 """
 
 from __future__ import annotations
@@ -59,6 +61,29 @@ class LateFusionConfig:
             raise ConfigError(f"LateFusionConfig.radar_gate_m: expected > 0, got {self.radar_gate_m}")
         if not (0 < self.min_iou <= 1 and 0 <= self.min_camera_score <= 1 and self.radar_only_size_m > 0):
             raise ConfigError(f"LateFusionConfig: expected min_iou in (0, 1], score in [0, 1], got {self}")
+
+
+RADAR_CONFIRMED_SCORE = 0.6
+"""Score of a fused object a radar confirmed and no camera box classified."""
+UNCONFIRMED_SCORE = 0.5
+"""Score of a LiDAR cluster neither a radar nor a camera confirmed."""
+
+
+def radar_detections(frame: RadarFrame, map_from_radar: SE2, size_m: float = 1.0) -> DetectedObjects:
+    """A radar frame's objects as the detections a radar-only tracker consumes (map frame).
+
+    Radar object lists carry no class and no extent: each object is ``UNKNOWN``, a ``size_m`` square
+    (the fusion's ``radar_only_size_m``) heading along its velocity, scored like a radar-confirmed
+    object without a camera box (:data:`RADAR_CONFIRMED_SCORE`).
+    """
+    xyv = radar_in_base(frame, map_from_radar)
+    out = np.zeros((len(xyv), len(DETECTION_COLUMNS)))
+    out[:, 0:4] = xyv
+    out[:, 4] = out[:, 5] = size_m
+    out[:, 6] = np.arctan2(xyv[:, 3], xyv[:, 2])
+    out[:, 7] = int(ObjectClass.UNKNOWN)
+    out[:, 8] = RADAR_CONFIRMED_SCORE
+    return DetectedObjects(stamp=frame.stamp, frame="map", source=f"radar_{frame.sensor_id}", table=out)
 
 
 def radar_in_base(frame: RadarFrame, base_from_radar: SE2) -> np.ndarray:
@@ -130,8 +155,15 @@ def fuse_objects(
     camera_detections: Sequence[CameraDetections] = (),
     map_from_base: SE2 | None = None,
     config: LateFusionConfig | None = None,
+    lidar_class_id: np.ndarray | None = None,
+    lidar_score: np.ndarray | None = None,
 ) -> FusedObjects:
-    """:func:`fuse`, also saying which rows radar and camera confirmed (a tracker uses the Doppler)."""
+    """:func:`fuse`, also saying which rows radar and camera confirmed (a tracker uses the Doppler).
+
+    ``lidar_class_id`` and ``lidar_score`` ((K,) per cluster row) are a LiDAR detector's class and
+    score (:mod:`lastmile.perception.lidar_detector`): a row keeps that class unless a camera box
+    claims it, and its score is the highest of the detector's, radar's and camera's.
+    """
     cfg = config or LateFusionConfig()
     mounts = base_from_radar or {}
     t = clusters.table
@@ -166,7 +198,8 @@ def fuse_objects(
         rows = np.vstack([rows, add])
     n = len(rows)
     cls = np.full(n, int(ObjectClass.UNKNOWN))
-    score = np.where(rows[:, 9] > 0, 0.6, 0.5)
+    score = np.where(rows[:, 9] > 0, RADAR_CONFIRMED_SCORE, UNCONFIRMED_SCORE)
+    _apply_lidar_priors(n_l, lidar_class_id, lidar_score, cls, score)
     camera_ok = np.zeros(n, dtype=bool)
     by_id = {c.camera_id: c for c in cameras}
     for det in camera_detections:
@@ -202,6 +235,18 @@ def fuse_objects(
         z_min_m=r[:, 2].copy(),
         z_max_m=r[:, 3].copy(),
     )
+
+
+def _apply_lidar_priors(
+    n_l: int, class_id: np.ndarray | None, prior: np.ndarray | None, cls: np.ndarray, score: np.ndarray
+) -> None:
+    for name, arr in (("lidar_class_id", class_id), ("lidar_score", prior)):
+        if arr is not None and np.shape(arr) != (n_l,):
+            raise MessageError(f"fuse: expected {name} of shape ({n_l},), got {np.shape(arr)}")
+    if class_id is not None:
+        cls[:n_l] = class_id
+    if prior is not None:
+        score[:n_l] = np.maximum(score[:n_l], prior)
 
 
 def _mount(mounts: Mapping[str, SE2], sensor_id: str) -> SE2:
@@ -251,5 +296,7 @@ def _associate_camera(
         if iou[j] >= cfg.min_iou:
             claimed[j] = True
             camera_ok[k] = True
-            cls[k] = int(boxes[j, ci])
+            # A camera box that names no class leaves a LiDAR detector's class standing.
+            if int(boxes[j, ci]) != int(ObjectClass.UNKNOWN) or cls[k] == int(ObjectClass.UNKNOWN):
+                cls[k] = int(boxes[j, ci])
             score[k] = max(score[k], float(boxes[j, si]))

@@ -20,10 +20,15 @@ Configuration (TOML, unknown keys rejected)::
     [sensor.mount]
     z_m = 1.73                   # the sensor above the road: ground at z = 0 in the base frame
     [pipeline]                   # any LidarPipelineConfig field, e.g. ground = "himmelsbach"
+    [detector]                   # a learned LiDAR detector (ONNX; LidarDetectorConfig), or --detector
+    model = "pointpillars.onnx"
+    [detector.grid]              # the BEV raster the model takes
+    cell_m = 0.16
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import time
 from collections.abc import Iterator, Sequence
@@ -33,9 +38,10 @@ from pathlib import Path
 from lastmile.core.config import from_mapping, load_toml
 from lastmile.core.errors import ConfigError
 from lastmile.perception.cloud_files import RawCloud, SweepProvenance, read_clouds, sweep_from_cloud
+from lastmile.perception.lidar_detector import LidarDetectorConfig, OnnxLidarDetector, frame_objects
 from lastmile.perception.lidar_model import LidarModel, LidarMount, LidarSensorConfig
 from lastmile.perception.perceive_outputs import FoxgloveFrameWriter, kitti_label_lines
-from lastmile.perception.pipeline import LidarPipeline, LidarPipelineConfig, LidarPipelineResult
+from lastmile.perception.pipeline import LidarPipeline, LidarPipelineConfig
 
 # KITTI's HDL-64E: the default sensor, mounted 1.73 m above the road (KITTI's setup paper).
 _DEFAULT_SENSOR = LidarSensorConfig(
@@ -51,22 +57,27 @@ class PerceiveConfig:
     sensor: the LiDAR the files come from (model, mount, which fields to trust).
     pipeline: the pipeline's configuration.
     topic: the ``PointCloud2`` topic read from bags (None: the bag's only one).
+    detector: a learned LiDAR detector whose boxes join the clusters (None: clusters only).
     """
 
     sensor: LidarSensorConfig = field(default_factory=lambda: _DEFAULT_SENSOR)
     pipeline: LidarPipelineConfig = field(default_factory=LidarPipelineConfig)
     topic: str | None = None
+    detector: LidarDetectorConfig | None = None
 
 
-def load_perceive_config(path: Path | None) -> PerceiveConfig:
+def load_perceive_config(path: Path | None, detector_model: Path | None = None) -> PerceiveConfig:
     """The configuration in a TOML file (None: the defaults, KITTI's HDL-64E at 1.73 m).
 
     A ``[sensor]`` table starts from :class:`LidarSensorConfig`'s defaults (an HDL-64E at the base
-    origin): give its ``[sensor.mount]``.
+    origin): give its ``[sensor.mount]``. ``detector_model`` (``--detector``) sets the learned
+    detector's model file, with the file's ``[detector]`` settings or the defaults.
     """
-    if path is None:
-        return PerceiveConfig()
-    return from_mapping(PerceiveConfig, load_toml(path), str(path))
+    config = PerceiveConfig() if path is None else from_mapping(PerceiveConfig, load_toml(path), str(path))
+    if detector_model is None:
+        return config
+    base = config.detector or LidarDetectorConfig(model=str(detector_model))
+    return dataclasses.replace(config, detector=dataclasses.replace(base, model=str(detector_model)))
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -105,6 +116,7 @@ def perceive_files(
     if not paths:
         raise ConfigError("perceive: expected at least one point-cloud file, got none")
     pipe = pipeline or LidarPipeline(config.pipeline)
+    detector = OnnxLidarDetector(config.detector) if config.detector is not None else None
     ext = {config.sensor.sensor_id: config.sensor.mount.base_from_sensor()}
     labels_dir = out_dir / "labels"
     labels_dir.mkdir(parents=True, exist_ok=True)
@@ -120,12 +132,17 @@ def perceive_files(
             sweep, provenance = sweep_from_cloud(cloud, config.sensor)
             read_ms = (time.perf_counter() - t0) * 1e3
             result = pipe.process([sweep], ext)
+            t1 = time.perf_counter()
+            objects, _ = frame_objects(result, detector)
+            stage_ms = dict(result.stage_ms)
+            if detector is not None:
+                stage_ms["detector"] = (time.perf_counter() - t1) * 1e3
             k = len(frames)
             (labels_dir / f"{k:06d}.txt").write_text(
-                "".join(f"{line}\n" for line in kitti_label_lines(result))
+                "".join(f"{line}\n" for line in kitti_label_lines(objects))
             )
-            writer.write(result, _log_time_ns(cloud.stamp_us, k))
-            frames.append(_frame(k, cloud, provenance, result, read_ms))
+            writer.write(result, objects, _log_time_ns(cloud.stamp_us, k))
+            frames.append(_frame(k, cloud, provenance, len(objects.clusters), stage_ms, read_ms))
     finally:
         writer.close()
     (out_dir / "timing.json").write_text(json.dumps([_as_json(f) for f in frames], indent=1))
@@ -133,16 +150,21 @@ def perceive_files(
 
 
 def _frame(
-    k: int, cloud: RawCloud, provenance: SweepProvenance, result: LidarPipelineResult, read_ms: float
+    k: int,
+    cloud: RawCloud,
+    provenance: SweepProvenance,
+    objects: int,
+    stage_ms: dict[str, float],
+    read_ms: float,
 ) -> PerceivedFrame:
     return PerceivedFrame(
         index=k,
         source=cloud.name,
         stamp_us=cloud.stamp_us,
         points=len(cloud.xyz_m),
-        objects=len(result.clusters.table),
+        objects=objects,
         provenance=provenance,
-        stage_ms=dict(result.stage_ms),
+        stage_ms=stage_ms,
         read_ms=read_ms,
     )
 

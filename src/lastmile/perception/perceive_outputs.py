@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from lastmile.core.object_class import ObjectClass
+from lastmile.perception.lidar_detector import MergedObjects
 from lastmile.perception.pipeline import LidarPipelineResult
 
 KITTI_TYPE = {
@@ -33,10 +34,12 @@ POINT_CLASSES = ("ground", "weather_noise", "object", "other")
 """Values of the point cloud's ``class`` field in the MCAP (index = value)."""
 
 
-def kitti_label_lines(result: LidarPipelineResult) -> list[str]:
-    """One KITTI object line per kept cluster of a frame (base frame mapped to KITTI's camera axes)."""
-    c = result.clusters
-    objects = result.detected_objects()
+def kitti_label_lines(objects: MergedObjects) -> list[str]:
+    """One KITTI object line per object of a frame (base frame mapped to KITTI's camera axes): a
+    cluster is ``Misc`` with its confidence (at least 0.5, as late fusion scores LiDAR-only objects),
+    a learned detector's box has the detector's class and score."""
+    c = objects.clusters
+    score = np.where(objects.from_detector, objects.score, np.maximum(c.col("confidence"), 0.5))
     lines = []
     for k in range(len(c.table)):
         x, y = c.col("x_m")[k], c.col("y_m")[k]
@@ -45,11 +48,10 @@ def kitti_label_lines(result: LidarPipelineResult) -> list[str]:
         yaw = c.col("yaw_rad")[k]
         height = max(z_max - z_min, 0.1)
         ry = math.remainder(-yaw - math.pi / 2, 2 * math.pi)
-        kind = KITTI_TYPE.get(ObjectClass(int(objects.table[k, 7])), "Misc")
-        score = objects.table[k, 8]
+        kind = KITTI_TYPE.get(ObjectClass(int(objects.class_id[k])), "Misc")
         lines.append(
             f"{kind} -1 -1 -10 -1 -1 -1 -1 {height:.2f} {width:.2f} {length:.2f} "
-            f"{-y:.2f} {-z_min:.2f} {x:.2f} {ry:.2f} {score:.4f}"
+            f"{-y:.2f} {-z_min:.2f} {x:.2f} {ry:.2f} {score[k]:.4f}"
         )
     return lines
 
@@ -62,6 +64,10 @@ def point_classes(result: LidarPipelineResult) -> np.ndarray:
     cls[result.noise] = 1
     cls[result.ground] = 0
     return cls
+
+
+_CLUSTER_COLOUR_RGBA = {"r": 1.0, "g": 0.6, "b": 0.1, "a": 0.6}
+_DETECTOR_COLOUR_RGBA = {"r": 0.2, "g": 0.5, "b": 1.0, "a": 0.6}
 
 
 class FoxgloveFrameWriter:
@@ -80,9 +86,14 @@ class FoxgloveFrameWriter:
         self._writer = foxglove.open_mcap(path, allow_overwrite=True, context=self._ctx)
         self._points = PointCloudChannel("/lidar/points", context=self._ctx)
         self._objects = SceneUpdateChannel("/perception/objects", context=self._ctx)
+        self._colours = {
+            False: foxglove.messages.Color(**_CLUSTER_COLOUR_RGBA),
+            True: foxglove.messages.Color(**_DETECTOR_COLOUR_RGBA),
+        }
 
-    def write(self, result: LidarPipelineResult, log_time_ns: int) -> None:
-        """One frame, logged (and stamped) at ``log_time_ns``."""
+    def write(self, result: LidarPipelineResult, objects: MergedObjects, log_time_ns: int) -> None:
+        """One frame's cloud and objects (clusters orange, a detector's boxes blue), logged (and
+        stamped) at ``log_time_ns``."""
         from foxglove import messages as m
 
         stamp = m.Timestamp(sec=log_time_ns // 1_000_000_000, nsec=log_time_ns % 1_000_000_000)
@@ -106,7 +117,7 @@ class FoxgloveFrameWriter:
             ),
             log_time=log_time_ns,
         )
-        c = result.clusters
+        c = objects.clusters
         cubes = []
         for k in range(len(c.table)):
             z_min, z_max = c.col("z_min_m")[k], c.col("z_max_m")[k]
@@ -118,7 +129,7 @@ class FoxgloveFrameWriter:
                         y=max(c.col("width_m")[k], 0.1),
                         z=max(z_max - z_min, 0.1),
                     ),
-                    color=m.Color(r=1.0, g=0.6, b=0.1, a=0.6),
+                    color=self._colours[bool(objects.from_detector[k])],
                 )
             )
         entity = m.SceneEntity(timestamp=stamp, frame_id="base", id="objects", cubes=cubes)

@@ -151,17 +151,24 @@ def _entity(stamp_us: int, entity_id: str, frame_id: str, lifetime_s: float, **k
 
 
 def object_boxes(topic: str, message: objects.TrackedObjects | objects.DetectedObjects) -> fm.SceneUpdate:
-    """One entity per object: a cube, a text label ``<class> #<id>`` and metadata id, class, speed."""
+    """One entity per object: a cube, a text label and metadata id, class, speed.
+
+    A track is labelled ``<class> #<id>``; a detection (which has no id) ``<class> <score>`` with its
+    score and source in the metadata, and an entity id unique to its source (``<topic>/<source>/<row>``),
+    so the front and rear radars' detections of one cycle do not replace each other in a viewer.
+    """
     tracked = isinstance(message, objects.TrackedObjects)
     cols = objects.TRACK_COLUMNS if tracked else objects.DETECTION_COLUMNS
     ix = {c: cols.index(c) for c in ("x_m", "y_m", "vx_mps", "vy_mps", "yaw_rad", "length_m", "width_m")}
     cls_ix = cols.index("class_id")
     frame = MAP_FRAME if getattr(message, "frame", "map") == "map" else BASE_FRAME
-    ids = (
+    ids: list[int] = (
         message.ids.tolist()
         if isinstance(message, objects.TrackedObjects)
         else list(range(len(message.table)))
     )
+    prefix = topic if tracked else f"{topic}/{getattr(message, 'source', '')}"
+    score_ix = None if tracked else cols.index("score")
     entities = []
     for oid, row in zip(ids, message.table.tolist(), strict=True):
         try:
@@ -169,19 +176,25 @@ def object_boxes(topic: str, message: objects.TrackedObjects | objects.DetectedO
         except ValueError:
             cls = ObjectClass.UNKNOWN
         x, y, yaw = row[ix["x_m"]], row[ix["y_m"]], row[ix["yaw_rad"]]
-        label = f"{cls.name.lower()} #{oid}"
         speed = math.hypot(row[ix["vx_mps"]], row[ix["vy_mps"]])
+        metadata = [
+            fm.KeyValuePair(key="id", value=str(oid)),
+            fm.KeyValuePair(key="class", value=cls.name.lower()),
+            fm.KeyValuePair(key="speed_mps", value=f"{speed:.2f}"),
+        ]
+        if score_ix is None:
+            label = f"{cls.name.lower()} #{oid}"
+        else:
+            label = f"{cls.name.lower()} {row[score_ix]:.2f}"
+            metadata.append(fm.KeyValuePair(key="score", value=f"{row[score_ix]:.3f}"))
+            metadata.append(fm.KeyValuePair(key="source", value=str(getattr(message, "source", ""))))
         entities.append(
             _entity(
                 message.stamp,
-                f"{topic}/{oid}",
+                f"{prefix}/{oid}",
                 frame,
                 0.25,
-                metadata=[
-                    fm.KeyValuePair(key="id", value=str(oid)),
-                    fm.KeyValuePair(key="class", value=cls.name.lower()),
-                    fm.KeyValuePair(key="speed_mps", value=f"{speed:.2f}"),
-                ],
+                metadata=metadata,
                 cubes=[
                     fm.CubePrimitive(
                         pose=planar_pose(x, y, yaw, 0.8),

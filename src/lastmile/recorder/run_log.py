@@ -26,8 +26,11 @@ this table are accepted with any JSON-able data, so new sources can log without 
   "stack_request"
 - ``rule_violation`` {rule: str, detail: str} with rule "stop_line" | "right_of_way" | "speed_limit" |
   "drivable_area" | "crosswalk_yield"
-- ``stop_served`` {stop_id: str, curb_gap_m: float (shuttle's right side to the curb when stopped),
-  longitudinal_error_m: float, boarded: int, alighted: int}
+- ``stop_served`` {stop_id: str, curb_gap_m: float (the door, on the shuttle's right side, to the curb
+  when stopped), body_gap_m: float, optional (the least gap of the whole right side; < 0: over the curb
+  line; logs before it lack it), longitudinal_error_m: float, boarded: int, alighted: int}, logged as the
+  door closes; runs since issue #21 add left_waiting: int (riders still waiting at the stop then) and
+  seats_free: int
 - ``stop_missed`` {stop_id: str, waiting: int}
 - ``passenger_boarded`` {passenger_id: int, stop_id: str, wait_s: float}
 - ``passenger_alighted`` {passenger_id: int, stop_id: str, ride_s: float}
@@ -40,7 +43,9 @@ this table are accepted with any JSON-able data, so new sources can log without 
 - ``loop_completed`` {loop: int}
 
 Files in a run directory: ``run_log.json`` (format tag, meta, events, timing), ``ego.npz`` (array
-``ego``) and ``agents.npz`` (arrays ``t_s``, ``agent_id``, ``xy_m``).
+``ego``), ``agents.npz`` (arrays ``t_s``, ``agent_id``, ``xy_m``) and ``localization.npz`` (array
+``localization``, the stack's estimate per planning cycle: ``run_localization.py``; run directories
+written before it existed read as an empty table).
 """
 
 from __future__ import annotations
@@ -58,6 +63,7 @@ import numpy as np
 
 from lastmile.core.errors import LastmileError
 from lastmile.core.run_events import EventKind
+from lastmile.recorder.run_localization import RunLocalization, RunLocalizationError
 
 EGO_COLUMNS = (
     "t_s",
@@ -86,6 +92,7 @@ _NULLABLE_COLUMNS = ("steer_front_rad", "route_s_m")
 RUN_LOG_FILE = "run_log.json"
 EGO_FILE = "ego.npz"
 AGENTS_FILE = "agents.npz"
+LOCALIZATION_FILE = "localization.npz"
 FORMAT_TAG = "lastmile.run_log"
 FORMAT_VERSION = 1
 
@@ -351,6 +358,8 @@ class RunLog:
         ego: (N, 9) float64, read-only, columns :data:`EGO_COLUMNS`, strictly increasing ``t_s``.
         events: in time order (stable for equal times).
         agents: sparse positions of other road users, for plots only.
+        localization: the stack's localization estimate per planning cycle and the true pose's
+            cross-track errors (``run_localization.py``); empty where the runner logged none.
         timing: wall-clock figures (per-module compute time, real-time factor); reports show them,
             metrics never use them because they differ between identical runs.
     """
@@ -359,6 +368,7 @@ class RunLog:
     ego: np.ndarray
     events: tuple[RunEvent, ...] = ()
     agents: RunAgents = field(default_factory=RunAgents.empty)
+    localization: RunLocalization = field(default_factory=RunLocalization.empty)
     timing: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -367,6 +377,9 @@ class RunLog:
         if any(not isinstance(e, RunEvent) for e in events):
             raise RunLogError("RunLog.events: expected RunEvent items, got another type")
         object.__setattr__(self, "events", tuple(sorted(events, key=lambda e: e.t_s)))
+        if not isinstance(self.localization, RunLocalization):
+            got = type(self.localization).__name__
+            raise RunLogError(f"RunLog.localization: expected a RunLocalization, got {got}")
         object.__setattr__(self, "timing", json_clean(dict(self.timing), "RunLog.timing"))
 
     def __len__(self) -> int:
@@ -391,6 +404,7 @@ class RunLog:
             and np.array_equal(self.ego, other.ego, equal_nan=True)
             and self.events == other.events
             and self.agents == other.agents
+            and self.localization == other.localization
             and self.timing == other.timing
         )
 
@@ -398,7 +412,8 @@ class RunLog:
 
     # --- files -----------------------------------------------------------------------------
     def save(self, run_dir: str | os.PathLike[str]) -> Path:
-        """Write ``run_log.json``, ``ego.npz`` and ``agents.npz`` into ``run_dir`` (created if needed).
+        """Write ``run_log.json``, ``ego.npz``, ``agents.npz`` and ``localization.npz`` into ``run_dir``
+        (created if needed).
 
         Returns:
             The path of ``run_log.json``.
@@ -419,6 +434,7 @@ class RunLog:
         _save_npz(
             out / AGENTS_FILE, t_s=self.agents.t_s, agent_id=self.agents.agent_id, xy_m=self.agents.xy_m
         )
+        _save_npz(out / LOCALIZATION_FILE, localization=self.localization.table)
         return out / RUN_LOG_FILE
 
     @classmethod
@@ -472,6 +488,7 @@ class RunLog:
             events.append(make_event(item["t_s"], item["kind"], item["data"], where))
         ego = _load_npz(root / EGO_FILE, ("ego",))["ego"]
         agents_doc = _load_npz(root / AGENTS_FILE, ("t_s", "agent_id", "xy_m"))
+        localization = _load_localization(root / LOCALIZATION_FILE)
         try:
             agents = RunAgents(
                 t_s=agents_doc["t_s"], agent_id=agents_doc["agent_id"], xy_m=agents_doc["xy_m"]
@@ -481,6 +498,7 @@ class RunLog:
                 ego=_check_ego(ego, str(root / EGO_FILE)),
                 events=tuple(events),
                 agents=agents,
+                localization=localization,
                 timing=timing if isinstance(timing, dict) else {},
             )
         except RunLogError as exc:
@@ -511,3 +529,14 @@ def _load_npz(path: Path, keys: Sequence[str]) -> dict[str, np.ndarray]:
         raise RunLogError(f"{path}: expected an .npz array file, got no such file") from None
     except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
         raise RunLogError(f"{path}: expected an .npz array file, got unreadable content ({exc})") from None
+
+
+def _load_localization(path: Path) -> RunLocalization:
+    """The localization table; a run directory written before the table existed has none (empty)."""
+    if not path.exists():
+        return RunLocalization.empty()
+    table = _load_npz(path, ("localization",))["localization"]
+    try:
+        return RunLocalization(table, str(path))
+    except RunLocalizationError as exc:
+        raise RunLogError(str(exc)) from None

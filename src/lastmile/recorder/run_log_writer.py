@@ -11,6 +11,11 @@ import numpy as np
 import numpy.typing as npt
 
 from lastmile.core.run_events import EventKind
+from lastmile.recorder.run_localization import (
+    LOCALIZATION_COLUMNS,
+    RunLocalization,
+    RunLocalizationError,
+)
 from lastmile.recorder.run_log import (
     EGO_COLUMNS,
     RunAgents,
@@ -39,6 +44,7 @@ class RunLogWriter:
         self._agent_t: list[np.ndarray] = []
         self._agent_ids: list[np.ndarray] = []
         self._agent_xy: list[np.ndarray] = []
+        self._localization = array("d")
         self._events: list[RunEvent] = []
         self._timing: dict[str, Any] = {}
         self._finished = False
@@ -71,6 +77,41 @@ class RunLogWriter:
         self._last_t_s = t_s
         self._ego.extend(
             (t_s, x_m, y_m, yaw_rad, speed_mps, accel_mps2, steer_front_rad, state_code, route_s_m)
+        )
+
+    def add_localization_row(
+        self,
+        t_s: float,
+        est_x_m: float,
+        est_y_m: float,
+        est_yaw_rad: float,
+        pos_std_m: float,
+        yaw_std_rad: float,
+        source_code: int,
+        true_x_m: float,
+        true_y_m: float,
+        true_yaw_rad: float,
+        route_d_m: float,
+        path_d_m: float,
+    ) -> None:
+        """Append one localization row (columns and conventions in ``run_localization.py``); the rows
+        are checked once in :meth:`finish`, like the ego trace."""
+        self._check_open()
+        self._localization.extend(
+            (
+                t_s,
+                est_x_m,
+                est_y_m,
+                est_yaw_rad,
+                pos_std_m,
+                yaw_std_rad,
+                source_code,
+                true_x_m,
+                true_y_m,
+                true_yaw_rad,
+                route_d_m,
+                path_d_m,
+            )
         )
 
     def add_agent_rows(self, t_s: float, ids: Sequence[int] | npt.ArrayLike, xy: npt.ArrayLike) -> None:
@@ -131,10 +172,16 @@ class RunLogWriter:
             agents = RunAgents.empty()
         if len(agents) > 1 and np.any(np.diff(agents.t_s) < 0.0):
             raise RunLogError("RunLogWriter.finish: expected agent rows in time order, got times going back")
+        rows = np.frombuffer(self._localization, dtype=np.float64).reshape(-1, len(LOCALIZATION_COLUMNS))
+        try:
+            localization = RunLocalization(rows.copy(), "RunLogWriter.finish: localization")
+        except RunLocalizationError as exc:
+            raise RunLogError(str(exc)) from None
         return RunLog(
             meta=self.meta,
             ego=ego,
             events=tuple(self._events),
             agents=agents,
+            localization=localization,
             timing=self._timing,
         )

@@ -14,6 +14,9 @@ from lastmile.core import frame_kinds
 from lastmile.core.sensor_frames import SensorFrame
 from lastmile.core.vehicle_messages import StackOutput
 
+DETECTIONS_TOPIC = "/perception/detections"
+"""The detections the tracker consumed (its Foxglove view is ``/viz/perception/detections``)."""
+
 
 def sensor_topic(frame: SensorFrame) -> str:
     """The topic a sensor frame is recorded on."""
@@ -37,7 +40,8 @@ class TopicRecorder(ABC):
 
     def record_output(self, now_us: int, output: StackOutput) -> None:
         """What one stack tick returned: command, status, decision (when new), HMI, heartbeats, and on
-        planning cycles the localization estimate, the tracks and the planned trajectory."""
+        planning cycles the localization estimate, the detections the tracker consumed since the last
+        one, the tracks and the planned trajectory."""
         if output.command is not None:
             self.record(now_us, "/stack/command", output.command)
         if output.status is not None:
@@ -53,6 +57,8 @@ class TopicRecorder(ABC):
         diag = output.diagnostics
         if diag is not None and diag.estimate is not None:
             self.record(now_us, "/localization/estimate", diag.estimate)
+        for detections in output.detections or ():
+            self.record(now_us, DETECTIONS_TOPIC, detections)
         if output.tracks is not None:
             self.record(now_us, "/tracking/tracks", output.tracks)
         if output.trajectory is not None:

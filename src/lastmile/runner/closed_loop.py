@@ -118,6 +118,7 @@ def run_scenario(
     live: tuple[str, int] | None = None,
     on_live: Callable[[int], None] | None = None,
     stop: Callable[[], bool] | None = None,
+    extra_callbacks: tuple[LoopCallback, ...] = (),
 ) -> RunLog:
     """Simulate ``scenario`` with ``config``; returns the run log (wall-clock figures in ``log.timing``).
 
@@ -127,6 +128,7 @@ def run_scenario(
     ticks (:class:`lastmile.runner.stop_signals.StopSignals`), ends the run early with what was done.
     With ``live`` (host, port), the same channels are served over Foxglove's WebSocket protocol as the
     run happens, paced to the wall clock; ``on_live`` is told the port once the server listens.
+    ``extra_callbacks`` run after the run log's (probes of benchmarks).
     """
     with threadpool_limits(limits=1):  # small matrices: BLAS threads only compete with the loop
         loop = build_closed_loop(scenario, config)
@@ -150,6 +152,7 @@ def run_scenario(
             callbacks.append(LiveViewCallback(view))
         if progress is not None:
             callbacks.append(ProgressCallback(progress, scenario.minutes * 60.0))
+        callbacks.extend(extra_callbacks)
         loop.callbacks.extend(callbacks)
         loop.run(round(scenario.minutes * 60e6 / config.loop.tick_us), stop)
         if loop.interrupted:

@@ -31,6 +31,7 @@ class FleetConfig:
             server to the shuttles.
         camera_rate_hz: the cameras' capture rate (NUS: 5 Hz, and 1 Hz).
         camera_keepalive_s: a camera posts a report when presence changes, and at least this often.
+        route: a route file (TOML) whose loop and stops the fleet serves; "" for the campus loop.
     """
 
     shuttles: int = 2
@@ -46,6 +47,7 @@ class FleetConfig:
     cameras: bool = True
     camera_rate_hz: float = 5.0
     camera_keepalive_s: float = 1.0
+    route: str = ""
 
     def __post_init__(self) -> None:
         if self.shuttles < 1:

@@ -54,7 +54,7 @@ from lastmile.evaluation.fleet_metrics import (
     compute_fleet_metrics,
     write_fleet_report,
 )
-from lastmile.fleet.scheduling import CAPACITY_SEATS
+from lastmile.fleet.scheduling import CAPACITY_SEATS, fleet_stop_ids
 from lastmile.fleet.vehicle_client import Assignment, VehicleClient
 from lastmile.recorder.run_log import RunLog
 from lastmile.recorder.run_log_writer import RunLogWriter
@@ -132,7 +132,7 @@ def run_fleet(
     the run there; the run directory is written for the time simulated and ``interrupted`` is set.
     """
     out_dir.mkdir(parents=True, exist_ok=True)
-    server = ServerProcess(out_dir / "server", out_dir / "server" / "runs").start()
+    server = ServerProcess(out_dir / "server", out_dir / "server" / "runs", route=config.route).start()
     try:
         with threadpool_limits(limits=1):
             return asyncio.run(_run(config, out_dir, server, progress, stop))
@@ -151,7 +151,10 @@ async def _run(
     run_config = FLEET_RUN_CONFIG.with_cruise_speed(config.cruise_speed_mps)
     shuttles = _build_shuttles(config, run_config, seeds, server, out_dir)
     world_map = load_world_map(shuttles[0].world.scenario.map)
-    stop_ids = [stop.id for stop in world_map.hdmap.stops]
+    fleet_ids = fleet_stop_ids(world_map)
+    for shuttle in shuttles:
+        shuttle.fleet_stop_ids = fleet_ids
+    stop_ids = [fleet_ids.get(stop.id, stop.id) for stop in world_map.hdmap.stops]
     window_s = (config.demand_minutes if config.demand_minutes is not None else config.minutes) * 60.0
     demand = poisson_demand(
         stop_ids,

@@ -30,10 +30,13 @@ class ServerProcess:
     ``out_dir``; the timetable clock is off (the run's shuttles get only the rides its riders ask for).
     The fleet tests run the server through this class too."""
 
-    def __init__(self, out_dir: Path, runs_dir: Path, db_url: str | None = None) -> None:
+    def __init__(
+        self, out_dir: Path, runs_dir: Path, db_url: str | None = None, route: str | Path | None = None
+    ) -> None:
         self.out_dir = out_dir
         self.runs_dir = runs_dir
         self.db_url = db_url
+        self.route = route
         self.port = free_port()
         self.proc: subprocess.Popen[bytes] | None = None
         self.tokens: dict[str, str] = {}
@@ -50,6 +53,8 @@ class ServerProcess:
         cmd += ["--timetable-lead", "0"]
         if self.db_url is not None:
             cmd += ["--db", self.db_url]
+        if self.route:
+            cmd += ["--route", str(self.route)]
         with open(self.out_dir / "server.log", "ab") as log:
             # Its own session: a Ctrl-C at the terminal reaches the fleet run, which then writes its
             # partial run directory while the server still answers, and stops the server itself.

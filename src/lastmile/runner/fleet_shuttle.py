@@ -18,15 +18,15 @@ from lastmile.core.stamp import Stamp
 from lastmile.core.vehicle import VehicleGeometry
 from lastmile.core.vehicle_messages import StopReason, VehicleStatus
 from lastmile.fleet.vehicle_client import VehicleClient
-from lastmile.hdmap.loader import load_campus_map
-from lastmile.hdmap.routing import campus_shuttle_loop, route_polyline
+from lastmile.hdmap.service_route import ServiceRoute
 from lastmile.recorder.run_log_writer import RunLogWriter
+from lastmile.runner.closed_loop import load_world_map
 from lastmile.runner.fleet_config import FleetConfig
 from lastmile.runner.loop import ClosedLoop, LoopCallback, TickRecord
 from lastmile.runner.loop_callbacks import TimingCallback
 from lastmile.sim.agents import Agent
 from lastmile.sim.passengers import PassengerConfig
-from lastmile.sim.scenario import CrosswalkPedestrians, Scenario
+from lastmile.sim.scenario import CrosswalkPedestrians, MapSpec, Scenario
 from lastmile.sim.sensors import RCS_DBSM
 from lastmile.sim.simulation import Simulation
 
@@ -56,6 +56,12 @@ class FleetShuttle:
     presence_seen: dict[str, int] = field(default_factory=dict)
     pedestrian_proxies: list[tuple[Agent, Agent]] = field(default_factory=list)
     anticipating: bool = False
+    fleet_stop_ids: dict[str, str] = field(default_factory=dict)
+    """The dispatch id of each stop by its map id (``fleet.scheduling.fleet_stop_ids``)."""
+
+    def map_stop_id(self, fleet_id: str) -> str:
+        """The stack's id of a stop the dispatcher names."""
+        return next((m for m, f in self.fleet_stop_ids.items() if f == fleet_id), fleet_id)
 
     @property
     def world(self) -> Simulation:
@@ -72,7 +78,9 @@ class FleetLinkCallback(LoopCallback):
     def on_sense(self, tick: int, now: Stamp, frames: list[SensorFrame]) -> list[SensorFrame]:
         s = self.s
         # The plan's stops, as the vehicle's fleet link hands them to the stack.
-        frames.extend(StopCallFrame(stamp=now, stop_id=stop, source="dispatch") for stop in s.calls)
+        frames.extend(
+            StopCallFrame(stamp=now, stop_id=s.map_stop_id(stop), source="dispatch") for stop in s.calls
+        )
         s.calls = []
         frames.extend(s.frames)  # infrastructure reports relayed by the server
         s.frames = []
@@ -93,20 +101,23 @@ class FleetLinkCallback(LoopCallback):
                 s.hmi["sound"] = msg.sound
         for ev_t, kind, data in record.events:
             if kind == "stop_served":
-                s.served_stops.append((ev_t, str(data["stop_id"])))
+                map_id = str(data["stop_id"])
+                s.served_stops.append((ev_t, s.fleet_stop_ids.get(map_id, map_id)))
 
 
 def shuttle_scenario(config: FleetConfig, k: int, seed: int, start_s_m: float) -> Scenario:
     # No stop-button riders: in a fleet run every rider comes through the server. Pedestrians live in
     # shuttle 0's world; the other shuttles' worlds mirror them (one set of pedestrians for all).
+    map_spec = MapSpec(name="route", route=config.route) if config.route else MapSpec()
     walkers: tuple[CrosswalkPedestrians, ...] = ()
     if k == 0 and config.pedestrian_mean_gap_s is not None:
         walkers = tuple(
             CrosswalkPedestrians(crosswalk=i, mean_gap_s=config.pedestrian_mean_gap_s)
-            for i in loop_crosswalks()
+            for i in loop_crosswalks(load_world_map(map_spec))
         )
     return Scenario(
         name=f"fleet_shuttle_{k}",
+        map=map_spec,
         minutes=config.minutes,
         seed=seed,
         start_route_s_m=start_s_m,
@@ -115,14 +126,12 @@ def shuttle_scenario(config: FleetConfig, k: int, seed: int, start_s_m: float) -
     )
 
 
-def loop_crosswalks() -> list[int]:
-    """Indices of the map's crosswalks the shuttle loop crosses (their centre within a lane of it)."""
-    hdmap = load_campus_map()
-    loop = route_polyline(hdmap, campus_shuttle_loop(hdmap), closed=True)
+def loop_crosswalks(service: ServiceRoute) -> list[int]:
+    """Indices of the map's crosswalks the service loop crosses (their centre within a lane of it)."""
     out = []
-    for i, cw in enumerate(hdmap.crosswalks):
+    for i, cw in enumerate(service.hdmap.crosswalks):
         cx, cy = np.asarray(cw.polygon, dtype=float).mean(axis=0)
-        if abs(loop.project(float(cx), float(cy)).d_m) < 4.0:
+        if abs(service.polyline.project(float(cx), float(cy)).d_m) < 4.0:
             out.append(i)
     return out
 

@@ -6,6 +6,7 @@ shuttle logs its watchdog trips, safety levels and black-box recordings exactly 
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -13,14 +14,17 @@ from typing import Any
 
 import numpy as np
 
+from lastmile.core.polyline import Polyline
 from lastmile.core.run_events import EventKind
 from lastmile.core.safety_messages import FailSafeLevel
-from lastmile.core.sensor_frames import GnssInsFrame
-from lastmile.core.vehicle_messages import BehaviourState
+from lastmile.core.sensor_frames import GnssInsFrame, SensorFrame
+from lastmile.core.stamp import Stamp
+from lastmile.core.vehicle_messages import BehaviourState, LocalizationEstimate
 from lastmile.hdmap.model import HDMap
 from lastmile.recorder.black_box import BlackBox, BlackBoxConfig
 from lastmile.recorder.foxglove_views import planar_matrix
 from lastmile.recorder.live_view import LiveView, LiveViewConfig
+from lastmile.recorder.run_localization import INVALID_SOURCE, POSITION_SOURCES
 from lastmile.recorder.run_log import STATE_NAMES
 from lastmile.recorder.run_log_writer import RunLogWriter
 from lastmile.runner.loop import ClosedLoop, LoopCallback, TickRecord
@@ -63,6 +67,15 @@ class RunLogCallback(LoopCallback):
         self._gnss = NO_GNSS_YET
         self._localized: tuple[str, str] | None = None
         self._road_users_seen: set[int] = set()
+        self._route_hint_s: float | None = None
+        self._path: Polyline | None = None
+        self._true_pose = (math.nan, math.nan, math.nan)
+
+    def on_sense(self, tick: int, now: Stamp, frames: list[SensorFrame]) -> list[SensorFrame]:
+        # The true pose at ``now``, before the command moves the vehicle (the estimate's instant).
+        s = self.world.ego_state
+        self._true_pose = (s.x_m, s.y_m, s.yaw_rad)
+        return frames
 
     def on_tick(self, record: TickRecord) -> None:
         w, t_s = self.writer, record.t_s
@@ -77,6 +90,7 @@ class RunLogCallback(LoopCallback):
             self._watchdog_logged = True
         self._safety_level(record)
         self._localization(record)
+        self._localization_row(record)
         self._state_change(record)
         for msg in record.output.hmi if record.output is not None else ():
             w.add_event(
@@ -146,6 +160,23 @@ class RunLogCallback(LoopCallback):
             )
             self._localized = now
 
+    def _localization_row(self, record: TickRecord) -> None:
+        """On ticks that carry the stack's estimate (planning cycles): the estimate as the stack
+        reported it, and the true rear axle's lateral offsets from the route and the latest plan."""
+        out = record.output
+        if out is None:
+            return
+        if out.trajectory is not None and len(out.trajectory.points) >= 2:
+            self._path = Polyline(out.trajectory.points[:, :2])
+        est = out.diagnostics.estimate if out.diagnostics is not None else None
+        if est is None:
+            return
+        x, y, yaw = self._true_pose
+        f = self.world.service_route.project(x, y, hint_s_m=self._route_hint_s, window_m=20.0)
+        self._route_hint_s = f.s_m
+        path_d = self._path.project(x, y).d_m if self._path is not None else math.nan
+        self.writer.add_localization_row(record.t_s, *_estimate_columns(est), x, y, yaw, f.d_m, path_d)
+
     def _state_change(self, record: TickRecord) -> None:
         state, out = record.state, record.output
         if out is None or out.decision is None or state is None or state == self._state:
@@ -162,6 +193,18 @@ class RunLogCallback(LoopCallback):
         if state == BehaviourState.EMERGENCY_STOP:
             self.writer.add_event(record.t_s, EventKind.EMERGENCY_STOP, reason=out.decision.reason)
         self._state = state
+
+
+def _estimate_columns(est: LocalizationEstimate) -> tuple[float, float, float, float, float, int]:
+    """The localization table's estimate columns. An estimate whose numbers are not all finite is
+    logged as invalid (its pose could not be trusted whatever its flag says), with NaN where they were
+    not finite."""
+    p = est.map_from_base
+    values = (p.x_m, p.y_m, p.yaw_rad, est.pos_std_m, est.yaw_std_rad)
+    finite = all(math.isfinite(v) for v in values)
+    code = POSITION_SOURCES.index(est.source.value) if est.valid and finite else INVALID_SOURCE
+    x, y, yaw, pos_std, yaw_std = (v if math.isfinite(v) else math.nan for v in values)
+    return x, y, yaw, pos_std, yaw_std, code
 
 
 class BlackBoxCallback(LoopCallback):

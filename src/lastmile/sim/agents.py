@@ -22,6 +22,10 @@ if TYPE_CHECKING:
     from lastmile.sim.world import World
 
 
+CAR_LENGTH_M, CAR_WIDTH_M = 4.5, 1.8
+"""A passenger car's footprint (a compact car's length and width)."""
+
+
 @dataclass(slots=True, kw_only=True)
 class Agent:
     """A simulated road user; (x_m, y_m) is the footprint centre, yaw from +x, speed along yaw."""

@@ -20,6 +20,10 @@ from lastmile.sim.passengers import PassengerModel, StopVisit
 from lastmile.sim.traffic_signals import SignalController
 from lastmile.sim.world import StopLineTruth, World
 
+BODY_SIDE_SAMPLES = 24
+"""Points along the shuttle's right side (corners included, ~0.2 m apart) whose least gap to the curb is
+the body's gap at a stop."""
+
 Event = tuple[float, EventKind, dict[str, object]]
 
 
@@ -326,21 +330,33 @@ class Judge:
         return None
 
     def open_visit(self, stop_id: str) -> StopVisit:
-        """Measure the pull-over when the door starts opening at a stop."""
+        """Measure the pull-over when the door starts opening at a stop.
+
+        The curb gap is the door's: from the middle of the door on the shuttle's right side to the
+        curb line, the step a rider takes. The body's least gap (every point of its right side, the
+        corners included) is measured apart: beside a curved kerb a straight body's corners and its
+        door are at different gaps, and only the body's least gap says whether it is clear of the
+        kerb.
+        """
         w = self.world
         stop = self.passengers.stops[stop_id]
-        corners = w.ego_corners()  # front-left, rear-left, rear-right, front-right
-        gaps = [stop.curb.project(float(x), float(y)).d_m for x, y in corners[2:]]
         s, g = w.ego.state, w.geometry
         door_along = g.length_m / 2.0 - g.rear_overhang_m
-        door = stop.curb.project(
-            s.x_m + door_along * math.cos(s.yaw_rad), s.y_m + door_along * math.sin(s.yaw_rad)
+        c, si = math.cos(s.yaw_rad), math.sin(s.yaw_rad)
+        half = g.width_m / 2.0
+        along = np.append(
+            np.linspace(-g.rear_overhang_m, g.length_m - g.rear_overhang_m, BODY_SIDE_SAMPLES), door_along
         )
+        side_x = s.x_m + along * c + half * si
+        side_y = s.y_m + along * si - half * c
+        gaps = [stop.curb.project(float(x), float(y)).d_m for x, y in zip(side_x, side_y, strict=True)]
+        door = stop.curb.project(s.x_m + door_along * c, s.y_m + door_along * si)
         lon_err = max(0.0, -door.s_m, door.s_m - stop.curb.length_m)
         return StopVisit(
             stop_id=stop_id,
             opened_s=w.t_s,
-            curb_gap_m=round(max(gaps), 4),
+            curb_gap_m=round(gaps[-1], 4),
+            body_gap_m=round(min(gaps), 4),
             longitudinal_error_m=round(lon_err, 4),
         )
 

@@ -45,6 +45,7 @@ class StopVisit:
     stop_id: str
     opened_s: float
     curb_gap_m: float
+    body_gap_m: float
     longitudinal_error_m: float
     boarded: int = 0
     alighted: int = 0
@@ -144,6 +145,25 @@ class PassengerModel:
                 )
             )
         return events
+
+    def end_visit(self) -> dict[str, object] | None:
+        """Once the door has closed on a visit: the visit's ``stop_served`` event data, and the visit
+        ends. ``left_waiting`` counts the riders still at the stop as the door closed (no seat free,
+        or they arrived after the last one boarded); ``seats_free`` says which. None otherwise."""
+        v = self.visit
+        if v is None or self.door_position != 0.0:
+            return None
+        self.visit = None
+        return {
+            "stop_id": v.stop_id,
+            "curb_gap_m": v.curb_gap_m,
+            "body_gap_m": v.body_gap_m,
+            "longitudinal_error_m": v.longitudinal_error_m,
+            "boarded": v.boarded,
+            "alighted": v.alighted,
+            "left_waiting": len(self.waiting[v.stop_id]),
+            "seats_free": self.seats - len(self.onboard),
+        }
 
     @property
     def person_in_doorway(self) -> bool:

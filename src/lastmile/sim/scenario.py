@@ -57,6 +57,27 @@ class SideRoadCar:
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
+class MapCar:
+    """A car on the map's own lanelet graph (any map): from ``from_lanelet`` (0: drawn from the map's
+    road lanelets) along random successors for ``distance_m``, appearing at ``spawn_t_s`` and leaving at
+    its path's end; ``every_s`` > 0 makes it a stream, a new car on a new walk that often. It follows
+    what is ahead, stops at all-way stops and obeys the signals (see ``sim/map_traffic.py``)."""
+
+    spawn_t_s: float = 0.0
+    speed_mps: float = 6.0
+    from_lanelet: int = 0
+    distance_m: float = 300.0
+    every_s: float = 0.0
+
+    def __post_init__(self) -> None:
+        check_range("map_cars.spawn_t_s", self.spawn_t_s, 0.0, 24 * 3600.0)
+        check_range("map_cars.speed_mps", self.speed_mps, MIN_ROAD_USER_SPEED_MPS, MAX_CAR_SPEED_MPS)
+        check_range("map_cars.distance_m", self.distance_m, 1.0, 1e5)
+        if self.every_s != 0.0:
+            check_range("map_cars.every_s", self.every_s, 1.0, 24 * 3600.0)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
 class ParkedCar:
     """A car parked in a stop's bay at its downstream end, partly blocking the stop."""
 
@@ -173,6 +194,8 @@ class Scenario:
     passengers: PassengerConfig = field(default_factory=PassengerConfig)
     ring_cars: tuple[RingCar, ...] = ()
     side_road_cars: tuple[SideRoadCar, ...] = ()
+    map_cars: tuple[MapCar, ...] = ()
+    """Cars on the map's own lanelet graph (any map; the campus's ring and side-road cars are above)."""
     parked_cars: tuple[ParkedCar, ...] = ()
     crosswalk_pedestrians: tuple[CrosswalkPedestrians, ...] = ()
     walkers: tuple[Walker, ...] = ()

@@ -16,10 +16,13 @@ import numpy as np
 from lastmile.core.config import check_range
 from lastmile.core.errors import ConfigError
 from lastmile.core.rng import component_rng
+from lastmile.hdmap.service_route import load_route
 from lastmile.sim.faults import FAULT_MENU, FaultKind, FaultSpec
 from lastmile.sim.passengers import PassengerConfig
+from lastmile.sim.route_stretches import free_stretches
 from lastmile.sim.scenario import (
     CrosswalkPedestrians,
+    MapSpec,
     RingCar,
     Scenario,
     SideRoadCar,
@@ -47,6 +50,8 @@ class ScenarioSpace:
         fault_probability: chance that a scenario carries one fault from ``FAULT_MENU``.
         fault_start_s, fault_duration_s: when the fault starts and how long it lasts.
         static_obstacle_probability: chance of one stationary obstacle in the lane.
+        route: a route file (TOML): the scenarios run on its map and service, with their encounters on
+            its own free stretches (``route_stretches.free_stretches``); "" for the campus.
     """
 
     minutes: float = 1.5
@@ -65,6 +70,7 @@ class ScenarioSpace:
     fault_start_s: tuple[float, float] = (10.0, 40.0)
     fault_duration_s: tuple[float, float] = (5.0, 30.0)
     static_obstacle_probability: float = 0.2
+    route: str = ""
 
     def __post_init__(self) -> None:
         check_range("space.minutes", self.minutes, 0.1, 60.0)
@@ -85,7 +91,55 @@ def sample_scenarios(space: ScenarioSpace, count: int, seed: int) -> list[Scenar
     if count < 0:
         raise ConfigError(f"sample_scenarios: expected a count >= 0, got {count}")
     rng = component_rng(seed, "scenario_generator")
-    return [_sample_one(space, rng, index, seed) for index in range(count)]
+    world = _campus_world() if not space.route else _route_world(space)
+    return [_sample_one(space, rng, index, seed, world) for index in range(count)]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class _World:
+    """What the generator may use on a map.
+
+    Attributes:
+        map: the scenario's map section.
+        stretches: route-s intervals for walkers and obstacles.
+        car_start_m: the range of a car's start s along its path.
+        oncoming_cars: the map has the opposite lane the campus ring offers (``RingCar`` "cw"); on a
+            route file's map every car follows the service path ("ccw"), since its lanes may be one-way.
+        cyclists: the campus's side road exists for ``SideRoadCar`` cyclists.
+        crosswalks: indices of the map's crosswalks on the service path.
+    """
+
+    map: MapSpec
+    stretches: tuple[tuple[float, float], ...]
+    car_start_m: tuple[float, float]
+    oncoming_cars: bool
+    cyclists: bool
+    crosswalks: tuple[int, ...]
+
+
+def _campus_world() -> _World:
+    return _World(
+        map=MapSpec(),
+        stretches=FREE_STRETCHES_M,
+        car_start_m=(60.0, 1900.0),
+        oncoming_cars=True,
+        cyclists=True,
+        crosswalks=(0,),
+    )
+
+
+def _route_world(space: ScenarioSpace) -> _World:
+    service = load_route(space.route)
+    on_path = tuple(sorted({rc.crosswalk.id for rc in service.layers(step_m=1.0).crosswalks}))
+    ids = [cw.id for cw in service.hdmap.crosswalks]
+    return _World(
+        map=MapSpec(name="route", route=space.route),
+        stretches=free_stretches(service, clearance_m=space.trigger_m[1]),
+        car_start_m=(0.0, service.length_m),
+        oncoming_cars=False,
+        cyclists=False,
+        crosswalks=tuple(ids.index(cid) for cid in on_path),
+    )
 
 
 def grid_scenarios(
@@ -106,6 +160,17 @@ def grid_scenarios(
     return out
 
 
+def _crosswalk_pedestrians(
+    rng: np.random.Generator, crosswalks: tuple[int, ...]
+) -> tuple[CrosswalkPedestrians, ...]:
+    """Half the scenarios get pedestrians at one crosswalk of the path (the campus has one choice, so
+    its draws are as before)."""
+    if not rng.random() < 0.5 or not crosswalks:
+        return ()
+    index = crosswalks[int(rng.integers(len(crosswalks)))] if len(crosswalks) > 1 else crosswalks[0]
+    return (CrosswalkPedestrians(crosswalk=index, first_after_s=float(rng.uniform(0.0, 30.0))),)
+
+
 def _uniform(rng: np.random.Generator, bounds: tuple[float, float]) -> float:
     return round(float(rng.uniform(bounds[0], bounds[1])), 3)
 
@@ -114,17 +179,19 @@ def _count(rng: np.random.Generator, bounds: tuple[int, int]) -> int:
     return int(rng.integers(bounds[0], bounds[1] + 1))
 
 
-def _where(rng: np.random.Generator) -> float:
-    lo, hi = FREE_STRETCHES_M[int(rng.integers(len(FREE_STRETCHES_M)))]
+def _where(rng: np.random.Generator, stretches: tuple[tuple[float, float], ...]) -> float:
+    lo, hi = stretches[int(rng.integers(len(stretches)))]
     return round(float(rng.uniform(lo, hi)), 1)
 
 
-def _sample_one(space: ScenarioSpace, rng: np.random.Generator, index: int, seed: int) -> Scenario:
+def _sample_one(
+    space: ScenarioSpace, rng: np.random.Generator, index: int, seed: int, world: _World
+) -> Scenario:
     weather = space.weathers[int(rng.integers(len(space.weathers)))]
     walkers = [
         Walker(
             kind="pedestrian",
-            route_s_m=_where(rng),
+            route_s_m=_where(rng, world.stretches),
             speed_mps=_uniform(rng, space.pedestrian_speed_mps),
             trigger_m=(trig := _uniform(rng, space.trigger_m)),
             min_trigger_m=round(trig * 0.6, 3),
@@ -136,7 +203,7 @@ def _sample_one(space: ScenarioSpace, rng: np.random.Generator, index: int, seed
     walkers += [
         Walker(
             kind="goose",
-            route_s_m=_where(rng),
+            route_s_m=_where(rng, world.stretches),
             speed_mps=_uniform(rng, space.goose_speed_mps),
             trigger_m=(trig := _uniform(rng, space.trigger_m)),
             min_trigger_m=round(trig * 0.5, 3),
@@ -147,8 +214,8 @@ def _sample_one(space: ScenarioSpace, rng: np.random.Generator, index: int, seed
     ]
     cars = [
         RingCar(
-            direction="cw" if rng.random() < 0.6 else "ccw",
-            start_s_m=round(float(rng.uniform(60.0, 1900.0)), 1),
+            direction="cw" if rng.random() < 0.6 and world.oncoming_cars else "ccw",
+            start_s_m=round(float(rng.uniform(*world.car_start_m)), 1),
             speed_mps=_uniform(rng, space.car_speed_mps),
         )
         for _ in range(_count(rng, space.cars))
@@ -162,8 +229,10 @@ def _sample_one(space: ScenarioSpace, rng: np.random.Generator, index: int, seed
         )
         for _ in range(_count(rng, space.cyclists))
     ]
+    if not world.cyclists:  # drawn all the same, so each scenario's other draws do not shift
+        cyclists = []
     obstacles = (
-        (StaticObstacle(route_s_m=_where(rng), d_m=_uniform(rng, (-0.5, 0.5))),)
+        (StaticObstacle(route_s_m=_where(rng, world.stretches), d_m=_uniform(rng, (-0.5, 0.5))),)
         if rng.random() < space.static_obstacle_probability
         else ()
     )
@@ -180,6 +249,7 @@ def _sample_one(space: ScenarioSpace, rng: np.random.Generator, index: int, seed
         )
     return Scenario(
         name=f"generated_{seed}_{index:05d}",
+        map=world.map,
         minutes=space.minutes,
         seed=seed * 100_003 + index,
         weather=weather,
@@ -188,10 +258,6 @@ def _sample_one(space: ScenarioSpace, rng: np.random.Generator, index: int, seed
         side_road_cars=tuple(cyclists),
         walkers=tuple(walkers),
         static_obstacles=obstacles,
-        crosswalk_pedestrians=(
-            CrosswalkPedestrians(crosswalk=0, first_after_s=float(rng.uniform(0.0, 30.0))),
-        )
-        if rng.random() < 0.5
-        else (),
+        crosswalk_pedestrians=_crosswalk_pedestrians(rng, world.crosswalks),
         faults=faults,
     )

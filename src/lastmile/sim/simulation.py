@@ -24,9 +24,10 @@ from lastmile.core.vehicle import VehicleGeometry
 from lastmile.core.vehicle_messages import ActuatorCommand, BehaviourState
 from lastmile.hdmap.model import HDMap
 from lastmile.hdmap.routing import route, route_polyline
-from lastmile.sim.agents import Agent, PathCar, StopLineOnPath, WalkingAgent
+from lastmile.sim.agents import CAR_LENGTH_M, CAR_WIDTH_M, Agent, PathCar, StopLineOnPath, WalkingAgent
 from lastmile.sim.faults import FaultInjector
 from lastmile.sim.judge import Event, Judge
+from lastmile.sim.map_traffic import MapTraffic, all_way_stop_lines_on
 from lastmile.sim.operator import OperatorModel
 from lastmile.sim.operator_estop import EStopAction, OperatorEStop
 from lastmile.sim.passengers import PassengerModel
@@ -39,7 +40,6 @@ from lastmile.sim.vehicle_model import ActuatorDynamics, KinematicBicycle, Vehic
 from lastmile.sim.weather import Weather, parse_weather
 from lastmile.sim.world import World
 
-CAR_LENGTH_M, CAR_WIDTH_M = 4.5, 1.8
 CYCLE_LENGTH_M, CYCLE_WIDTH_M = 1.8, 0.6
 LANE_WIDTH_M = 3.5
 
@@ -117,6 +117,7 @@ class Simulation:
             turn: _side_road_path(hdmap, turn) for turn in {c.turn for c in scenario.side_road_cars}
         }
         self._next_id = len(agents) + 1
+        self._map_traffic = MapTraffic(scenario.map_cars, hdmap, scenario.seed)
 
     @property
     def radar_mounts(self) -> dict[str, SE2]:
@@ -173,6 +174,10 @@ class Simulation:
                 car.max_accel_mps2, car.min_gap_m = 0.8, 1.5
             w.agents.append(car)
             self._next_id += 1
+        for car in self._map_traffic.spawn_due(w, self._next_id):
+            car.obey_signals(self.signals, self.world.hdmap)
+            w.agents.append(car)
+            self._next_id += 1
         self.passengers.step_arrivals(w.t_s)
         for stop_id, source in self.passengers.new_calls:
             self.sensors.push_stop_call(tick * self.tick_us, stop_id, source)
@@ -225,17 +230,9 @@ class Simulation:
             j.emit(kind, **data)
         if was_closed and p.door_position > 0.0 and at_stop is not None and p.visit is None:
             p.visit = j.open_visit(at_stop)
-        if p.door_position == 0.0 and p.visit is not None:
-            v = p.visit
-            j.emit(
-                EventKind.STOP_SERVED,
-                stop_id=v.stop_id,
-                curb_gap_m=v.curb_gap_m,
-                longitudinal_error_m=v.longitudinal_error_m,
-                boarded=v.boarded,
-                alighted=v.alighted,
-            )
-            p.visit = None
+        served = p.end_visit()
+        if served is not None:
+            j.emit(EventKind.STOP_SERVED, **served)
         self.sensors.door_open = p.door_position > 0.0
         self.sensors.person_in_doorway = p.person_in_doorway
 
@@ -290,20 +287,6 @@ def _path_car(
     )
 
 
-def _stop_lines_on(path: Polyline, hdmap: HDMap) -> list[StopLineOnPath]:
-    out = []
-    for sl in hdmap.stop_lines:
-        if sl.all_way_stop_id is None:
-            continue
-        mid = np.asarray(sl.line, dtype=float).mean(axis=0)
-        f = path.project(float(mid[0]), float(mid[1]))
-        lanelet = hdmap.lanelets[sl.lanelet_id].centerline
-        heading = lanelet.heading_at(lanelet.length_m - 0.1)
-        if abs(f.d_m) < 2.0 and math.cos(path.heading_at(f.s_m) - heading) > 0.7:
-            out.append(StopLineOnPath(s_m=f.s_m, stop_line_id=sl.id))
-    return sorted(out, key=lambda line: line.s_m)
-
-
 def _side_road_path(hdmap: HDMap, turn: str) -> tuple[Polyline, list[StopLineOnPath]]:
     """Side road northbound from its far end, through the all-way stop, turning onto the ring."""
     start = _lanelet_heading(hdmap, (381.75, -120.0), math.pi / 2) or _lanelet_heading(
@@ -319,7 +302,7 @@ def _side_road_path(hdmap: HDMap, turn: str) -> tuple[Polyline, list[StopLineOnP
             f"side_road_cars: expected the campus map's side road and ring lanes, not found for {turn!r}"
         )
     path = route_polyline(hdmap, route(hdmap, start, goal))
-    return path, _stop_lines_on(path, hdmap)
+    return path, all_way_stop_lines_on(path, hdmap)
 
 
 def _lanelet_heading(hdmap: HDMap, xy: tuple[float, float], heading_rad: float) -> int | None:
@@ -333,9 +316,9 @@ def _lanelet_heading(hdmap: HDMap, xy: tuple[float, float], heading_rad: float) 
 
 def _build_agents(scenario: Scenario, hdmap: HDMap, service_route: Polyline) -> list[Agent]:
     agents: list[Agent] = []
-    ccw_lines = _stop_lines_on(service_route, hdmap)
+    ccw_lines = all_way_stop_lines_on(service_route, hdmap)
     cw_path = Polyline(service_route.offset(LANE_WIDTH_M).xy_m[::-1].copy(), closed=True)
-    cw_lines = _stop_lines_on(cw_path, hdmap)
+    cw_lines = all_way_stop_lines_on(cw_path, hdmap)
     for car in scenario.ring_cars:
         if car.direction == "ccw":
             agents.append(_path_car(len(agents) + 1, service_route, car.start_s_m, car.speed_mps, ccw_lines))

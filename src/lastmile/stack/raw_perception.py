@@ -8,6 +8,10 @@ Per revolution of the LiDAR rig (one sweep of every unit, stamped alike):
    ``curb_lines_reach_m`` as priors (the pipeline's curb-side stage: clusters that are low and lie
    on a curb line are the curb face, low, flat, bright ones beside one snow lying along the curb,
    not objects; :mod:`lastmile.perception.snow_surface`);
+   With a learned LiDAR detector configured (``RawPerceptionConfig.detector``, an ONNX model,
+   :mod:`lastmile.perception.lidar_detector`), its boxes, classes and scores replace the clusters
+   they cover; the other clusters stay unclassified objects (or, with ``merge = "replace_clusters"``,
+   the detections alone go on);
 2. WATonoBus late fusion (:func:`perception.late_fusion.fuse_objects`): the newest radar frames,
    brought to the cloud's instant through the pose history, give velocities; the newest camera boxes
    give classes;
@@ -34,13 +38,19 @@ from lastmile.core.camera_model import PinholeCamera
 from lastmile.core.errors import ConfigError, MessageError
 from lastmile.core.geometry import SE2
 from lastmile.core.object_class import ObjectClass
-from lastmile.core.objects import TRACK_COLUMNS, TrackedObjects
+from lastmile.core.objects import TRACK_COLUMNS, DetectedObjects, TrackedObjects
 from lastmile.core.sensor_frames import CameraDetections, LidarSweep, RadarFrame
 from lastmile.core.stamp import Stamp
 from lastmile.hdmap.drivable import DrivableRaster
 from lastmile.hdmap.layers import SLayerDatabase
 from lastmile.localization.ekf import LocalizationEstimate
 from lastmile.perception.late_fusion import LateFusionConfig, fuse_objects
+from lastmile.perception.lidar_detector import (
+    LidarDetectorConfig,
+    MergedObjects,
+    OnnxLidarDetector,
+    frame_objects,
+)
 from lastmile.perception.map_curbs import MapCurbIndex
 from lastmile.perception.motion_compensation import PoseTrajectory
 from lastmile.perception.pipeline import LidarPipeline, LidarPipelineConfig, LidarPipelineResult
@@ -80,6 +90,7 @@ class RawPerceptionConfig:
         pipeline's curb-side stage (the LiDAR crop reaches 30 m to the side, 60 m ahead).
     scenery_speed_mps: an off-road, unclassified track slower than this is scenery (not published).
     scenery_min_age_s: ...once it is this old (a new track's velocity is not yet known).
+    detector: a learned LiDAR detector (ONNX) whose boxes join the clusters (None: clusters only).
     """
 
     pipeline: LidarPipelineConfig = field(default_factory=LidarPipelineConfig)
@@ -95,6 +106,7 @@ class RawPerceptionConfig:
     curb_lines_reach_m: float = 45.0
     scenery_speed_mps: float = 0.5
     scenery_min_age_s: float = 0.5
+    detector: LidarDetectorConfig | None = None
 
     def __post_init__(self) -> None:
         for name in ("set_timeout_us", "pose_step_us", "radar_max_age_us", "camera_max_age_us"):
@@ -128,6 +140,8 @@ class RawPerceptionStats:
     clusters: int = 0
     curb_returns: int = 0
     scenery_tracks_hidden: int = 0
+    detections: int = 0
+    clusters_replaced: int = 0
 
 
 class RawPerception:
@@ -165,8 +179,10 @@ class RawPerception:
         self.road = MapRoadRegion(layers.hdmap)
         self.curbs = MapCurbIndex(layers.hdmap)
         self.tracker = AutoTrack(config.tracker)
+        self.detector = OnnxLidarDetector(config.detector) if config.detector is not None else None
         self.stats = RawPerceptionStats()
         self.last_result: LidarPipelineResult | None = None
+        self._detections: list[DetectedObjects] = []
         self._sets: dict[int, dict[str, LidarSweep]] = {}
         self._set_first_seen_us: dict[int, int] = {}
         self._radar: dict[str, RadarFrame] = {}
@@ -213,6 +229,11 @@ class RawPerception:
             self._process([sweeps[k] for k in sorted(sweeps)], pose_at, route_s_m)
             done += 1
         return done
+
+    def drain_detections(self) -> tuple[DetectedObjects, ...]:
+        """The fused detections given to the tracker since the last call (map frame), oldest first."""
+        out, self._detections = tuple(self._detections), []
+        return out
 
     def tracks(self, now: Stamp) -> TrackedObjects:
         """Published tracks at ``now``, map frame (scenery left out)."""
@@ -288,9 +309,20 @@ class RawPerception:
         cams = [
             d for d in self._camera.values() if abs(int(ref) - int(d.stamp)) <= self.config.camera_max_age_us
         ]
+        objects = self._objects(result)
         fused = fuse_objects(
-            ref, result.clusters, radar, mounts, self.cameras, cams, map_from_base, self.config.fusion
+            ref,
+            objects.clusters,
+            radar,
+            mounts,
+            self.cameras,
+            cams,
+            map_from_base,
+            self.config.fusion,
+            lidar_class_id=objects.class_id,
+            lidar_score=objects.score,
         )
+        self._detections.append(fused.objects)
         o = fused.objects.table
         z_lo, z_hi = fused.z_min_m, fused.z_max_m
         height = np.maximum(z_hi - z_lo, 0.1)
@@ -308,6 +340,13 @@ class RawPerception:
                 attributes=np.zeros((len(o), 0)),
             )
         )
+
+    def _objects(self, result: LidarPipelineResult) -> MergedObjects:
+        """The clusters, with the learned detector's boxes merged in when one is configured."""
+        merged, detections = frame_objects(result, self.detector)
+        self.stats.detections += detections
+        self.stats.clusters_replaced += merged.replaced_clusters
+        return merged
 
     def _map_curb_in_base(self, map_from_base: SE2, route_s_m: float | None) -> np.ndarray | None:
         """The map's right curb near the shuttle in the base frame; None where the route has none."""

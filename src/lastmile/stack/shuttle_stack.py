@@ -29,7 +29,7 @@ from lastmile.control.longitudinal import LongitudinalConfig, make_longitudinal_
 from lastmile.core.camera_model import PinholeCamera
 from lastmile.core.errors import ConfigError, MessageError
 from lastmile.core.geometry import SE2, FloatArray
-from lastmile.core.objects import TrackedObjects, empty_tracks
+from lastmile.core.objects import DetectedObjects, TrackedObjects, empty_tracks
 from lastmile.core.perception_mode import PerceptionMode
 from lastmile.core.polyline import Polyline
 from lastmile.core.predictions import PredictedPaths
@@ -68,15 +68,18 @@ from lastmile.decision.mission import MissionManager
 from lastmile.hdmap.layers import SLayerDatabase
 from lastmile.localization.ekf import PoseEkf
 from lastmile.localization.ekf_config import PoseEkfConfig
+from lastmile.localization.landmark_extraction import LandmarkExtractionConfig
 from lastmile.localization.odometry_ekf import OdometryEkf, OdometryEkfConfig, zero_slip_offset_m
+from lastmile.perception.late_fusion import radar_detections
 from lastmile.planning.local_path import LocalPathConfig
 from lastmile.planning.planners import PlannerInputs, PlannerName, make_path_planner
 from lastmile.safety.reliability_config import ReliabilityConfig, default_sensor_specs
 from lastmile.stack.hmi import HmiComposer
+from lastmile.stack.landmark_fusion import LandmarkFusion
 from lastmile.stack.module_guard import ModuleGuard
 from lastmile.stack.profiler import ModuleProfiler
 from lastmile.stack.raw_perception import RawPerception, RawPerceptionConfig
-from lastmile.stack.stack_settings import LocalizationMode
+from lastmile.stack.stack_settings import LocalizationMode, check_localization_inputs
 from lastmile.stack.v2i import AnticipationConfig, CrossingAnticipation
 from lastmile.tracking.prediction import MapAwarePredictor, PredictionConfig
 from lastmile.tracking.radar_tracker import RadarObjectTracker, RadarTrackerConfig
@@ -124,6 +127,7 @@ class StackConfig:
     localization: LocalizationMode = LocalizationMode.EKF
     ekf: OdometryEkfConfig = field(default_factory=OdometryEkfConfig)
     inertial_ekf: PoseEkfConfig = field(default_factory=PoseEkfConfig)
+    landmarks: LandmarkExtractionConfig = field(default_factory=LandmarkExtractionConfig)
     tracker: RadarTrackerConfig = field(default_factory=RadarTrackerConfig)
     reliability: ReliabilityConfig = field(default_factory=lambda: ReliabilityConfig(sensors=DEFAULT_SENSORS))
     v2i: AnticipationConfig = field(default_factory=AnticipationConfig)
@@ -149,6 +153,7 @@ class StackConfig:
                 f"StackConfig.perception_mode: expected one of {[m.value for m in PerceptionMode]}, "
                 f"got {self.perception_mode!r}"
             )
+        check_localization_inputs(self.localization, self.perception_mode, "StackConfig")
         if self.perception_mode.needs_raw_sensors and not self.lidar_mounts:
             raise ConfigError(
                 f"StackConfig: perception_mode '{self.perception_mode}' expects lidar_mounts (the LiDAR "
@@ -192,9 +197,10 @@ class ShuttleStack:
         # The EKF's zero-slip point is where the body has no sideways velocity: mid-wheelbase when the
         # rear wheels steer opposite to the front, the rear axle otherwise. A property of the vehicle.
         zero_slip_m = geometry.wheelbase_m / 2.0 if geometry.all_wheel_steer else 0.0
+        inertial = config.localization in (LocalizationMode.INERTIAL_EKF, LocalizationMode.LANDMARKS)
         self.ekf: OdometryEkf | PoseEkf = (
             PoseEkf(dataclasses.replace(config.inertial_ekf, zero_slip_offset_m=zero_slip_m))
-            if config.localization is LocalizationMode.INERTIAL_EKF
+            if inertial
             else OdometryEkf(dataclasses.replace(config.ekf, zero_slip_offset_m=zero_slip_m))
         )
         self.tracker = RadarObjectTracker(config.tracker)
@@ -203,6 +209,12 @@ class ShuttleStack:
                 config.raw_perception, layers, config.lidar_mounts, config.cameras, config.radar_mounts
             )
             if config.perception_mode.needs_raw_sensors
+            else None
+        )
+        # WATonoBus GNSS-denied mode: the raw chain's clusters correct the inertial EKF.
+        self.landmarks = (
+            LandmarkFusion(config.landmarks, layers)
+            if config.localization is LocalizationMode.LANDMARKS and isinstance(self.ekf, PoseEkf)
             else None
         )
         self.light_tracker = (
@@ -243,6 +255,7 @@ class ShuttleStack:
         self._trajectory: Trajectory | None = None
         self._path: Polyline | None = None
         self._tracks: TrackedObjects = empty_tracks(Stamp(0))
+        self._detections: list[DetectedObjects] = []
         self._command = ActuatorCommand(
             stamp=Stamp(0), accel_mps2=-1.0, steer_front_rad=0.0, steer_rear_rad=0.0
         )
@@ -266,6 +279,7 @@ class ShuttleStack:
         return {
             "estimation": tick_ms,
             "perception": 100.0,
+            "landmarks": 100.0,
             **dict.fromkeys(("tracking", "prediction", "decision", "planning"), planning_ms),
             "control": config.control_period_ticks * tick_ms,
         }
@@ -288,7 +302,11 @@ class ShuttleStack:
         if raw is not None and raw.pending:
             with p.measure("perception"):
                 # Perception and tracking are one module for the watchdog: the chain ends in tracks.
-                self._guarded("tracking", now, raw.step, now, self.ekf.estimate, self._route_s)
+                done = self._guarded("tracking", now, raw.step, now, self.ekf.estimate, self._route_s)
+            if done and self.landmarks is not None and raw.last_result is not None:
+                with p.measure("landmarks"):
+                    fuse = self.landmarks.fuse
+                    self._guarded("localization", now, fuse, self.ekf, raw.last_result, self._route_s)
         if planning_cycle:
             with p.measure("tracking"):
                 source = raw.tracks if raw is not None else self.tracker.tracks
@@ -320,7 +338,15 @@ class ShuttleStack:
             stop_reason=self._stop_reason,
             tracks=self._tracks if planning_cycle else None,
             trajectory=self._trajectory if planning_cycle else None,
+            detections=self._drain_detections() if planning_cycle else None,
         )
+
+    def _drain_detections(self) -> tuple[DetectedObjects, ...]:
+        """What the tracker consumed since the last planning cycle (radar lists or fused objects)."""
+        if self.raw is not None:
+            return self.raw.drain_detections()
+        out, self._detections = tuple(self._detections), []
+        return out
 
     def report(self) -> VehicleReport:
         """Compute time per module, the stack's counters and the raw perception's summary."""
@@ -337,6 +363,12 @@ class ShuttleStack:
                 "curb_valid_frames": st.curb_valid,
                 "curb_offset_median_m": float(np.median(offsets)) if offsets else None,
             }
+            if self.raw.detector is not None:
+                perception["detections_per_frame"] = st.detections / max(st.rig_frames, 1)
+                perception["clusters_replaced_per_frame"] = st.clusters_replaced / max(st.rig_frames, 1)
+        if self.landmarks is not None:
+            counters.update(self.landmarks.counters())
+            perception["landmark_update_cpu_p50_ms"] = self.landmarks.cpu_p50_ms()
         return VehicleReport(modules=self.profiler.summary(), counters=counters, perception=perception)
 
     def _guarded(self, module: str, now: Stamp, fn: Callable[..., object], *args: object) -> object:
@@ -441,6 +473,8 @@ class ShuttleStack:
         mount = self.config.radar_mounts.get(frame.sensor_id)
         if est.valid and mount is not None:
             self.tracker.update(frame, est.map_from_base, mount)
+            size_m = self.config.raw_perception.fusion.radar_only_size_m
+            self._detections.append(radar_detections(frame, est.map_from_base.compose(mount), size_m))
 
     def _on_door(self, frame: DoorSensorFrame) -> None:
         self._door_open = frame.door_open

@@ -12,10 +12,13 @@ from enum import StrEnum
 from lastmile.control.lateral import LateralConfig, LateralControllerName
 from lastmile.control.longitudinal import LongitudinalConfig, LongitudinalControllerName
 from lastmile.core.config import check_range
+from lastmile.core.errors import ConfigError
 from lastmile.core.perception_mode import PerceptionMode
 from lastmile.decision.decision_config import DecisionConfig
 from lastmile.localization.ekf_config import PoseEkfConfig
+from lastmile.localization.landmark_extraction import LandmarkExtractionConfig
 from lastmile.localization.odometry_ekf import OdometryEkfConfig
+from lastmile.perception.lidar_detector import LidarDetectorConfig
 from lastmile.planning.local_path import LocalPathConfig
 from lastmile.planning.planners import PlannerName
 from lastmile.safety.failsafe import FailSafeConfig
@@ -32,6 +35,11 @@ class LocalizationMode(StrEnum):
     """The IMU-driven EKF of :mod:`lastmile.localization.ekf`: accelerometer and gyro prediction with
     bias and scale states, wheel speed as a measurement, antenna lever arm, correlated GNSS error and
     consistency-based re-acquisition after outages (built for real drives; see its README)."""
+    LANDMARKS = "landmarks"
+    """WATonoBus GNSS-denied localization: the ``inertial_ekf`` filter, also corrected by the light
+    poles and building facades the raw LiDAR chain sees, associated with the map's landmark records
+    (:mod:`lastmile.localization.landmark_extraction`, :mod:`lastmile.localization.landmark_localization`).
+    Needs raw perception (radars give object lists only)."""
 
 
 _FAILSAFE = FailSafeConfig()
@@ -89,8 +97,13 @@ class StackSettings:
         cruise_speed_mps: the shuttle's cruise speed (None: decision's default, 20 km/h).
         serve_all_stops: timetable mode (every stop) instead of on request.
         decision, path, longitudinal, lateral: the modules' parameters (their defaults).
-        ekf, inertial_ekf: the parameters of the ``ekf`` and ``inertial_ekf`` localization modes.
+        ekf, inertial_ekf: the parameters of the ``ekf`` and ``inertial_ekf`` localization modes
+            (``landmarks`` runs the ``inertial_ekf`` filter).
+        landmarks: the ``landmarks`` mode's pole and facade extraction.
         safety: the vehicle safety's parameters.
+        lidar_detector: a learned LiDAR detector (``[stack.lidar_detector]``, an ONNX model file and
+            its BEV grid; :mod:`lastmile.perception.lidar_detector`) run on every rig frame beside
+            the clustering, its boxes going through late fusion to the tracker (raw perception only).
     """
 
     perception: PerceptionMode = PerceptionMode.LIDAR_CAMERA_RADAR
@@ -106,9 +119,27 @@ class StackSettings:
     lateral: LateralConfig = field(default_factory=LateralConfig)
     ekf: OdometryEkfConfig = field(default_factory=OdometryEkfConfig)
     inertial_ekf: PoseEkfConfig = field(default_factory=PoseEkfConfig)
+    landmarks: LandmarkExtractionConfig = field(default_factory=LandmarkExtractionConfig)
     safety: SafetySettings = field(default_factory=SafetySettings)
+    lidar_detector: LidarDetectorConfig | None = None
 
     def __post_init__(self) -> None:
+        if self.lidar_detector is not None and not self.perception.needs_raw_sensors:
+            raise ConfigError(
+                f"stack.lidar_detector: expected perception = '{PerceptionMode.LIDAR_CAMERA_RADAR}' (the "
+                f"detector reads the LiDAR sweeps), got perception = '{self.perception}'"
+            )
+        check_localization_inputs(self.localization, self.perception, "stack")
         if self.cruise_speed_mps is not None:
             # The shuttle's operating speeds: up to its 20 km/h top speed.
             check_range("stack.cruise_speed_mps", self.cruise_speed_mps, 0.5, 20.0 / 3.6 + 1e-9)
+
+
+def check_localization_inputs(mode: LocalizationMode, perception: PerceptionMode, where: str) -> None:
+    """Raise a :class:`ConfigError` if ``mode`` needs sensor data that ``perception`` does not give."""
+    if mode is LocalizationMode.LANDMARKS and not perception.needs_raw_sensors:
+        raise ConfigError(
+            f"{where}.localization 'landmarks': expected raw LiDAR perception "
+            f"'{PerceptionMode.LIDAR_CAMERA_RADAR}', got perception '{perception}' "
+            "(radars give object lists only)"
+        )

@@ -25,6 +25,7 @@ from lastmile.safety.reliability_config import ReliabilityConfig, raw_sensor_spe
 from lastmile.safety.reliability_monitor import ReliabilityMonitor
 from lastmile.safety.supervisor import SafetySupervisor
 from lastmile.safety.vehicle_safety import VehicleSafety
+from lastmile.stack.raw_perception import RawPerceptionConfig
 from lastmile.stack.shuttle_stack import (
     DEFAULT_SENSORS,
     MODULE_PERIODS_US,
@@ -89,6 +90,7 @@ def stack_config(settings: StackSettings, calibration: SensorCalibration, tick_u
         perception_mode=settings.perception,
         lidar_mounts=calibration.lidar_mounts if raw else {},
         cameras=calibration.cameras if raw else (),
+        raw_perception=RawPerceptionConfig(detector=settings.lidar_detector),
         reliability=ReliabilityConfig(
             sensors=DEFAULT_SENSORS
             + (raw_sensor_specs(tuple(calibration.lidar_mounts), camera_ids) if raw else ())

@@ -79,6 +79,7 @@ class _Tracks:
     class_prob: np.ndarray
     score: np.ndarray
     evidence: np.ndarray  # sum of the scores of the track's detections
+    miss_log: np.ndarray  # sum of softplus(score): -log of the probability that every detection was false
     n_detections: np.ndarray  # how many detections the track has had
     attributes: np.ndarray
     birth_source: np.ndarray  # code of the source whose detection started the track
@@ -101,6 +102,7 @@ class _Tracks:
             class_prob=np.zeros((0, N_CLASSES)),
             score=np.zeros(0),
             evidence=np.zeros(0),
+            miss_log=np.zeros(0),
             n_detections=np.zeros(0, np.int64),
             attributes=np.zeros((0, n_attributes)),
             birth_source=np.zeros(0, np.int64),
@@ -323,6 +325,7 @@ class AutoTrack:
         t.class_prob[ti] = hmm_update(t.class_prob[ti], cls, cfg.hmm.lidar_accuracy, cfg.hmm.switch_prob)
         t.score[ti] = msg.score[di]
         t.evidence[ti] += msg.score[di]
+        t.miss_log[ti] += np.logaddexp(0.0, msg.score[di])
         t.n_detections[ti] += 1
         t.attributes[ti] = msg.attributes[di]
         t.last_det_us[ti] = int(msg.stamp)
@@ -369,6 +372,7 @@ class AutoTrack:
             class_prob=initial_prob(cls, cfg.hmm.lidar_accuracy),
             score=msg.score[di].astype(np.float64),
             evidence=msg.score[di].astype(np.float64),
+            miss_log=np.logaddexp(0.0, msg.score[di].astype(np.float64)),
             n_detections=np.ones(n, np.int64),
             attributes=msg.attributes[di].copy(),
             birth_source=np.full(n, self._source_code(msg.source), np.int64),
@@ -468,6 +472,12 @@ class AutoTrack:
             return t.score[sel]
         if mode == "evidence":
             return t.evidence[sel]
+        if mode == "refined":
+            # Benbarka et al.'s multiplicative-complement update, c <- 1 - (1 - c)(1 - p), over the
+            # detections' probabilities p = sigmoid(score): 1 - c = prod(1 - p) = exp(-miss_log).
+            # Published as the log-odds of c, log(expm1(miss_log)), on the other definitions' scale.
+            m = np.maximum(t.miss_log[sel], 1e-300)
+            return m + np.log(-np.expm1(-m))
         # "mean": the detections' mean score shrunk towards the prior (log-odds 0, even odds) with the
         # weight of SCORE_PRIOR_DETECTIONS detections, so a track of one or two detections cannot rank
         # above a long run of the same scores.

@@ -99,7 +99,7 @@ def default_class_params() -> dict[int, ClassParams]:
     }
 
 
-TRACK_SCORES = ("last", "evidence", "mean")
+TRACK_SCORES = ("last", "evidence", "mean", "refined")
 """Choices of ``AutoTrackConfig.track_score``."""
 
 
@@ -116,7 +116,10 @@ class AutoTrackConfig:
         track_score: what a published track's ``score`` is (before the coasting penalty): ``"last"``, its
             latest detection's score; ``"evidence"``, the sum of its detections' scores (read as
             log-odds of existence, the accumulated evidence, as ``birth_min_evidence`` reads them);
-            ``"mean"``, their mean shrunk towards log-odds 0 by one prior detection.
+            ``"mean"``, their mean shrunk towards log-odds 0 by one prior detection; ``"refined"``, the
+            score refinement of Benbarka et al. (IROS 2021, "multiplication"): each detection's score
+            read as log-odds p, the track's confidence c <- 1 - (1 - c)(1 - p), published as log-odds
+            (no parameter; unlike ``"evidence"`` a doubtful detection never lowers it).
         coast_score_penalty_per_s: a coasting full track's score drops by this per second undetected.
         rollback_window_s: how far back states are kept for replaying late messages.
         source_timeout_s: a source (sensor) silent for longer no longer holds back demotion and

@@ -5,6 +5,8 @@ const Fleet = (() => {
   const tokenKey = "lastmile.token";
   const token = () => localStorage.getItem(tokenKey) || "";
   const setToken = (t) => localStorage.setItem(tokenKey, t.trim());
+  // Text from the server (stop names come from the user's route file) goes into HTML escaped.
+  const esc = (t) => String(t).replace(/[&<>"']/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;", "'": "&#39;" })[c]);
 
   async function api(method, path, body) {
     const res = await fetch(path, {
@@ -126,5 +128,5 @@ const Fleet = (() => {
     if (token()) signedIn(); else editing(true);
   }
 
-  return { api, live, draw, token, setToken, fmtEta, fmtStamp, tokenBox };
+  return { api, live, draw, esc, token, setToken, fmtEta, fmtStamp, tokenBox };
 })();

@@ -2,7 +2,7 @@
 (() => {
   const $ = (id) => document.getElementById(id);
   // Vehicles' HMI texts arrive from the vehicles: shown as text, never as markup.
-  const esc = (t) => String(t).replace(/[&<>"']/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;", "'": "&#39;" })[c]);
+  const esc = Fleet.esc;
   let map = null, snap = null, link = null;
   const err = (e) => { $("op-error").textContent = e ? String(e.message || e) : ""; };
   const RIDES_PAGE = 25;

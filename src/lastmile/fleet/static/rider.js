@@ -31,7 +31,7 @@
   async function start() {
     try {
       map = await Fleet.api("GET", "/api/map");
-      const opts = map.stops.map((s) => `<option value="${s.id}">${s.id} ${s.name}</option>`).join("");
+      const opts = map.stops.map((s) => `<option value="${Fleet.esc(s.id)}">${Fleet.esc(s.id)} ${Fleet.esc(s.name)}</option>`).join("");
       $("origin").innerHTML = opts; $("destination").innerHTML = opts;
       $("destination").selectedIndex = 1;
       err(null);
