@@ -35,9 +35,9 @@ class LocalPathConfig:
             platform (a 1:2.5 taper turns 0.38 rad there) a plain maximum left a curvature spike in
             the path (0.12-0.14 /m, beyond what the front-steered shuttle follows at 3 m/s with
             1 m/s^2 of lateral acceleration; snow seed 2 put its front corner on the platform's
-            curb). Over 10 m that turn asks about 0.04 /m (0.5 m/s^2 at the 3.5 m/s pull-over
-            speed): snow seed 2's front corner then stays 6 cm off that curb (main: 1 cm; with 6 m
-            of rounding: 2 cm).
+            curb). Over 8 m that turn asks about 0.05 /m (0.6 m/s^2 at the 3.5 m/s pull-over
+            speed). Longer rounding ends the curve later: with 10 m the bay test's shuttle stood
+            0.022 rad off parallel (tests/stack: at most 0.02).
     """
 
     behind_m: float = 5.0
@@ -48,7 +48,7 @@ class LocalPathConfig:
     merge_m: float = 18.0
     lane_half_width_m: float = 1.75
     curb_clearance_m: float = 0.08
-    floor_rounding_m: float = 10.0
+    floor_rounding_m: float = 8.0
     field: PotentialFieldConfig = field(default_factory=PotentialFieldConfig)
 
 
