@@ -74,7 +74,9 @@ def test_a_visit_ends_as_the_door_closes_with_the_riders_left_waiting(straight_m
     model = PassengerModel(
         straight_map.stops, PassengerConfig(initial_waiting={"S1": 3}), component_rng(0, "p"), seats=1
     )
-    model.visit = StopVisit(stop_id="S1", opened_s=0.0, curb_gap_m=0.1, longitudinal_error_m=0.2)
+    model.visit = StopVisit(
+        stop_id="S1", opened_s=0.0, curb_gap_m=0.1, body_gap_m=0.05, longitudinal_error_m=0.2
+    )
     t = 0.0
     while t < 10.0:
         model.step_door(t, 0.01, door_cmd_open=True, at_stop="S1", stopped=True)
@@ -88,6 +90,7 @@ def test_a_visit_ends_as_the_door_closes_with_the_riders_left_waiting(straight_m
     assert served == {
         "stop_id": "S1",
         "curb_gap_m": 0.1,
+        "body_gap_m": 0.05,
         "longitudinal_error_m": 0.2,
         "boarded": 1,
         "alighted": 0,
