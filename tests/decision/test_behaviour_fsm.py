@@ -104,7 +104,32 @@ def test_pedestrian_on_the_crosswalk_makes_the_shuttle_yield_before_it(straight_
     d = fsm.step(_inp(0.0, 60.0, v=5.0, tracks=ped))
     assert d.stop_at_s_m is not None and d.stop_at_s_m <= 98.0
     assert d.state == BehaviourState.NORMAL_DRIVING
-    assert d.stop_reason is StopReason.OBSTACLE  # standing in the lane: the in-path rule binds first
+    # Standing on the crossing: the crosswalk's point binds, short of where the in-path rule keeps.
+    assert d.stop_reason is StopReason.CROSSWALK
+    # Close, the same person still orders the emergency stop (the in-path point may, a rule's not).
+    d = _fsm(straight_layers).step(_inp(0.0, 92.0, v=5.0, tracks=ped))
+    assert d.state == BehaviourState.EMERGENCY_STOP and d.risk_track_id == 3
+
+
+def test_a_shuttle_standing_for_a_crosswalk_waits_until_it_has_been_clear_for_a_while(straight_layers):
+    # Seed 2: the shuttle restarted the moment the person it yielded to left the crossing, and the
+    # next person, a confirmed track 1.5 s later, stopped it again 2 m on with a 9.4 m/s^3 jerk.
+    fsm = _fsm(straight_layers)
+    ped = _tracks([(3, 100.0, 1.0, 0.0, 1.2, ObjectClass.PEDESTRIAN)])
+    d = fsm.step(_inp(0.0, 80.0, v=0.0, tracks=ped))
+    stop = d.stop_at_s_m
+    assert stop is not None and d.stop_reason is StopReason.CROSSWALK
+    clear = fsm.config.crosswalk_clear_s
+    d = fsm.step(_inp(0.5, 80.0, v=0.0))  # gone: still standing for it
+    assert d.stop_at_s_m == stop and d.stop_reason is StopReason.CROSSWALK and d.risk_track_id == 3
+    d = fsm.step(_inp(clear - 0.1, 80.0, v=0.0))
+    assert d.stop_at_s_m == stop
+    d = fsm.step(_inp(clear + 0.1, 80.0, v=0.0))
+    assert d.stop_at_s_m is None
+    # One that yields while moving (it would have braked, not stood) holds nothing once clear.
+    moving = _fsm(straight_layers)
+    assert moving.step(_inp(0.0, 60.0, v=5.0, tracks=ped)).stop_at_s_m is not None
+    assert moving.step(_inp(0.1, 60.5, v=5.0)).stop_at_s_m is None
 
 
 def test_pedestrian_walking_to_the_crosswalk_is_yielded_to_before_reaching_the_kerb(straight_layers):
@@ -163,3 +188,22 @@ def test_a_slow_pedestrian_the_map_sends_to_the_crosswalk_is_yielded_to(straight
         dataclasses.replace(_inp(0.0, 70.0, v=5.5, tracks=leaving), predictions=paths)
     )
     assert d.stop_at_s_m is None
+
+
+def test_the_crosswalk_stop_is_where_the_pedestrian_in_the_path_will_keep_the_shuttle(straight_layers):
+    # Walking across at 1.3 m/s, 7 m beside the lane, then in it: the stop point the shuttle is braking
+    # for must not move nearer as they step in (it did by ~0.5 m, late in a stop at ~1 m/s).
+    approaching = _tracks([(3, 100.0, 7.0, 0.0, -1.3, ObjectClass.PEDESTRIAN)])
+    before = _fsm(straight_layers).step(_inp(0.0, 85.0, v=1.0, tracks=approaching))
+    assert before.stop_reason is StopReason.CROSSWALK and before.stop_at_s_m is not None
+    in_lane = _tracks([(3, 100.0, 0.0, 0.0, -1.3, ObjectClass.PEDESTRIAN)])
+    after = _fsm(straight_layers).step(_inp(0.0, 85.0, v=1.0, tracks=in_lane))
+    assert after.stop_at_s_m is not None and after.risk_track_id == 3
+    assert before.stop_at_s_m <= after.stop_at_s_m + 1e-9
+    # Past that point (restarting after a yield when someone else steps up): back to the line ahead,
+    # never a stop point behind the front.
+    front_from_rear = VehicleGeometry().front_from_rear_axle_m
+    rear = before.stop_at_s_m - front_from_rear + 0.3
+    again = _fsm(straight_layers).step(_inp(0.0, rear, v=1.0, tracks=approaching))
+    assert again.stop_reason is StopReason.CROSSWALK and again.stop_at_s_m is not None
+    assert again.stop_at_s_m > rear + front_from_rear

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import pytest
+
 from lastmile.decision import traffic_light_rule as tlr
 from lastmile.decision.traffic_light_rule import TrafficLightRuleConfig
 
@@ -26,8 +28,8 @@ def test_go_verdicts_forget_a_yellow_choice() -> None:
 
 def test_yellow_stops_only_when_comfortable_and_keeps_its_choice() -> None:
     st = tlr._Approach()
-    # 5 m/s, 10 m: 1.25 m/s^2 <= 2: stop, and keep stopping even once closer.
-    assert tlr._yellow(C, st, _line(10.0, 5.0))[0] == 100.0
+    # 5 m/s, 12 m: the ramped-in comfortable stop needs 10.3 m: stop, and keep stopping once closer.
+    assert tlr._yellow(C, st, _line(12.0, 5.0))[0] == 100.0
     assert tlr._yellow(C, st, _line(2.0, 5.0))[0] == 100.0
     st = tlr._Approach()
     # 5 m/s, 4 m: 3.1 m/s^2: go, and a red after it does not become a hard stop.
@@ -35,6 +37,27 @@ def test_yellow_stops_only_when_comfortable_and_keeps_its_choice() -> None:
     assert tlr._red(C, st, _line(3.0, 5.0)) == (None, "signal turned red after the yellow go: committed")
     # Slow enough to stop comfortably after all: the red is obeyed.
     assert tlr._red(C, st, _line(3.0, 2.0))[0] == 100.0
+
+
+def test_yellow_counts_the_metres_the_braking_ramp_covers() -> None:
+    # Seed 3 in snow: yellow seen 8.5 m before the stop point at 5.5 m/s. v^2 / 2d = 1.8 m/s^2 looks
+    # comfortable, but with the ramp-in it needs ~3 m/s^2: go on (the yellow lasts 3-6 s, 1.5 s to the line).
+    assert C.comfort_decel_mps2 >= 5.5**2 / (2.0 * 8.5)
+    assert tlr._yellow(C, tlr._Approach(), _line(8.5, 5.5))[0] is None
+    assert tlr._yellow(C, tlr._Approach(), _line(13.0, 5.5))[0] == 100.0
+
+
+def test_comfortable_stop_distance_matches_a_jerk_limited_stop() -> None:
+    # Integrate the braking the model describes (reaction, ramp at the jerk, hold) at 1 ms.
+    for v0 in (0.8, 2.0, 4.0, 5.5):
+        v, a, s, t, dt = v0, 0.0, 0.0, 0.0, 1e-3
+        while v > 0.0:
+            if t >= C.reaction_s:
+                a = max(a - C.brake_jerk_mps3 * dt, -C.comfort_decel_mps2)
+            s += v * dt + 0.5 * a * dt * dt
+            v += a * dt
+            t += dt
+        assert tlr.comfortable_stop_m(v0, C) == pytest.approx(s, abs=0.02)
 
 
 def test_unknown_is_red_only_near_the_line() -> None:

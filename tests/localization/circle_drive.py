@@ -63,14 +63,17 @@ def run_circle(
     imu_bias_radps=0.0,
     odom_scale=1.0,
     seed=1,
+    lever_m=None,
 ):
-    """Odometry and IMU at 50 Hz, GNSS at 10 Hz; a jump lasts one fix (or on, when over 50 m)."""
+    """Odometry and IMU at 50 Hz, GNSS at 10 Hz; a jump lasts one fix (or on, when over 50 m).
+    ``lever_m``: a zero-slip point given with every odometry sample (OdometryEkf only)."""
     rng = np.random.default_rng(seed)
     err, valid, std, times = [], [], [], []
     for k in range(int(seconds * 50)):
         t = k * 0.02
         speed = V * odom_scale + rng.normal(0, 0.02)
-        ekf.predict(stamp_from_s(t), speed, W + imu_bias_radps + rng.normal(0, 0.003))
+        extra = () if lever_m is None else (lever_m,)
+        ekf.predict(stamp_from_s(t), speed, W + imu_bias_radps + rng.normal(0, 0.003), *extra)
         if k % 5 == 0:
             in_outage = outage is not None and outage[0] <= t < outage[1]
             jump = 0.0

@@ -8,7 +8,7 @@ from lastmile.core.route_obstacles import RouteObstacle
 from lastmile.core.stamp import Stamp
 from lastmile.core.vehicle_messages import BehaviourDecision, BehaviourState
 from lastmile.planning.bezier import cubic_bezier, lateral_transition_m, smooth_through
-from lastmile.planning.local_path import LocalPathConfig, LocalPathPlanner
+from lastmile.planning.local_path import LocalPathConfig, LocalPathPlanner, rounded_floor_m
 from lastmile.planning.potential_field import PotentialFieldConfig, nudge_offsets_m
 
 ROUTE = Polyline(np.array([[0.0, 0.0], [500.0, 0.0]]))
@@ -171,3 +171,28 @@ def test_exact_body_clearance_keeps_the_placed_body_off_a_steep_taper():
         gaps[exact] = _body_side_clearance_m(planner.plan(Stamp(0), 20.0, 0.0, decision, []), curb)
     assert gaps[False] < -0.1, gaps
     assert gaps[True] >= 0.05, gaps
+
+
+def test_the_curb_floor_is_rounded_where_a_taper_meets_its_platform_and_never_lowered():
+    # A 1:2.5 taper from the lane edge down to a bay's platform: with a plain maximum the front's
+    # pull-over curve turned 0.38 rad at the corner (0.12-0.14 /m in snow seed 2's bay, where the
+    # front-steered shuttle swung its front corner onto the platform's curb).
+    step = 0.25
+    s = np.arange(0.0, 60.0, step)
+    floor = np.interp(s, [20.0, 28.75], [-0.67, -4.17])
+    floor[s < 5.0] = -np.inf  # an opening: no curb
+    rounded = rounded_floor_m(floor, step, 10.0)
+    assert np.all(rounded >= floor)
+    straight = (
+        ((s > 5.0 + 5.0) & (s < 20.0 - 5.0)) | ((s > 20.0 + 5.0) & (s < 28.75 - 5.0)) | (s > 28.75 + 5.0)
+    )
+    assert rounded[straight] == pytest.approx(floor[straight])
+    # Where the taper flattens onto the platform the 0.4 slope change is spread over the 10 m window
+    # (the taper's start, a concave corner, is left as it is: rounding it would lower the floor).
+    near = (s > 24.5) & (s < 40.0)
+    slope = np.diff(rounded[near]) / step
+    assert np.abs(np.diff(slope) / step).max() <= 0.4 / 10.0 + 1e-9
+    corner = int(28.75 / step)
+    assert rounded[corner] == pytest.approx(floor[corner] + 0.4 * 10.0 / 8.0, abs=0.02)  # lifted, by 0.5 m
+    assert np.all(np.isneginf(rounded[s < 5.0 - 5.0]))
+    assert rounded_floor_m(floor, step, 0.0) is floor

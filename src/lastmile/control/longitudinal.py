@@ -147,7 +147,7 @@ class WatonobusLongitudinalController:
             self.v_des_mps = self.a_ref_mps2 = 0.0
             urgent = speed_mps > c.overshoot_speed_mps
         else:
-            urgent = self._update_reference(dt_s, v_ref_mps, gap_to_stop_m)
+            urgent = self._update_reference(dt_s, v_ref_mps, gap_to_stop_m, speed_mps)
         # With the reference at rest the loop alone brings the vehicle to a stop; a softer gain there
         # keeps that last approach overdamped (with the drive's lag the full gain rings, and the wheels
         # stop while still braking: a step a rider feels).
@@ -164,7 +164,9 @@ class WatonobusLongitudinalController:
         self.accel_cmd_mps2 = min(max(target, lo), hi)
         return self.accel_cmd_mps2
 
-    def _update_reference(self, dt_s: float, v_ref_mps: float, gap_to_stop_m: float | None) -> bool:
+    def _update_reference(
+        self, dt_s: float, v_ref_mps: float, gap_to_stop_m: float | None, speed_mps: float
+    ) -> bool:
         """Advance a_ref and V_des one step (eqs. 1-3, jerk-limited); returns whether the stop is urgent."""
         c = self.config
         a_target = self._free_accel(v_ref_mps)
@@ -172,7 +174,7 @@ class WatonobusLongitudinalController:
         if gap_to_stop_m is None:
             self._braking = False
         else:
-            stop = self._stop_accel(gap_to_stop_m)
+            stop = self._stop_accel(gap_to_stop_m, speed_mps)
             if stop is not None and stop[0] < a_target:
                 a_target, stopping, urgent = stop[0], True, stop[1]
         ramp = c.reference_jerk_mps3 * dt_s
@@ -196,17 +198,23 @@ class WatonobusLongitudinalController:
         ease = math.sqrt(2.0 * c.reference_jerk_mps3 * abs(dv))
         return math.copysign(min(c.nominal_accel_mps2, ease), dv)
 
-    def _stop_accel(self, gap_m: float) -> tuple[float, bool] | None:
+    def _stop_accel(self, gap_m: float, speed_mps: float) -> tuple[float, bool] | None:
         """Eq. (2) toward the stop point, and whether it is urgent (None: not braking for it yet).
 
         The deceleration is the one needed once the reference acceleration has turned into it at the
         jerk limit (the ramp covers ground too), so braking starts early enough; a comfortable stop
-        fades out near rest."""
+        fades out near rest, at the lower of V_des and the measured speed: a vehicle already slower
+        than V_des near the point is not braked as if it had V_des (at a bay, clear seed 0, V_des^2 / 2
+        gap grew as the gap closed and the wheels stopped with ~0.4 m/s^2 left: +1.97 m/s^3)."""
         c = self.config
         v = self.v_des_mps
         decel = v**2 / (2.0 * gap_m)
         for _ in range(2):
-            ramp_s = max(self.a_ref_mps2 + max(decel, c.brake_trigger_mps2), 0.0) / c.reference_jerk_mps3
+            # Not yet braking, the ramp runs at least to the trigger (so braking starts early enough);
+            # braking already, only to what is needed: near rest, ramping to the trigger left no room
+            # and turned the end of every stop urgent (at a bay, clear seed 0: -0.49 m/s^2 at 0.1 m/s).
+            aim = max(decel, c.brake_trigger_mps2) if not self._braking else decel
+            ramp_s = max(self.a_ref_mps2 + aim, 0.0) / c.reference_jerk_mps3
             v_end = max(v + 0.5 * (self.a_ref_mps2 - decel) * ramp_s, 0.0)
             room = gap_m - 0.5 * (v + v_end) * ramp_s
             decel = max(decel, v_end**2 / (2.0 * room) if room > 0.05 else c.max_decel_mps2)
@@ -223,7 +231,8 @@ class WatonobusLongitudinalController:
         fade_m = decel**3 / (6.0 * c.stop_jerk_mps3**2)
         if fade_m < 0.5 * gap_m:
             decel = max(decel, v**2 / (2.0 * (gap_m - fade_m)))
-        return -min(decel, math.sqrt(2.0 * c.stop_jerk_mps3 * v)), False
+        fade_v = min(v, max(speed_mps, 0.0))
+        return -min(decel, math.sqrt(2.0 * c.stop_jerk_mps3 * fade_v)), False
 
 
 def stopping_gap_m(stop_front_s_m: float | None, front_s_m: float) -> float | None:

@@ -92,10 +92,15 @@ class BehaviourStateMachine:
         if outcome.hold_still:
             return self._decision(cy, outcome, None)
         binding = min(cy.constraints, key=lambda k: k.stop_front_s_m, default=None)
-        if self._too_close(binding, cy):
-            assert binding is not None
+        # The emergency test reads the nearest point that may order one, even when a rule's point
+        # (a crosswalk stopping short of the same pedestrian) binds the comfortable stop.
+        urgent = min(
+            (k for k in cy.constraints if k.emergency_ok), key=lambda k: k.stop_front_s_m, default=None
+        )
+        if self._too_close(urgent, cy):
+            assert urgent is not None
             self.memory.enter(
-                BehaviourState.EMERGENCY_STOP, cy.t_s, f"{binding.kind} {binding.track_id} too close"
+                BehaviourState.EMERGENCY_STOP, cy.t_s, f"{urgent.kind} {urgent.track_id} too close"
             )
             return self._decision(cy, self._emergency(cy), None)
         return self._decision(cy, outcome, binding)
@@ -135,8 +140,12 @@ class BehaviourStateMachine:
         constraints += cut_in_constraints(
             obstacles, inp.predictions, ctx.route, path, front_s, inp.speed_mps, g, c
         )
-        constraints += crosswalk_constraints(
-            self.layers.crosswalks, ctx.route, inp.tracks, front_s, inp.speed_mps, inp.predictions, g, c
+        constraints += self._crosswalk_hold(
+            t_s,
+            inp.speed_mps,
+            crosswalk_constraints(
+                self.layers.crosswalks, ctx.route, inp.tracks, front_s, inp.speed_mps, inp.predictions, g, c
+            ),
         )
         light_stop, light_why = self.lights.step(t_s, front_s, inp.speed_mps, inp.traffic_lights, ctx.ahead_m)
         if light_stop is not None:
@@ -149,6 +158,27 @@ class BehaviourStateMachine:
             self.request_emergency(t_s, "safety: " + "; ".join(sd.reasons))
         speed_cap, mrm = safety_constraints(sd, speed_cap)
         return Cycle(inp, t_s, front_s, obstacles, constraints + mrm, speed_cap)
+
+    def _crosswalk_hold(
+        self, t_s: float, speed_mps: float, yields: list[StopConstraint]
+    ) -> list[StopConstraint]:
+        """The crosswalk yields, and, for ``crosswalk_clear_s`` after the last one cleared, the one
+        the shuttle stood for (only while it still stands: one that drove on has nothing to hold)."""
+        c, mem = self.config, self.memory
+        standing = speed_mps < c.standstill_mps
+        if yields:
+            first = min(yields, key=lambda k: k.stop_front_s_m)
+            mem.crosswalk_hold = (first.stop_front_s_m, first.track_id, t_s) if standing else None
+            return yields
+        held = mem.crosswalk_hold
+        if held is None or not standing or t_s - held[2] >= c.crosswalk_clear_s:
+            mem.crosswalk_hold = None
+            return yields
+        return [
+            StopConstraint(
+                held[0], "crosswalk (clearing)", held[1], emergency_ok=False, reason=StopReason.CROSSWALK
+            )
+        ]
 
     def _too_close(self, binding: StopConstraint | None, cy: Cycle) -> bool:
         """Stopping at ``binding`` needs more than ``emergency_decel_mps2`` (never while onboarding)."""

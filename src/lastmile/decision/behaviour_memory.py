@@ -76,6 +76,8 @@ class BehaviourMemory:
     boarding: Boarding = field(default_factory=Boarding)
     intersection: IntersectionVisit = field(default_factory=IntersectionVisit)
     emergency_clear_since_s: float | None = None
+    crosswalk_hold: tuple[float, int, float] | None = None
+    """(stop point, track id, last seen yielding s) of a crosswalk yield the shuttle stands for."""
     transitions: list[tuple[float, str, str, str]] = field(default_factory=list)
 
     def enter(self, state: BehaviourState, t_s: float, why: str) -> None:

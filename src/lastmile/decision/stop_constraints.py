@@ -152,6 +152,8 @@ def crosswalk_constraints(
             predictions,
             margin_m=config.crosswalk_margin_m,
             lookahead_s=config.crosswalk_lookahead_s,
+            gap_m=config.min_gap_m,
+            comfort_decel_mps2=config.traffic_lights.comfort_decel_mps2,
         )
     ]
 

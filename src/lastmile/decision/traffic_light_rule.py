@@ -5,9 +5,12 @@ At each signalised stop line ahead (within ``approach_m``) the heads of its sign
 yellow over green). Then:
 
 - red: stop at the line;
-- yellow: stop if the shuttle can with comfortable braking (v^2 / 2d <= ``comfort_decel_mps2``), else go
-  on; the choice is kept until the light changes, so a stop once begun is finished, and a go is never
-  turned into a late hard stop;
+- yellow: stop if the shuttle can with comfortable braking, else go on. Comfortable is the braking the
+  speed law will really apply: after one decision cycle it ramps in at a bounded jerk up to
+  ``comfort_decel_mps2`` (:func:`comfortable_stop_m`); v^2 / 2d alone forgets the metres the ramp
+  covers (at 5.5 m/s a 1.8 m/s^2 ramp at 1.5 m/s^3 takes 1.2 s and 6.2 m), and a stop judged
+  comfortable that way ends near 3 m/s^2. The choice is kept until the light changes, so a stop once
+  begun is finished, and a go is never turned into a late hard stop;
 - green, or flashing yellow (proceed with caution): go;
 - flashing red: a stop sign: stop at the line, stand ``full_stop_s``, then go;
 - no established track of any of the signal's heads, or all of them unknown/off, within
@@ -18,6 +21,7 @@ yellow over green). Then:
 from __future__ import annotations
 
 import functools
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -44,7 +48,11 @@ class TrafficLightRuleConfig:
         approach_m: signal stop lines closer than this (front bumper to line) are acted on.
         unknown_as_red_m: within this distance of the line a signal nobody sees counts as red.
         comfort_decel_mps2: the deceleration the shuttle may use to stop on yellow (standing
-            passengers: well below a car's 3 m/s^2).
+            passengers: Snow Lion's measured envelope, -1.83 m/s^2, well below a car's 3 m/s^2; the
+            speed law's own comfortable braking is 1.8).
+        brake_jerk_mps3: the jerk at which the speed law ramps its braking in (control's
+            ``reference_jerk_mps3``, under Snow Lion's 1.84 m/s^3).
+        reaction_s: time from the light seen to the braking begun: one decision cycle (10 Hz).
         full_stop_s: how long the shuttle stands at a flashing red before it goes.
         stop_before_line_m: where the front bumper stops, this far before the line.
         gap_floor_m: the gap left to the stop point is taken as at least this when the braking it
@@ -55,7 +63,9 @@ class TrafficLightRuleConfig:
 
     approach_m: float = 60.0
     unknown_as_red_m: float = 40.0
-    comfort_decel_mps2: float = 2.0
+    comfort_decel_mps2: float = 1.8
+    brake_jerk_mps3: float = 1.5
+    reaction_s: float = 0.1
     full_stop_s: float = 1.0
     stop_before_line_m: float = 0.5
     gap_floor_m: float = 0.05
@@ -73,6 +83,11 @@ class TrafficLightRuleConfig:
                 "TrafficLightRuleConfig: expected comfort_decel_mps2 > 0, full_stop_s >= 0, "
                 f"stop_before_line_m >= 0, got {self.comfort_decel_mps2}, {self.full_stop_s}, "
                 f"{self.stop_before_line_m}"
+            )
+        if not (self.brake_jerk_mps3 > 0 and self.reaction_s >= 0):
+            raise ConfigError(
+                "TrafficLightRuleConfig: expected brake_jerk_mps3 > 0 and reaction_s >= 0, got "
+                f"{self.brake_jerk_mps3}, {self.reaction_s}"
             )
         if self.gap_floor_m <= 0:
             raise ConfigError(f"TrafficLightRuleConfig.gap_floor_m: expected > 0, got {self.gap_floor_m}")
@@ -202,17 +217,33 @@ def _unknown(c: TrafficLightRuleConfig, st: _Approach, line: _LineApproach) -> _
     return line.stop_s_m, "signal expected but unknown: treat as red"
 
 
+def comfortable_stop_m(speed_mps: float, c: TrafficLightRuleConfig) -> float:
+    """Distance to stop from ``speed_mps`` braking comfortably as the speed law does it: ``reaction_s``
+    at speed, the deceleration ramped in at ``brake_jerk_mps3`` up to ``comfort_decel_mps2``, then held.
+
+    Ramping to D at jerk j takes D / j and covers v D / j - D^3 / (6 j^2), leaving v - D^2 / (2 j);
+    a slow shuttle stops within the ramp, after sqrt(2 v / j) and 2/3 v of it."""
+    v, j, d = max(speed_mps, 0.0), c.brake_jerk_mps3, c.comfort_decel_mps2
+    reaction_m = v * c.reaction_s
+    v_ramped = v - d * d / (2.0 * j)
+    if v_ramped <= 0.0:
+        return reaction_m + 2.0 / 3.0 * v * math.sqrt(2.0 * v / j)
+    return reaction_m + v * d / j - d**3 / (6.0 * j * j) + v_ramped**2 / (2.0 * d)
+
+
+def _can_stop(c: TrafficLightRuleConfig, line: _LineApproach) -> bool:
+    return max(line.gap_m, c.gap_floor_m) >= comfortable_stop_m(line.speed_mps, c)
+
+
 def _red(c: TrafficLightRuleConfig, st: _Approach, line: _LineApproach) -> _Verdict:
-    need = line.speed_mps**2 / (2.0 * max(line.gap_m, c.gap_floor_m))
-    if st.yellow_choice == "go" and need > c.comfort_decel_mps2:
+    if st.yellow_choice == "go" and not _can_stop(c, line):
         return None, "signal turned red after the yellow go: committed"
     return line.stop_s_m, "signal red"
 
 
 def _yellow(c: TrafficLightRuleConfig, st: _Approach, line: _LineApproach) -> _Verdict:
     if not st.yellow_choice:
-        need = line.speed_mps**2 / (2.0 * max(line.gap_m, c.gap_floor_m))
-        st.yellow_choice = "stop" if need <= c.comfort_decel_mps2 else "go"
+        st.yellow_choice = "stop" if _can_stop(c, line) else "go"
     if st.yellow_choice == "go":
         return None, "signal yellow: too close to stop comfortably, go"
     return line.stop_s_m, "signal yellow: stop"

@@ -112,11 +112,37 @@ _PACKED = tuple(tuple(_PAIRS.index((min(i, j), max(i, j))) for j in range(5)) fo
 _X, _Y, _YAW, _V, _BIAS = range(5)
 _UNKNOWN_VAR = 1e6  # prior variance of position before the first fix (m^2) and of speed ((m/s)^2)
 
-# A snapshot is the posterior after one input: (t_us, initialised, yaw_rate_in, state, packed_cov);
+# A snapshot is the posterior after one input: (t_us, initialised, held inputs, state, packed_cov);
+# the held inputs are (yaw_rate_radps, zero_slip_offset_m), the motion inputs between two inputs;
 # t_us < 0 before the first input. Events are (t_us, kind, payload, snapshot).
-_Snapshot = tuple[int, bool, float, tuple[float, ...], tuple[float, ...]]
-_Payload = tuple[float, float] | GnssInsFrame  # (speed_mps, yaw_rate_radps) from odometry and IMU
+_Held = tuple[float, float]
+_Snapshot = tuple[int, bool, _Held, tuple[float, ...], tuple[float, ...]]
+# (speed_mps, yaw_rate_radps, zero_slip_offset_m or NaN to keep the held one) from odometry and IMU.
+_Payload = tuple[float, float, float] | GnssInsFrame
 _ODOM, _GNSS, _GNSS_RESET = 0, 1, 2
+
+
+STRAIGHT_STEER = 1e-3
+"""Below this difference of the wheel angles' tangents the body hardly turns from steering: the
+zero-slip point is then left as it was (it only matters times the yaw rate)."""
+
+
+def zero_slip_offset_m(wheelbase_m: float, steer_front_rad: float, steer_rear_rad: float) -> float | None:
+    """Where the body has no sideways velocity, m ahead of the rear axle, from the wheel angles.
+
+    Kinematic (no tyre slip) body with front and rear wheels at angles df and dr: the sideways
+    velocity grows linearly along the body, from v tan(dr) at the rear axle to v tan(df) at the front
+    one, so it vanishes at ``-tan(dr) L / (tan(df) - tan(dr))``: the rear axle with the rear wheels
+    straight, mid-wheelbase when they steer opposite to the front. An all-wheel-steer shuttle that
+    keeps its rear wheels straight (at a curb) moves its zero-slip point, and a filter that assumes
+    mid-wheelbase then slides the rear axle outwards at yaw rate x L/2 (0.36 m/s in a 0.25 rad/s
+    pull-over at 3.4 m/s: its GNSS fixes rejected within a second). None when the wheels are near
+    parallel (no turn from steering).
+    """
+    tan_f, tan_r = math.tan(steer_front_rad), math.tan(steer_rear_rad)
+    if abs(tan_f - tan_r) < STRAIGHT_STEER:
+        return None
+    return -tan_r * wheelbase_m / (tan_f - tan_r)
 
 
 class OdometryEkf:
@@ -151,7 +177,13 @@ class OdometryEkf:
         prior[_PACKED[_YAW][_YAW]] = math.pi**2
         prior[_PACKED[_V][_V]] = _UNKNOWN_VAR
         prior[_PACKED[_BIAS][_BIAS]] = c.yaw_rate_bias_std_radps**2
-        self._latest: _Snapshot = (-1, False, 0.0, (0.0, 0.0, 0.0, 0.0, 0.0), tuple(prior))
+        self._latest: _Snapshot = (
+            -1,
+            False,
+            (0.0, c.zero_slip_offset_m),
+            (0.0, 0.0, 0.0, 0.0, 0.0),
+            tuple(prior),
+        )
         self._events: list[tuple[int, int, _Payload, _Snapshot]] = []
         self._history_us = round(c.history_s * US_PER_S)
         self._q_pos = c.pos_noise_mps**2
@@ -171,28 +203,42 @@ class OdometryEkf:
         """Current estimate of the IMU yaw-rate bias (subtracted from every IMU reading)."""
         return self._latest[3][_BIAS]
 
-    def predict(self, stamp: Stamp, speed_mps: float, yaw_rate_radps: float) -> None:
+    def predict(
+        self,
+        stamp: Stamp,
+        speed_mps: float,
+        yaw_rate_radps: float,
+        zero_slip_offset_m: float | None = None,
+    ) -> None:
         """Move the filter to ``stamp`` and take a new odometry speed and IMU yaw rate.
 
-        The motion up to ``stamp`` uses the previous yaw rate (held since the last call); the speed
-        is a measurement of the speed state.
+        The motion up to ``stamp`` uses the previous yaw rate and zero-slip point (held since the
+        last call); the speed is a measurement of the speed state.
 
         Args:
             stamp: capture time of the odometry sample, µs.
             speed_mps: wheel-odometry speed of the rear axle (forward positive).
             yaw_rate_radps: latest IMU yaw rate (counter-clockwise positive), bias included.
+            zero_slip_offset_m: where the body has no sideways velocity now, m ahead of the rear axle
+                (:func:`zero_slip_offset_m` of the measured wheel angles); None keeps the held one
+                (initially the configuration's).
 
         Raises:
             MessageError: a non-finite input or a negative stamp.
         """
-        if not (math.isfinite(speed_mps) and math.isfinite(yaw_rate_radps)):
+        lever = math.nan if zero_slip_offset_m is None else zero_slip_offset_m
+        if not (
+            math.isfinite(speed_mps)
+            and math.isfinite(yaw_rate_radps)
+            and (zero_slip_offset_m is None or math.isfinite(lever))
+        ):
             raise MessageError(
-                "OdometryEkf.predict: expected finite speed_mps and yaw_rate_radps, "
-                f"got {speed_mps}, {yaw_rate_radps}"
+                "OdometryEkf.predict: expected finite speed_mps, yaw_rate_radps and zero_slip_offset_m, "
+                f"got {speed_mps}, {yaw_rate_radps}, {zero_slip_offset_m}"
             )
         if stamp < 0:
             raise MessageError(f"OdometryEkf.predict: expected a non-negative stamp, got {stamp}")
-        self._insert(int(stamp), _ODOM, (speed_mps, yaw_rate_radps))
+        self._insert(int(stamp), _ODOM, (speed_mps, yaw_rate_radps, lever))
 
     def update_gnss(self, frame: GnssInsFrame) -> bool:
         """Correct with an RTK GNSS/INS fix (position, yaw and speed, with the frame's std devs).
@@ -228,7 +274,7 @@ class OdometryEkf:
             snap = events[k][3]
         if snap[0] >= 0:
             snap = self._propagate(snap, int(stamp))
-        _, initialised, yaw_rate_in, s, p = snap
+        _, initialised, (yaw_rate_in, _), s, p = snap
         a, b, d = p[0], p[1], p[5]
         pos_std = math.sqrt(0.5 * (a + d) + math.sqrt(0.25 * (a - d) ** 2 + b * b))
         return LocalizationEstimate(
@@ -285,21 +331,22 @@ class OdometryEkf:
         snap = self._propagate(snap, t_us)
         if isinstance(payload, GnssInsFrame):
             return self._fuse_fix(snap, payload, reset=kind == _GNSS_RESET, first_time=first_time)
-        speed_mps, yaw_rate_radps = payload
+        speed_mps, yaw_rate_radps, lever = payload
+        held = (yaw_rate_radps, snap[2][1] if math.isnan(lever) else lever)
         s, p = self._scalar_update(snap[3], snap[4], _V, speed_mps - snap[3][_V], self._r_odom)
-        return (t_us, snap[1], yaw_rate_radps, s, p), True
+        return (t_us, snap[1], held, s, p), True
 
     def _propagate(self, snap: _Snapshot, t_us: int) -> _Snapshot:
         """Kinematic prediction to ``t_us`` (may be backwards for a look into the past)."""
-        t0, initialised, w_in, s, p = snap
+        t0, initialised, held, s, p = snap
         if t0 < 0:
-            return (t_us, initialised, w_in, s, p)
+            return (t_us, initialised, held, s, p)
         dt = (t_us - t0) / US_PER_S
         if dt == 0.0:
             return snap
         x, y, yaw, v, bias = s
         p00, p01, p02, p03, p04, p11, p12, p13, p14, p22, p23, p24, p33, p34, p44 = p
-        lever = self.config.zero_slip_offset_m
+        w_in, lever = held
         w = w_in - bias
         # Midpoint heading: exact for constant speed and yaw rate up to second order.
         mid = yaw + 0.5 * w * dt
@@ -329,7 +376,7 @@ class OdometryEkf:
         return (
             t_us,
             initialised,
-            w_in,
+            held,
             (x + vx * dt, y + vy * dt, wrap_angle_rad(yaw + w * dt), v, bias),
             (
                 m00 + a * m02 + cx * m03 + e * m04 + q_pos,
@@ -364,7 +411,7 @@ class OdometryEkf:
     def _fuse_fix(
         self, snap: _Snapshot, fix: GnssInsFrame, reset: bool, first_time: bool
     ) -> tuple[_Snapshot, bool]:
-        t_us, initialised, w_in, s, p = snap
+        t_us, initialised, held, s, p = snap
         r_pos = floored_sigma_m(fix.pos_std_m, fix.quality) ** 2
         if not initialised or reset:
             return self._initialise(snap, fix), True
@@ -395,7 +442,7 @@ class OdometryEkf:
         s, p = self._scalar_update(s, p, _Y, fix.y_m - s[_Y], r_pos)
         s, p = self._scalar_update(s, p, _YAW, wrap_angle_rad(fix.yaw_rad - s[_YAW]), fix.yaw_std_rad**2)
         s, p = self._scalar_update(s, p, _V, fix.speed_mps - s[_V], self._r_gnss_speed)
-        return (t_us, True, w_in, (s[0], s[1], wrap_angle_rad(s[2]), s[3], s[4]), p), True
+        return (t_us, True, held, (s[0], s[1], wrap_angle_rad(s[2]), s[3], s[4]), p), True
 
     def _innovations_agree(self) -> bool:
         inn = self._rejected_innovations
@@ -406,7 +453,7 @@ class OdometryEkf:
 
     def _initialise(self, snap: _Snapshot, fix: GnssInsFrame) -> _Snapshot:
         """Pose from the fix; speed and bias (and their covariance) kept from the odometry so far."""
-        t_us, _, w_in, s, p = snap
+        t_us, _, held, s, p = snap
         r_pos = floored_sigma_m(fix.pos_std_m, fix.quality) ** 2
         new_p = list(p)
         for i in (_X, _Y, _YAW):
@@ -418,4 +465,4 @@ class OdometryEkf:
         state, packed = self._scalar_update(
             state, tuple(new_p), _V, fix.speed_mps - s[_V], self._r_gnss_speed
         )
-        return (t_us, True, w_in, state, packed)
+        return (t_us, True, held, state, packed)

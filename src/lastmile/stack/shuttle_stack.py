@@ -70,7 +70,7 @@ from lastmile.hdmap.layers import SLayerDatabase
 from lastmile.localization.ekf import PoseEkf
 from lastmile.localization.ekf_config import PoseEkfConfig
 from lastmile.localization.landmark_extraction import LandmarkExtractionConfig
-from lastmile.localization.odometry_ekf import OdometryEkf, OdometryEkfConfig
+from lastmile.localization.odometry_ekf import OdometryEkf, OdometryEkfConfig, zero_slip_offset_m
 from lastmile.perception.late_fusion import radar_detections
 from lastmile.planning.local_path import LocalPathConfig
 from lastmile.planning.planners import PlannerInputs, PlannerName, make_path_planner
@@ -481,9 +481,14 @@ class ShuttleStack:
 
             return {WheelOdometryFrame: inertial_odometry, ImuFrame: inertial_imu}
 
+        wheelbase_m = self.geometry.wheelbase_m
+
         def odometry_predicts(frame: WheelOdometryFrame) -> None:
             odometry(frame)
-            ekf.predict(frame.stamp, frame.speed_mps, self._yaw_rate_radps)
+            # The zero-slip point follows the measured wheel angles: the rear wheels are kept
+            # straight at a curb, and the rear axle then no longer slides outwards.
+            lever_m = zero_slip_offset_m(wheelbase_m, frame.steer_front_rad, frame.steer_rear_rad)
+            ekf.predict(frame.stamp, frame.speed_mps, self._yaw_rate_radps, lever_m)
 
         return {WheelOdometryFrame: odometry_predicts, ImuFrame: imu}
 
