@@ -17,6 +17,8 @@ from typing import Any
 import pytest
 from websockets.sync.client import connect
 
+from tests.recorder.foxglove_ws import advertised
+
 SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
 """What a Foxglove client offers: the SDK's server (foxglove-sdk 0.30) speaks the protocol under its new
 name only and answers a client offering nothing but the old ``foxglove.websocket.v1`` with HTTP 400 (so
@@ -96,14 +98,7 @@ def _announced_port(proc: subprocess.Popen[str]) -> int | None:
 
 
 def _advertised(ws: object, wanted: set[str], timeout_s: float = 20.0) -> dict[str, dict]:
-    channels: dict[str, dict] = {}
-    deadline = time.monotonic() + timeout_s
-    while not wanted <= set(channels) and time.monotonic() < deadline:
-        msg = ws.recv(timeout=timeout_s)  # type: ignore[attr-defined]
-        if isinstance(msg, str):
-            doc = json.loads(msg)
-            if doc.get("op") == "advertise":
-                channels.update({c["topic"]: c for c in doc["channels"]})
+    channels = advertised(ws, wanted, timeout_s)
     assert wanted <= set(channels), sorted(channels)
     return channels
 

@@ -20,21 +20,14 @@ from lastmile.recorder.live_view import LiveView, LiveViewConfig
 from lastmile.runner.closed_loop import run_scenario
 from lastmile.sim.scenario import default_service
 from tests.closed_loop.harness import RADAR
+from tests.recorder.foxglove_ws import advertised
 from tests.recorder.stream import record_ticks
 
 MOUNTS = {"lidar_top": planar_matrix(1.2, 0.0, 0.0, 1.9), "radar_front": planar_matrix(3.75, 0.0, 0.0)}
 
 
 def _advertised(ws: object, wanted: set[str], timeout_s: float = 10.0) -> dict[str, dict]:
-    channels: dict[str, dict] = {}
-    deadline = time.monotonic() + timeout_s
-    while not wanted <= set(channels) and time.monotonic() < deadline:
-        msg = ws.recv(timeout=timeout_s)  # type: ignore[attr-defined]
-        if isinstance(msg, str):
-            doc = json.loads(msg)
-            if doc.get("op") == "advertise":
-                channels.update({c["topic"]: c for c in doc["channels"]})
-    return channels
+    return advertised(ws, wanted, timeout_s)
 
 
 def test_a_client_sees_the_channels_and_gets_the_transform_tree_it_subscribes_to() -> None:

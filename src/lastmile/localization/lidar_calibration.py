@@ -208,18 +208,7 @@ def calibrate_by_planes(
     fitness = _overlap(ref, oth, pose, c)
     quality = _Quality(fitness, rmse_m, math.inf, "translation", np.zeros(3))
     _check(quality, converged, c, CalibrationMethod.THREE_PLANES)
-    corr_m, corr_rad = mount_difference(nominal, pose)
-    return LidarCalibration(
-        base_from_sensor=pose,
-        nominal_base_from_sensor=nominal,
-        correction_m=corr_m,
-        correction_rad=corr_rad,
-        fitness=fitness,
-        rmse_m=rmse_m,
-        iterations=0,
-        method=CalibrationMethod.THREE_PLANES,
-        initial_base_from_sensor=initial,
-    )
+    return _calibration(nominal, pose, quality, 0, CalibrationMethod.THREE_PLANES, initial)
 
 
 def _overlap(ref: np.ndarray, oth: np.ndarray, pose: np.ndarray, c: IcpCalibrationConfig) -> float:
@@ -281,15 +270,25 @@ def _register(
     assert result is not None  # at least one stage (checked by the config)
     quality = _fit_quality(target, source, pose, c.overlap_m)
     _check(quality, bool(result.converged), c, method)
-    fitness, rmse_m = quality.fitness, quality.rmse_m
+    return _calibration(nominal, pose, quality, iterations, method, initial)
+
+
+def _calibration(
+    nominal: np.ndarray,
+    pose: np.ndarray,
+    quality: _Quality,
+    iterations: int,
+    method: CalibrationMethod,
+    initial: np.ndarray,
+) -> LidarCalibration:
     corr_m, corr_rad = mount_difference(nominal, pose)
     return LidarCalibration(
         base_from_sensor=pose,
         nominal_base_from_sensor=nominal,
         correction_m=corr_m,
         correction_rad=corr_rad,
-        fitness=fitness,
-        rmse_m=rmse_m,
+        fitness=quality.fitness,
+        rmse_m=quality.rmse_m,
         iterations=iterations,
         method=method,
         initial_base_from_sensor=initial,
