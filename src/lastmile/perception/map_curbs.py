@@ -57,6 +57,10 @@ class MapCurbIndex:
         self.lines: tuple[FloatArray, ...] = tuple(
             np.asarray(c.sub(0.0, c.length_m, vertex_step_m), dtype=np.float64) for c in hdmap.curbs
         )
+        # Each line's bounding box: a line whose box lies beyond the reach has no vertex within it, so
+        # a frame looks only at the few lines around the shuttle, however large the map.
+        self._lo = np.array([xy.min(axis=0) for xy in self.lines]).reshape(-1, 2)
+        self._hi = np.array([xy.max(axis=0) for xy in self.lines]).reshape(-1, 2)
 
     def lines_near(self, map_from_base: SE2, reach_m: float = 45.0) -> list[FloatArray]:
         """The stretches of every curb line with vertices within ``reach_m`` of the base origin,
@@ -64,7 +68,11 @@ class MapCurbIndex:
         segments crossing the reach stay whole)."""
         to_base = map_from_base.inverse()
         out: list[FloatArray] = []
-        for xy in self.lines:
+        x, y = map_from_base.x_m, map_from_base.y_m
+        gap_x = np.maximum(np.maximum(self._lo[:, 0] - x, x - self._hi[:, 0]), 0.0)
+        gap_y = np.maximum(np.maximum(self._lo[:, 1] - y, y - self._hi[:, 1]), 0.0)
+        for k in np.flatnonzero(np.hypot(gap_x, gap_y) <= reach_m).tolist():
+            xy = self.lines[k]
             near = np.hypot(xy[:, 0] - map_from_base.x_m, xy[:, 1] - map_from_base.y_m) <= reach_m
             edges = np.flatnonzero(np.diff(np.r_[0, near.astype(np.int8), 0]))
             for a, b in zip(edges[::2], edges[1::2], strict=True):

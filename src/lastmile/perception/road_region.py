@@ -50,10 +50,11 @@ class MapRoadRegion:
         inside = np.zeros(len(xy), dtype=bool)
         lo, hi = xy.min(axis=0), xy.max(axis=0)
         near = np.flatnonzero(np.all(self._lo <= hi, axis=1) & np.all(self._hi >= lo, axis=1))
+        x, y = xy[:, 0], xy[:, 1]
         for k in near.tolist():
-            sel = np.flatnonzero(
-                ~inside & np.all(xy >= self._lo[k], axis=1) & np.all(xy <= self._hi[k], axis=1)
-            )
+            (lo_x, lo_y), (hi_x, hi_y) = self._lo[k], self._hi[k]
+            # The box test per axis: the same verdict as all(axis=1), without its reduction's cost.
+            sel = np.flatnonzero(~inside & (x >= lo_x) & (x <= hi_x) & (y >= lo_y) & (y <= hi_y))
             if len(sel):
                 inside[sel] = self._paths[k].contains_points(xy[sel])
         return inside
