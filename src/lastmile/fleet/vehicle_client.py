@@ -103,6 +103,7 @@ class VehicleClient:
         self._task: asyncio.Task[None] | None = None
         self._resumed = asyncio.Event()
         self._changed = asyncio.Event()
+        self._handlers = self._message_handlers()  # built once, not per message
         self._stopping = False
         self.refused: str | None = None
 
@@ -206,8 +207,7 @@ class VehicleClient:
                 handler(msg)
         self._changed.set()
 
-    @property
-    def _handlers(self) -> dict[str, Callable[[dict[str, Any]], None]]:
+    def _message_handlers(self) -> dict[str, Callable[[dict[str, Any]], None]]:
         return {
             "cancel": self._on_cancel,
             "command": self._on_service,
