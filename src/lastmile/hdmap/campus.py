@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import math
 import sys
-from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -19,76 +18,17 @@ import lanelet2.core as ll2
 from lanelet2.io import Origin, write
 from lanelet2.projection import UtmProjector
 
-from lastmile.core.geometry import FloatArray
 from lastmile.hdmap import campus_layout as lay
 from lastmile.hdmap.campus_layout import RING, arc, segment
+from lastmile.hdmap.osm_builder import OsmBuilder
 
 CAMPUS_OSM = Path(__file__).with_name("data") / "campus.osm"
 LW = lay.LANE_W_M
 
 
-class _Builder:
-    """Primitives with sequential ids; points are shared by position so junctions connect."""
-
-    def __init__(self) -> None:
-        self.map = ll2.LaneletMap()
-        self._next_id = 1
-        self._points: dict[tuple[float, float], Any] = {}
-
-    def new_id(self) -> int:
-        self._next_id += 1
-        return self._next_id - 1
-
-    def point(self, x: float, y: float, z: float = 0.0, **attrs: str) -> Any:
-        key = (round(x, 4), round(y, 4))
-        if attrs or z != 0.0:  # landmarks are their own points, never merged into road geometry
-            p = ll2.Point3d(self.new_id(), x, y, z, ll2.AttributeMap(attrs))
-            self.map.add(p)
-            return p
-        if key not in self._points:
-            self._points[key] = ll2.Point3d(self.new_id(), key[0], key[1], 0.0)
-        return self._points[key]
-
-    def line(self, xy: FloatArray | Sequence[tuple[float, float]], type_: str, subtype: str = "") -> Any:
-        attrs = {"type": type_} | ({"subtype": subtype} if subtype else {})
-        pts = [self.point(float(x), float(y)) for x, y in xy]
-        return ll2.LineString3d(self.new_id(), pts, ll2.AttributeMap(attrs))
-
-    def lanelet(self, left: Any, right: Any, limit_kmh: int, subtype: str = "road", **attrs: str) -> Any:
-        base = {
-            "type": "lanelet",
-            "subtype": subtype,
-            "location": "urban",
-            "one_way": "yes" if subtype != "crosswalk" else "no",
-            "speed_limit": f"{limit_kmh} km/h",
-        }
-        lanelet = ll2.Lanelet(self.new_id(), left, right, ll2.AttributeMap(base | attrs))
-        self.map.add(lanelet)
-        return lanelet
-
-    def sign(self, x: float, y: float, heading_rad: float, subtype: str, height_m: float = 2.0) -> Any:
-        """A sign plate 0.6 m wide facing traffic that drives along ``heading_rad``."""
-        hx, hy = 0.3 * math.sin(heading_rad), -0.3 * math.cos(heading_rad)
-        pts = [self.point(x - hx, y - hy, height_m), self.point(x + hx, y + hy, height_m)]
-        ls = ll2.LineString3d(
-            self.new_id(), pts, ll2.AttributeMap({"type": "traffic_sign", "subtype": subtype})
-        )
-        self.map.add(ls)
-        return ls
-
-    def area(self, corners: Sequence[tuple[float, float]], subtype: str, line_type: str, **attrs: str) -> Any:
-        """A closed area whose every side is its own line string (a building's facades, say)."""
-        sides = [
-            self.line([corners[i], corners[(i + 1) % len(corners)]], line_type) for i in range(len(corners))
-        ]
-        area = ll2.Area(self.new_id(), sides, [], ll2.AttributeMap({"subtype": subtype} | attrs))
-        self.map.add(area)
-        return area
-
-
 def build_campus_map() -> Any:
     """The campus as a ``lanelet2.core.LaneletMap`` in local metres (x east, y north)."""
-    b = _Builder()
+    b = OsmBuilder()
     ring_out, ring_in = _ring(b)
     _intersection(b, ring_out, ring_in)
     _parking(b)
@@ -122,7 +62,7 @@ def _cuts() -> list[float]:
     return sorted(cuts)
 
 
-def _ring(b: _Builder) -> tuple[dict[float, Any], dict[float, Any]]:
+def _ring(b: OsmBuilder) -> tuple[dict[float, Any], dict[float, Any]]:
     """Ring lanelets; returns the outer-lane (shuttle) and inner-lane lanelets keyed by segment start s."""
     cuts = _cuts()
     stops = {round(s.centre_s_m - lay.BAY_TAPER_M - lay.BAY_PLATFORM_M / 2, 6): s for s in lay.STOPS}
@@ -145,7 +85,7 @@ def _ring(b: _Builder) -> tuple[dict[float, Any], dict[float, Any]]:
     return outer, inner
 
 
-def _bay(b: _Builder, stop: lay.StopSpec, s0: float, s1: float, lane_edge: Any) -> None:
+def _bay(b: OsmBuilder, stop: lay.StopSpec, s0: float, s1: float, lane_edge: Any) -> None:
     n = round(s1 - s0) + 1  # a vertex a metre: the tapers are curves
     ss = [s0 + (s1 - s0) * i / (n - 1) for i in range(n)]
     pts = []
@@ -160,7 +100,7 @@ def _bay(b: _Builder, stop: lay.StopSpec, s0: float, s1: float, lane_edge: Any) 
     b.sign(x - d * math.sin(h), y + d * math.cos(h), h, "de224")
 
 
-def _intersection(b: _Builder, ring_out: dict[float, Any], ring_in: dict[float, Any]) -> None:
+def _intersection(b: OsmBuilder, ring_out: dict[float, Any], ring_in: dict[float, Any]) -> None:
     """The all-way-stop T: side road from the south; every approach has a stop line and a stop sign."""
     xt, x0, x1 = lay.T_X_M, lay.T_X_M - lay.T_HALF_M, lay.T_X_M + lay.T_HALF_M
     ys, ye = lay.SIDE_STOP_Y_M, lay.SIDE_END_Y_M
@@ -202,7 +142,7 @@ def _intersection(b: _Builder, ring_out: dict[float, Any], ring_in: dict[float, 
     b.map.add(rule)
 
 
-def _signal(b: _Builder, ring_out: dict[float, Any], ring_in: dict[float, Any]) -> None:
+def _signal(b: OsmBuilder, ring_out: dict[float, Any], ring_in: dict[float, Any]) -> None:
     """The signalised crossing at C2: a Lanelet2 ``traffic_light`` rule per direction.
 
     Each rule refers to its two heads (``traffic_light`` line strings drawn across the bottom of the
@@ -231,36 +171,7 @@ def _signal(b: _Builder, ring_out: dict[float, Any], ring_in: dict[float, Any]) 
             (side * (LW + lay.SIGNAL_POLE_D_M), lay.SIGNAL_POLE_Z_M),
         ):
             cx, cy = hx + d * hnx, hy + d * hny
-            # Across the housing, left to right as the approaching driver sees it.
-            ux, uy = math.sin(heading), -math.cos(heading)
-            half = lay.SIGNAL_HEAD_W_M / 2
-            pts = [
-                b.point(cx - half * ux, cy - half * uy, z),
-                b.point(cx + half * ux, cy + half * uy, z),
-            ]
-            head = ll2.LineString3d(
-                b.new_id(),
-                pts,
-                ll2.AttributeMap(
-                    {
-                        "type": "traffic_light",
-                        "subtype": "red_yellow_green",
-                        "height": f"{lay.SIGNAL_HEAD_H_M:g}",
-                    }
-                ),
-            )
-            b.map.add(head)
-            bulbs = [  # red on top, a bulb every third of the housing
-                b.point(cx, cy, z + lay.SIGNAL_HEAD_H_M * (5 - 2 * k) / 6, color=colour)
-                for k, colour in enumerate(("red", "yellow", "green"))
-            ]
-            b.map.add(
-                ll2.LineString3d(
-                    b.new_id(),
-                    bulbs,
-                    ll2.AttributeMap({"type": "light_bulbs", "traffic_light_id": str(head.id)}),
-                )
-            )
+            head = b.traffic_light_head(cx, cy, z, heading, lay.SIGNAL_HEAD_W_M, lay.SIGNAL_HEAD_H_M)
             heads.append(head)
         rule = ll2.TrafficLight(
             b.new_id(), ll2.AttributeMap({"name": f"{cw.id} pedestrian signal"}), heads, stop_line
@@ -269,7 +180,7 @@ def _signal(b: _Builder, ring_out: dict[float, Any], ring_in: dict[float, Any]) 
         b.map.add(rule)
 
 
-def _parking(b: _Builder) -> None:
+def _parking(b: OsmBuilder) -> None:
     """Entrance and exit of the north parking lot, right turns off and onto the ring's outer lane."""
     xp, throat, lot = lay.PARK_X_M, lay.PARK_THROAT_Y_M, lay.PARK_LOT_Y_M
     xin, xout = xp + lay.PARK_HALF_M, xp - lay.PARK_HALF_M
@@ -294,7 +205,7 @@ def _parking(b: _Builder) -> None:
     b.area(corners, "parking", "curbstone", name="Lot N")
 
 
-def _crosswalk(b: _Builder, spec: lay.CrosswalkSpec) -> None:
+def _crosswalk(b: OsmBuilder, spec: lay.CrosswalkSpec) -> None:
     """A zebra crossing across the whole road, walked from the outside in (and back: one_way=no)."""
     sides = []
     for s in (spec.centre_s_m - spec.width_m / 2, spec.centre_s_m + spec.width_m / 2):
@@ -313,7 +224,7 @@ def _crosswalk(b: _Builder, spec: lay.CrosswalkSpec) -> None:
     b.sign(x - d * math.sin(h), y + d * math.cos(h), h, "de350")
 
 
-def _light_poles(b: _Builder) -> None:
+def _light_poles(b: OsmBuilder) -> None:
     openings = [(lay.T_S0_M - 6.0, lay.T_S1_M + 6.0), (lay.PARK_S0_M - 6.0, lay.PARK_S1_M + 6.0)]
     n = int(RING.length_m // lay.LIGHT_POLE_SPACING_M)
     for i in range(n):

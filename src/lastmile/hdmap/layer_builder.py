@@ -90,7 +90,7 @@ def build_layers(
             curb[i] = math.nan  # an opening (junction, driveway): no curb to stop against
     road, junction = _road_types(hdmap, lanelet_ids, lane_of, n)
     stops = _route_stops(hdmap, centre, lanelet_ids)
-    crosswalks = _route_crosswalks(hdmap, centre)
+    crosswalks = route_crosswalks(hdmap, centre)
     for rc in crosswalks:
         road[(s >= rc.s_start_m) & (s <= rc.s_end_m) & (road == 0)] = CROSSWALK
     for rs in stops:
@@ -220,7 +220,8 @@ def _route_stops(hdmap: HDMap, centre: Polyline, lanelet_ids: tuple[int, ...]) -
     return tuple(sorted(out, key=lambda r: r.s_start_m))
 
 
-def _route_crosswalks(hdmap: HDMap, centre: Polyline) -> tuple[RouteCrosswalk, ...]:
+def route_crosswalks(hdmap: HDMap, centre: Polyline) -> tuple[RouteCrosswalk, ...]:
+    """The mapped crosswalks ``centre`` crosses (their centre within CROSSWALK_REACH_M), in s order."""
     out = []
     for cw in hdmap.crosswalks:
         poly = np.asarray(cw.polygon, dtype=float)

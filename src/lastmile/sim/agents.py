@@ -169,11 +169,12 @@ class PathCar(Agent):
                 continue
             if to_line < 60.0:
                 if to_line < 1.5 and self.speed_mps < 0.2:
+                    arbiter = world.arbiter(line.stop_line_id)
                     if self.waiting_at is None:
                         self.waiting_at = line.stop_line_id
-                        world.arbiter.arrive(self.id, line.stop_line_id, world.t_s)
-                    if world.arbiter.may_go(self.id, world.t_s):
-                        world.arbiter.enter(self.id)
+                        arbiter.arrive(self.id, line.stop_line_id, world.t_s)
+                    if arbiter.may_go(self.id, world.t_s):
+                        arbiter.enter(self.id)
                         self.cleared.add(line.stop_line_id)
                         self.waiting_at = None
                         continue

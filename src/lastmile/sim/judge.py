@@ -192,15 +192,16 @@ class Judge:
         w = self.world
         all_way = [line for line in w.stop_lines if line.all_way_stop_id is not None]
         for line, st, standing, crossed in self._line_passages(all_way):
+            arbiter = w.arbiter(line.id)
             if standing:
                 if not st.stopped:
-                    w.arbiter.arrive(EGO_ID, line.id, w.t_s)
+                    arbiter.arrive(EGO_ID, line.id, w.t_s)
                 st.stopped = True
             if crossed:
                 if not st.stopped:
                     self.emit(EventKind.RULE_VIOLATION, rule="stop_line", detail=f"ran stop line {line.id}")
-                owed = w.arbiter.earlier_than(EGO_ID) if EGO_ID in w.arbiter.queue else list(w.arbiter.queue)
-                inside = w.arbiter.box_occupied_by - {EGO_ID}
+                owed = arbiter.earlier_than(EGO_ID) if EGO_ID in arbiter.queue else list(arbiter.queue)
+                inside = arbiter.box_occupied_by - {EGO_ID}
                 order_ok = not owed and not inside
                 self.emit(
                     EventKind.INTERSECTION_ENTRY,
@@ -214,7 +215,7 @@ class Judge:
                         rule="right_of_way",
                         detail=f"entered with {len(owed)} earlier arrivals waiting, {len(inside)} inside",
                     )
-                w.arbiter.enter(EGO_ID)
+                arbiter.enter(EGO_ID)
                 st.stopped = False
 
     def _crosswalks(self) -> None:

@@ -84,4 +84,4 @@ class OperatorModel:
             along = dx * c + dy * si
             if -2.0 < along < 20.0 and abs(-dx * si + dy * c) < 12.0:
                 return True
-        return bool(w.arbiter.queue)
+        return w.anyone_waiting_at_all_way_stops()

@@ -28,12 +28,15 @@ class PassengerConfig:
     Attributes:
         arrivals_per_stop_per_min: Poisson rate of new riders at each stop.
         initial_waiting: riders already waiting at t = 0, by stop id.
+        initial_waiting_per_stop: riders already waiting at t = 0 at every stop (a route's stops are
+            named in its file, so a generic service cannot list them by id).
         board_s: time one rider takes through the door (boarding or alighting).
         door_s: time for the door to open or close fully.
     """
 
     arrivals_per_stop_per_min: float = 0.3
     initial_waiting: dict[str, int] = field(default_factory=dict)
+    initial_waiting_per_stop: int = 0
     board_s: float = 2.5
     door_s: float = 2.0
 
@@ -77,6 +80,12 @@ class PassengerModel:
             raise ConfigError(
                 f"passengers.initial_waiting: expected stop ids {self.order}, got {sorted(unknown)}"
             )
+        per_stop = config.initial_waiting_per_stop
+        if per_stop < 0:
+            raise ConfigError(f"passengers.initial_waiting_per_stop: expected 0 or more, got {per_stop}")
+        for stop_id in self.order:
+            for _ in range(per_stop):
+                self._add(stop_id, 0.0)
         for stop_id, count in config.initial_waiting.items():
             for _ in range(count):
                 self._add(stop_id, 0.0)

@@ -198,6 +198,8 @@ class Scenario:
     """Cars on the map's own lanelet graph (any map; the campus's ring and side-road cars are above)."""
     parked_cars: tuple[ParkedCar, ...] = ()
     crosswalk_pedestrians: tuple[CrosswalkPedestrians, ...] = ()
+    route_crosswalk_pedestrians: CrosswalkPedestrians | None = None
+    """Pedestrians, timed as given, at every mapped crosswalk the service route crosses (any map)."""
     walkers: tuple[Walker, ...] = ()
     static_obstacles: tuple[StaticObstacle, ...] = ()
     faults: tuple[FaultSpec, ...] = ()
@@ -261,14 +263,18 @@ def _without_none(value: Any) -> Any:
 
 
 def route_service(route: str, seed: int = 0, minutes: float = 10.0, weather: str = "clear") -> Scenario:
-    """The service on a route file's map: riders arriving at its stops, nothing campus-specific."""
+    """The service on a route file's map, its world drawn from the map as the campus service's is from
+    the campus: a rider waiting at every stop and more arriving, pedestrians at every crosswalk the route
+    crosses, and a car every 30 s on the map's own lanelet graph (routed on random successors)."""
     return Scenario(
         name="route_service",
         minutes=minutes,
         seed=seed,
         weather=weather,
         map=MapSpec(name="route", route=route),
-        passengers=PassengerConfig(arrivals_per_stop_per_min=0.3),
+        passengers=PassengerConfig(arrivals_per_stop_per_min=0.3, initial_waiting_per_stop=1),
+        route_crosswalk_pedestrians=CrosswalkPedestrians(),
+        map_cars=(MapCar(spawn_t_s=5.0, every_s=30.0, distance_m=400.0),),
     )
 
 

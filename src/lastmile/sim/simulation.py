@@ -7,6 +7,7 @@ Road users are added with ``add_road_user``; nothing outside the simulator mutat
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -22,6 +23,7 @@ from lastmile.core.sensor_frames import SensorFrame
 from lastmile.core.stamp import Stamp
 from lastmile.core.vehicle import VehicleGeometry
 from lastmile.core.vehicle_messages import ActuatorCommand, BehaviourState
+from lastmile.hdmap.layer_builder import route_crosswalks
 from lastmile.hdmap.model import HDMap
 from lastmile.hdmap.routing import route, route_polyline
 from lastmile.sim.agents import CAR_LENGTH_M, CAR_WIDTH_M, Agent, PathCar, StopLineOnPath, WalkingAgent
@@ -35,7 +37,7 @@ from lastmile.sim.raw_sensors import RawSensorRig
 from lastmile.sim.scenario import Scenario
 from lastmile.sim.sensors import RCS_DBSM, SensorSuite
 from lastmile.sim.traffic_light_camera import TrafficLightCameraRig
-from lastmile.sim.traffic_signals import SignalController
+from lastmile.sim.traffic_signals import SignalController, signal_phases
 from lastmile.sim.vehicle_model import ActuatorDynamics, KinematicBicycle, VehicleState
 from lastmile.sim.weather import Weather, parse_weather
 from lastmile.sim.world import World
@@ -85,7 +87,9 @@ class Simulation:
             if raw_sensors
             else None
         )
-        self.signals = SignalController(scenario.traffic_signals, tuple(s.id for s in hdmap.signals))
+        self.signals = SignalController(
+            scenario.traffic_signals, tuple(s.id for s in hdmap.signals), signal_phases(hdmap)
+        )
         self.light_cameras = TrafficLightCameraRig(self.world, self.signals, scenario.seed, tick_us)
         for agent in agents:
             if isinstance(agent, PathCar):
@@ -361,7 +365,13 @@ def _build_agents(scenario: Scenario, hdmap: HDMap, service_route: Polyline) -> 
                 rcs_dbsm=RCS_DBSM[cls],
             )
         )
-    for group in scenario.crosswalk_pedestrians:
+    groups = list(scenario.crosswalk_pedestrians)
+    if scenario.route_crosswalk_pedestrians is not None:
+        at = scenario.route_crosswalk_pedestrians
+        ids = [cw.id for cw in hdmap.crosswalks]
+        on_route = sorted({ids.index(rc.crosswalk.id) for rc in route_crosswalks(hdmap, service_route)})
+        groups += [dataclasses.replace(at, crosswalk=k) for k in on_route]
+    for group in groups:
         if not 0 <= group.crosswalk < len(hdmap.crosswalks):
             raise ConfigError(
                 "crosswalk_pedestrians.crosswalk: expected "

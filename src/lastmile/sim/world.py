@@ -52,7 +52,14 @@ class World:
         self.effects: WeatherEffects = WEATHER_EFFECTS[weather]
         self.agent_rng = agent_rng
         self.t_s = 0.0
-        self.arbiter = AllWayStopArbiter()
+        # One arbiter per all-way stop: arrival order and an occupied box are an intersection's own; a
+        # car waiting at one junction owes nothing to a car at another.
+        self.arbiters = {aws.id: AllWayStopArbiter() for aws in hdmap.all_way_stops}
+        self._arbiter_of_line = {
+            sl.id: self.arbiters[sl.all_way_stop_id]
+            for sl in hdmap.stop_lines
+            if sl.all_way_stop_id is not None and sl.all_way_stop_id in self.arbiters
+        }
         self.stop_lines = [_stop_line_truth(hdmap, sl) for sl in hdmap.stop_lines]
         self.boxes = {aws.id: PreparedPolygon(aws.conflict_polygon) for aws in hdmap.all_way_stops}
         self._leader_cache: dict[int, tuple[float, float, float]] = {}
@@ -159,13 +166,17 @@ class World:
         return gap
 
     # --- all-way stop -------------------------------------------------------------------------
+    def arbiter(self, stop_line_id: int) -> AllWayStopArbiter:
+        """The arbiter of the all-way stop whose stop line ``stop_line_id`` is."""
+        return self._arbiter_of_line[stop_line_id]
+
+    def anyone_waiting_at_all_way_stops(self) -> bool:
+        return any(arbiter.queue for arbiter in self.arbiters.values())
+
     def update_intersections(self) -> None:
-        occupied: set[int] = set()
-        for vid, x, y, *_ in self.vehicles():
-            for box in self.boxes.values():
-                if box.contains(x, y):
-                    occupied.add(vid)
-        self.arbiter.box_occupied_by = occupied
+        vehicles = self.vehicles()
+        for stop_id, box in self.boxes.items():
+            self.arbiters[stop_id].box_occupied_by = {vid for vid, x, y, *_ in vehicles if box.contains(x, y)}
 
     def ego_stop_line_distance(self, line: StopLineTruth) -> float | None:
         """Distance from the shuttle's front bumper to a stop line it is approaching, else None."""
