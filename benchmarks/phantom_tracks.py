@@ -57,6 +57,8 @@ def main() -> None:
         route_service(args.route, seed=0, minutes=args.seconds / 60.0),
         passengers=PassengerConfig(arrivals_per_stop_per_min=0.0),
         start_route_s_m=args.start_s,
+        map_cars=(),  # nobody on the route: every published track is a phantom
+        route_crosswalk_pedestrians=None,
     )
     loop = build_closed_loop(scenario, DEFAULT_CONFIG)
     stack = loop.software

@@ -40,6 +40,7 @@ ROUTES = {
     "BITS campus loop": ROOT / "examples" / "routes" / "bits_campus_loop.toml",
     "Lanelet2 example roundabout": ROOT / "examples" / "routes" / "lanelet2_example_roundabout.toml",
 }
+IN_REPO_ROUTES = {"example town block": ROOT / "examples" / "routes" / "town_block_loop.toml"}
 TARGET_RATIO = 0.8
 
 
@@ -56,7 +57,13 @@ def _scenario(route: Path | None, minutes: float) -> Scenario:
     riders = PassengerConfig(arrivals_per_stop_per_min=0.3)
     if route is None:
         return Scenario(name="campus_riders", minutes=minutes, seed=0, passengers=riders)
-    return dataclasses.replace(route_service(str(route), minutes=minutes), passengers=riders)
+    # The route service's own traffic and pedestrians are left out: the campus scenario has none.
+    return dataclasses.replace(
+        route_service(str(route), minutes=minutes),
+        passengers=riders,
+        map_cars=(),
+        route_crosswalk_pedestrians=None,
+    )
 
 
 def _measure(route: Path | None, minutes: float, config: RunConfig) -> dict[str, float]:
@@ -88,6 +95,7 @@ def main() -> None:
             maps[name] = path
         else:
             console.print(f"skipped {name}: ../shared/data is absent")
+    maps.update(IN_REPO_ROUTES)
     runs: dict[str, list[dict[str, float]]] = {name: [] for name in maps}
     for _ in range(args.repeats):  # interleaved, so a load change hits every map alike
         for name, path in maps.items():
