@@ -308,7 +308,9 @@ class ShuttleStack:
             "estimation": tick_ms,
             "perception": 100.0,
             "landmarks": 100.0,
-            **dict.fromkeys(("tracking", "prediction", "decision", "planning"), planning_ms),
+            **dict.fromkeys(
+                ("tracking", "prediction", "decision", "planning", "planning_cycle"), planning_ms
+            ),
             "control": config.control_period_ticks * tick_ms,
         }
 
@@ -344,10 +346,12 @@ class ShuttleStack:
             with p.measure("prediction"):
                 paths = self._guarded("tracking", now, self.predictor.predict_objects, self._tracks)
                 self._predictions = paths if isinstance(paths, PredictedPaths) else None
-            with p.measure("decision"):
-                self._guarded("decision", now, self._decide, now)
-            with p.measure("planning"):
-                self._guarded("planning", now, self._plan, now)
+            # Behaviour, path and speed together: the planning cycle Snow Lion times (its 85.1 ms p95).
+            with p.measure("planning_cycle"):
+                with p.measure("decision"):
+                    self._guarded("decision", now, self._decide, now)
+                with p.measure("planning"):
+                    self._guarded("planning", now, self._plan, now)
         if self._tick % c.control_period_ticks == 0:
             with p.measure("control"):
                 self._guarded("control", now, self._control, now)
