@@ -1,4 +1,5 @@
-"""The service on the two real maps of ../shared/data, in closed loop: it drives and serves a stop.
+"""The service on the two real maps of ../shared/data and the example town, in closed loop: it drives
+and serves a stop.
 
 Short runs (radar object lists): only the seconds needed to reach the first stop with a rider waiting,
 over the BITS loop's bridged 4.4 m gap (the shuttle starts on it) and through the Lanelet2 example
@@ -91,3 +92,14 @@ def test_bits_loop_serves_k_block_after_the_s_bend(monkeypatch: pytest.MonkeyPat
     monkeypatch.chdir(ROOT)
     route = "examples/routes/bits_campus_loop.toml"
     _serve_first_rider(route, "K-Block", minutes=1.25, start_route_s_m=930.0)
+
+
+def test_town_stops_at_an_all_way_stop_only_its_rule_lists_then_serves_west_ave(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The example town (in the repository): from 34 m before Main St / West Ave, whose four approach
+    lanelets do not reference the all-way rule, the shuttle stops at the line, turns right when its
+    turn comes (the referee checks both) and serves the kerbside stop on West Avenue."""
+    monkeypatch.chdir(ROOT)
+    route = "examples/routes/town_block_loop.toml"
+    _serve_first_rider(route, "West Ave", minutes=0.9, start_route_s_m=530.0)
