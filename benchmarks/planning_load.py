@@ -12,9 +12,10 @@ users at once. The stack's profiler times each planning cycle (decision, then pa
 the percentiles are printed over all cycles and over the cycles that planned around at least
 ``--crowd`` tracks. Issue #20's target: p95 under 20 ms per cycle on one core. Beside it, in the
 same run: the same service with only the default's road users (what the load costs) and, per lateral
-controller, the planner settings it selects (the exact-clearance path of the non-legacy controllers). Snow Lion reports 85.1 ms p95 on a six-core i7. The
-machine's 1-minute load and a reference operation (1,000 numpy 64 x 64 matrix products) are printed
-beside every figure. BLAS is pinned to one thread and the process to one core.
+controller, the planner settings it selects (the exact-clearance path of the non-legacy controllers).
+Snow Lion reports 85.1 ms p95 on a six-core i7. The machine's 1-minute load and a reference operation
+(1,000 numpy 64 x 64 matrix products) are printed beside every figure. BLAS is pinned to one thread
+and the process to one core.
 """
 
 from __future__ import annotations
@@ -128,7 +129,7 @@ def main() -> None:
         rows[f"{name}, 30+ road users"] = _measure(_loaded(args.minutes), config, args.crowd)
         if name == args.controllers[0]:
             rows[f"{name}, default road users"] = _measure(
-                default_service(seed=0, minutes=args.minutes), config
+                default_service(seed=0, minutes=args.minutes), config, args.crowd
             )
     table = Table(
         title=f"planning cycle, {args.minutes:g} simulated min, {args.perception} perception, one core"
