@@ -150,7 +150,10 @@ def test_rear_blocker_waits_for_close_or_fast_closing_traffic(straight_layers) -
         tracks = _tracks([(7, rear_bumper - behind_m - 2.25, 0.0, vx, 0.0, ObjectClass.CAR)])
         return rear_blocker(ctx, route_obstacles(tracks, ctx.route, 210.0, G.front_from_rear_axle_m))
 
-    assert blocker(5.0, 0.0) == 7  # within rear_too_close_m
+    assert blocker(5.0, 2.0) == 7  # within rear_too_close_m and moving
+    # Standing behind the shuttle (a car queued behind it at a kerbside stop): it waits for the shuttle,
+    # which merges (holding the merge for it waited for ever, a stall takeover on the example town).
+    assert blocker(5.0, 0.0) == -1
     assert blocker(40.0, 1.0) == -1  # 40 s away
     assert blocker(40.0, 10.0) == 7  # 4 s away, under rear_tta_s
     assert blocker(C.rear_check_m + 5.0, 20.0) == -1  # beyond the rear check

@@ -118,7 +118,8 @@ class DecisionConfig:
             merge began (once out in the lane it goes on).
         rear_half_width_m: road users more than this to either side of the route are not rear traffic
             (beyond the adjacent lane's centre).
-        rear_too_close_m: rear traffic this close behind the shuttle's rear always holds the merge.
+        rear_too_close_m: moving rear traffic this close behind the shuttle's rear always holds the merge
+            (standing traffic behind it waits for the shuttle: see ``stop_service.rear_blocker``).
         rear_min_closing_mps: rear traffic further back holds it only when closing at least this fast.
     """
 

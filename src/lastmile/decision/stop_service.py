@@ -131,12 +131,20 @@ def handle_merging(ctx: DecisionContext, mem: BehaviourMemory, cy: Cycle) -> Out
 
 def rear_blocker(ctx: DecisionContext, obstacles: list[RouteObstacle]) -> int:
     """Track id of a road user behind that the merge must wait for, else -1: one within
-    ``rear_too_close_m`` of the rear, or one within ``rear_check_m`` reaching it within ``rear_tta_s``."""
+    ``rear_too_close_m`` of the rear, or one within ``rear_check_m`` reaching it within ``rear_tta_s``.
+
+    A road user standing wholly behind the rear bumper is waiting for the shuttle, not passing it: at a
+    kerbside stop (no bay) the shuttle stands in the lane and the car queued behind it cannot pass, so
+    waiting for it would wait for ever; traffic behind must let a bus leave its stop (StVO 20(5), Ontario
+    HTA 142.1). It holds the merge only while it is beside the shuttle or moving.
+    """
     c, g = ctx.config, ctx.geometry
     for o in obstacles:
         behind = -(o.ds_m + g.length_m)  # distance from our rear bumper back to the object
         if behind < -g.length_m or behind > c.rear_check_m or abs(o.d_m) > c.rear_half_width_m:
             continue
+        if behind > 0.0 and abs(o.v_s_mps) < c.rear_min_closing_mps:
+            continue  # standing behind us: it yields to a bus leaving its stop
         if behind < c.rear_too_close_m:
             return o.track_id
         if o.v_s_mps > c.rear_min_closing_mps and behind / o.v_s_mps < c.rear_tta_s:
