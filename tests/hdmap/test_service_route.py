@@ -15,7 +15,7 @@ from lastmile.hdmap import lane_change
 from lastmile.hdmap.loader import load_projected_map
 from lastmile.hdmap.projection import MapProjection, ProjectionKind, mgrs_square_origin
 from lastmile.hdmap.routing import route_polyline
-from lastmile.hdmap.service_route import ServiceRoute, load_route
+from lastmile.hdmap.service_route import ServiceRoute, bridge_gaps, load_route
 from tests.hdmap.osm_builder import ORIGIN_LAT_DEG, ORIGIN_LON_DEG, OsmBuilder, straight_lane
 
 UTM = MapProjection(kind=ProjectionKind.UTM, origin_lat_deg=ORIGIN_LAT_DEG, origin_lon_deg=ORIGIN_LON_DEG)
@@ -501,3 +501,20 @@ def test_a_kerbside_stop_just_past_a_bend_towards_the_kerb_moves_off_its_settle_
     assert 4.0 < right - given <= 12.0
     left, _ = _dockable(line(1.0), given, spec, lambda c: 1.75)  # type: ignore[arg-type]
     assert left == given
+
+
+def test_a_dead_end_exactly_at_a_lane_start_is_bridged_without_a_crash(tmp_path: Path) -> None:
+    """The Lanelet2 example draws joints whose points coincide but are not shared: a gap of 0 m. Its
+    connector runs along the dead end's heading (it divided by the zero gap's length before)."""
+    b = OsmBuilder()
+    first = straight_lane(b, 0.0, 0.0, 50.0, 0.0)
+    second = straight_lane(b, 50.00001, 0.0, 100.0, 0.0)  # nodes of its own, a hundredth of a mm on
+    hdmap = load_projected_map(b.write(tmp_path / "map.osm"), UTM)
+    assert not hdmap.successors(first)
+    bridged, gaps = bridge_gaps(hdmap, 1.0)
+    ((a, c, gap),) = gaps
+    assert (a, c) == (first, second) and gap < 1e-3
+    (connector,) = bridged.successors(first)
+    assert bridged.successors(connector) == (second,)
+    heading = bridged.lanelets[connector].centerline.heading_at(0.0)
+    assert abs(math.remainder(heading, 2 * math.pi)) < 1e-6

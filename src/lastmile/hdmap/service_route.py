@@ -559,7 +559,12 @@ def _connector(lid: int, a: LaneletInfo, b: LaneletInfo) -> LaneletInfo:
     limit is the lower mapped one of the two (NaN when neither states one: the route file's applies)."""
 
     centre = b.centerline.xy_m[0] - a.centerline.xy_m[-1]
-    along = centre / max(float(np.hypot(*centre)), 1e-9)
+    if float(np.hypot(*centre)) < MIN_BOUND_M:
+        # A dead end exactly where the next lane starts (the map drew the joint with separate points):
+        # the connector runs along the dead end's own heading.
+        heading = a.centerline.heading_at(a.centerline.length_m)
+        centre = np.array([math.cos(heading), math.sin(heading)])
+    along = centre / float(np.hypot(*centre))
 
     def across(p: np.ndarray, q: np.ndarray) -> Polyline:
         if float(np.hypot(*(q - p))) < MIN_BOUND_M:
