@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import functools
+import math
 
 import pytest
 
@@ -189,6 +190,32 @@ def test_intersection_full_stop_then_go_then_cleared() -> None:
     past = line_s + C.intersection_cleared_m + 1.0 - G.front_from_rear_axle_m
     assert handle(_cycle(ctx, _inp(5.0, past, v=4.0))).reason == "cleared intersection"
     assert mem.state == BehaviourState.NORMAL_DRIVING and mem.intersection.line_index is None
+
+
+def test_a_first_arrival_that_never_takes_its_turn_waves_the_shuttle_through() -> None:
+    """A car stopped at another entry before the shuttle is owed the turn; standing there
+    ``unclaimed_turn_s`` past the shuttle's full stop, it leaves the turn to the shuttle (a simulated
+    car and the stack each judged the other first at the example town's T: both waited 300 s)."""
+    layers = _campus_layers()
+    ctx = _ctx(layers)
+    junctions = AllWayStops.from_layers(layers, C.entry_heading_back_m)
+    (line_s, line_index) = next_all_way_stop_line(ctx, 0.0) or (None, None)
+    assert line_index is not None
+    rl = layers.stop_lines[line_index]
+    other = next(e for e in junctions.entries[rl.all_way_stop_id] if e.stop_line_id != rl.stop_line.id)
+    # 3 m before the other entry's line, standing.
+    x = other.mid_x_m - 3.0 * math.cos(other.heading_rad)
+    y = other.mid_y_m - 3.0 * math.sin(other.heading_rad)
+    car = _tracks([(9, x, y, 0.0, 0.0, ObjectClass.CAR)])
+    mem = BehaviourMemory(state=BehaviourState.INTERSECTION)
+    mem.intersection.line_index = line_index
+    handle = functools.partial(handle_intersection, ctx, junctions, mem)
+    rear_at_line = line_s - C.stop_line_setback_m - G.front_from_rear_axle_m
+    assert handle(_cycle(ctx, _inp(0.0, rear_at_line - 10.0, v=4.0, tracks=car))).reason.startswith("yield")
+    assert handle(_cycle(ctx, _inp(1.0, rear_at_line, v=0.0, tracks=car))).reason.startswith("yield")
+    waited = 1.0 + C.full_stop_s + C.unclaimed_turn_s
+    assert handle(_cycle(ctx, _inp(waited - 0.1, rear_at_line, v=0.0, tracks=car))).reason.startswith("yield")
+    assert handle(_cycle(ctx, _inp(waited, rear_at_line, v=0.0, tracks=car))).reason == "right of way: go"
 
 
 # --- the machine -------------------------------------------------------------------------------

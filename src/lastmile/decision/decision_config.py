@@ -34,6 +34,10 @@ class DecisionConfig:
         stop_approach_m: distance before a requested stop's platform at which pull-over begins.
         intersection_approach_m: distance before an all-way stop line at which intersection handling begins.
         full_stop_s: how long the shuttle stands at a stop line before it may go.
+        unclaimed_turn_s: at an all-way stop, a vehicle that arrived first and still stands this long
+            after the shuttle's own full stop is waving it through (drivers' handbooks: go when the other
+            driver signals you to); two vehicles that each saw the other stop first otherwise wait for ever.
+            The box must still be clear.
         dwell_min_s, doorway_clear_s: onboarding: the door stays open at least dwell_min_s, and until
             the doorway has been clear for doorway_clear_s (the in-door sensor).
         rear_check_m, rear_tta_s: merging waits while a road user within rear_check_m behind would
@@ -132,6 +136,7 @@ class DecisionConfig:
     stop_approach_m: float = 45.0
     intersection_approach_m: float = 35.0
     full_stop_s: float = 1.0
+    unclaimed_turn_s: float = 4.0
     dwell_min_s: float = 6.0
     doorway_clear_s: float = 3.0
     rear_check_m: float = 60.0

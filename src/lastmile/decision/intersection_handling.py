@@ -106,7 +106,11 @@ def _wait_at_line(
             visit.stopped_at_line_since_s = t_s
     owed = arrival.owed()
     inside = arrival.box_occupied(cy.inp.tracks)
-    stood = visit.stopped_at_line_since_s is not None and t_s - visit.stopped_at_line_since_s >= c.full_stop_s
+    standing_s = t_s - visit.stopped_at_line_since_s if visit.stopped_at_line_since_s is not None else -1.0
+    stood = standing_s >= c.full_stop_s
+    if standing_s >= c.full_stop_s + c.unclaimed_turn_s:
+        # Whoever stopped first and still stands (it has not moved off its line) leaves us the turn.
+        owed = []
     if stood and not owed and inside < 0:
         visit.go = True
         return Outcome(cy.speed_cap_mps, "right of way: go")
