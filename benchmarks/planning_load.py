@@ -25,7 +25,6 @@ import dataclasses
 import json
 import os
 import statistics
-import time
 from pathlib import Path
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
@@ -40,17 +39,10 @@ from lastmile.runner.closed_loop import build_closed_loop
 from lastmile.runner.run_config import RunConfig
 from lastmile.sim.scenario import CrosswalkPedestrians, RingCar, Scenario, StaticObstacle, default_service
 from lastmile.stack.stack_settings import LateralControllerName
+from reference_ops import matrix_products_ms
 
 TARGET_P95_MS = 20.0
 SNOW_LION_P95_MS = 85.1
-
-
-def _reference_ms() -> float:
-    a = np.random.default_rng(0).standard_normal((64, 64))
-    start = time.process_time()
-    for _ in range(1000):
-        a = (a @ a) / 64.0
-    return (time.process_time() - start) * 1e3
 
 
 def _loaded(minutes: float) -> Scenario:
@@ -73,7 +65,7 @@ def _loaded(minutes: float) -> Scenario:
 
 def _measure(scenario: Scenario, config: RunConfig, crowd: int) -> dict[str, float]:
     load = os.getloadavg()[0]
-    reference = _reference_ms()
+    reference = matrix_products_ms()
     loop = build_closed_loop(scenario, config)
     users, tracks = [], []
     for record in loop.ticks(round(scenario.minutes * 60e6 / loop.tick_us)):

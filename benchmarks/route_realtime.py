@@ -19,13 +19,11 @@ import dataclasses
 import json
 import os
 import statistics
-import time
 from pathlib import Path
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-import numpy as np
 from rich.console import Console
 from rich.table import Table
 
@@ -34,6 +32,7 @@ from lastmile.runner.closed_loop import run_scenario
 from lastmile.runner.run_config import RunConfig
 from lastmile.sim.passengers import PassengerConfig
 from lastmile.sim.scenario import Scenario, route_service
+from reference_ops import matrix_products_ms
 
 ROOT = Path(__file__).resolve().parents[1]
 ROUTES = {
@@ -42,15 +41,6 @@ ROUTES = {
 }
 IN_REPO_ROUTES = {"example town block": ROOT / "examples" / "routes" / "town_block_loop.toml"}
 TARGET_RATIO = 0.8
-
-
-def _reference_ms() -> float:
-    """1,000 products of two 64 x 64 matrices: the machine's speed at this moment."""
-    a = np.random.default_rng(0).standard_normal((64, 64))
-    start = time.perf_counter()
-    for _ in range(1000):
-        a = (a @ a) / 64.0
-    return (time.perf_counter() - start) * 1e3
 
 
 def _scenario(route: Path | None, minutes: float) -> Scenario:
@@ -68,7 +58,7 @@ def _scenario(route: Path | None, minutes: float) -> Scenario:
 
 def _measure(route: Path | None, minutes: float, config: RunConfig) -> dict[str, float]:
     load = os.getloadavg()[0]
-    reference = _reference_ms()
+    reference = matrix_products_ms()
     log = run_scenario(_scenario(route, minutes), config)
     return {
         "realtime_factor": float(log.timing["realtime_factor"]),

@@ -108,10 +108,12 @@ def _street(
     """
     axis = _Axis(p, q)
     on_axis = sorted(
-        (along, j) for j in junctions.values() if (along := axis.along_if_on(j.centre)) is not None
+        ((along, j) for j in junctions.values() if (along := axis.along_if_on(j.centre)) is not None),
+        key=lambda aj: aj[0],
     )
     # Open stretches between junction boxes: (start, end, junction at start, junction at end).
-    stretches, start, start_j = [], 0.0, None
+    stretches: list[tuple[float, float, Junction | None, Junction | None]] = []
+    start, start_j = 0.0, None
     for along, junction in on_axis:
         if along - JUNCTION_HALF_M - start > 1.0:
             stretches.append((start, along - JUNCTION_HALF_M, start_j, junction))
