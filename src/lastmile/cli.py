@@ -772,6 +772,35 @@ def perceive(
     typer.echo(f"wrote {out / 'labels'}/, {out / 'objects.mcap'} and {out / 'timing.json'}")
 
 
+@map_app.command("build")
+def map_build(
+    recording: Annotated[
+        Path, typer.Argument(help="Recording (MCAP) with LiDAR clouds and the poses on /tf.")
+    ],
+    out: Annotated[Path, typer.Option(help="The point-cloud map to write (PCD; a .json sidecar beside it).")],
+    voxel: Annotated[float, typer.Option(help="Voxel size of the map, m.")] = 0.2,
+) -> None:
+    """Build a point-cloud map for the scan_matching localization from a recorded run."""
+    from lastmile.core.output_dir import prepare_output_file
+    from lastmile.localization.map_build import MapBuildConfig
+    from lastmile.runner.map_build_replay import build_map
+
+    try:
+        config = MapBuildConfig(voxel_m=voxel)
+        prepare_output_file(out, "--out")
+        result = build_map(recording, out, config)
+    except (LastmileError, OSError) as exc:
+        typer.echo(f"lastmile map build: {exc}", err=True)
+        raise typer.Exit(1) from None
+    info = result.info
+    typer.echo(
+        f"wrote {out}: {info.points} points, voxel {info.voxel_m} m, {info.frames_used} of "
+        f"{info.frames_total} rig frames ({info.frames_registered} registered, "
+        f"{result.frames_skipped_pose} without a usable pose), registration RMSE p50 "
+        f"{info.registration_rmse_p50_m} m, correction max {info.correction_max_m} m"
+    )
+
+
 calibrate_app = typer.Typer(
     no_args_is_help=True, rich_markup_mode=PLAIN_HELP, help="Calibrate sensors from recorded data."
 )
