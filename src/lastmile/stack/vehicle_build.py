@@ -86,6 +86,8 @@ def stack_config(settings: StackSettings, calibration: SensorCalibration, tick_u
         lateral=settings.lateral,
         ekf=settings.ekf,
         inertial_ekf=settings.inertial_ekf,
+        landmarks=settings.landmarks,
+        scan_matching=settings.scan_matching,
         localization=settings.localization,
         perception_mode=settings.perception,
         lidar_mounts=calibration.lidar_mounts if raw else {},
