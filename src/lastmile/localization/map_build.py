@@ -8,20 +8,26 @@ stamped alike) is:
    interpolated at its own capture time (a sweep lasts 100 ms, 0.56 m at 20 km/h);
 2. placed at the recorded pose ``map -> base_link`` (the vehicle's own localization, never the
    simulator's truth; on RTK it is good to centimetres);
-3. refined by scan-to-map registration (small_gicp point-to-plane ICP) against the frames already placed
-   near it (the ``submap_frames`` nearest within ``submap_radius_m``: on a second lap those include the
-   first, so revisits register to what was mapped before). The correction is applied only when the
-   registration converged, paired at least ``min_inlier_share`` of the points, left an RMSE within
-   ``max_rmse_m`` and moved the recorded pose by at most ``max_correction_m`` / ``max_correction_rad``
-   (the recorded pose's own accuracy: a larger jump is a wrong match, not a better pose). Only the
-   planar part (x, y, yaw) is kept, the frame the stack localizes in;
-4. voxel-downsampled into the map.
+3. registered (small_gicp point-to-plane ICP, :class:`ScanToMapMatcher`) to the frames already placed
+   near it (the ``submap_frames`` nearest within ``submap_radius_m``: on a second lap those include
+   the first, so revisits register to what was mapped before). A registration that converged, paired
+   at least ``min_inlier_share`` of the points, left an RMSE within ``max_rmse_m`` and, fused with the
+   recorded pose by their covariances, moved it by at most ``max_correction_m`` / ``max_correction_rad``
+   (a larger jump is a wrong match) becomes an edge of a planar pose graph
+   (:mod:`lastmile.localization.pose_graph`) to the nearest submap frame, with the registration's
+   covariance (opened up along directions no surface constrains);
+4. after the last frame, the pose graph is solved: every recorded pose is an absolute prior with its
+   own sigma, every registration a relative edge. Registering frame after frame alone would anchor
+   the whole map on the first frame's error (measured: a 5 cm pose noise left the map 10 cm off);
+   the graph spreads the absolute information over all frames and keeps the registrations' local
+   consistency. Only the planar part (x, y, yaw) is estimated, the frame the stack localizes in;
+5. placed at the optimised poses and voxel-downsampled into the map.
 
 Frames are taken once per ``keyframe_m`` of travel or ``keyframe_rad`` of turn (standing at a stop adds
 passers-by, not structure), and only while the recorded pose was held by an absolute source with a
-sigma within ``max_pose_std_m`` when the recording says so. No pose graph: with RTK poses the
-registration corrections were centimetres (see the sidecar), so a graph's loop closures would have
-nothing to close; a recording on dead reckoning is refused frame by frame instead.
+sigma within ``max_pose_std_m`` when the recording says so (a recording on dead reckoning is refused
+frame by frame). SciPy's sparse least squares solves the graph (GTSAM would too; it is not a
+dependency, and a planar graph of a few thousand poses needs nothing more).
 """
 
 from __future__ import annotations
@@ -31,7 +37,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from lastmile.core.errors import ConfigError
+from lastmile.core.errors import ConfigError, MessageError
+from lastmile.localization.pose_graph import RelativeEdge, optimise, relative
+from lastmile.localization.scan_matching import ScanMatchConfig, ScanToMapMatcher
 
 _SUBMAP_MIN_POINTS = 300
 
@@ -56,6 +64,8 @@ class MapBuildConfig:
         max_correction_m: nor one moving the recorded pose farther than this, m.
         max_correction_rad: or turning it by more than this, rad.
         max_pose_std_m: frames whose recorded pose sigma exceeds this are not placed, m.
+        pose_std_m: the recorded pose's sigma when the recording does not say (RTK: 2 cm), m.
+        pose_yaw_std_rad: and its heading sigma (a dual-antenna RTK heading: 0.1 degree), rad.
     """
 
     voxel_m: float = 0.2
@@ -73,10 +83,13 @@ class MapBuildConfig:
     max_correction_m: float = 0.3
     max_correction_rad: float = math.radians(1.0)
     max_pose_std_m: float = 0.1
+    pose_std_m: float = 0.02
+    pose_yaw_std_rad: float = math.radians(0.1)
 
     def __post_init__(self) -> None:
+        if not 0.01 <= self.voxel_m <= 5.0:  # the CLI's --voxel
+            raise ConfigError(f"--voxel: expected a voxel size in [0.01, 5] m, got {self.voxel_m}")
         for name in (
-            "voxel_m",
             "keyframe_m",
             "keyframe_rad",
             "max_range_m",
@@ -86,12 +99,12 @@ class MapBuildConfig:
             "max_correction_m",
             "max_correction_rad",
             "max_pose_std_m",
+            "pose_std_m",
+            "pose_yaw_std_rad",
         ):
             value = getattr(self, name)
             if not (value > 0 and math.isfinite(value)):
                 raise ConfigError(f"MapBuildConfig.{name}: expected a positive number, got {value!r}")
-        if not 0.01 <= self.voxel_m <= 5.0:
-            raise ConfigError(f"--voxel: expected a voxel size in [0.01, 5] m, got {self.voxel_m}")
         if not 0.0 <= self.min_range_m < self.max_range_m:
             raise ConfigError(
                 f"MapBuildConfig.min_range_m: expected in [0, max_range_m), got {self.min_range_m}"
@@ -184,6 +197,7 @@ class MapBuildStats:
     frames_rejected_registration: int = 0
     rmse_m: list[float] = field(default_factory=list)
     correction_m: list[float] = field(default_factory=list)
+    """How far the pose graph moved each frame from its recorded pose, m."""
 
 
 class PointCloudMapBuilder:
@@ -192,11 +206,15 @@ class PointCloudMapBuilder:
     def __init__(self, config: MapBuildConfig | None = None) -> None:
         self.config = config or MapBuildConfig()
         self.stats = MapBuildStats()
-        # Each placed frame's points (downsampled) and pose, relative to the first pose's position:
-        # small_gicp's voxel keys hold 21 bits per axis (+-200 km at 0.2 m), less than a UTM easting.
+        # Poses and points relative to the first pose's position: small_gicp's voxel keys hold 21 bits
+        # per axis (+-200 km at 0.2 m), less than a UTM easting.
         self._origin: tuple[float, float] | None = None
-        self._frames: list[np.ndarray] = []
-        self._poses: list[tuple[float, float, float]] = []
+        self._local: list[np.ndarray] = []  # each frame's points in its base frame, downsampled
+        self._frames: list[np.ndarray] = []  # the same placed at the first-pass pose (the submaps)
+        self._poses: list[np.ndarray] = []  # first-pass poses (x, y, yaw)
+        self._recorded: list[np.ndarray] = []
+        self._prior_covs: list[np.ndarray] = []
+        self._edges: list[RelativeEdge] = []
         self._last: tuple[float, float, float] | None = None
 
     def wants(self, x_m: float, y_m: float, yaw_rad: float) -> bool:
@@ -208,8 +226,19 @@ class PointCloudMapBuilder:
         turned = abs(math.remainder(yaw_rad - lyaw, math.tau))
         return math.hypot(x_m - lx, y_m - ly) >= c.keyframe_m or turned >= c.keyframe_rad
 
-    def add(self, points_base: np.ndarray, x_m: float, y_m: float, yaw_rad: float) -> bool:
+    def add(
+        self,
+        points_base: np.ndarray,
+        x_m: float,
+        y_m: float,
+        yaw_rad: float,
+        pos_std_m: float | None = None,
+        yaw_std_rad: float | None = None,
+    ) -> bool:
         """Place one rig frame (base frame at its stamp, de-skewed) recorded at pose (x, y, yaw).
+
+        ``pos_std_m`` and ``yaw_std_rad`` are the recorded pose's sigmas (the recording's estimate;
+        None: ``pose_std_m`` / ``pose_yaw_std_rad``); they weigh it against the registrations.
 
         Returns:
             True if the frame was placed (a keyframe with enough points in range).
@@ -228,76 +257,123 @@ class PointCloudMapBuilder:
         self._last = (x_m, y_m, yaw_rad)
         if self._origin is None:
             self._origin = (x_m, y_m)
-        ox, oy = self._origin
-        pose = planar_matrix(x_m - ox, y_m - oy, yaw_rad)
-        if c.register:
-            pose = self._refine(small_gicp, pts, pose)
+        recorded = np.array([x_m - self._origin[0], y_m - self._origin[1], yaw_rad])
+        sp = c.pose_std_m if pos_std_m is None else max(pos_std_m, 1e-3)
+        sy = c.pose_yaw_std_rad if yaw_std_rad is None else max(yaw_std_rad, 1e-4)
+        prior = np.diag([sp**2, sp**2, sy**2])
+        pose = self._refine(pts, recorded, prior) if c.register else recorded
         down = np.asarray(small_gicp.voxelgrid_sampling(pts, c.voxel_m).points())[:, :3]
-        placed = down @ pose[:3, :3].T + pose[:3, 3]
-        self._frames.append(placed)
-        self._poses.append((float(pose[0, 3]), float(pose[1, 3]), math.atan2(pose[1, 0], pose[0, 0])))
+        self._local.append(down)
+        self._frames.append(_place(down, pose))
+        self._poses.append(pose)
+        self._recorded.append(recorded)
+        self._prior_covs.append(prior)
         self.stats.frames_used += 1
         return True
 
-    def _submap(self, x_m: float, y_m: float) -> np.ndarray | None:
+    def _near(self, x_m: float, y_m: float) -> np.ndarray:
+        """Indices of the placed frames forming the submap at (x, y), nearest first."""
         c = self.config
         if not self._poses:
-            return None
-        xy = np.array([(p[0], p[1]) for p in self._poses])
+            return np.zeros(0, np.int64)
+        xy = np.array([p[:2] for p in self._poses])
         d = np.hypot(xy[:, 0] - x_m, xy[:, 1] - y_m)
         near = np.flatnonzero(d <= c.submap_radius_m)
-        if near.size == 0:
-            return None
-        near = near[np.argsort(d[near], kind="stable")[: c.submap_frames]]
-        pts = np.concatenate([self._frames[i] for i in sorted(near)])
-        return pts if len(pts) >= _SUBMAP_MIN_POINTS else None
+        return near[np.argsort(d[near], kind="stable")[: c.submap_frames]]
 
-    def _refine(self, sg: object, pts: np.ndarray, pose: np.ndarray) -> np.ndarray:
-        """The recorded pose, or its registration to the submap when that passes every check."""
+    def _refine(self, pts: np.ndarray, recorded: np.ndarray, prior: np.ndarray) -> np.ndarray:
+        """The first-pass pose of a frame: the recorded pose fused with its registration to the submap
+        when that passes every check (else the recorded pose); a passing registration also becomes an
+        edge of the pose graph to the nearest submap frame.
+
+        The registration (:class:`ScanToMapMatcher`: point-to-plane ICP with its Gauss-Newton
+        covariance, opened up along directions no surface constrains) and the recorded pose are
+        weighted by their information: along a street between parallel walls the registration slides,
+        and there the recorded pose keeps the frame.
+        """
         c = self.config
-        target_pts = self._submap(float(pose[0, 3]), float(pose[1, 3]))
-        if target_pts is None:
-            return pose
-        target, tree = sg.preprocess_points(target_pts, downsampling_resolution=c.voxel_m)  # type: ignore[attr-defined]
-        source, _ = sg.preprocess_points(pts, downsampling_resolution=c.voxel_m)  # type: ignore[attr-defined]
-        result = sg.align(  # type: ignore[attr-defined]
-            target,
-            source,
-            tree,
-            init_T_target_source=pose,
-            registration_type="PLANE_ICP",
-            max_correspondence_distance=c.max_correspondence_m,
-            max_iterations=c.max_iterations,
+        near = self._near(float(recorded[0]), float(recorded[1]))
+        target_pts = np.concatenate([self._frames[i] for i in sorted(near)]) if near.size else None
+        if target_pts is None or len(target_pts) < _SUBMAP_MIN_POINTS:
+            return recorded
+        matcher = ScanToMapMatcher(
+            target_pts,
+            ScanMatchConfig(
+                map_voxel_m=c.voxel_m,
+                scan_voxel_m=c.voxel_m,
+                roi_radius_m=c.max_range_m,
+                max_correspondence_m=c.max_correspondence_m,
+                max_iterations=c.max_iterations,
+                min_inlier_share=c.min_inlier_share,
+                max_scan_points=0,
+            ),
         )
-        inliers = int(result.num_inliers)
-        rmse = math.sqrt(2.0 * float(result.error) / max(inliers, 1))
-        found = np.asarray(result.T_target_source, dtype=np.float64)
-        fx, fy, fyaw = float(found[0, 3]), float(found[1, 3]), math.atan2(found[1, 0], found[0, 0])
-        moved = math.hypot(fx - pose[0, 3], fy - pose[1, 3])
-        turned = abs(math.remainder(fyaw - math.atan2(pose[1, 0], pose[0, 0]), math.tau))
-        ok = (
-            bool(result.converged)
-            and inliers >= c.min_inlier_share * int(source.size())
-            and rmse <= c.max_rmse_m
-            and moved <= c.max_correction_m
-            and turned <= c.max_correction_rad
-        )
-        if not ok:
+        try:
+            match = matcher.match(pts, planar_matrix(*recorded))
+        except MessageError:
             self.stats.frames_rejected_registration += 1
-            return pose
+            return recorded
+        meas = np.array(
+            [match.x_m, match.y_m, recorded[2] + math.remainder(match.yaw_rad - recorded[2], math.tau)]
+        )
+        ok = (
+            match.converged
+            and match.inlier_share >= c.min_inlier_share
+            and match.rmse_m <= c.max_rmse_m
+            and np.isfinite(match.covariance).all()
+        )
+        fused = (
+            recorded + prior @ np.linalg.solve(prior + match.covariance, meas - recorded) if ok else recorded
+        )
+        moved = math.hypot(fused[0] - recorded[0], fused[1] - recorded[1])
+        if not ok or moved > c.max_correction_m or abs(fused[2] - recorded[2]) > c.max_correction_rad:
+            self.stats.frames_rejected_registration += 1
+            return recorded
         self.stats.frames_registered += 1
-        self.stats.rmse_m.append(rmse)
-        self.stats.correction_m.append(moved)
-        return planar_matrix(fx, fy, fyaw)
+        self.stats.rmse_m.append(match.rmse_m)
+        j = int(near[0])
+        rot = np.eye(3)
+        cj, sj = math.cos(self._poses[j][2]), math.sin(self._poses[j][2])
+        rot[:2, :2] = [[cj, sj], [-sj, cj]]  # map -> frame j
+        self._edges.append(
+            RelativeEdge(
+                i=len(self._poses),
+                j=j,
+                z=relative(meas, self._poses[j]),
+                covariance=rot @ match.covariance @ rot.T,
+            )
+        )
+        return fused
+
+    def optimised_poses(self) -> np.ndarray:
+        """(N, 3) poses of the placed frames after the pose graph (first-pass poses without edges)."""
+        initial = np.array(self._poses).reshape(-1, 3)
+        if not self._edges:
+            return initial
+        return optimise(initial, np.array(self._recorded), np.array(self._prior_covs), self._edges)
 
     def points(self) -> np.ndarray:
-        """The map: every placed frame, voxel-downsampled together, (N, 3) float64."""
+        """The map: every placed frame at its optimised pose, voxel-downsampled together, (N, 3) float64.
+        Fills ``stats.correction_m`` (optimised against recorded poses of the registered frames)."""
         import small_gicp
 
-        if not self._frames or self._origin is None:
+        if not self._local or self._origin is None:
             return np.zeros((0, 3))
-        allpts = np.concatenate(self._frames)
+        poses = self.optimised_poses()
+        registered = sorted({e.i for e in self._edges})
+        rec = np.array(self._recorded)
+        self.stats.correction_m = [float(np.hypot(*(poses[i, :2] - rec[i, :2]))) for i in registered]
+        allpts = np.concatenate([_place(pts, pose) for pts, pose in zip(self._local, poses, strict=True)])
         out = np.asarray(small_gicp.voxelgrid_sampling(allpts, self.config.voxel_m).points())[:, :3].copy()
         out[:, 0] += self._origin[0]
         out[:, 1] += self._origin[1]
         return out
+
+
+def _place(points: np.ndarray, pose: np.ndarray) -> np.ndarray:
+    """Base-frame points placed at planar pose (x, y, yaw)."""
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    out = points.copy()
+    out[:, 0] = pose[0] + c * points[:, 0] - s * points[:, 1]
+    out[:, 1] = pose[1] + s * points[:, 0] + c * points[:, 1]
+    return out

@@ -69,7 +69,7 @@ def build_map(recording: Path, out: Path, config: MapBuildConfig) -> MapBuildRes
     builder = PointCloudMapBuilder(config)
     skipped = 0
     for stamp_us in sorted(frames):
-        pose_ok = _pose_usable(estimates, est_t, stamp_us, config.max_pose_std_m)
+        pose_ok, est = _pose_usable(estimates, est_t, stamp_us, config.max_pose_std_m)
         sweeps = frames[stamp_us]
         ends = np.array([stamp_us + int(np.max(s.points[:, 5], initial=0.0)) for s in sweeps])
         if not pose_ok or not trajectory.covers(np.append(ends, stamp_us)):
@@ -91,7 +91,8 @@ def build_map(recording: Path, out: Path, config: MapBuildConfig) -> MapBuildRes
                 for s in sweeps
             ]
         )
-        builder.add(pts, float(xy[0, 0]), float(xy[0, 1]), float(yaw[0]))
+        std_m, yaw_std = (est.pos_std_m, est.yaw_std_rad) if est is not None else (None, None)
+        builder.add(pts, float(xy[0, 0]), float(xy[0, 1]), float(yaw[0]), std_m, yaw_std)
     points = builder.points()
     st = builder.stats
     if len(points) == 0:
@@ -135,13 +136,15 @@ def _rig_frames(rec: Recording, path: Path) -> dict[int, list[LidarSweep]]:
 
 def _pose_usable(
     estimates: list[LocalizationEstimate], est_t: np.ndarray, stamp_us: int, max_std_m: float
-) -> bool:
-    """The newest recorded estimate at or before ``stamp_us`` was valid, held by an absolute source and
-    within ``max_std_m``; True when the recording carries no estimates (only ``/tf``)."""
+) -> tuple[bool, LocalizationEstimate | None]:
+    """Whether the newest recorded estimate at or before ``stamp_us`` was valid, held by an absolute
+    source and within ``max_std_m`` (True when the recording carries no estimates, only ``/tf``), and
+    that estimate."""
     if not estimates:
-        return True
+        return True, None
     k = int(np.searchsorted(est_t, stamp_us, side="right")) - 1
     if k < 0:
-        return False
+        return False, None
     est = estimates[k]
-    return est.valid and est.source is not PositionSource.DEAD_RECKONING and est.pos_std_m <= max_std_m
+    ok = est.valid and est.source is not PositionSource.DEAD_RECKONING and est.pos_std_m <= max_std_m
+    return ok, est
