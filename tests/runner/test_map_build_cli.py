@@ -150,3 +150,24 @@ def test_bad_arguments_are_one_line(tmp_path: Path) -> None:
     bad = tmp_path / "not.mcap"
     bad.write_text("not an mcap file\n")
     _one_line_exit_1([str(bad), *out], str(bad))
+
+
+def test_record_map_needs_the_raw_lidar(tmp_path: Path) -> None:
+    result = CliRunner().invoke(
+        app,
+        [
+            "run",
+            "--perception",
+            "radar",
+            "--minutes",
+            "0.01",
+            "--out",
+            str(tmp_path / "run"),
+            "--record-map",
+            str(tmp_path / "d.mcap"),
+        ],
+    )
+    assert result.exit_code == 2, result.output
+    assert result.output.strip() == (
+        "lastmile run: --record-map: expected raw LiDAR perception, got 'radar_tracking' (no sweeps)"
+    )
