@@ -804,7 +804,8 @@ def map_build(
         f"wrote {out}: {info.points} points, voxel {info.voxel_m} m, {info.frames_used} of "
         f"{info.frames_total} rig frames ({info.frames_registered} registered, "
         f"{result.frames_skipped_pose} without a usable pose), registration RMSE p50 "
-        f"{info.registration_rmse_p50_m} m, correction max {info.correction_max_m} m"
+        f"{info.registration_rmse_p50_m} m, correction max {info.correction_max_m} m; occupancy map "
+        f"{out.with_suffix('.yaml')}"
     )
 
 

@@ -28,6 +28,8 @@ class PositionSource(Enum):
     SCAN_MATCHING = "scan_matching"
     """LiDAR scans registered to a point-cloud map (GNSS-denied localization) within the timeout.
     (Last, so the run logs' source codes of the older sources keep their values.)"""
+    AMCL = "amcl"
+    """A particle filter on the 2-D occupancy map (NUS's AMCL) within the timeout."""
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -18,6 +18,7 @@ _SOURCE_COLOURS = {
     "landmarks": "#c6dbef",
     "dead_reckoning": "#fdd0a2",
     "scan_matching": "#dadaeb",
+    "amcl": "#bcbddc",
     "invalid": "#ef3b2c",
 }
 _DPI = 100

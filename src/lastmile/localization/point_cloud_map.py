@@ -41,6 +41,7 @@ class PointCloudMapInfo:
             registrations (median, 95th percentile), m; None if none.
         correction_p50_m, correction_max_m: how far registration moved the recorded poses, m.
         pose_source: what placed the frames (the recording's own localization, ``map -> base_link``).
+        occupancy_map: the 2-D occupancy map written beside it for the ``amcl`` mode (map_server YAML).
     """
 
     frame: str
@@ -57,6 +58,7 @@ class PointCloudMapInfo:
     correction_p50_m: float | None
     correction_max_m: float | None
     pose_source: str
+    occupancy_map: str | None = None
 
 
 def sidecar_path(pcd: Path) -> Path:

@@ -32,7 +32,8 @@ class AbsoluteUpdates:
 
     def source_at(self, stamp_us: int) -> PositionSource:
         """LANDMARKS while landmark corrections are current (within the timeout of ``stamp_us``), else
-        SCAN_MATCHING while scan-to-map matches are, else GNSS while fixes are, else dead reckoning.
+        SCAN_MATCHING while scan-to-map matches are, else AMCL while particle-filter fixes are, else GNSS
+        while fixes are, else dead reckoning.
         The map-based sources come first: while they hold the pose it
         does not depend on the receiver, so the loss of a fix must not read as the loss of the
         position (with both at 10 Hz the newest of the two would flip with their phase). An estimate
@@ -44,4 +45,4 @@ class AbsoluteUpdates:
         return PositionSource.DEAD_RECKONING
 
 
-_PRIORITY = (PositionSource.LANDMARKS, PositionSource.SCAN_MATCHING, PositionSource.GNSS)
+_PRIORITY = (PositionSource.LANDMARKS, PositionSource.SCAN_MATCHING, PositionSource.AMCL, PositionSource.GNSS)

@@ -6,13 +6,15 @@ sensor's frame, the mounts on ``/tf`` (``base_link -> lidar_<id>``), the estimat
 sigma. Sweeps stamped alike form a rig frame; each is de-skewed with the recorded trajectory, placed
 at the recorded pose and refined by registration (:mod:`lastmile.localization.map_build`); frames whose
 recorded pose was dead reckoning or too uncertain are left out. The map is written as PCD with a JSON
-sidecar (:mod:`lastmile.localization.point_cloud_map`).
+sidecar (:mod:`lastmile.localization.point_cloud_map`), and its 2-D occupancy map for the ``amcl`` mode
+beside it (``MAP.yaml`` + ``MAP.pgm``, ROS map_server's format; :mod:`lastmile.localization.occupancy_map`).
 
 Like ``lidar_calibration_replay.py``, this feeds recorded data to one module alone: no vehicle, no loop.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -22,6 +24,7 @@ from lastmile.core.errors import CalibrationError, MapError
 from lastmile.core.sensor_frames import LidarSweep
 from lastmile.core.vehicle_messages import LocalizationEstimate, PositionSource
 from lastmile.localization.map_build import MapBuildConfig, PointCloudMapBuilder, Trajectory, deskew_to_base
+from lastmile.localization.occupancy_map import grid_from_points, write_grid
 from lastmile.localization.point_cloud_map import (
     PointCloudMapInfo,
     extent,
@@ -119,6 +122,9 @@ def build_map(recording: Path, out: Path, config: MapBuildConfig) -> MapBuildRes
         pose_source=f"{MAP_FRAME} -> {BASE_FRAME} on {TF_TOPIC}"
         + (f", absolute sources per {ESTIMATE_TOPIC}" if estimates else " (no estimates: sigma unknown)"),
     )
+    grid_yaml = out.with_suffix(".yaml")
+    write_grid(grid_yaml, grid_from_points(points))
+    info = dataclasses.replace(info, occupancy_map=grid_yaml.name)
     write_point_cloud_map(out, points, info)
     return MapBuildResult(info=info, frames_skipped_pose=skipped)
 

@@ -28,7 +28,7 @@ from lastmile.safety.reliability_config import ReliabilityConfig, SensorSpec
 K = MalfunctionKind
 L = FailSafeLevel
 
-_MAP_SOURCES = (PositionSource.LANDMARKS, PositionSource.SCAN_MATCHING)
+_MAP_SOURCES = (PositionSource.LANDMARKS, PositionSource.SCAN_MATCHING, PositionSource.AMCL)
 """Sources that hold the pose to the map without GNSS (a lost fix then limits nothing)."""
 
 

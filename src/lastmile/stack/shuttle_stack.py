@@ -67,6 +67,7 @@ from lastmile.decision.behaviour_fsm import BehaviourStateMachine
 from lastmile.decision.decision_config import DecisionConfig, DecisionInput
 from lastmile.decision.mission import MissionManager
 from lastmile.hdmap.layers import SLayerDatabase
+from lastmile.localization.amcl_localization import AmclSettings
 from lastmile.localization.ekf import PoseEkf
 from lastmile.localization.ekf_config import PoseEkfConfig
 from lastmile.localization.landmark_extraction import LandmarkExtractionConfig
@@ -76,6 +77,7 @@ from lastmile.perception.late_fusion import radar_detections
 from lastmile.planning.local_path import LocalPathConfig
 from lastmile.planning.planners import PlannerInputs, PlannerName, make_path_planner
 from lastmile.safety.reliability_config import ReliabilityConfig, default_sensor_specs
+from lastmile.stack.amcl_fusion import AmclFusion
 from lastmile.stack.hmi import HmiComposer
 from lastmile.stack.landmark_fusion import LandmarkFusion
 from lastmile.stack.module_guard import ModuleGuard
@@ -132,6 +134,7 @@ class StackConfig:
     inertial_ekf: PoseEkfConfig = field(default_factory=PoseEkfConfig)
     landmarks: LandmarkExtractionConfig = field(default_factory=LandmarkExtractionConfig)
     scan_matching: ScanMatchingSettings = field(default_factory=ScanMatchingSettings)
+    amcl: AmclSettings = field(default_factory=AmclSettings)
     tracker: RadarTrackerConfig = field(default_factory=RadarTrackerConfig)
     reliability: ReliabilityConfig = field(default_factory=lambda: ReliabilityConfig(sensors=DEFAULT_SENSORS))
     v2i: AnticipationConfig = field(default_factory=AnticipationConfig)
@@ -183,7 +186,12 @@ def _injected_fault() -> None:
     raise RuntimeError("injected module fault")
 
 
-_INERTIAL_MODES = (LocalizationMode.INERTIAL_EKF, LocalizationMode.LANDMARKS, LocalizationMode.SCAN_MATCHING)
+_INERTIAL_MODES = (
+    LocalizationMode.INERTIAL_EKF,
+    LocalizationMode.LANDMARKS,
+    LocalizationMode.SCAN_MATCHING,
+    LocalizationMode.AMCL,
+)
 """Localization modes that run the IMU-driven :class:`PoseEkf` (the others: the odometry EKF)."""
 
 #: Lateral controllers that keep the legacy pull-over path (see :func:`_path_config`).
@@ -255,6 +263,12 @@ class ShuttleStack:
             if config.localization is LocalizationMode.SCAN_MATCHING and isinstance(self.ekf, PoseEkf)
             else None
         )
+        # NUS's AMCL: a particle filter on the occupancy map, fed each rig frame's planar scan.
+        self.amcl = (
+            AmclFusion(config.amcl)
+            if config.localization is LocalizationMode.AMCL and isinstance(self.ekf, PoseEkf)
+            else None
+        )
         self.light_tracker = (
             TrafficLightTracker(layers.hdmap.traffic_lights, config.light_cameras, config.traffic_lights)
             if layers.hdmap.traffic_lights and config.light_cameras
@@ -321,6 +335,7 @@ class ShuttleStack:
             "perception": 100.0,
             "landmarks": 100.0,
             "scan_matching": 100.0,
+            "amcl": 100.0,
             **dict.fromkeys(("tracking", "prediction", "decision", "planning"), planning_ms),
             "control": config.control_period_ticks * tick_ms,
         }
@@ -352,6 +367,9 @@ class ShuttleStack:
                 with p.measure("scan_matching"):
                     match = self.scan_matching.fuse
                     self._guarded("localization", now, match, self.ekf, raw.last_result)
+            if done and self.amcl is not None and raw.last_result is not None:
+                with p.measure("amcl"):
+                    self._guarded("localization", now, self.amcl.fuse, self.ekf, raw.last_result)
         if planning_cycle:
             with p.measure("tracking"):
                 source = raw.tracks if raw is not None else self.tracker.tracks
@@ -417,6 +435,9 @@ class ShuttleStack:
         if self.scan_matching is not None:
             counters.update(self.scan_matching.counters())
             perception["scan_match_update_cpu_p50_ms"] = self.scan_matching.cpu_p50_ms()
+        if self.amcl is not None:
+            counters.update(self.amcl.counters())
+            perception["amcl_update_cpu_p50_ms"] = self.amcl.cpu_p50_ms()
         return VehicleReport(modules=self.profiler.summary(), counters=counters, perception=perception)
 
     def _guarded(self, module: str, now: Stamp, fn: Callable[..., object], *args: object) -> object:

@@ -88,6 +88,7 @@ def stack_config(settings: StackSettings, calibration: SensorCalibration, tick_u
         inertial_ekf=settings.inertial_ekf,
         landmarks=settings.landmarks,
         scan_matching=settings.scan_matching,
+        amcl=settings.amcl,
         localization=settings.localization,
         perception_mode=settings.perception,
         lidar_mounts=calibration.lidar_mounts if raw else {},
