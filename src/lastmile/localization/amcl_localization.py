@@ -4,9 +4,9 @@ The particle filter (:mod:`lastmile.localization.particle_filter`) runs on the o
 ``lastmile map build`` writes beside the point-cloud map (:mod:`lastmile.localization.occupancy_map`),
 fed each LiDAR frame's planar scan and the odometry between frames. Its weighted mean and covariance are
 fused into the inertial EKF like a scan match (:class:`ScanMatchMeasurement`: only the directions whose
-sigma is within ``max_direction_std_m``, through the EKF's Mahalanobis gate), and only while the set is
-confident (position sigma within the filter's ``max_pos_std_m``) and its random-particle injection
-(the recovery that a lost filter triggers) is below ``max_random_injection``.
+sigma is within ``max_direction_std_m``, through the EKF's Mahalanobis gate: along a straight street the
+particles spread along the road while the across-road position stays sharp), and only while its
+random-particle injection (the recovery that a lost filter triggers) is below ``max_random_injection``.
 """
 
 from __future__ import annotations

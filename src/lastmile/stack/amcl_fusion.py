@@ -5,7 +5,8 @@ occupancy map's height band, :func:`lastmile.localization.occupancy_map.planar_s
 filter (:class:`lastmile.localization.particle_filter.AmclLocalizer`) is initialised once at the EKF's
 first valid pose and its sigmas, moved by the EKF's motion between consecutive clouds (expressed in the
 previous base frame), weighed by the scan; its mean and covariance are fused by the EKF at the cloud's
-stamp (``PoseEkf.update_pose`` with source AMCL) when confident and not recovering. Only the map and the
+stamp (``PoseEkf.update_pose`` with source AMCL) along the directions the particles pin down, when the
+filter is not recovering (injecting random particles). Only the map and the
 stack's own sensor data are used, never the simulator's truth.
 """
 
@@ -39,6 +40,7 @@ class AmclStats:
     filter_updates: int = 0
     updates: int = 0
     not_confident: int = 0
+    """Filter updates not fused: recovering (random injection over the limit)."""
     gate_rejections: int = 0
     cpu_ms: list[float] = field(default_factory=list)
     """This thread's CPU time per cloud (scan, motion, filter update, EKF update; reporting only)."""
@@ -94,7 +96,10 @@ class AmclFusion:
             return
         st.filter_updates += 1
         out = self.filter.estimate()
-        if not out.confident or out.random_injection > s.max_random_injection:
+        # The filter's own `confident` looks at its worst axis; along a straight street the particles
+        # spread along the road while the across-road position is sharp: the measurement below fuses
+        # only the directions within max_direction_std_m, so the sharp one is not thrown away.
+        if out.random_injection > s.max_random_injection:
             st.not_confident += 1
             return
         m = ScanMatchMeasurement(
