@@ -784,10 +784,12 @@ def map_build(
     recording: Annotated[
         Path, typer.Argument(help="Recording (MCAP) with LiDAR clouds and the poses on /tf.")
     ],
-    out: Annotated[Path, typer.Option(help="The point-cloud map to write (PCD; a .json sidecar beside it).")],
+    out: Annotated[
+        Path, typer.Option(help="Map to write: PCD, with a .json sidecar and the .yaml + .pgm occupancy map.")
+    ],
     voxel: Annotated[float, typer.Option(help="Voxel size of the map, m.")] = 0.2,
 ) -> None:
-    """Build a point-cloud map for the scan_matching localization from a recorded run."""
+    """Build a point-cloud map (and its occupancy map) for scan_matching / amcl from a recorded run."""
     from lastmile.core.output_dir import prepare_output_file
     from lastmile.localization.map_build import MapBuildConfig
     from lastmile.runner.map_build_replay import build_map

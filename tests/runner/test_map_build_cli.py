@@ -22,6 +22,7 @@ from lastmile.core.sensor_frames import LidarSweep
 from lastmile.core.stamp import Stamp
 from lastmile.core.vehicle_messages import LocalizationEstimate, PositionSource
 from lastmile.localization.map_build import MapBuildConfig
+from lastmile.localization.occupancy_map import read_grid
 from lastmile.localization.point_cloud_map import read_point_cloud_map, sidecar_path
 from lastmile.recorder.foxglove_views import ViewBuilder, planar_matrix
 from lastmile.recorder.mcap_dump import write_mcap
@@ -95,6 +96,9 @@ def test_writes_a_pcd_on_the_scene_and_its_sidecar(tmp_path: Path) -> None:
     assert side["frame"] == "map" and side["voxel_m"] == 0.1 and side["points"] == len(points)
     assert side["frames_total"] == FRAMES and 1 < side["frames_used"] < FRAMES  # keyframes: 1 m of travel
     assert side["source"] == str(rec)
+    assert side["occupancy_map"] == "campus.yaml"
+    grid = read_grid(out.with_suffix(".yaml"))  # the amcl mode's map: the scene's walls and poles
+    assert np.asarray(grid.occupied).any() and grid.resolution_m == 0.1
     np.testing.assert_allclose(side["extent_min_m"], points.min(axis=0), atol=1e-9)
     # On the scene's surfaces (2 cm range noise, 0.1 m voxels): not a cloud in the sensor's frame.
     assert np.percentile(_surface_distance_m(points), 95) < 0.05
