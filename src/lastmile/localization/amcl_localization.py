@@ -31,6 +31,9 @@ class AmclSettings:
         max_yaw_std_rad: nor the heading when its sigma exceeds this, rad.
         max_random_injection: while the filter injects more random particles than this share (it
             is recovering from a lost pose), nothing is fused.
+        reseed_after: after this many filter updates in a row refused by the EKF's gate or
+            recovering, while RTK holds the EKF, the particles restart at the EKF's pose (one second of
+            10 Hz frames).
         filter: the particle filter's parameters (``[stack.amcl.filter]``, ROS amcl's defaults).
     """
 
@@ -41,6 +44,7 @@ class AmclSettings:
     max_direction_std_m: float = 0.3
     max_yaw_std_rad: float = math.radians(3.0)
     max_random_injection: float = 0.05
+    reseed_after: int = 10
     filter: AmclConfig = field(default_factory=AmclConfig)
 
     def __post_init__(self) -> None:
@@ -52,6 +56,8 @@ class AmclSettings:
             raise ConfigError(
                 f"stack.amcl.min_height_m: expected in [0, max_height_m), got {self.min_height_m}"
             )
+        if self.reseed_after < 1:
+            raise ConfigError(f"stack.amcl.reseed_after: expected >= 1, got {self.reseed_after}")
         if not 0.0 < self.max_random_injection <= 1.0:
             raise ConfigError(
                 f"stack.amcl.max_random_injection: expected (0, 1], got {self.max_random_injection}"

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from lastmile.core.geometry import SE2
-from lastmile.core.vehicle_messages import PositionSource
+from lastmile.core.vehicle_messages import LocalizationEstimate, PositionSource
 from lastmile.localization.amcl_localization import AmclSettings
 from lastmile.localization.ekf import PoseEkf
 from lastmile.localization.occupancy_map import planar_scan
@@ -42,6 +42,8 @@ class AmclStats:
     not_confident: int = 0
     """Filter updates not fused: recovering (random injection over the limit)."""
     gate_rejections: int = 0
+    reseeds: int = 0
+    """Restarts of the particles at the EKF's RTK-held pose after ``reseed_after`` refusals in a row."""
     cpu_ms: list[float] = field(default_factory=list)
     """This thread's CPU time per cloud (scan, motion, filter update, EKF update; reporting only)."""
 
@@ -57,6 +59,7 @@ class AmclFusion:
         self.stats = AmclStats()
         self._last_stamp_us: int | None = None
         self._last_pose: SE2 | None = None
+        self._disagreements = 0  # consecutive filter updates refused (gate) or recovering
 
     def fuse(self, ekf: PoseEkf, result: LidarPipelineResult) -> None:
         """Step the filter on ``result``'s cloud once (a cloud already used is skipped); nothing before
@@ -69,21 +72,26 @@ class AmclFusion:
             return
         self._last_stamp_us = int(stamp)
         start = time.thread_time()
-        self._step(ekf, result, est.map_from_base, est.pos_std_m, est.yaw_std_rad)
+        self._step(ekf, result, est)
         self.stats.cpu_ms.append((time.thread_time() - start) * 1e3)
 
-    def _step(
-        self, ekf: PoseEkf, result: LidarPipelineResult, pose: SE2, pos_std: float, yaw_std: float
-    ) -> None:
+    def _step(self, ekf: PoseEkf, result: LidarPipelineResult, est: LocalizationEstimate) -> None:
         st, s = self.stats, self.settings
         st.clouds += 1
-        if self._last_pose is None:
+        pose = est.map_from_base
+        # A filter that has lost the pose (random particles converged elsewhere) is refused by the EKF's
+        # gate frame after frame; while RTK holds the EKF, it restarts the particles at the EKF's pose
+        # (ROS amcl is re-seeded from an initial pose the same way). Never from dead reckoning.
+        reseed = self._disagreements >= s.reseed_after and est.valid and est.source is PositionSource.GNSS
+        if self._last_pose is None or reseed:
             std = (
-                max(pos_std, _INIT_MIN_STD[0]),
-                max(pos_std, _INIT_MIN_STD[1]),
-                max(yaw_std, _INIT_MIN_STD[2]),
+                max(est.pos_std_m, _INIT_MIN_STD[0]),
+                max(est.pos_std_m, _INIT_MIN_STD[1]),
+                max(est.yaw_std_rad, _INIT_MIN_STD[2]),
             )
             self.filter.initialise((pose.x_m, pose.y_m, pose.yaw_rad), std)
+            st.reseeds += reseed
+            self._disagreements = 0
         else:
             delta = self._last_pose.inverse().compose(pose)
             self.filter.motion((delta.x_m, delta.y_m, delta.yaw_rad))
@@ -101,6 +109,7 @@ class AmclFusion:
         # only the directions within max_direction_std_m, so the sharp one is not thrown away.
         if out.random_injection > s.max_random_injection:
             st.not_confident += 1
+            self._disagreements += 1
             return
         m = ScanMatchMeasurement(
             stamp=result.cloud.stamp,
@@ -113,7 +122,9 @@ class AmclFusion:
         )
         before = ekf.rejected_pose_measurements
         st.updates += ekf.update_pose(m, PositionSource.AMCL)
-        st.gate_rejections += ekf.rejected_pose_measurements - before
+        rejected = ekf.rejected_pose_measurements - before
+        st.gate_rejections += rejected
+        self._disagreements = self._disagreements + 1 if rejected else 0
 
     def cpu_p50_ms(self) -> float | None:
         """Median CPU time per cloud, ms."""
@@ -128,4 +139,5 @@ class AmclFusion:
             "amcl_updates": st.updates,
             "amcl_not_confident": st.not_confident,
             "amcl_gate_rejections": st.gate_rejections,
+            "amcl_reseeds": st.reseeds,
         }
