@@ -2,6 +2,7 @@
 
 Run: python benchmarks/localization_modes.py [--weather snow] [--outage 140:60] [--minutes 3.7]
          [--scenario FILE] [--drive landmarks] [--seed 0] [--out DIR] [--json out.json]
+         [--map MAP.pcd | --map-minutes 10 --map-recording FILE]
 
 The shuttle drives the campus service (or ``--scenario``) with the ``--drive`` localization mode and
 raw LiDAR perception, through a GNSS outage (``--outage START:DURATION``, s; a scenario's own first
@@ -13,13 +14,22 @@ equal terms):
   fused by the inertial EKF);
 - ``ekf`` and ``inertial_ekf``: the GNSS/INS EKFs, which are dead reckoning through the outage (the
   dead-reckoning baseline the issue asks for);
-- ``scan_matching`` and ``AMCL``: not runnable in the stack yet: they need a point-cloud map and an
-  occupancy map of the campus, which ``lastmile map build`` (not written) would produce.
+- ``scan_matching`` (``--drive scan_matching``): the stack's own estimate, each LiDAR frame registered to
+  a point-cloud map. The map is ``--map``, or built here the way a user builds it: a mapping drive of
+  ``--map-minutes`` on the campus in clear weather with another seed (``--seed`` + 1: other traffic,
+  other sensor noise) recorded with ``LidarMapRecording`` (a rig frame per 2 m of the stack's own
+  estimated travel) and ``lastmile map build``'s ``build_map`` on that recording; the map's sidecar
+  is printed;
+- ``amcl`` (``--drive amcl``): the stack's own estimate, NUS's particle filter on the occupancy map that
+  ``map build`` writes beside the point-cloud map (``--map``'s ``.yaml``, or the one built here).
+
+One run drives one mode (the others of the map family are rows of their own runs: ``--drive``).
 
 Printed per mode: lateral error p95 and max through the outage (truth vs estimate, rear axle), ATE (RMS
 position error) through the outage and over the run, the share of the outage the estimate's source was
-LANDMARKS / DEAD_RECKONING, and the compute time per update (median): for ``landmarks`` one LiDAR
-frame's extraction, association and EKF update (the stack profiler's ``landmarks`` module), for the
+the map (LANDMARKS or SCAN_MATCHING) / DEAD_RECKONING, and the compute time per update (median): for
+``landmarks`` one LiDAR frame's extraction, association and EKF update (the stack profiler's
+``landmarks`` module), for ``scan_matching`` one frame's registration, checks and EKF update, for the
 EKFs one input (a wheel-speed/IMU prediction or a GNSS fix), as this thread's CPU time (the wall time
 on a shared machine also counts other processes; the stack profiler's wall p50 is printed beside it).
 Reference operations in the same run: a 9x9 float64 matrix product (the filters' elementary step, CPU
@@ -37,6 +47,7 @@ import json
 import math
 import os
 import statistics
+import tempfile
 import time
 from pathlib import Path
 from typing import Any
@@ -52,19 +63,23 @@ from lastmile.core.perception_mode import PerceptionMode
 from lastmile.core.sensor_frames import GnssInsFrame, ImuFrame, WheelOdometryFrame
 from lastmile.core.vehicle import VehicleGeometry
 from lastmile.core.vehicle_messages import LocalizationEstimate, PositionSource
+from lastmile.localization.amcl_localization import AmclSettings
 from lastmile.localization.ekf import PoseEkf
+from lastmile.localization.map_build import MapBuildConfig
 from lastmile.localization.odometry_ekf import OdometryEkf
+from lastmile.localization.point_cloud_map import read_sidecar
+from lastmile.localization.scan_match_localization import ScanMatchingSettings
 from lastmile.runner.closed_loop import evaluate_run, run_scenario
 from lastmile.runner.loop import ClosedLoop, LoopCallback, TickRecord
+from lastmile.runner.map_build_replay import build_map
+from lastmile.runner.map_recording import LidarMapRecording
 from lastmile.runner.run_config import RunConfig
 from lastmile.sim.gnss_scenario import GnssOutage, GnssScenario
 from lastmile.sim.scenario import Scenario, load_scenario
 from lastmile.stack.stack_settings import LocalizationMode
 
-NOT_RUNNABLE = {
-    "scan_matching": "no point-cloud map of the campus (needs `lastmile map build`, not written)",
-    "amcl": "no occupancy map of the campus (needs `lastmile map build`, not written)",
-}
+MAP_MODES = ("landmarks", "scan_matching", "amcl")
+MAP_SOURCES = (PositionSource.LANDMARKS, PositionSource.SCAN_MATCHING, PositionSource.AMCL)
 
 
 CLOSED_LOOP_KEYS = ("collisions_total", "takeovers", "stops_served", "emergency_stops", "mean_speed_mps")
@@ -137,7 +152,7 @@ class ModeProbe(LoopCallback):
                 -s * dx + c * dy,
                 c * dx + s * dy,
                 est.pos_std_m,
-                float(est.source.value == "landmarks"),
+                float(est.source in MAP_SOURCES),
                 float(est.source is PositionSource.DEAD_RECKONING),
                 float(est.valid),
                 truth.speed_mps,
@@ -168,7 +183,7 @@ def summarise(rows: list[tuple[float, ...]], t0_s: float, t1_s: float) -> dict[s
         "ate_outage_m": float(np.sqrt(np.mean(pos[out] ** 2))),
         "ate_run_m": float(np.sqrt(np.mean(pos[run] ** 2))),
         "sigma_end_of_outage_m": float(a[out, 3][-1]),
-        "share_landmarks": float(a[out, 4].mean()),
+        "share_map_held": float(a[out, 4].mean()),
         "share_dead_reckoning": float(a[out, 5].mean()),
         "share_valid": float(a[out, 6].mean()),
         "mean_speed_outage_mps": float(a[out, 7].mean()),
@@ -195,6 +210,33 @@ def scenario_for(args: argparse.Namespace) -> tuple[Scenario, float, float]:
     return scenario, start_s, duration_s
 
 
+def point_cloud_map(args: argparse.Namespace) -> tuple[Path, dict[str, Any]]:
+    """``--map``, or a map built from a mapping drive recorded here (clear weather, seed + 1)."""
+    if args.map:
+        path = Path(args.map)
+        side = read_sidecar(path)
+        return path, {"path": str(path), "sidecar": side}
+    folder = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="lastmile_map_"))
+    recording_path = Path(args.map_recording) if args.map_recording else folder / "mapping_drive.mcap"
+    drive = Scenario(name="mapping_drive", minutes=args.map_minutes, seed=args.seed + 1)
+    recording = LidarMapRecording(recording_path, min_travel_m=2.0)
+    cpu0 = time.process_time()
+    run_scenario(drive, RunConfig(), extra_callbacks=(recording,))
+    cpu_drive = time.process_time() - cpu0
+    path = folder / "campus_map.pcd"
+    cpu0 = time.process_time()
+    result = build_map(recording_path, path, MapBuildConfig())
+    return path, {
+        "path": str(path),
+        "mapping_drive": {"minutes": args.map_minutes, "seed": args.seed + 1, "weather": "clear"},
+        "recording": str(recording_path),
+        "rig_frames_recorded": recording.rig_frames,
+        "drive_cpu_s": cpu_drive,
+        "build_cpu_s": time.process_time() - cpu0,
+        "sidecar": dataclasses.asdict(result.info),
+    }
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--scenario", default="")
@@ -205,17 +247,27 @@ def main() -> None:
     p.add_argument("--drive", default="landmarks", choices=[m.value for m in LocalizationMode])
     p.add_argument("--out", default="")
     p.add_argument("--json", default="")
+    p.add_argument("--map", default="", help="scan_matching: the point-cloud map (else built here)")
+    p.add_argument("--map-minutes", type=float, default=10.0, help="the mapping drive, simulated minutes")
+    p.add_argument("--map-recording", default="", help="keep the mapping drive's recording here")
     args = p.parse_args()
     scenario, start_s, duration_s = scenario_for(args)
     base = RunConfig()
-    config = dataclasses.replace(
-        base,
-        stack=dataclasses.replace(
-            base.stack,
-            localization=LocalizationMode(args.drive),
-            perception=PerceptionMode.LIDAR_CAMERA_RADAR,
-        ),
+    map_info: dict[str, Any] | None = None
+    extra: dict[str, Any] = {}
+    if args.drive == LocalizationMode.SCAN_MATCHING.value:
+        map_path, map_info = point_cloud_map(args)
+        extra["scan_matching"] = ScanMatchingSettings(map=str(map_path))
+    elif args.drive == LocalizationMode.AMCL.value:
+        map_path, map_info = point_cloud_map(args)
+        extra["amcl"] = AmclSettings(map=str(map_path.with_suffix(".yaml")))
+    stack = dataclasses.replace(
+        base.stack,
+        localization=LocalizationMode(args.drive),
+        perception=PerceptionMode.LIDAR_CAMERA_RADAR,
+        **extra,
     )
+    config = dataclasses.replace(base, stack=stack)
     # The shadows' filters are configured as the stack configures its own (zero-slip point of an
     # all-wheel-steer shuttle at mid-wheelbase).
     geometry = VehicleGeometry()
@@ -244,6 +296,12 @@ def main() -> None:
         elif name == LocalizationMode.LANDMARKS.value and "landmarks" in modules:
             r["update_median_ms"] = modules["landmarks"]["p50_ms"]
             r["update_cpu_median_ms"] = probe.report.perception.get("landmark_update_cpu_p50_ms")
+        elif name == LocalizationMode.SCAN_MATCHING.value and "scan_matching" in modules:
+            r["update_median_ms"] = modules["scan_matching"]["p50_ms"]
+            r["update_cpu_median_ms"] = probe.report.perception.get("scan_match_update_cpu_p50_ms")
+        elif name == LocalizationMode.AMCL.value and "amcl" in modules:
+            r["update_median_ms"] = modules["amcl"]["p50_ms"]
+            r["update_cpu_median_ms"] = probe.report.perception.get("amcl_update_cpu_p50_ms")
         results[name] = r
     report = {
         "scenario": scenario.name,
@@ -252,7 +310,8 @@ def main() -> None:
         "outage_s": [start_s, duration_s],
         "drive_mode": args.drive,
         "modes": results,
-        "not_runnable": NOT_RUNNABLE,
+        "not_run": {m: f"run with --drive {m}" for m in MAP_MODES if m != args.drive},
+        "map": map_info,
         "reference": {
             "matrix_9x9_product_us": ref_us,
             "lidar_chain_p50_ms": modules.get("perception", {}).get("p50_ms"),
@@ -287,10 +346,12 @@ def print_table(report: dict[str, Any]) -> None:
         "lat max m",
         "ATE outage m",
         "ATE run m",
-        "landmarks",
+        "map-held",
         "dead reck.",
-        "update ms",
+        "update CPU ms",
         "x 9x9 matmul",
+        "update wall ms",
+        "speed in outage m/s",
     ):
         t.add_column(col)
     ref_us = report["reference"]["matrix_9x9_product_us"]
@@ -302,7 +363,7 @@ def print_table(report: dict[str, Any]) -> None:
             f"{r['lateral_max_m']:.3f}",
             f"{r['ate_outage_m']:.3f}",
             f"{r['ate_run_m']:.3f}",
-            f"{r['share_landmarks']:.0%}",
+            f"{r['share_map_held']:.0%}",
             f"{r['share_dead_reckoning']:.0%}",
             "-" if ms is None else f"{ms:.3f}",
             "-" if ms is None else f"{ms * 1e3 / ref_us:.0f}",
@@ -310,8 +371,10 @@ def print_table(report: dict[str, Any]) -> None:
             f"{r['mean_speed_outage_mps']:.2f}",
         )
     console.print(t)
-    for name, why in report["not_runnable"].items():
-        console.print(f"{name}: not runnable: {why}")
+    if report.get("map"):
+        console.print(f"map: {report['map']}")
+    for name, why in report["not_run"].items():
+        console.print(f"{name}: not in this run: {why}")
     chain_ms = report["reference"]["lidar_chain_p50_ms"]
     console.print(f"reference: 9x9 matmul {ref_us:.2f} µs, LiDAR chain p50 {chain_ms:.1f} ms per frame")
     console.print(f"closed loop: {report['closed_loop']}; stack counters: {report['stack_counters']}")

@@ -13,6 +13,7 @@ from lastmile.core.errors import ConfigError, LastmileError
 from lastmile.core.perception_mode import PerceptionMode
 
 if TYPE_CHECKING:
+    from lastmile.runner.loop import LoopCallback
     from lastmile.runner.run_config import RunConfig
 
 PLAIN_HELP = None
@@ -106,6 +107,10 @@ def run(
         bool, typer.Option(help="Serve the run live to Foxglove (WebSocket), paced to the wall clock.")
     ] = False,
     live_port: Annotated[int, typer.Option(help="--live: the WebSocket port (on 127.0.0.1).")] = 8765,
+    record_map: Annotated[
+        Path | None,
+        typer.Option(help="Record the run's LiDAR sweeps (a rig frame per 2 m) and poses for `map build`."),
+    ] = None,
 ) -> None:
     """Simulate the shuttle service in closed loop and write a run directory with report.md."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
@@ -130,6 +135,7 @@ def run(
             scenario, run_config, minutes=minutes, seed=seed, weather=weather, route=route
         )
         world_map = load_world_map(spec.map)  # a bad route or map is found before the run, not after
+        mapping = _map_recording(record_map, run_config)
         from lastmile.hdmap.map_check import kerbside_lines
 
         for line in kerbside_lines(world_map):  # stops the route build moved off a bend
@@ -153,6 +159,7 @@ def run(
                 live=("127.0.0.1", live_port) if live else None,
                 on_live=lambda port: bar.console.print(f"live: connect Foxglove to ws://127.0.0.1:{port}"),
                 stop=lambda: stop.requested,
+                extra_callbacks=mapping,
             )
         metrics = evaluate_run(log, out, hdmap=world_map.hdmap)
     except LastmileError as exc:
@@ -772,6 +779,38 @@ def perceive(
     typer.echo(f"wrote {out / 'labels'}/, {out / 'objects.mcap'} and {out / 'timing.json'}")
 
 
+@map_app.command("build")
+def map_build(
+    recording: Annotated[
+        Path, typer.Argument(help="Recording (MCAP) with LiDAR clouds and the poses on /tf.")
+    ],
+    out: Annotated[
+        Path, typer.Option(help="Map to write: PCD, with a .json sidecar and the .yaml + .pgm occupancy map.")
+    ],
+    voxel: Annotated[float, typer.Option(help="Voxel size of the map, m.")] = 0.2,
+) -> None:
+    """Build a point-cloud map (and its occupancy map) for scan_matching / amcl from a recorded run."""
+    from lastmile.core.output_dir import prepare_output_file
+    from lastmile.localization.map_build import MapBuildConfig
+    from lastmile.runner.map_build_replay import build_map
+
+    try:
+        config = MapBuildConfig(voxel_m=voxel)
+        prepare_output_file(out, "--out")
+        result = build_map(recording, out, config)
+    except (LastmileError, OSError) as exc:
+        typer.echo(f"lastmile map build: {exc}", err=True)
+        raise typer.Exit(1) from None
+    info = result.info
+    typer.echo(
+        f"wrote {out}: {info.points} points, voxel {info.voxel_m} m, {info.frames_used} of "
+        f"{info.frames_total} rig frames ({info.frames_registered} registered, "
+        f"{result.frames_skipped_pose} without a usable pose), registration RMSE p50 "
+        f"{info.registration_rmse_p50_m} m, correction max {info.correction_max_m} m; occupancy map "
+        f"{out.with_suffix('.yaml')}"
+    )
+
+
 calibrate_app = typer.Typer(
     no_args_is_help=True, rich_markup_mode=PLAIN_HELP, help="Calibrate sensors from recorded data."
 )
@@ -818,6 +857,20 @@ def calibrate_lidar(
         typer.echo(f"no LiDAR calibrated: {out} not written", err=True)
     if any(r.calibrated is None for r in results):
         raise typer.Exit(1)
+
+
+def _map_recording(path: Path | None, run_config: RunConfig) -> tuple[LoopCallback, ...]:
+    """``run --record-map``: the mapping drive's recorder (raw LiDAR perception only)."""
+    if path is None:
+        return ()
+    from lastmile.core.output_dir import prepare_output_file
+    from lastmile.runner.map_recording import LidarMapRecording
+
+    if not run_config.stack.perception.needs_raw_sensors:
+        raise ConfigError(
+            f"--record-map: expected raw LiDAR perception, got '{run_config.stack.perception}' (no sweeps)"
+        )
+    return (LidarMapRecording(prepare_output_file(path, "--record-map"), min_travel_m=2.0),)
 
 
 @app.command()

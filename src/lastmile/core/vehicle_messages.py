@@ -22,9 +22,14 @@ class PositionSource(Enum):
     GNSS = "gnss"
     """GNSS fixes accepted within the mode's timeout."""
     LANDMARKS = "landmarks"
-    """Map landmarks or scan-to-map matches (GNSS-denied localization) within the timeout."""
+    """Map landmarks (GNSS-denied localization) within the timeout."""
     DEAD_RECKONING = "dead_reckoning"
     """Nothing absolute within the timeout (or never): odometry and IMU only; the error grows."""
+    SCAN_MATCHING = "scan_matching"
+    """LiDAR scans registered to a point-cloud map (GNSS-denied localization) within the timeout.
+    (Last, so the run logs' source codes of the older sources keep their values.)"""
+    AMCL = "amcl"
+    """A particle filter on the 2-D occupancy map (NUS's AMCL) within the timeout."""
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

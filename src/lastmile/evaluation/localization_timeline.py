@@ -16,7 +16,7 @@ class LocalizationSpan:
 
     Attributes:
         start_s, end_s: the span, simulated s.
-        source: "gnss", "landmarks", "dead_reckoning" or "invalid" (no valid pose).
+        source: "gnss", "landmarks", "scan_matching", "amcl", "dead_reckoning" or "invalid" (no valid pose).
         gnss: the fix the vehicle received: "rtk_fixed", "rtk_float", "dgnss", "single", "no_fix" or
             "none_yet".
         pos_std_m: the estimate's position sigma when the span began, m.

@@ -17,6 +17,8 @@ _SOURCE_COLOURS = {
     "gnss": "#c7e9c0",
     "landmarks": "#c6dbef",
     "dead_reckoning": "#fdd0a2",
+    "scan_matching": "#dadaeb",
+    "amcl": "#bcbddc",
     "invalid": "#ef3b2c",
 }
 _DPI = 100

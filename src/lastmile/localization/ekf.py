@@ -232,11 +232,14 @@ class PoseEkf:
         fix.validate()
         return self._noted(PositionSource.GNSS, fix.stamp, self._insert(int(fix.stamp), _GNSS_POS, fix))
 
-    def update_pose(self, measurement: PoseMeasurement) -> bool:
+    def update_pose(
+        self, measurement: PoseMeasurement, source: PositionSource = PositionSource.LANDMARKS
+    ) -> bool:
         """Correct with a measurement of the planar pose (landmarks, a scan match), linearised here.
 
         Used only once the filter has a position and heading; gated at the 0.999 chi-square quantile
-        of its dimension (rejections counted in ``rejected_pose_measurements``).
+        of its dimension (rejections counted in ``rejected_pose_measurements``). An accepted one makes
+        ``source`` the estimate's source (:mod:`lastmile.localization.position_source`).
 
         Returns:
             True if it was used.
@@ -246,7 +249,7 @@ class PoseEkf:
                 f"PoseMeasurement.stamp: expected a non-negative stamp, got {measurement.stamp}"
             )
         used = self._insert(int(measurement.stamp), _POSE, measurement)
-        return self._noted(PositionSource.LANDMARKS, measurement.stamp, used)
+        return self._noted(source, measurement.stamp, used)
 
     def _noted(self, source: PositionSource, stamp: Stamp, used: bool) -> bool:
         if used:

@@ -13,7 +13,7 @@ epochs of a 4 Hz RTK receiver (the slowest rate we take in), ten of the simulato
 
 
 class AbsoluteUpdates:
-    """Keeps the stamp of the newest accepted absolute correction per source (GNSS, landmarks)."""
+    """Keeps the stamp of the newest accepted absolute correction per source (GNSS, landmarks, scans)."""
 
     def __init__(self, timeout_s: float = DEAD_RECKONING_AFTER_S) -> None:
         if not (timeout_s > 0 and math.isfinite(timeout_s)):
@@ -32,7 +32,9 @@ class AbsoluteUpdates:
 
     def source_at(self, stamp_us: int) -> PositionSource:
         """LANDMARKS while landmark corrections are current (within the timeout of ``stamp_us``), else
-        GNSS while fixes are, else dead reckoning. Landmarks come first: while they hold the pose it
+        SCAN_MATCHING while scan-to-map matches are, else AMCL while particle-filter fixes are, else GNSS
+        while fixes are, else dead reckoning.
+        The map-based sources come first: while they hold the pose it
         does not depend on the receiver, so the loss of a fix must not read as the loss of the
         position (with both at 10 Hz the newest of the two would flip with their phase). An estimate
         for a past stamp counts the corrections up to now (replayed history)."""
@@ -43,4 +45,4 @@ class AbsoluteUpdates:
         return PositionSource.DEAD_RECKONING
 
 
-_PRIORITY = (PositionSource.LANDMARKS, PositionSource.GNSS)
+_PRIORITY = (PositionSource.LANDMARKS, PositionSource.SCAN_MATCHING, PositionSource.AMCL, PositionSource.GNSS)

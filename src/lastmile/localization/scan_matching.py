@@ -17,6 +17,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from enum import Enum
+from typing import Any
 
 import numpy as np
 
@@ -53,6 +54,10 @@ class ScanMatchConfig:
         max_pos_std_m: the match is confident while its position sigma (largest horizontal axis) is
             within this, m.
         max_yaw_std_rad: and its heading sigma within this, rad.
+        max_scan_points: the downsampled scan is thinned to at most this many points (evenly through
+            the cloud, deterministic): a rig frame of three LiDARs leaves 8-14k points at 0.25-0.5 m
+            voxels, and the nearest-neighbour search per point and iteration is what costs; 2000 keeps
+            a registration near 7 ms on one core (``benchmarks/localization_modes.py``). 0: no limit.
     """
 
     map_voxel_m: float = 0.25
@@ -68,6 +73,7 @@ class ScanMatchConfig:
     min_constraint_share: float = 0.01
     max_pos_std_m: float = 0.1
     max_yaw_std_rad: float = 0.01
+    max_scan_points: int = 2000
 
     def __post_init__(self) -> None:
         for name in (
@@ -84,6 +90,11 @@ class ScanMatchConfig:
             value = getattr(self, name)
             if not (value > 0 and math.isfinite(value)):
                 raise ConfigError(f"ScanMatchConfig.{name}: expected a positive number, got {value!r}")
+        if self.max_scan_points != 0 and self.max_scan_points < 100:
+            raise ConfigError(
+                "ScanMatchConfig.max_scan_points: expected 0 (no limit) or >= 100, "
+                f"got {self.max_scan_points}"
+            )
         if self.max_iterations < 1 or self.neighbours < 5:
             raise ConfigError(
                 "ScanMatchConfig: expected max_iterations >= 1 and neighbours >= 5, "
@@ -180,9 +191,7 @@ class ScanToMapMatcher:
                 f"scan_points: expected at least 30 points within {c.roi_radius_m} m, got {near.shape[0]}"
             )
         sg = self._small_gicp
-        scan, _ = sg.preprocess_points(
-            near, downsampling_resolution=c.scan_voxel_m, num_neighbors=c.neighbours
-        )
+        scan = self._scan_cloud(near)
         result = sg.align(
             self._map,
             scan,
@@ -193,6 +202,20 @@ class ScanToMapMatcher:
             max_iterations=c.max_iterations,
         )
         return self._result(result, int(scan.size()))
+
+    def _scan_cloud(self, near: np.ndarray) -> Any:
+        """The scan downsampled (and thinned to ``max_scan_points``) as small_gicp wants it: point-to-plane
+        ICP uses only the map's normals, so the scan's are estimated for GICP alone."""
+        c, sg = self.config, self._small_gicp
+        down = np.asarray(sg.voxelgrid_sampling(near, c.scan_voxel_m).points())
+        if c.max_scan_points and down.shape[0] > c.max_scan_points:
+            down = down[np.linspace(0, down.shape[0] - 1, c.max_scan_points).astype(np.int64)]
+        if c.registration is Registration.GICP:
+            scan, _ = sg.preprocess_points(
+                down[:, :3], downsampling_resolution=c.scan_voxel_m, num_neighbors=c.neighbours
+            )
+            return scan
+        return sg.PointCloud(np.ascontiguousarray(down[:, :3]))
 
     def _degeneracy(self, info: np.ndarray, inliers: int, local: np.ndarray) -> np.ndarray:
         """Open up the covariance along directions no surface constrains (Zhang et al., ICRA 2016).

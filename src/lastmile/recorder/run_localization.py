@@ -51,7 +51,7 @@ LOCALIZATION_COLUMNS = (
 
 LOCALIZATION_INDEX = {name: i for i, name in enumerate(LOCALIZATION_COLUMNS)}
 
-POSITION_SOURCES = ("gnss", "landmarks", "dead_reckoning")
+POSITION_SOURCES = ("gnss", "landmarks", "dead_reckoning", "scan_matching", "amcl")
 """``source_code`` values: the ``core.vehicle_messages.PositionSource`` values, in order."""
 
 INVALID_SOURCE = -1

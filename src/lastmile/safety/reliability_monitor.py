@@ -28,6 +28,9 @@ from lastmile.safety.reliability_config import ReliabilityConfig, SensorSpec
 K = MalfunctionKind
 L = FailSafeLevel
 
+_MAP_SOURCES = (PositionSource.LANDMARKS, PositionSource.SCAN_MATCHING, PositionSource.AMCL)
+"""Sources that hold the pose to the map without GNSS (a lost fix then limits nothing)."""
+
 
 class _Stream:
     __slots__ = (
@@ -483,13 +486,13 @@ class ReliabilityMonitor:
         else:
             return
         est = self._pose
-        if est is not None and est.valid and est.source is PositionSource.LANDMARKS:
+        if est is not None and est.valid and est.source in _MAP_SOURCES:
             self._emit(
                 out,
                 now_us,
                 "sensor:gnss",
                 K.GNSS_LOST,
-                reason + " (pose held by landmarks)",
+                reason + f" (pose held by {est.source.value.replace('_', ' ')})",
                 FailSafeLevel.NONE,
             )
             return

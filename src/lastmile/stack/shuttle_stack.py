@@ -67,19 +67,23 @@ from lastmile.decision.behaviour_fsm import BehaviourStateMachine
 from lastmile.decision.decision_config import DecisionConfig, DecisionInput
 from lastmile.decision.mission import MissionManager
 from lastmile.hdmap.layers import SLayerDatabase
+from lastmile.localization.amcl_localization import AmclSettings
 from lastmile.localization.ekf import PoseEkf
 from lastmile.localization.ekf_config import PoseEkfConfig
 from lastmile.localization.landmark_extraction import LandmarkExtractionConfig
 from lastmile.localization.odometry_ekf import OdometryEkf, OdometryEkfConfig, zero_slip_offset_m
+from lastmile.localization.scan_match_localization import ScanMatchingSettings
 from lastmile.perception.late_fusion import radar_detections
 from lastmile.planning.local_path import LocalPathConfig
 from lastmile.planning.planners import PlannerInputs, PlannerName, make_path_planner
 from lastmile.safety.reliability_config import ReliabilityConfig, default_sensor_specs
+from lastmile.stack.amcl_fusion import AmclFusion
 from lastmile.stack.hmi import HmiComposer
 from lastmile.stack.landmark_fusion import LandmarkFusion
 from lastmile.stack.module_guard import ModuleGuard
 from lastmile.stack.profiler import ModuleProfiler
 from lastmile.stack.raw_perception import RawPerception, RawPerceptionConfig
+from lastmile.stack.scan_match_fusion import ScanMatchFusion
 from lastmile.stack.stack_settings import LocalizationMode, check_localization_inputs
 from lastmile.stack.v2i import AnticipationConfig, CrossingAnticipation
 from lastmile.tracking.prediction import MapAwarePredictor, PredictionConfig
@@ -129,6 +133,8 @@ class StackConfig:
     ekf: OdometryEkfConfig = field(default_factory=OdometryEkfConfig)
     inertial_ekf: PoseEkfConfig = field(default_factory=PoseEkfConfig)
     landmarks: LandmarkExtractionConfig = field(default_factory=LandmarkExtractionConfig)
+    scan_matching: ScanMatchingSettings = field(default_factory=ScanMatchingSettings)
+    amcl: AmclSettings = field(default_factory=AmclSettings)
     tracker: RadarTrackerConfig = field(default_factory=RadarTrackerConfig)
     reliability: ReliabilityConfig = field(default_factory=lambda: ReliabilityConfig(sensors=DEFAULT_SENSORS))
     v2i: AnticipationConfig = field(default_factory=AnticipationConfig)
@@ -180,6 +186,14 @@ def _injected_fault() -> None:
     raise RuntimeError("injected module fault")
 
 
+_INERTIAL_MODES = (
+    LocalizationMode.INERTIAL_EKF,
+    LocalizationMode.LANDMARKS,
+    LocalizationMode.SCAN_MATCHING,
+    LocalizationMode.AMCL,
+)
+"""Localization modes that run the IMU-driven :class:`PoseEkf` (the others: the odometry EKF)."""
+
 #: Lateral controllers that keep the legacy pull-over path (see :func:`_path_config`).
 LEGACY_PATH_CONTROLLERS = (LateralControllerName.HEADING_PID, LateralControllerName.PURE_PURSUIT)
 
@@ -223,7 +237,7 @@ class ShuttleStack:
         # The EKF's zero-slip point is where the body has no sideways velocity: mid-wheelbase when the
         # rear wheels steer opposite to the front, the rear axle otherwise. A property of the vehicle.
         zero_slip_m = geometry.wheelbase_m / 2.0 if geometry.all_wheel_steer else 0.0
-        inertial = config.localization in (LocalizationMode.INERTIAL_EKF, LocalizationMode.LANDMARKS)
+        inertial = config.localization in _INERTIAL_MODES
         self.ekf: OdometryEkf | PoseEkf = (
             PoseEkf(dataclasses.replace(config.inertial_ekf, zero_slip_offset_m=zero_slip_m))
             if inertial
@@ -241,6 +255,18 @@ class ShuttleStack:
         self.landmarks = (
             LandmarkFusion(config.landmarks, layers)
             if config.localization is LocalizationMode.LANDMARKS and isinstance(self.ekf, PoseEkf)
+            else None
+        )
+        # Snow Lion's scan-to-map mode: each rig frame registered to the point-cloud map.
+        self.scan_matching = (
+            ScanMatchFusion(config.scan_matching)
+            if config.localization is LocalizationMode.SCAN_MATCHING and isinstance(self.ekf, PoseEkf)
+            else None
+        )
+        # NUS's AMCL: a particle filter on the occupancy map, fed each rig frame's planar scan.
+        self.amcl = (
+            AmclFusion(config.amcl)
+            if config.localization is LocalizationMode.AMCL and isinstance(self.ekf, PoseEkf)
             else None
         )
         self.light_tracker = (
@@ -308,6 +334,8 @@ class ShuttleStack:
             "estimation": tick_ms,
             "perception": 100.0,
             "landmarks": 100.0,
+            "scan_matching": 100.0,
+            "amcl": 100.0,
             **dict.fromkeys(
                 ("tracking", "prediction", "decision", "planning", "planning_cycle"), planning_ms
             ),
@@ -337,6 +365,13 @@ class ShuttleStack:
                 with p.measure("landmarks"):
                     fuse = self.landmarks.fuse
                     self._guarded("localization", now, fuse, self.ekf, raw.last_result, self._route_s)
+            if done and self.scan_matching is not None and raw.last_result is not None:
+                with p.measure("scan_matching"):
+                    match = self.scan_matching.fuse
+                    self._guarded("localization", now, match, self.ekf, raw.last_result)
+            if done and self.amcl is not None and raw.last_result is not None:
+                with p.measure("amcl"):
+                    self._guarded("localization", now, self.amcl.fuse, self.ekf, raw.last_result)
         if planning_cycle:
             with p.measure("tracking"):
                 source = raw.tracks if raw is not None else self.tracker.tracks
@@ -401,6 +436,12 @@ class ShuttleStack:
         if self.landmarks is not None:
             counters.update(self.landmarks.counters())
             perception["landmark_update_cpu_p50_ms"] = self.landmarks.cpu_p50_ms()
+        if self.scan_matching is not None:
+            counters.update(self.scan_matching.counters())
+            perception["scan_match_update_cpu_p50_ms"] = self.scan_matching.cpu_p50_ms()
+        if self.amcl is not None:
+            counters.update(self.amcl.counters())
+            perception["amcl_update_cpu_p50_ms"] = self.amcl.cpu_p50_ms()
         return VehicleReport(modules=self.profiler.summary(), counters=counters, perception=perception)
 
     def _guarded(self, module: str, now: Stamp, fn: Callable[..., object], *args: object) -> object:

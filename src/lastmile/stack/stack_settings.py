@@ -15,9 +15,11 @@ from lastmile.core.config import check_range
 from lastmile.core.errors import ConfigError
 from lastmile.core.perception_mode import PerceptionMode
 from lastmile.decision.decision_config import DecisionConfig
+from lastmile.localization.amcl_localization import AmclSettings
 from lastmile.localization.ekf_config import PoseEkfConfig
 from lastmile.localization.landmark_extraction import LandmarkExtractionConfig
 from lastmile.localization.odometry_ekf import OdometryEkfConfig
+from lastmile.localization.scan_match_localization import ScanMatchingSettings
 from lastmile.perception.lidar_detector import LidarDetectorConfig
 from lastmile.planning.local_path import LocalPathConfig
 from lastmile.planning.planners import PlannerName
@@ -40,6 +42,14 @@ class LocalizationMode(StrEnum):
     poles and building facades the raw LiDAR chain sees, associated with the map's landmark records
     (:mod:`lastmile.localization.landmark_extraction`, :mod:`lastmile.localization.landmark_localization`).
     Needs raw perception (radars give object lists only)."""
+    SCAN_MATCHING = "scan_matching"
+    """Snow Lion's scan-to-map localization: the ``inertial_ekf`` filter, also corrected by each LiDAR
+    rig frame registered to a point-cloud map (``[stack.scan_matching] map``, from ``lastmile map
+    build``; :mod:`lastmile.localization.scan_match_localization`). Needs raw perception."""
+    AMCL = "amcl"
+    """NUS's AMCL: the ``inertial_ekf`` filter, also corrected by a particle filter on the 2-D occupancy
+    map (``[stack.amcl] map``, the YAML ``lastmile map build`` writes beside the PCD) fed each LiDAR rig
+    frame's planar scan (:mod:`lastmile.localization.amcl_localization`). Needs raw perception."""
 
 
 _FAILSAFE = FailSafeConfig()
@@ -100,6 +110,9 @@ class StackSettings:
         ekf, inertial_ekf: the parameters of the ``ekf`` and ``inertial_ekf`` localization modes
             (``landmarks`` runs the ``inertial_ekf`` filter).
         landmarks: the ``landmarks`` mode's pole and facade extraction.
+        scan_matching: the ``scan_matching`` mode's map and matcher (the map is read and checked when
+            that mode is selected).
+        amcl: the ``amcl`` mode's occupancy map and particle filter (the map likewise).
         safety: the vehicle safety's parameters.
         lidar_detector: a learned LiDAR detector (``[stack.lidar_detector]``, an ONNX model file and
             its BEV grid; :mod:`lastmile.perception.lidar_detector`) run on every rig frame beside
@@ -120,6 +133,8 @@ class StackSettings:
     ekf: OdometryEkfConfig = field(default_factory=OdometryEkfConfig)
     inertial_ekf: PoseEkfConfig = field(default_factory=PoseEkfConfig)
     landmarks: LandmarkExtractionConfig = field(default_factory=LandmarkExtractionConfig)
+    scan_matching: ScanMatchingSettings = field(default_factory=ScanMatchingSettings)
+    amcl: AmclSettings = field(default_factory=AmclSettings)
     safety: SafetySettings = field(default_factory=SafetySettings)
     lidar_detector: LidarDetectorConfig | None = None
 
@@ -130,16 +145,24 @@ class StackSettings:
                 f"detector reads the LiDAR sweeps), got perception = '{self.perception}'"
             )
         check_localization_inputs(self.localization, self.perception, "stack")
+        if self.localization is LocalizationMode.SCAN_MATCHING:
+            self.scan_matching.load_map()  # a missing or bad map is one line now, not at the first scan
+        if self.localization is LocalizationMode.AMCL:
+            self.amcl.load_map()
         if self.cruise_speed_mps is not None:
             # The shuttle's operating speeds: up to its 20 km/h top speed.
             check_range("stack.cruise_speed_mps", self.cruise_speed_mps, 0.5, 20.0 / 3.6 + 1e-9)
 
 
+_LIDAR_MODES = (LocalizationMode.LANDMARKS, LocalizationMode.SCAN_MATCHING, LocalizationMode.AMCL)
+"""Localization modes corrected by the raw LiDAR's clouds."""
+
+
 def check_localization_inputs(mode: LocalizationMode, perception: PerceptionMode, where: str) -> None:
     """Raise a :class:`ConfigError` if ``mode`` needs sensor data that ``perception`` does not give."""
-    if mode is LocalizationMode.LANDMARKS and not perception.needs_raw_sensors:
+    if mode in _LIDAR_MODES and not perception.needs_raw_sensors:
         raise ConfigError(
-            f"{where}.localization 'landmarks': expected raw LiDAR perception "
+            f"{where}.localization '{mode}': expected raw LiDAR perception "
             f"'{PerceptionMode.LIDAR_CAMERA_RADAR}', got perception '{perception}' "
             "(radars give object lists only)"
         )
