@@ -35,7 +35,8 @@ def test_calls_over_the_cycle_budget_are_counted_and_binned(monkeypatch: pytest.
     # The profiler's clock is stepped by hand: a sleep of 0.5 ms can take over the 5 ms budget on a
     # loaded machine, and this test is about the counting, not about the machine.
     now = [0.0]
-    monkeypatch.setattr(profiler_module, "time", SimpleNamespace(perf_counter=lambda: now[0]))
+    clock = SimpleNamespace(perf_counter=lambda: now[0], thread_time=lambda: now[0])
+    monkeypatch.setattr(profiler_module, "time", clock)
     profiler = ModuleProfiler({"planning": 5.0})
     for k in range(6):
         with profiler.measure("planning"):
@@ -44,6 +45,7 @@ def test_calls_over_the_cycle_budget_are_counted_and_binned(monkeypatch: pytest.
     assert row["budget_ms"] == 5.0 and row["over_budget"] == 2  # the warm-up is not an overrun
     assert sum(row["histogram"]) == row["calls"] == 5
     assert len(row["histogram"]) == len(HISTOGRAM_EDGES_MS) - 1
+    assert row["cpu_p50_ms"] == pytest.approx(0.5)  # the thread's CPU clock, stepped alike here
 
 
 def test_a_call_during_which_numba_compiles_is_warm_up_wherever_it_falls() -> None:
