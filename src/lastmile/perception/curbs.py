@@ -30,6 +30,7 @@ import numpy as np
 import numpy.typing as npt
 
 from lastmile.core.errors import ConfigError, MessageError
+from lastmile.perception.curbs_kernel import frenet_nearest
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -149,6 +150,8 @@ def frenet_of_points(polyline_xy: FloatArray, xy: FloatArray) -> tuple[FloatArra
     Each point takes its nearest segment; points beyond the ends extend the end segments.
     """
     P = np.asarray(polyline_xy, dtype=np.float64)
+    if P.ndim != 2 or P.shape[1] != 2 or len(P) < 2:
+        raise MessageError(f"frenet_of_points: expected an (M >= 2, 2) polyline, got {P.shape}")
     a, b = P[:-1], P[1:]
     seg = b - a
     seg_len = np.hypot(seg[:, 0], seg[:, 1])
@@ -156,19 +159,22 @@ def frenet_of_points(polyline_xy: FloatArray, xy: FloatArray) -> tuple[FloatArra
         raise MessageError("frenet_of_points: expected a polyline without repeated vertices")
     s0 = np.concatenate([[0.0], np.cumsum(seg_len)[:-1]])
     t_dir = seg / seg_len[:, None]
-    rel_x = xy[:, 0:1] - a[:, 0]
-    rel_y = xy[:, 1:2] - a[:, 1]
-    along = rel_x * t_dir[:, 0] + rel_y * t_dir[:, 1]  # (N, M-1)
     lo = np.where(np.arange(len(seg)) == 0, -np.inf, 0.0)
     hi = np.where(np.arange(len(seg)) == len(seg) - 1, np.inf, seg_len)
-    t = np.clip(along, lo, hi)
-    px = a[:, 0] + t * t_dir[:, 0]
-    py = a[:, 1] + t * t_dir[:, 1]
-    dist2 = (xy[:, 0:1] - px) ** 2 + (xy[:, 1:2] - py) ** 2
-    k = np.argmin(dist2, axis=1)
-    r = np.arange(len(xy))
-    s = s0[k] + t[r, k]
-    d = t_dir[k, 0] * rel_y[r, k] - t_dir[k, 1] * rel_x[r, k]
+    # One compiled pass keeping each point's running nearest segment (curbs_kernel): the same
+    # arithmetic as the (N, M-1) array form, without building those arrays every frame.
+    p = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+    s, d = frenet_nearest(
+        np.ascontiguousarray(p[:, 0]),
+        np.ascontiguousarray(p[:, 1]),
+        np.ascontiguousarray(a[:, 0]),
+        np.ascontiguousarray(a[:, 1]),
+        np.ascontiguousarray(t_dir[:, 0]),
+        np.ascontiguousarray(t_dir[:, 1]),
+        lo,
+        hi,
+        s0,
+    )
     return s, d
 
 

@@ -337,10 +337,10 @@ class LidarSimulator:
             return r, label
         o, d = cols.origin[col[down]], cols.direction[col[down]]
 
-        def xy_at(rr: np.ndarray, sel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        def xy_at(rr: np.ndarray, sel: np.ndarray | slice) -> tuple[np.ndarray, np.ndarray]:
             return o[sel, 0] + rr * d[sel, 0], o[sel, 1] + rr * d[sel, 1]
 
-        everywhere = np.arange(len(down))
+        everywhere = slice(None)  # every downward ray: a view, not a gather of all of them
         road0 = ground.is_road(*xy_at(r0, everywhere)) | (r0 > spec.max_range_m)
         hc = self.scene.curb_height_m
         rs = (hc - oz) / t if oz > hc else r0

@@ -1,0 +1,68 @@
+"""Compiled nearest-segment Frenet projection of points onto a polyline (Numba).
+
+:func:`lastmile.perception.curbs.frenet_of_points` formed (N, M-1) arrays of every point against
+every segment each frame (the closed loop's curb stage spent half its time there). This pass keeps
+one running minimum per point instead, with the same arithmetic in the same order as those array
+expressions (no fused multiply-add: Numba compiles without fast-math), and NumPy's ``argmin`` rule
+(the first minimum wins; a NaN distance wins at once), so ``s`` and ``d`` are bit-identical.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from lastmile.perception.jit_cache import njit
+
+
+@njit(cache=True, nogil=True)
+def frenet_nearest(
+    x: np.ndarray,
+    y: np.ndarray,
+    ax: np.ndarray,
+    ay: np.ndarray,
+    tx: np.ndarray,
+    ty: np.ndarray,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    s0: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Station and left offset of every point on its nearest segment.
+
+    Args:
+        x, y: (N,) float64 points.
+        ax, ay: (S,) float64 segment starts; tx, ty: (S,) unit directions.
+        lo, hi: (S,) clip bounds of the along-segment coordinate (-inf / inf at the open ends).
+        s0: (S,) station of each segment's start.
+
+    Returns:
+        (N,) s and (N,) d.
+    """
+    n, n_seg = x.shape[0], ax.shape[0]
+    s = np.empty(n)
+    d = np.empty(n)
+    for i in range(n):
+        xi, yi = x[i], y[i]
+        best, k, best_t, best_rx, best_ry = np.nan, -1, 0.0, 0.0, 0.0
+        for j in range(n_seg):
+            rx = xi - ax[j]
+            ry = yi - ay[j]
+            along = rx * tx[j] + ry * ty[j]
+            # np.clip's float rule: max(a, lo) then min(., hi), each keeping the first operand
+            # only when strictly beyond (so -0.0 clipped at 0.0 becomes 0.0), NaN kept.
+            t = along
+            if not math.isnan(t):
+                t = t if t > lo[j] else lo[j]
+                t = t if t < hi[j] else hi[j]
+            px = ax[j] + t * tx[j]
+            py = ay[j] + t * ty[j]
+            ex = xi - px
+            ey = yi - py
+            d2 = ex * ex + ey * ey
+            # np.argmin: the first minimum; the first NaN wins over everything.
+            if k < 0 or (not math.isnan(best) and (math.isnan(d2) or d2 < best)):
+                best, k, best_t, best_rx, best_ry = d2, j, t, rx, ry
+        s[i] = s0[k] + best_t
+        d[i] = tx[k] * best_ry - ty[k] * best_rx
+    return s, d
