@@ -17,9 +17,11 @@ import numpy.typing as npt
 
 from lastmile.core.errors import ConfigError
 from lastmile.perception.ground_kernel import (
+    accept_planes,
     classify_ring,
     low_quantile,
     plane_residuals,
+    plane_systems,
     ring_points,
     weighted_sums,
 )
@@ -352,7 +354,23 @@ def _fit_planes(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Weighted least-squares planes per region from their sums (``ground_kernel.weighted_sums``),
     regularised toward the prior; rejects bad fits. Returns the planes (R, 3) and (R,) whether
-    each region kept its own fit."""
+    each region kept its own fit.
+
+    The systems are assembled and the fits judged in compiled passes (``ground_kernel``: the same
+    arithmetic as :func:`_fit_planes_array_form`, about thirty small array operations per ring and
+    iteration otherwise); the solve and the slope stay NumPy's (LAPACK, libm) so that the planes
+    are the same to the bit."""
+    A, b = plane_systems(sums, prior, cfg.prior_weight)
+    sol = np.linalg.solve(A, b[..., None])[..., 0]
+    slope = np.hypot(sol[:, 1], sol[:, 2])
+    return accept_planes(sol, slope, sums, prior, cfg.min_fit_points, cfg.max_slope, cfg.max_step_m)
+
+
+def _fit_planes_array_form(
+    sums: np.ndarray, prior: np.ndarray, cfg: AdaptiveGridConfig
+) -> tuple[np.ndarray, np.ndarray]:
+    """The array form of :func:`_fit_planes`, kept as the reference its compiled passes are tested
+    against."""
     sw, sx, sy, sz, sxx, sxy, syy, sxz, syz, count = sums.T
     A = np.stack(
         [np.stack([sw, sx, sy], -1), np.stack([sx, sxx, sxy], -1), np.stack([sy, sxy, syy], -1)], axis=1

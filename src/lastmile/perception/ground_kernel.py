@@ -112,7 +112,9 @@ def ring_points(
         py[q] = y[i]
         pz[q] = z[i]
         window[q] = tol[i]
-        sec = np.int64(np.floor((az[i] + np.pi) / sector_rad)) % n_sec
+        sec = np.int64(np.floor((az[i] + np.pi) / sector_rad))
+        if sec < 0 or sec >= n_sec:  # only az = pi (or outside +-pi): the integer division is slow
+            sec %= n_sec
         region[q] = sec * 2 + (1 if road[i] else 0)
     return px, py, pz, window, region
 
@@ -178,3 +180,73 @@ def classify_ring(
         smooth[g] = max(smooth_floor_m, smooth_sigmas * np.sqrt(ss[g] / max(n_in[g], 1.0)))
     for q in range(res.shape[0]):
         ground[idx[q]] = res[q] <= min(window[q], smooth[region[q]])
+
+
+@njit(cache=True, nogil=True)
+def plane_systems(sums: np.ndarray, prior: np.ndarray, lam: float) -> tuple[np.ndarray, np.ndarray]:
+    """(R, 3, 3) normal matrices and (R, 3) right-hand sides of the regions' plane fits from their
+    :func:`weighted_sums`, regularised toward ``prior`` (R, 3) with weight ``lam``: the array
+    expressions ``A + lam * eye(3)`` and ``b + lam * prior`` element for element (``lam * 0.0``
+    is added off the diagonal too, as the array form adds it)."""
+    n = sums.shape[0]
+    a = np.empty((n, 3, 3))
+    b = np.empty((n, 3))
+    on = lam * 1.0
+    off = lam * 0.0
+    for r in range(n):
+        sw, sx, sy, sz = sums[r, 0], sums[r, 1], sums[r, 2], sums[r, 3]
+        sxx, sxy, syy, sxz, syz = sums[r, 4], sums[r, 5], sums[r, 6], sums[r, 7], sums[r, 8]
+        a[r, 0, 0], a[r, 0, 1], a[r, 0, 2] = sw + on, sx + off, sy + off
+        a[r, 1, 0], a[r, 1, 1], a[r, 1, 2] = sx + off, sxx + on, sxy + off
+        a[r, 2, 0], a[r, 2, 1], a[r, 2, 2] = sy + off, sxy + off, syy + on
+        b[r, 0] = sz + lam * prior[r, 0]
+        b[r, 1] = sxz + lam * prior[r, 1]
+        b[r, 2] = syz + lam * prior[r, 2]
+    return a, b
+
+
+@njit(cache=True, nogil=True)
+def accept_planes(
+    sol: np.ndarray,
+    slope: np.ndarray,
+    sums: np.ndarray,
+    prior: np.ndarray,
+    min_fit_points: float,
+    max_slope: float,
+    max_step_m: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The regions' planes (R, 3) and (R,) whether each kept its own fit ``sol``.
+
+    A fit is kept with at least ``min_fit_points`` points, a ``slope`` (its gradient's norm) within
+    ``max_slope``, finite coefficients and a step from the prior, measured at the fitted points'
+    centroid, within ``max_step_m``; otherwise the region takes its prior, or the fit of the other
+    part of its cell (road / off-road, regions ``2 k`` and ``2 k + 1``) when that one kept its own.
+    """
+    n = sol.shape[0]
+    ok = np.empty(n, np.bool_)
+    for r in range(n):
+        keep = sums[r, 9] >= min_fit_points and slope[r] <= max_slope
+        keep = keep and np.isfinite(sol[r, 0]) and np.isfinite(sol[r, 1]) and np.isfinite(sol[r, 2])
+        if sums[r, 0] == 0.0:
+            # No weight: the centroid is 0/0 or x/0, so the array form's step is NaN or inf and
+            # fails (and Numba's float division by zero would raise).
+            ok[r] = False
+            continue
+        cx = sums[r, 1] / sums[r, 0]
+        cy = sums[r, 2] / sums[r, 0]
+        step = (sol[r, 0] - prior[r, 0]) + (sol[r, 1] - prior[r, 1]) * cx + (sol[r, 2] - prior[r, 2]) * cy
+        ok[r] = keep and abs(step) <= max_step_m  # NaN and inf steps fail
+    out = np.empty((n, 3))
+    for r in range(n):
+        src = sol if ok[r] else prior
+        for c in range(3):
+            out[r, c] = src[r, c]
+    for k in range(n // 2):
+        road, off_road = 2 * k + 1, 2 * k
+        if not ok[off_road] and ok[road]:
+            for c in range(3):
+                out[off_road, c] = out[road, c]
+        elif not ok[road] and ok[off_road]:
+            for c in range(3):
+                out[road, c] = out[off_road, c]
+    return out, ok
