@@ -225,3 +225,25 @@ def test_the_far_sidewalk_of_a_narrow_road_is_not_reassigned_as_obstacles():
     far = np.flatnonzero((xyz[:, 1] > 1.8) & (xyz[:, 0] > 4.0) & (xyz[:, 0] < 25.0))
     assert len(far) > 50
     assert not np.isin(far, est.obstacle_idx).any()
+
+
+def test_compiled_scatters_equal_numpy_ufunc_at_with_nans_and_signed_zeros():
+    from lastmile.perception.curbs_kernel import scatter_max, scatter_min
+
+    g = np.random.default_rng(0)
+    for trial in range(100):
+        n, m = int(g.integers(0, 300)), int(g.integers(1, 50))
+        values = (
+            g.choice([0.0, -0.0, 1.0, -1.0, np.nan, np.inf, -np.inf, 0.5], n)
+            if trial % 2
+            else g.normal(size=n)
+        )
+        index = g.integers(0, m, n)
+        for init in (np.inf, -np.inf, -0.0, np.nan):
+            for at, compiled in ((np.minimum.at, scatter_min), (np.maximum.at, scatter_max)):
+                want, got = np.full(m, init), np.full(m, init)
+                with np.errstate(invalid="ignore"):
+                    at(want, index, values)
+                compiled(got, index, values)
+                assert np.array_equal(want, got, equal_nan=True)
+                assert np.array_equal(np.signbit(want), np.signbit(got))

@@ -66,3 +66,26 @@ def frenet_nearest(
         s[i] = s0[k] + best_t
         d[i] = tx[k] * best_ry - ty[k] * best_rx
     return s, d
+
+
+@njit(cache=True, nogil=True)
+def scatter_min(out: np.ndarray, index: np.ndarray, values: np.ndarray) -> None:
+    """``np.minimum.at(out, index, values)`` in one compiled pass, with NumPy's rule per element:
+    a NaN already there stays, else the new value unless the old one is strictly smaller (so a NaN
+    value enters, and of two equal zeros the new one is kept)."""
+    for i in range(index.shape[0]):
+        j = index[i]
+        cur = out[j]
+        if not math.isnan(cur) and not cur < values[i]:
+            out[j] = values[i]
+
+
+@njit(cache=True, nogil=True)
+def scatter_max(out: np.ndarray, index: np.ndarray, values: np.ndarray) -> None:
+    """``np.maximum.at(out, index, values)`` in one compiled pass (NumPy's rule, as
+    :func:`scatter_min` with the comparison reversed)."""
+    for i in range(index.shape[0]):
+        j = index[i]
+        cur = out[j]
+        if not math.isnan(cur) and not cur > values[i]:
+            out[j] = values[i]

@@ -335,10 +335,12 @@ class LidarSimulator:
         if ground is None:
             r[down] = r0
             return r, label
-        o, d = cols.origin[col[down]], cols.direction[col[down]]
+        col_down = col.take(down)
+        # 1-D takes from contiguous columns: the values of the (N, 2) row gathers, several times cheaper.
+        ox, oy, dx, dy = (np.ascontiguousarray(a).take(col_down) for a in (*cols.origin.T, *cols.direction.T))
 
         def xy_at(rr: np.ndarray, sel: np.ndarray | slice) -> tuple[np.ndarray, np.ndarray]:
-            return o[sel, 0] + rr * d[sel, 0], o[sel, 1] + rr * d[sel, 1]
+            return ox[sel] + rr * dx[sel], oy[sel] + rr * dy[sel]
 
         everywhere = slice(None)  # every downward ray: a view, not a gather of all of them
         road0 = ground.is_road(*xy_at(r0, everywhere)) | (r0 > spec.max_range_m)
