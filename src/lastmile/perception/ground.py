@@ -329,8 +329,9 @@ def _edge_candidates(
         planes: (R, 3) the ring's final planes, region ``2 * sector + road``.
         ground: (N,) labels so far.
     """
-    other = region ^ 1
-    res_other = pz - (planes[other, 0] + planes[other, 1] * px + planes[other, 2] * py)
+    # The residual on the other part's plane: plane_residuals with the region's partner
+    # (the same expression, compiled, without three (M,) gathers of plane coefficients).
+    res_other = plane_residuals(px, py, pz, region ^ 1, planes)
     cand = np.flatnonzero(~ground[idx] & (res_other <= window))
     return idx[cand], np.column_stack([px[cand], py[cand]]), (region[cand] & 1) == 1
 
