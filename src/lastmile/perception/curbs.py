@@ -378,7 +378,6 @@ def _huber_polyfit(x: FloatArray, y: FloatArray, degree: int, delta_m: float = 0
     # Start from the median offset, not a least-squares fit a few wild slices could tilt.
     r0 = np.abs(y - np.median(y))
     w = np.where(r0 <= delta_m, 1.0, delta_m / np.maximum(r0, 1e-12))
-    coef = np.polyfit(x, y, deg, w=np.sqrt(w))
     for _ in range(8):
         coef = np.polyfit(x, y, deg, w=np.sqrt(w))
         r = np.abs(y - np.polyval(coef, x))
