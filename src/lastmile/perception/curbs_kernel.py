@@ -40,31 +40,42 @@ def frenet_nearest(
         (N,) s and (N,) d.
     """
     n, n_seg = x.shape[0], ax.shape[0]
-    s = np.empty(n)
-    d = np.empty(n)
-    for i in range(n):
-        xi, yi = x[i], y[i]
-        best, k, best_t, best_rx, best_ry = np.nan, -1, 0.0, 0.0, 0.0
-        for j in range(n_seg):
-            rx = xi - ax[j]
-            ry = yi - ay[j]
-            along = rx * tx[j] + ry * ty[j]
+    # Segment-major: one pass over the points per segment keeps every point's running nearest
+    # (the inner loop over contiguous arrays compiles to vector code; ~3x the point-major loop).
+    # Segments are visited in order and replace only on a strictly smaller distance: the first
+    # minimum wins, as argmin's.
+    best = np.empty(n)
+    k = np.full(n, -1, np.int64)
+    best_t = np.empty(n)
+    best_rx = np.empty(n)
+    best_ry = np.empty(n)
+    for j in range(n_seg):
+        axj, ayj, txj, tyj, loj, hij = ax[j], ay[j], tx[j], ty[j], lo[j], hi[j]
+        for i in range(n):
+            rx = x[i] - axj
+            ry = y[i] - ayj
+            along = rx * txj + ry * tyj
             # np.clip's float rule: max(a, lo) then min(., hi), each keeping the first operand
             # only when strictly beyond (so -0.0 clipped at 0.0 becomes 0.0), NaN kept.
             t = along
             if not math.isnan(t):
-                t = t if t > lo[j] else lo[j]
-                t = t if t < hi[j] else hi[j]
-            px = ax[j] + t * tx[j]
-            py = ay[j] + t * ty[j]
-            ex = xi - px
-            ey = yi - py
+                t = t if t > loj else loj
+                t = t if t < hij else hij
+            px = axj + t * txj
+            py = ayj + t * tyj
+            ex = x[i] - px
+            ey = y[i] - py
             d2 = ex * ex + ey * ey
             # np.argmin: the first minimum; the first NaN wins over everything.
-            if k < 0 or (not math.isnan(best) and (math.isnan(d2) or d2 < best)):
-                best, k, best_t, best_rx, best_ry = d2, j, t, rx, ry
-        s[i] = s0[k] + best_t
-        d[i] = tx[k] * best_ry - ty[k] * best_rx
+            b = best[i]
+            if k[i] < 0 or (not math.isnan(b) and (math.isnan(d2) or d2 < b)):
+                best[i], k[i], best_t[i], best_rx[i], best_ry[i] = d2, j, t, rx, ry
+    s = np.empty(n)
+    d = np.empty(n)
+    for i in range(n):
+        kk = k[i]
+        s[i] = s0[kk] + best_t[i]
+        d[i] = tx[kk] * best_ry[i] - ty[kk] * best_rx[i]
     return s, d
 
 
