@@ -279,11 +279,15 @@ def detect_curb(
     max_gap_bins = max(1, round(cfg.max_gap_m / cfg.bin_m))
     max_toe_bins = max(1, round(cfg.max_toe_m / cfg.bin_m))
     ambiguous = np.zeros(n_slices, dtype=bool)
+    # The slice loop reads single bins: Python lists of the same float64 values (a list index is
+    # several times cheaper than a NumPy scalar look-up; every comparison is the same).
+    low_rows, far_rows, up_rows = low.tolist(), far_d.tolist(), far_up.tolist()
     for k in range(n_slices):
-        occ = np.flatnonzero(np.isfinite(low[k]))
+        lk, fk = low_rows[k], far_rows[k]
+        occ = [j for j, v in enumerate(lk) if math.isfinite(v)]
         if len(occ) == 0:
             continue
-        raised = low[k, occ] >= cfg.step_min_m
+        raised = [lk[j] >= cfg.step_min_m for j in occ]
         if not raised[0]:
             continue  # the outermost occupied bin is road level: no curb in this slice's view
         # Chain raised bins from the outer side toward the road; a road-level bin or an empty gap
@@ -293,41 +297,37 @@ def detect_curb(
             if not raised[j] or occ[j] - occ[end] > max_gap_bins:
                 break
             end = j
-        detected[k] = far_d[k, occ[end]]
+        detected[k] = fk[occ[end]]
         nxt = occ[end] + 1
-        if nxt < n_bins and np.isfinite(far_up[k, nxt]):
-            detected[k] = far_up[k, nxt]
+        if nxt < n_bins and math.isfinite(up_rows[k][nxt]):
+            detected[k] = up_rows[k][nxt]
         # A snow bank's ramp: bins below the raised height but still above the road, falling.
         # Its line, extended to the road surface, is where the bare road starts; a curb's vertical
         # step has no ramp (its next bin is road) and keeps the boundary found above.
         start = occ[end]
-        prev_h = float(low[k, start])
+        prev_h = lk[start]
         # The ramp may begin inside the raised chain: its upper part stands above step_min_m.
         # Chain bins at the road-side end lower than the chain's top by more than toe_m are on
         # the slope (a curb's face bin alone is one such bin: too few for a ramp line).
-        top = float(low[k, occ[: end + 1]].max())
+        top = max(lk[j] for j in occ[: end + 1])
         tail = end
-        while (
-            tail > 0
-            and low[k, occ[tail - 1]] < top - cfg.toe_m
-            and low[k, occ[tail - 1]] >= low[k, occ[tail]]
-        ):
+        while tail > 0 and lk[occ[tail - 1]] < top - cfg.toe_m and lk[occ[tail - 1]] >= lk[occ[tail]]:
             tail -= 1
-        ramp = [int(j) for j in occ[tail : end + 1]] if low[k, start] < top - cfg.toe_m else [start]
-        cap = far_d[k, start] + cfg.max_toe_m
+        ramp = occ[tail : end + 1] if lk[start] < top - cfg.toe_m else [start]
+        cap = fk[start] + cfg.max_toe_m
         road_from = math.inf  # the near edge of the first road-level bin beyond the chain
         for j in range(start + 1, min(n_bins, start + 1 + max_toe_bins)):
-            if not np.isfinite(low[k, j]):
+            if not math.isfinite(lk[j]):
                 continue
-            if low[k, j] <= cfg.toe_m:
-                cap = far_d[k, j]  # the road is seen here: the toe is no farther
+            if lk[j] <= cfg.toe_m:
+                cap = fk[j]  # the road is seen here: the toe is no farther
                 road_from = j * cfg.bin_m - cfg.band_m
                 break
-            if low[k, j] > prev_h + cfg.toe_m:
+            if lk[j] > prev_h + cfg.toe_m:
                 break
-            prev_h = float(low[k, j])
+            prev_h = lk[j]
             ramp.append(j)
-            detected[k] = max(detected[k], far_d[k, j])
+            detected[k] = max(detected[k], fk[j])
         if len(ramp) >= 3:
             x, y = far_d[k, ramp], low[k, ramp]
             slope = np.polyfit(x, y, 1)[0]
