@@ -238,3 +238,27 @@ def test_ground_plane_fit_equals_its_array_form(seed, n_sec, lam) -> None:
             return
         got = _fit_planes(sums, prior.copy(), cfg)
     assert np.array_equal(got[0], want[0], equal_nan=True) and np.array_equal(got[1], want[1])
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 10_000), n=st.integers(0, 3000))
+def test_ground_ring_prelude_equals_its_array_expressions(seed, n) -> None:
+    from lastmile.perception.ground import AdaptiveGridConfig
+    from lastmile.perception.ground_kernel import ring_prelude
+
+    cfg = AdaptiveGridConfig()
+    g = np.random.default_rng(seed)
+    x, y = g.uniform(-150, 150, n), g.uniform(-150, 150, n)
+    if n:
+        x[:: max(1, n // 7)] = np.asarray(cfg.ring_edges_m)[g.integers(0, len(cfg.ring_edges_m))]  # on edges
+        y[:: max(1, n // 7)] = 0.0
+    edges = np.asarray(cfg.ring_edges_m)
+    tol, by_ring, ring_start = ring_prelude(
+        x, y, edges, cfg.threshold_near_m, cfg.threshold_per_m, cfg.threshold_max_m, len(cfg.sectors_per_ring)
+    )
+    r = np.hypot(x, y)
+    ring = np.searchsorted(edges, r, side="right") - 1
+    order = np.argsort(ring, kind="stable")
+    assert np.array_equal(tol, cfg.threshold_m(r))
+    assert np.array_equal(by_ring, order)
+    assert np.array_equal(ring_start, np.searchsorted(ring[order], np.arange(len(cfg.sectors_per_ring) + 1)))

@@ -23,6 +23,7 @@ from lastmile.perception.ground_kernel import (
     plane_residuals,
     plane_systems,
     ring_points,
+    ring_prelude,
     weighted_sums,
 )
 from lastmile.perception.himmelsbach import HimmelsbachConfig, HimmelsbachGroundSegmenter
@@ -184,22 +185,20 @@ class AdaptiveGridGroundSegmenter:
             return ground
         # Contiguous columns: every later step is a 1-D operation on them.
         x, y, z = (np.ascontiguousarray(p[:, i]) for i in range(3))
-        r = np.hypot(x, y)
         az = np.arctan2(y, x)
         road = np.ones(n, dtype=bool) if road_mask is None else np.asarray(road_mask(p[:, :2]), dtype=bool)
-        tol = cfg.threshold_m(r)
-        # Ring = number of edges at or below r, minus one (searchsorted(..., side="right") - 1),
-        # counted in int8 with one comparison per edge: cheaper than the binary searches, and a
-        # stable sort of small integers is a radix sort in NumPy (several times faster than int64).
-        # Points grouped by ring once, instead of one full scan of the cloud per ring.
-        if len(cfg.ring_edges_m) <= 127:
-            ring: np.ndarray = np.full(n, -1, dtype=np.int8)
-            for edge in cfg.ring_edges_m:
-                ring += r >= edge
-        else:
-            ring = np.searchsorted(np.asarray(cfg.ring_edges_m), r, side="right") - 1
-        by_ring = np.argsort(ring, kind="stable")
-        ring_start = np.searchsorted(ring[by_ring], np.arange(len(cfg.sectors_per_ring) + 1))
+        # One compiled pass (ground_kernel.ring_prelude): range, tolerance (cfg.threshold_m's
+        # arithmetic), ring = number of edges at or below the range minus one, and the points
+        # grouped by ring once (a stable counting sort) instead of a scan of the cloud per ring.
+        tol, by_ring, ring_start = ring_prelude(
+            x,
+            y,
+            np.asarray(cfg.ring_edges_m, dtype=np.float64),
+            cfg.threshold_near_m,
+            cfg.threshold_per_m,
+            cfg.threshold_max_m,
+            len(cfg.sectors_per_ring),
+        )
         # Prior planes of the previous ring per sector (a, b, c); the first ring's prior is z = 0.
         prev_planes = np.zeros((1, 2, 3))
         prev_sectors = 1

@@ -250,3 +250,54 @@ def accept_planes(
             for c in range(3):
                 out[road, c] = out[off_road, c]
     return out, ok
+
+
+@njit(cache=True, nogil=True)
+def ring_prelude(
+    x: np.ndarray,
+    y: np.ndarray,
+    edges: np.ndarray,
+    near_m: float,
+    per_m: float,
+    max_m: float,
+    n_rings: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One pass over the cloud: each point's ground tolerance, the points grouped by ring, and where
+    each ring's group starts.
+
+    The array expressions it replaces: ``r = np.hypot(x, y)`` (the same libm ``hypot``),
+    ``tol = np.minimum(near_m + per_m * r, max_m)``, ``ring = (number of edges <= r) - 1``,
+    ``by_ring = np.argsort(ring, kind="stable")`` (here a counting sort, stable too) and
+    ``ring_start = np.searchsorted(ring[by_ring], np.arange(n_rings + 1))``.
+
+    Returns:
+        (N,) tol, (N,) int64 by_ring, (n_rings + 1,) int64 ring_start.
+    """
+    n = x.shape[0]
+    n_edges = edges.shape[0]
+    tol = np.empty(n)
+    ring = np.empty(n, np.int64)
+    # ring + 1 in 0 .. n_edges (-1 for a NaN range, which meets no edge)
+    count = np.zeros(n_edges + 2, np.int64)
+    for i in range(n):
+        r = np.hypot(x[i], y[i])
+        a = near_m + per_m * r
+        tol[i] = a if (a <= max_m or np.isnan(a)) else max_m  # np.minimum: NaN kept, ties the first
+        k = -1
+        for e in range(n_edges):
+            if r >= edges[e]:
+                k += 1
+        ring[i] = k
+        count[k + 2] += 1
+    for c in range(n_edges + 1):
+        count[c + 1] += count[c]
+    # count[k + 1] is now the first slot of ring k (the number of points with a smaller ring)
+    ring_start = np.empty(n_rings + 1, np.int64)
+    for k in range(n_rings + 1):
+        ring_start[k] = count[min(k, n_edges) + 1]
+    by_ring = np.empty(n, np.int64)
+    for i in range(n):
+        slot = ring[i] + 1
+        by_ring[count[slot]] = i
+        count[slot] += 1
+    return tol, by_ring, ring_start
