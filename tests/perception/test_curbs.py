@@ -82,9 +82,47 @@ def test_frenet_round_trip_on_a_bent_polyline():
     assert np.allclose(s2, s, atol=1e-9) and np.allclose(d2, d, atol=1e-9)
 
 
+def _frenet_array_form(polyline_xy, xy):
+    """The (N, M-1) array form frenet_of_points had before its compiled pass (the reference)."""
+    P = np.asarray(polyline_xy, dtype=np.float64)
+    a, b = P[:-1], P[1:]
+    seg = b - a
+    seg_len = np.hypot(seg[:, 0], seg[:, 1])
+    s0 = np.concatenate([[0.0], np.cumsum(seg_len)[:-1]])
+    t_dir = seg / seg_len[:, None]
+    rel_x = xy[:, 0:1] - a[:, 0]
+    rel_y = xy[:, 1:2] - a[:, 1]
+    along = rel_x * t_dir[:, 0] + rel_y * t_dir[:, 1]
+    lo = np.where(np.arange(len(seg)) == 0, -np.inf, 0.0)
+    hi = np.where(np.arange(len(seg)) == len(seg) - 1, np.inf, seg_len)
+    t = np.clip(along, lo, hi)
+    px = a[:, 0] + t * t_dir[:, 0]
+    py = a[:, 1] + t * t_dir[:, 1]
+    dist2 = (xy[:, 0:1] - px) ** 2 + (xy[:, 1:2] - py) ** 2
+    k = np.argmin(dist2, axis=1)
+    r = np.arange(len(xy))
+    return s0[k] + t[r, k], t_dir[k, 0] * rel_y[r, k] - t_dir[k, 1] * rel_x[r, k]
+
+
+def test_frenet_compiled_pass_is_bit_identical_to_the_array_form():
+    rng = np.random.default_rng(3)
+    line = np.cumsum(rng.uniform(-1.0, 3.0, (40, 2)), axis=0)
+    # Points around and beyond the ends, on vertices (equidistant from two segments: the first
+    # wins, as argmin's), and on the line itself.
+    xy = np.vstack(
+        [rng.uniform(line.min(axis=0) - 10.0, line.max(axis=0) + 10.0, (5000, 2)), line, line[:1] - 4.0]
+    )
+    s, d = frenet_of_points(line, xy)
+    s_ref, d_ref = _frenet_array_form(line, xy)
+    assert np.array_equal(s, s_ref) and np.array_equal(d, d_ref)
+    assert s.dtype == d.dtype == np.float64
+
+
 def test_bad_inputs_raise():
     with pytest.raises(MessageError, match="polyline"):
         detect_curb(np.zeros((10, 3)), np.zeros((1, 2)))
+    with pytest.raises(MessageError, match="polyline"):
+        frenet_of_points(np.zeros((1, 2)), np.zeros((3, 2)))
     with pytest.raises(ConfigError, match="residual_degree"):
         CurbConfig(residual_degree=3)
 
@@ -187,3 +225,25 @@ def test_the_far_sidewalk_of_a_narrow_road_is_not_reassigned_as_obstacles():
     far = np.flatnonzero((xyz[:, 1] > 1.8) & (xyz[:, 0] > 4.0) & (xyz[:, 0] < 25.0))
     assert len(far) > 50
     assert not np.isin(far, est.obstacle_idx).any()
+
+
+def test_compiled_scatters_equal_numpy_ufunc_at_with_nans_and_signed_zeros():
+    from lastmile.perception.curbs_kernel import scatter_max, scatter_min
+
+    g = np.random.default_rng(0)
+    for trial in range(100):
+        n, m = int(g.integers(0, 300)), int(g.integers(1, 50))
+        values = (
+            g.choice([0.0, -0.0, 1.0, -1.0, np.nan, np.inf, -np.inf, 0.5], n)
+            if trial % 2
+            else g.normal(size=n)
+        )
+        index = g.integers(0, m, n)
+        for init in (np.inf, -np.inf, -0.0, np.nan):
+            for at, compiled in ((np.minimum.at, scatter_min), (np.maximum.at, scatter_max)):
+                want, got = np.full(m, init), np.full(m, init)
+                with np.errstate(invalid="ignore"):
+                    at(want, index, values)
+                compiled(got, index, values)
+                assert np.array_equal(want, got, equal_nan=True)
+                assert np.array_equal(np.signbit(want), np.signbit(got))

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -207,3 +208,57 @@ def test_radix_argsort_is_a_stable_argsort(seed, n, bits) -> None:
 
     key = np.random.default_rng(seed).integers(0, 2**bits, n, dtype=np.int64)
     assert np.array_equal(radix_argsort(key), np.argsort(key, kind="stable"))
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 10_000), n_sec=st.sampled_from([1, 8, 32]), lam=st.sampled_from([0.0, 4.0]))
+def test_ground_plane_fit_equals_its_array_form(seed, n_sec, lam) -> None:
+    from lastmile.perception.ground import AdaptiveGridConfig, _fit_planes, _fit_planes_array_form
+    from lastmile.perception.ground_kernel import weighted_sums
+
+    cfg = AdaptiveGridConfig(prior_weight=lam)
+    g = np.random.default_rng(seed)
+    n = int(g.integers(0, 400))
+    x, y = g.uniform(-40, 40, n), g.uniform(-40, 40, n)
+    # Planes of every kind: flat, steep (rejected), far from the prior (rejected), a step.
+    z = g.normal(0, 0.05, n) + g.choice([0.0, 0.3, 2.0], n) + g.choice([0.0, 0.5], n) * x
+    region = g.integers(0, 2 * n_sec, n)
+    res = z - 0.0
+    sums = weighted_sums(
+        x, y, z, res, region, 2 * n_sec, True, np.zeros(2 * n_sec), np.full(n, 0.3), 1.0, 1.0, 0.15
+    )
+    sums[g.random(2 * n_sec) < 0.2] = 0.0  # empty regions: 0/0 centroids, singular without prior
+    prior = g.normal(0, 0.1, (2 * n_sec, 3))
+    with np.errstate(all="ignore"):
+        try:
+            want = _fit_planes_array_form(sums, prior.copy(), cfg)
+        except np.linalg.LinAlgError:
+            with pytest.raises(np.linalg.LinAlgError):
+                _fit_planes(sums, prior.copy(), cfg)
+            return
+        got = _fit_planes(sums, prior.copy(), cfg)
+    assert np.array_equal(got[0], want[0], equal_nan=True) and np.array_equal(got[1], want[1])
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 10_000), n=st.integers(0, 3000))
+def test_ground_ring_prelude_equals_its_array_expressions(seed, n) -> None:
+    from lastmile.perception.ground import AdaptiveGridConfig
+    from lastmile.perception.ground_kernel import ring_prelude
+
+    cfg = AdaptiveGridConfig()
+    g = np.random.default_rng(seed)
+    x, y = g.uniform(-150, 150, n), g.uniform(-150, 150, n)
+    if n:
+        x[:: max(1, n // 7)] = np.asarray(cfg.ring_edges_m)[g.integers(0, len(cfg.ring_edges_m))]  # on edges
+        y[:: max(1, n // 7)] = 0.0
+    edges = np.asarray(cfg.ring_edges_m)
+    tol, by_ring, ring_start = ring_prelude(
+        x, y, edges, cfg.threshold_near_m, cfg.threshold_per_m, cfg.threshold_max_m, len(cfg.sectors_per_ring)
+    )
+    r = np.hypot(x, y)
+    ring = np.searchsorted(edges, r, side="right") - 1
+    order = np.argsort(ring, kind="stable")
+    assert np.array_equal(tol, cfg.threshold_m(r))
+    assert np.array_equal(by_ring, order)
+    assert np.array_equal(ring_start, np.searchsorted(ring[order], np.arange(len(cfg.sectors_per_ring) + 1)))

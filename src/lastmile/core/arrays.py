@@ -23,7 +23,9 @@ def frozen_array(values: npt.ArrayLike, dtype: npt.DTypeLike, columns: int | Non
             arr = arr.reshape(0, columns)
         if arr.ndim != 2 or arr.shape[1] != columns:
             raise MessageError(f"{what}: expected shape (N, {columns}), got {arr.shape}")
-    if arr.dtype.kind == "f" and not np.all(np.isfinite(arr)):
+    # The smallest and largest values are finite exactly when all are (a NaN propagates through
+    # both reductions): two SIMD reductions instead of a boolean array of every element.
+    if arr.dtype.kind == "f" and arr.size and not (np.isfinite(arr.min()) and np.isfinite(arr.max())):
         raise MessageError(f"{what}: expected finite values, got NaN or inf")
     arr.setflags(write=False)
     return arr

@@ -26,6 +26,7 @@ class DrivableRaster:
         if not polygons:
             self.origin = np.zeros(2)
             self.grid = np.zeros((1, 1), dtype=np.int8)
+            self._flat = self._with_sentinel(self.grid)
             return
         lo = np.min([p.min(axis=0) for p in polygons], axis=0) - 2 * cell_m
         hi = np.max([p.max(axis=0) for p in polygons], axis=0) + 2 * cell_m
@@ -48,6 +49,12 @@ class DrivableRaster:
         grown[:, 1:] |= grown[:, :-1].copy()
         grown[:, :-1] |= grown[:, 1:].copy()
         self.grid = np.where(grown, self.EDGE, np.where(inside, self.INSIDE, self.OUTSIDE)).astype(np.int8)
+        self._flat = self._with_sentinel(self.grid)
+
+    @classmethod
+    def _with_sentinel(cls, grid: np.ndarray) -> np.ndarray:
+        """The grid flattened row-major with one OUTSIDE cell appended (off-raster points index it)."""
+        return np.append(grid.ravel(), np.int8(cls.OUTSIDE)).astype(np.int8)
 
     def _mark_outline(self, poly: FloatArray, edge: np.ndarray) -> None:
         closed = np.vstack([poly, poly[:1]])
@@ -57,13 +64,21 @@ class DrivableRaster:
             cells = np.floor(((1 - t) * a + t * b - self.origin) / self.cell_m).astype(int)
             edge[cells[:, 0], cells[:, 1]] = True
 
+    def cell_index(self, xy_m: FloatArray) -> np.ndarray:
+        """(N,) int64 flat index (row-major over ``grid``) of the cell of each (N, 2) point; the
+        points off the raster (or not finite) get ``grid.size``, an OUTSIDE sentinel."""
+        cells = np.floor((np.asarray(xy_m, dtype=float).reshape(-1, 2) - self.origin) / self.cell_m)
+        nx, ny = self.grid.shape
+        cx, cy = cells[:, 0], cells[:, 1]
+        # NaN and +-inf fail these comparisons too: no separate finiteness test is needed.
+        ok = (cx >= 0) & (cx < nx) & (cy >= 0) & (cy < ny)
+        # Whole numbers below 2**53: the float product and sum are exact.
+        return np.where(ok, cx * ny + cy, float(nx * ny)).astype(np.int64)
+
+    def classify_cells(self, cell: np.ndarray) -> np.ndarray:
+        """(N,) int8 verdicts for flat cell indices from :meth:`cell_index`."""
+        return self._flat[cell]
+
     def classify(self, xy_m: FloatArray) -> np.ndarray:
         """(N,) int8 verdicts for (N, 2) points: OUTSIDE, INSIDE or EDGE."""
-        cells = np.floor((np.asarray(xy_m, dtype=float) - self.origin) / self.cell_m)
-        nx, ny = self.grid.shape
-        ok = (cells[:, 0] >= 0) & (cells[:, 0] < nx) & (cells[:, 1] >= 0) & (cells[:, 1] < ny)
-        ok &= np.isfinite(cells).all(axis=1)
-        out = np.full(len(cells), self.OUTSIDE, dtype=np.int8)
-        idx = cells[ok].astype(int)
-        out[ok] = self.grid[idx[:, 0], idx[:, 1]]
-        return out
+        return self.classify_cells(self.cell_index(xy_m))

@@ -30,6 +30,7 @@ import numpy as np
 import numpy.typing as npt
 
 from lastmile.core.errors import ConfigError, MessageError
+from lastmile.perception.curbs_kernel import frenet_nearest, scatter_max, scatter_min
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -149,6 +150,8 @@ def frenet_of_points(polyline_xy: FloatArray, xy: FloatArray) -> tuple[FloatArra
     Each point takes its nearest segment; points beyond the ends extend the end segments.
     """
     P = np.asarray(polyline_xy, dtype=np.float64)
+    if P.ndim != 2 or P.shape[1] != 2 or len(P) < 2:
+        raise MessageError(f"frenet_of_points: expected an (M >= 2, 2) polyline, got {P.shape}")
     a, b = P[:-1], P[1:]
     seg = b - a
     seg_len = np.hypot(seg[:, 0], seg[:, 1])
@@ -156,19 +159,22 @@ def frenet_of_points(polyline_xy: FloatArray, xy: FloatArray) -> tuple[FloatArra
         raise MessageError("frenet_of_points: expected a polyline without repeated vertices")
     s0 = np.concatenate([[0.0], np.cumsum(seg_len)[:-1]])
     t_dir = seg / seg_len[:, None]
-    rel_x = xy[:, 0:1] - a[:, 0]
-    rel_y = xy[:, 1:2] - a[:, 1]
-    along = rel_x * t_dir[:, 0] + rel_y * t_dir[:, 1]  # (N, M-1)
     lo = np.where(np.arange(len(seg)) == 0, -np.inf, 0.0)
     hi = np.where(np.arange(len(seg)) == len(seg) - 1, np.inf, seg_len)
-    t = np.clip(along, lo, hi)
-    px = a[:, 0] + t * t_dir[:, 0]
-    py = a[:, 1] + t * t_dir[:, 1]
-    dist2 = (xy[:, 0:1] - px) ** 2 + (xy[:, 1:2] - py) ** 2
-    k = np.argmin(dist2, axis=1)
-    r = np.arange(len(xy))
-    s = s0[k] + t[r, k]
-    d = t_dir[k, 0] * rel_y[r, k] - t_dir[k, 1] * rel_x[r, k]
+    # One compiled pass keeping each point's running nearest segment (curbs_kernel): the same
+    # arithmetic as the (N, M-1) array form, without building those arrays every frame.
+    p = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+    s, d = frenet_nearest(
+        np.ascontiguousarray(p[:, 0]),
+        np.ascontiguousarray(p[:, 1]),
+        np.ascontiguousarray(a[:, 0]),
+        np.ascontiguousarray(a[:, 1]),
+        np.ascontiguousarray(t_dir[:, 0]),
+        np.ascontiguousarray(t_dir[:, 1]),
+        lo,
+        hi,
+        s0,
+    )
     return s, d
 
 
@@ -256,27 +262,32 @@ def detect_curb(
     n_bins = round(2 * cfg.band_m / cfg.bin_m)
     bi = np.clip(((d[band] + cfg.band_m) / cfg.bin_m).astype(np.int64), 0, n_bins - 1)
     si = np.clip(((s[band] - cfg.s_min_m) / cfg.slice_m).astype(np.int64), 0, n_slices - 1)
-    # Lowest point per (slice, bin): the surface there, not whatever stands on it.
+    # Lowest point per (slice, bin): the surface there, not whatever stands on it. (The scatters
+    # are np.minimum.at / np.maximum.at in compiled passes: ufunc.at costs ~10x per element.)
     flat = si * n_bins + bi
     low_flat = np.full(n_slices * n_bins, np.inf)
-    np.minimum.at(low_flat, flat, h[band])
+    scatter_min(low_flat, flat, h[band])
     low = low_flat.reshape(n_slices, n_bins)
     far_flat = np.full(n_slices * n_bins, -np.inf)
-    np.maximum.at(far_flat, flat, d[band])
+    scatter_max(far_flat, flat, d[band])
     far_d = far_flat.reshape(n_slices, n_bins)
     # Farthest raised point per bin: the bin where the step is crossed holds both levels.
     up = h[band] >= cfg.step_min_m
     up_flat = np.full(n_slices * n_bins, -np.inf)
-    np.maximum.at(up_flat, flat[up], d[band][up])
+    scatter_max(up_flat, flat[up], d[band][up])
     far_up = up_flat.reshape(n_slices, n_bins)
     max_gap_bins = max(1, round(cfg.max_gap_m / cfg.bin_m))
     max_toe_bins = max(1, round(cfg.max_toe_m / cfg.bin_m))
     ambiguous = np.zeros(n_slices, dtype=bool)
+    # The slice loop reads single bins: Python lists of the same float64 values (a list index is
+    # several times cheaper than a NumPy scalar look-up; every comparison is the same).
+    low_rows, far_rows, up_rows = low.tolist(), far_d.tolist(), far_up.tolist()
     for k in range(n_slices):
-        occ = np.flatnonzero(np.isfinite(low[k]))
+        lk, fk = low_rows[k], far_rows[k]
+        occ = [j for j, v in enumerate(lk) if math.isfinite(v)]
         if len(occ) == 0:
             continue
-        raised = low[k, occ] >= cfg.step_min_m
+        raised = [lk[j] >= cfg.step_min_m for j in occ]
         if not raised[0]:
             continue  # the outermost occupied bin is road level: no curb in this slice's view
         # Chain raised bins from the outer side toward the road; a road-level bin or an empty gap
@@ -286,41 +297,37 @@ def detect_curb(
             if not raised[j] or occ[j] - occ[end] > max_gap_bins:
                 break
             end = j
-        detected[k] = far_d[k, occ[end]]
+        detected[k] = fk[occ[end]]
         nxt = occ[end] + 1
-        if nxt < n_bins and np.isfinite(far_up[k, nxt]):
-            detected[k] = far_up[k, nxt]
+        if nxt < n_bins and math.isfinite(up_rows[k][nxt]):
+            detected[k] = up_rows[k][nxt]
         # A snow bank's ramp: bins below the raised height but still above the road, falling.
         # Its line, extended to the road surface, is where the bare road starts; a curb's vertical
         # step has no ramp (its next bin is road) and keeps the boundary found above.
         start = occ[end]
-        prev_h = float(low[k, start])
+        prev_h = lk[start]
         # The ramp may begin inside the raised chain: its upper part stands above step_min_m.
         # Chain bins at the road-side end lower than the chain's top by more than toe_m are on
         # the slope (a curb's face bin alone is one such bin: too few for a ramp line).
-        top = float(low[k, occ[: end + 1]].max())
+        top = max(lk[j] for j in occ[: end + 1])
         tail = end
-        while (
-            tail > 0
-            and low[k, occ[tail - 1]] < top - cfg.toe_m
-            and low[k, occ[tail - 1]] >= low[k, occ[tail]]
-        ):
+        while tail > 0 and lk[occ[tail - 1]] < top - cfg.toe_m and lk[occ[tail - 1]] >= lk[occ[tail]]:
             tail -= 1
-        ramp = [int(j) for j in occ[tail : end + 1]] if low[k, start] < top - cfg.toe_m else [start]
-        cap = far_d[k, start] + cfg.max_toe_m
+        ramp = occ[tail : end + 1] if lk[start] < top - cfg.toe_m else [start]
+        cap = fk[start] + cfg.max_toe_m
         road_from = math.inf  # the near edge of the first road-level bin beyond the chain
         for j in range(start + 1, min(n_bins, start + 1 + max_toe_bins)):
-            if not np.isfinite(low[k, j]):
+            if not math.isfinite(lk[j]):
                 continue
-            if low[k, j] <= cfg.toe_m:
-                cap = far_d[k, j]  # the road is seen here: the toe is no farther
+            if lk[j] <= cfg.toe_m:
+                cap = fk[j]  # the road is seen here: the toe is no farther
                 road_from = j * cfg.bin_m - cfg.band_m
                 break
-            if low[k, j] > prev_h + cfg.toe_m:
+            if lk[j] > prev_h + cfg.toe_m:
                 break
-            prev_h = float(low[k, j])
+            prev_h = lk[j]
             ramp.append(j)
-            detected[k] = max(detected[k], far_d[k, j])
+            detected[k] = max(detected[k], fk[j])
         if len(ramp) >= 3:
             x, y = far_d[k, ramp], low[k, ramp]
             slope = np.polyfit(x, y, 1)[0]
@@ -371,7 +378,6 @@ def _huber_polyfit(x: FloatArray, y: FloatArray, degree: int, delta_m: float = 0
     # Start from the median offset, not a least-squares fit a few wild slices could tilt.
     r0 = np.abs(y - np.median(y))
     w = np.where(r0 <= delta_m, 1.0, delta_m / np.maximum(r0, 1e-12))
-    coef = np.polyfit(x, y, deg, w=np.sqrt(w))
     for _ in range(8):
         coef = np.polyfit(x, y, deg, w=np.sqrt(w))
         r = np.abs(y - np.polyval(coef, x))

@@ -95,9 +95,21 @@ def enough_neighbours(
     for t in range(test.shape[0]):
         i = test[t]
         xi, yi, zi, ri = x[i], y[i], z[i], radius[i]
-        ix = np.int64(np.floor((xi - lo0) / side)) + 1
-        iy = np.int64(np.floor((yi - lo1) / side)) + 1
-        iz = np.int64(np.floor((zi - lo2) / side)) + 1
+        gx = (xi - lo0) / side
+        gy = (yi - lo1) / side
+        gz = (zi - lo2) / side
+        ix = np.int64(np.floor(gx)) + 1
+        iy = np.int64(np.floor(gy)) + 1
+        iz = np.int64(np.floor(gz)) + 1
+        # A neighbouring cell can hold a point within ri only if the point lies within ri of the
+        # face they share (the same cell formula for both points, a relative margin for rounding):
+        # a near point's radius (0.1 m) is a fraction of the cell, so most of the 26 are skipped.
+        # Skipping cells whose points are all farther than ri cannot change the count's verdict.
+        reach = ri / side * (1.0 + 1e-9) + 1e-9
+        fx, fy, fz = gx - np.floor(gx), gy - np.floor(gy), gz - np.floor(gz)
+        lo_x, hi_x = fx <= reach, 1.0 - fx <= reach
+        lo_y, hi_y = fy <= reach, 1.0 - fy <= reach
+        lo_z, hi_z = fz <= reach, 1.0 - fz <= reach
         count = 0  # the point itself is counted too (distance 0), so k others make k + 1
         # The point's own cell first, then the rest of its column and the 8 columns around it,
         # stopping at the (k + 1)-th point within radius: the answer does not depend on the order,
@@ -106,9 +118,18 @@ def enough_neighbours(
         for o in range(9):
             ox = _RUN_ORDER_X[o]
             oy = _RUN_ORDER_Y[o]
+            if (
+                (ox < 0 and not lo_x)
+                or (ox > 0 and not hi_x)
+                or (oy < 0 and not lo_y)
+                or (oy > 0 and not hi_y)
+            ):
+                continue
             c0 = ((ix + ox) * ny + iy + oy) * nz + iz - 1
             # The three cells along z, the point's own level first.
             for dz_cell in (1, 0, 2):
+                if (dz_cell == 0 and not lo_z) or (dz_cell == 2 and not hi_z):
+                    continue
                 if bucketed:
                     q0, q1 = first[c0 + dz_cell], first[c0 + dz_cell + 1]
                 else:

@@ -17,10 +17,13 @@ import numpy.typing as npt
 
 from lastmile.core.errors import ConfigError
 from lastmile.perception.ground_kernel import (
+    accept_planes,
     classify_ring,
     low_quantile,
     plane_residuals,
+    plane_systems,
     ring_points,
+    ring_prelude,
     weighted_sums,
 )
 from lastmile.perception.himmelsbach import HimmelsbachConfig, HimmelsbachGroundSegmenter
@@ -182,22 +185,20 @@ class AdaptiveGridGroundSegmenter:
             return ground
         # Contiguous columns: every later step is a 1-D operation on them.
         x, y, z = (np.ascontiguousarray(p[:, i]) for i in range(3))
-        r = np.hypot(x, y)
         az = np.arctan2(y, x)
         road = np.ones(n, dtype=bool) if road_mask is None else np.asarray(road_mask(p[:, :2]), dtype=bool)
-        tol = cfg.threshold_m(r)
-        # Ring = number of edges at or below r, minus one (searchsorted(..., side="right") - 1),
-        # counted in int8 with one comparison per edge: cheaper than the binary searches, and a
-        # stable sort of small integers is a radix sort in NumPy (several times faster than int64).
-        # Points grouped by ring once, instead of one full scan of the cloud per ring.
-        if len(cfg.ring_edges_m) <= 127:
-            ring: np.ndarray = np.full(n, -1, dtype=np.int8)
-            for edge in cfg.ring_edges_m:
-                ring += r >= edge
-        else:
-            ring = np.searchsorted(np.asarray(cfg.ring_edges_m), r, side="right") - 1
-        by_ring = np.argsort(ring, kind="stable")
-        ring_start = np.searchsorted(ring[by_ring], np.arange(len(cfg.sectors_per_ring) + 1))
+        # One compiled pass (ground_kernel.ring_prelude): range, tolerance (cfg.threshold_m's
+        # arithmetic), ring = number of edges at or below the range minus one, and the points
+        # grouped by ring once (a stable counting sort) instead of a scan of the cloud per ring.
+        tol, by_ring, ring_start = ring_prelude(
+            x,
+            y,
+            np.asarray(cfg.ring_edges_m, dtype=np.float64),
+            cfg.threshold_near_m,
+            cfg.threshold_per_m,
+            cfg.threshold_max_m,
+            len(cfg.sectors_per_ring),
+        )
         # Prior planes of the previous ring per sector (a, b, c); the first ring's prior is z = 0.
         prev_planes = np.zeros((1, 2, 3))
         prev_sectors = 1
@@ -327,8 +328,9 @@ def _edge_candidates(
         planes: (R, 3) the ring's final planes, region ``2 * sector + road``.
         ground: (N,) labels so far.
     """
-    other = region ^ 1
-    res_other = pz - (planes[other, 0] + planes[other, 1] * px + planes[other, 2] * py)
+    # The residual on the other part's plane: plane_residuals with the region's partner
+    # (the same expression, compiled, without three (M,) gathers of plane coefficients).
+    res_other = plane_residuals(px, py, pz, region ^ 1, planes)
     cand = np.flatnonzero(~ground[idx] & (res_other <= window))
     return idx[cand], np.column_stack([px[cand], py[cand]]), (region[cand] & 1) == 1
 
@@ -352,7 +354,23 @@ def _fit_planes(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Weighted least-squares planes per region from their sums (``ground_kernel.weighted_sums``),
     regularised toward the prior; rejects bad fits. Returns the planes (R, 3) and (R,) whether
-    each region kept its own fit."""
+    each region kept its own fit.
+
+    The systems are assembled and the fits judged in compiled passes (``ground_kernel``: the same
+    arithmetic as :func:`_fit_planes_array_form`, about thirty small array operations per ring and
+    iteration otherwise); the solve and the slope stay NumPy's (LAPACK, libm) so that the planes
+    are the same to the bit."""
+    A, b = plane_systems(sums, prior, cfg.prior_weight)
+    sol = np.linalg.solve(A, b[..., None])[..., 0]
+    slope = np.hypot(sol[:, 1], sol[:, 2])
+    return accept_planes(sol, slope, sums, prior, cfg.min_fit_points, cfg.max_slope, cfg.max_step_m)
+
+
+def _fit_planes_array_form(
+    sums: np.ndarray, prior: np.ndarray, cfg: AdaptiveGridConfig
+) -> tuple[np.ndarray, np.ndarray]:
+    """The array form of :func:`_fit_planes`, kept as the reference its compiled passes are tested
+    against."""
     sw, sx, sy, sz, sxx, sxy, syy, sxz, syz, count = sums.T
     A = np.stack(
         [np.stack([sw, sx, sy], -1), np.stack([sx, sxx, sxy], -1), np.stack([sy, sxy, syy], -1)], axis=1

@@ -112,7 +112,9 @@ def ring_points(
         py[q] = y[i]
         pz[q] = z[i]
         window[q] = tol[i]
-        sec = np.int64(np.floor((az[i] + np.pi) / sector_rad)) % n_sec
+        sec = np.int64(np.floor((az[i] + np.pi) / sector_rad))
+        if sec < 0 or sec >= n_sec:  # only az = pi (or outside +-pi): the integer division is slow
+            sec %= n_sec
         region[q] = sec * 2 + (1 if road[i] else 0)
     return px, py, pz, window, region
 
@@ -178,3 +180,124 @@ def classify_ring(
         smooth[g] = max(smooth_floor_m, smooth_sigmas * np.sqrt(ss[g] / max(n_in[g], 1.0)))
     for q in range(res.shape[0]):
         ground[idx[q]] = res[q] <= min(window[q], smooth[region[q]])
+
+
+@njit(cache=True, nogil=True)
+def plane_systems(sums: np.ndarray, prior: np.ndarray, lam: float) -> tuple[np.ndarray, np.ndarray]:
+    """(R, 3, 3) normal matrices and (R, 3) right-hand sides of the regions' plane fits from their
+    :func:`weighted_sums`, regularised toward ``prior`` (R, 3) with weight ``lam``: the array
+    expressions ``A + lam * eye(3)`` and ``b + lam * prior`` element for element (``lam * 0.0``
+    is added off the diagonal too, as the array form adds it)."""
+    n = sums.shape[0]
+    a = np.empty((n, 3, 3))
+    b = np.empty((n, 3))
+    on = lam * 1.0
+    off = lam * 0.0
+    for r in range(n):
+        sw, sx, sy, sz = sums[r, 0], sums[r, 1], sums[r, 2], sums[r, 3]
+        sxx, sxy, syy, sxz, syz = sums[r, 4], sums[r, 5], sums[r, 6], sums[r, 7], sums[r, 8]
+        a[r, 0, 0], a[r, 0, 1], a[r, 0, 2] = sw + on, sx + off, sy + off
+        a[r, 1, 0], a[r, 1, 1], a[r, 1, 2] = sx + off, sxx + on, sxy + off
+        a[r, 2, 0], a[r, 2, 1], a[r, 2, 2] = sy + off, sxy + off, syy + on
+        b[r, 0] = sz + lam * prior[r, 0]
+        b[r, 1] = sxz + lam * prior[r, 1]
+        b[r, 2] = syz + lam * prior[r, 2]
+    return a, b
+
+
+@njit(cache=True, nogil=True)
+def accept_planes(
+    sol: np.ndarray,
+    slope: np.ndarray,
+    sums: np.ndarray,
+    prior: np.ndarray,
+    min_fit_points: float,
+    max_slope: float,
+    max_step_m: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The regions' planes (R, 3) and (R,) whether each kept its own fit ``sol``.
+
+    A fit is kept with at least ``min_fit_points`` points, a ``slope`` (its gradient's norm) within
+    ``max_slope``, finite coefficients and a step from the prior, measured at the fitted points'
+    centroid, within ``max_step_m``; otherwise the region takes its prior, or the fit of the other
+    part of its cell (road / off-road, regions ``2 k`` and ``2 k + 1``) when that one kept its own.
+    """
+    n = sol.shape[0]
+    ok = np.empty(n, np.bool_)
+    for r in range(n):
+        keep = sums[r, 9] >= min_fit_points and slope[r] <= max_slope
+        keep = keep and np.isfinite(sol[r, 0]) and np.isfinite(sol[r, 1]) and np.isfinite(sol[r, 2])
+        if sums[r, 0] == 0.0:
+            # No weight: the centroid is 0/0 or x/0, so the array form's step is NaN or inf and
+            # fails (and Numba's float division by zero would raise).
+            ok[r] = False
+            continue
+        cx = sums[r, 1] / sums[r, 0]
+        cy = sums[r, 2] / sums[r, 0]
+        step = (sol[r, 0] - prior[r, 0]) + (sol[r, 1] - prior[r, 1]) * cx + (sol[r, 2] - prior[r, 2]) * cy
+        ok[r] = keep and abs(step) <= max_step_m  # NaN and inf steps fail
+    out = np.empty((n, 3))
+    for r in range(n):
+        src = sol if ok[r] else prior
+        for c in range(3):
+            out[r, c] = src[r, c]
+    for k in range(n // 2):
+        road, off_road = 2 * k + 1, 2 * k
+        if not ok[off_road] and ok[road]:
+            for c in range(3):
+                out[off_road, c] = out[road, c]
+        elif not ok[road] and ok[off_road]:
+            for c in range(3):
+                out[road, c] = out[off_road, c]
+    return out, ok
+
+
+@njit(cache=True, nogil=True)
+def ring_prelude(
+    x: np.ndarray,
+    y: np.ndarray,
+    edges: np.ndarray,
+    near_m: float,
+    per_m: float,
+    max_m: float,
+    n_rings: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One pass over the cloud: each point's ground tolerance, the points grouped by ring, and where
+    each ring's group starts.
+
+    The array expressions it replaces: ``r = np.hypot(x, y)`` (the same libm ``hypot``),
+    ``tol = np.minimum(near_m + per_m * r, max_m)``, ``ring = (number of edges <= r) - 1``,
+    ``by_ring = np.argsort(ring, kind="stable")`` (here a counting sort, stable too) and
+    ``ring_start = np.searchsorted(ring[by_ring], np.arange(n_rings + 1))``.
+
+    Returns:
+        (N,) tol, (N,) int64 by_ring, (n_rings + 1,) int64 ring_start.
+    """
+    n = x.shape[0]
+    n_edges = edges.shape[0]
+    tol = np.empty(n)
+    ring = np.empty(n, np.int64)
+    # ring + 1 in 0 .. n_edges (-1 for a NaN range, which meets no edge)
+    count = np.zeros(n_edges + 2, np.int64)
+    for i in range(n):
+        r = np.hypot(x[i], y[i])
+        a = near_m + per_m * r
+        tol[i] = a if (a <= max_m or np.isnan(a)) else max_m  # np.minimum: NaN kept, ties the first
+        k = -1
+        for e in range(n_edges):
+            if r >= edges[e]:
+                k += 1
+        ring[i] = k
+        count[k + 2] += 1
+    for c in range(n_edges + 1):
+        count[c + 1] += count[c]
+    # count[k + 1] is now the first slot of ring k (the number of points with a smaller ring)
+    ring_start = np.empty(n_rings + 1, np.int64)
+    for k in range(n_rings + 1):
+        ring_start[k] = count[min(k, n_edges) + 1]
+    by_ring = np.empty(n, np.int64)
+    for i in range(n):
+        slot = ring[i] + 1
+        by_ring[count[slot]] = i
+        count[slot] += 1
+    return tol, by_ring, ring_start

@@ -119,7 +119,9 @@ def point_cells(
     seg = np.empty(n, np.int64)
     b = np.empty(n, np.int64)
     for i in range(n):
-        seg[i] = np.int64(np.floor((az[i] + np.pi) / (2 * np.pi) * n_segments)) % n_segments
+        k = np.int64(np.floor((az[i] + np.pi) / (2 * np.pi) * n_segments))
+        # Python's modulo only where needed (az = pi or outside +-pi): the integer division is slow.
+        seg[i] = k if 0 <= k < n_segments else k % n_segments
         b[i] = min(int(r[i] / bin_m), n_bins - 1)  # truncation, as astype(int64)
     return seg, b
 

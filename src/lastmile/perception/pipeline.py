@@ -213,7 +213,8 @@ class LidarPipeline:
         steps = np.array([azimuth_step_from_times(sweep_of[sid].points[:, 5]) for sid in cloud.sensor_ids])
         if cfg.weather_filter and len(ng):
             sensor = cloud.points[ng, 5].astype(np.int64)  # only the points DROR sees
-            sensor_xy = _sensor_xy(cloud, base_from_sensor)[sensor]
+            # take: a row gather of the (S, 2) table ~4x cheaper than fancy indexing (same rows)
+            sensor_xy = np.take(_sensor_xy(cloud, base_from_sensor), sensor, axis=0)
             ring = cloud.points[ng, 4].astype(np.int64)
             scan = sensor * 1000 + ring
             keep = dror_keep_mask(
@@ -221,7 +222,7 @@ class LidarPipeline:
                 cfg.dror,
                 sensor_xy,
                 scan,
-                steps[sensor],
+                np.take(steps, sensor),
                 scan_grid=np.c_[sensor, ring],
             )
             noise[ng[~keep]] = True

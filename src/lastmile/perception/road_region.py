@@ -49,7 +49,11 @@ class MapRoadRegion:
     def _exact(self, xy: npt.NDArray[np.float64]) -> npt.NDArray[np.bool_]:
         inside = np.zeros(len(xy), dtype=bool)
         lo, hi = xy.min(axis=0), xy.max(axis=0)
-        near = np.flatnonzero(np.all(self._lo <= hi, axis=1) & np.all(self._hi >= lo, axis=1))
+        # Per axis, as below: the verdict of all(axis=1) without its reduction's cost.
+        lo_b, hi_b = self._lo, self._hi
+        near = np.flatnonzero(
+            (lo_b[:, 0] <= hi[0]) & (lo_b[:, 1] <= hi[1]) & (hi_b[:, 0] >= lo[0]) & (hi_b[:, 1] >= lo[1])
+        )
         x, y = xy[:, 0], xy[:, 1]
         for k in near.tolist():
             (lo_x, lo_y), (hi_x, hi_y) = self._lo[k], self._hi[k]

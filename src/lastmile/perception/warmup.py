@@ -28,6 +28,7 @@ from lastmile.core.stamp import Stamp
 from lastmile.perception import (
     cluster_geometry_kernel,
     clustering_kernel,
+    curbs_kernel,
     deskew_kernel,
     dror_kernel,
     ground_kernel,
@@ -40,6 +41,7 @@ from lastmile.perception.pipeline import LidarPipeline, LidarPipelineConfig
 KERNEL_MODULES: tuple[ModuleType, ...] = (
     cluster_geometry_kernel,
     clustering_kernel,
+    curbs_kernel,
     deskew_kernel,
     dror_kernel,
     ground_kernel,

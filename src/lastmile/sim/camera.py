@@ -301,6 +301,10 @@ class CameraDetectorModel:
         base_from_map = scene.map_from_base.inverse()
         max_range = cfg.max_range_m * self.effects.range_factor
         projected: list[tuple[float, float, float, float, float, float, float, float]] = []
+        # Objects whose centre lies clearly beyond the range (a metre of margin for the rounding
+        # of the two frames) fail the exact test below anyway: skipped before their corners.
+        cam_xy = scene.map_from_base.apply_points(np.array([[cam.x_m, cam.y_m]]))[0]
+        boxes = boxes[np.hypot(boxes[:, 0] - cam_xy[0], boxes[:, 1] - cam_xy[1]) <= max_range + 1.0]
         for x, y, yaw, length, width, height, cls, oid in boxes:
             corners = _corners(x, y, yaw, length, width, height)
             xy = base_from_map.apply_points(corners[:, :2])

@@ -120,8 +120,12 @@ class GroundRaster:
 
     def is_road(self, x_m: FloatArray, y_m: FloatArray) -> np.ndarray:
         """(N,) bool: road-level surface (False off the raster: everything there is raised verge)."""
-        row, col, ok = self.cells(x_m, y_m)
-        return self.road[row, col] & ok
+        col = np.floor((x_m - self.x0_m) / RESOLUTION_M).astype(np.int64)
+        row = np.floor((y_m - self.y0_m) / RESOLUTION_M).astype(np.int64)
+        ok = (col >= 0) & (col < self.width) & (row >= 0) & (row < self.height)
+        # One look-up in the flattened raster (a view): the cells :meth:`cells` gives, without
+        # its two selections and the two-axis gather.
+        return np.take(self.road.reshape(-1), np.where(ok, row * self.width + col, 0)) & ok
 
     @property
     def curb_code(self) -> np.ndarray:
