@@ -73,7 +73,7 @@ from lastmile.localization.landmark_extraction import LandmarkExtractionConfig
 from lastmile.localization.odometry_ekf import OdometryEkf, OdometryEkfConfig, zero_slip_offset_m
 from lastmile.perception.late_fusion import radar_detections
 from lastmile.planning.local_path import LocalPathConfig
-from lastmile.planning.planners import PlannerInputs, PlannerName, make_path_planner
+from lastmile.planning.planners import PASSING_PLANNERS, PlannerInputs, PlannerName, make_path_planner
 from lastmile.safety.reliability_config import ReliabilityConfig, default_sensor_specs
 from lastmile.stack.hmi import HmiComposer
 from lastmile.stack.landmark_fusion import LandmarkFusion
@@ -254,7 +254,11 @@ class ShuttleStack:
             stop_order=tuple(rs.stop.id for rs in layers.stops), serve_all=config.serve_all_stops
         )
         self.fsm = BehaviourStateMachine(
-            layers=layers, geometry=geometry, mission=self.mission, config=config.decision
+            layers=layers,
+            geometry=geometry,
+            mission=self.mission,
+            config=config.decision,
+            can_pass=config.planner in PASSING_PLANNERS,
         )
         self.planner = make_path_planner(
             config.planner,
@@ -264,6 +268,8 @@ class ShuttleStack:
                 curb_right_d_m=self._curb_right_d_m,
                 body_behind_m=geometry.rear_overhang_m,
                 body_ahead_m=geometry.length_m - geometry.rear_overhang_m,
+                drivable=layers.hdmap.is_drivable,
+                max_curvature_1pm=math.tan(geometry.max_steer_rad) / geometry.wheelbase_m,
             ),
             _path_config(config),
         )
