@@ -95,6 +95,9 @@ class PassRequest:
         start_s_m, end_s_m: the obstacle's extent along the route (its rear and front).
         left_d_m: the obstacle's left edge: the planned body keeps its clearance beyond this.
         max_d_m: the farthest left the body's left side may go (the passable lane's far edge).
+        lookout_d_m: the offset the rear axle holds inside the lane while waiting, to see past it.
+        wait_s_m: where the front waits (the look-out offset is reached by then).
+        approved: the pass may be driven; False: wait at the look-out offset, inside the lane.
         committed: the shuttle has begun to move out: the pass is finished even if traffic appears
             (the in-path test still stops for anything on the planned path).
     """
@@ -104,6 +107,9 @@ class PassRequest:
     end_s_m: float
     left_d_m: float
     max_d_m: float
+    lookout_d_m: float = 0.0
+    wait_s_m: float = 0.0
+    approved: bool = False
     committed: bool = False
 
 

@@ -172,7 +172,7 @@ class BehaviourStateMachine:
                 may_start=self.memory.state == BehaviourState.NORMAL_DRIVING and not mrm,
             )
         )
-        if self._pass_request is not None:
+        if self._pass_request is not None and self._pass_request.approved:
             speed_cap = min(speed_cap, c.passing.pass_speed_mps)
         return Cycle(inp, t_s, front_s, obstacles, constraints + mrm + waits, speed_cap)
 
@@ -211,7 +211,7 @@ class BehaviourStateMachine:
         reason = outcome.reason
         if binding is not None and binding.kind not in ("spot",):
             reason = f"{reason}; stop for {binding.kind}"
-        if self._pass_request is not None:
+        if self._pass_request is not None and self._pass_request.approved:
             reason = f"{reason}; passing track {self._pass_request.track_id}"
         elif self.passing.memory.why:
             reason = f"{reason}; not passing: {self.passing.memory.why}"

@@ -15,6 +15,8 @@ class PassConfig:
     Attributes:
         stationary_speed_mps: slower than this a track counts as standing (radar speed noise of a
             parked car is a few cm/s).
+        moving_speed_mps: a standing track's clock restarts only when it moves faster than this (the
+            speed estimate of a parked car wanders up to about 0.4 m/s as the shuttle closes in).
         stationary_s: how long it must have stood (a car stopping to let someone out stands less; a
             queue moves within a few seconds of its light).
         lookahead_m: obstacles further ahead of the front than this are not considered yet.
@@ -38,6 +40,17 @@ class PassConfig:
         time_margin_s: margin on the manoeuvre's time in the oncoming-traffic check.
         oncoming_gap_m: the least gap between the shuttle's front and an oncoming road user.
         sight_m: how far ahead the stack sees oncoming traffic (the front radar's 100 m, less margin).
+            A road user beyond it, coming at the speed limit, must be able to stop before the
+            shuttle's way back (``oncoming_gap_m`` short) after ``oncoming_reaction_s`` (a driver's
+            1.5 s) braking at ``oncoming_decel_mps2`` (2 m/s^2, well under a car's 3-4 m/s^2 of
+            firm braking), or arrive only after the manoeuvre.
+        clear_for_s: the adjacent lane must have been clear this long before a pass begins (a road
+            user coming out of the obstacle's radar shadow is detected on some frames only).
+        lookout_margin_m: waiting to pass, the shuttle holds at the left of its lane, its side this far
+            inside the lane's boundary, to see past the obstacle.
+        min_start_gap_m: a pass is begun only with the front this far behind the obstacle (the rear
+            axle has to move out over the quintic before the front reaches it); a shuttle standing
+            closer waits (it does not reverse).
         commit_d_m: the shuttle's lateral offset past which a begun pass is finished.
         adjacent_width_m: width of the adjacent lane searched for oncoming traffic.
         passable_left_types: Lanelet2 boundary ``type:subtype`` strings the shuttle may cross to pass a
@@ -48,6 +61,7 @@ class PassConfig:
 
     stationary_speed_mps: float = 0.3
     stationary_s: float = 3.0
+    moving_speed_mps: float = 1.0
     lookahead_m: float = 50.0
     clearance_m: float = 1.0
     control_clear_m: float = 20.0
@@ -61,6 +75,11 @@ class PassConfig:
     time_margin_s: float = 3.0
     oncoming_gap_m: float = 10.0
     sight_m: float = 90.0
+    oncoming_reaction_s: float = 1.5
+    oncoming_decel_mps2: float = 2.0
+    min_start_gap_m: float = 10.0
+    clear_for_s: float = 1.0
+    lookout_margin_m: float = 0.45
     commit_d_m: float = 0.3
     adjacent_width_m: float = 3.5
     passable_left_types: tuple[str, ...] = ("line_thin:dashed", "line_thick:dashed", "virtual")

@@ -26,6 +26,7 @@ the shuttle for anything on the planned path).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from enum import Enum
@@ -59,6 +60,7 @@ class PassMemory:
     standing_since_s: dict[int, float] = field(default_factory=dict)
     request: PassRequest | None = None
     why: str = ""
+    clear_since_s: float | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -96,31 +98,64 @@ class PassRule:
             return self._continue(inp), []
         blocker = self._blocker(inp)
         if blocker is None:
-            mem.phase, mem.request, mem.why = PassPhase.NONE, None, ""
+            mem.phase, mem.request, mem.why, mem.clear_since_s = PassPhase.NONE, None, "", None
             return None, []
-        why = self._why_not(inp, blocker)
+        why = self._static_why_not(inp, blocker)
+        if why is None and mem.phase is not PassPhase.PASSING:
+            why = self._too_close(inp, blocker)
+        if why is not None:  # not passable at all: wait in the lane as for any obstacle
+            mem.phase, mem.request, mem.why, mem.clear_since_s = PassPhase.WAITING, None, why, None
+            return None, self._wait(inp, blocker)
+        lookout = self._request(blocker, inp)
+        why = self._dynamic_why_not(inp, blocker)
+        if why is None and mem.phase is not PassPhase.PASSING:
+            why = self._clear_long_enough(inp)
+        else:
+            mem.clear_since_s = None if why is not None else mem.clear_since_s
         if why is None and inp.may_start:
-            request = self._request(blocker, inp)
-            committed = inp.route_d_m > c.commit_d_m
+            # Committed once out of the lane, or once past the last point from which the shuttle could
+            # still stop comfortably at the waiting point (after that, calling the pass off would leave
+            # it standing too close behind the obstacle to steer out ever again).
+            committed = inp.route_d_m > c.commit_d_m or self._past_no_return(inp, blocker)
             mem.phase, mem.why = PassPhase.PASSING, "passing"
-            mem.request = PassRequest(
-                track_id=request.track_id,
-                start_s_m=request.start_s_m,
-                end_s_m=request.end_s_m,
-                left_d_m=request.left_d_m,
-                max_d_m=request.max_d_m,
-                committed=committed,
-            )
+            mem.request = dataclasses.replace(lookout, approved=True, committed=committed)
             return mem.request, []
         mem.phase, mem.request, mem.why = PassPhase.WAITING, None, why or "not in normal driving"
-        return None, self._wait(inp, blocker)
+        # Waiting to pass: hold at the left of the lane to see past the obstacle.
+        return (lookout if inp.may_start else None), self._wait(inp, blocker)
+
+    def _clear_long_enough(self, inp: PassInput) -> str | None:
+        mem, c = self.memory, self.config
+        if mem.clear_since_s is None:
+            mem.clear_since_s = inp.t_s
+        if inp.t_s - mem.clear_since_s < c.clear_for_s:
+            return "adjacent lane not yet clear for long enough"
+        return None
+
+    def _wait_point_s_m(self, inp: PassInput, o: RouteObstacle) -> float:
+        return inp.front_s_m + o.ds_m - o.length_m / 2.0 - self.config.wait_gap_m
+
+    def _past_no_return(self, inp: PassInput, o: RouteObstacle) -> bool:
+        room = self._wait_point_s_m(inp, o) - inp.front_s_m
+        return room <= inp.speed_mps**2 / (2.0 * self.config.wait_decel_mps2) + 0.5
+
+    def _too_close(self, inp: PassInput, o: RouteObstacle) -> str | None:
+        """A pass not yet begun needs the front at least ``min_start_gap_m`` behind the obstacle."""
+        if o.ds_m - o.length_m / 2.0 < self.config.min_start_gap_m:
+            return "too close behind the obstacle to steer out"
+        return None
 
     # --- the obstacle ---------------------------------------------------------------------------
     def _update_standing(self, inp: PassInput) -> None:
+        c, since = self.config, self.memory.standing_since_s
         seen: dict[int, float] = {}
         for o in inp.obstacles:
-            if o.speed_mps < self.config.stationary_speed_mps:
-                seen[o.track_id] = self.memory.standing_since_s.get(o.track_id, inp.t_s)
+            # Hysteresis: a standing track's speed estimate wanders (0.1-0.4 m/s for a radar-tracked
+            # parked car as the shuttle closes in); only a clear move restarts its clock.
+            if o.track_id in since and o.speed_mps < c.moving_speed_mps:
+                seen[o.track_id] = since[o.track_id]
+            elif o.speed_mps < c.stationary_speed_mps:
+                seen[o.track_id] = inp.t_s
         self.memory.standing_since_s = seen
 
     def _in_lane(self, o: RouteObstacle, s_m: float) -> bool:
@@ -146,8 +181,8 @@ class PassRule:
                 best = o
         return best
 
-    def _why_not(self, inp: PassInput, o: RouteObstacle) -> str | None:
-        """Why this obstacle may not be passed now (None: it may)."""
+    def _static_why_not(self, inp: PassInput, o: RouteObstacle) -> str | None:
+        """Why this obstacle may not be passed at all (None: it may, traffic permitting)."""
         c = self.config
         since = self.memory.standing_since_s.get(o.track_id)
         if since is None or inp.t_s - since < c.stationary_s:
@@ -157,13 +192,30 @@ class PassRule:
             return "obstacle waits at a stop line, crosswalk or junction"
         if self._queue_ahead(inp, o):
             return "obstacle is in a queue"
-        start, end = inp.front_s_m, self._zone_end_front_s_m(inp, o)
-        if end + c.oncoming_gap_m - inp.front_s_m > c.sight_m:
-            return "manoeuvre reaches beyond sight"
-        why_map = self._map_forbids(inp, o, start, end)
-        if why_map is not None:
-            return why_map
+        rear_of_it = inp.front_s_m + o.ds_m - o.length_m / 2.0
+        start = max(inp.front_s_m, rear_of_it - c.wait_gap_m)
+        return self._map_forbids(inp, o, start, self._zone_end_front_s_m(inp, o))
+
+    def _dynamic_why_not(self, inp: PassInput, o: RouteObstacle) -> str | None:
+        """Why traffic forbids the pass now (None: clear)."""
+        end = self._zone_end_front_s_m(inp, o)
+        if not self._unseen_traffic_can_stop(inp, o, end):
+            return "not enough sight distance for the pass"
         return self._traffic_forbids(inp, o, end)
+
+    def sight_m(self, inp: PassInput, o: RouteObstacle) -> float:
+        """How far along the adjacent lane's centre the front sensor sees past the obstacle: the ray
+        from the front (at the shuttle's offset) over the obstacle's near left corner meets that line
+        (``sight_m`` at most; the obstacle hides the rest from a shuttle standing behind it)."""
+        c, lay = self.config, self.layers
+        rear_of_it = o.ds_m - o.length_m / 2.0
+        left_edge = o.d_m + o.width_m / 2.0
+        centre = float(lay.lane_left_d_m[lay.record_index(inp.front_s_m)]) + c.adjacent_width_m / 2.0
+        if rear_of_it <= 0.0:
+            return 0.0  # beside it: a pass is not begun from here
+        if inp.route_d_m >= left_edge - 0.05:
+            return c.sight_m
+        return min(c.sight_m, rear_of_it * (centre - inp.route_d_m) / (left_edge - inp.route_d_m))
 
     def _traffic_control_ahead(self, s_m: float) -> bool:
         c, lay = self.config, self.layers
@@ -191,6 +243,19 @@ class PassRule:
         c, g = self.config, self.geometry
         back_in_rear_axle = inp.front_s_m + o.ds_m + o.length_m / 2.0 + g.rear_overhang_m + c.return_gap_m
         return back_in_rear_axle + c.transition_m + g.front_from_rear_axle_m
+
+    def _unseen_traffic_can_stop(self, inp: PassInput, o: RouteObstacle, end_front_s_m: float) -> bool:
+        """A road user the stack cannot see yet (beyond ``sight_m``) coming at the speed limit stops
+        before the shuttle's way back into its lane, ``oncoming_gap_m`` short (reaction
+        ``oncoming_reaction_s``, then ``oncoming_decel_mps2``), or arrives only after the manoeuvre."""
+        c = self.config
+        spare = self.sight_m(inp, o) - (end_front_s_m - inp.front_s_m) - c.oncoming_gap_m
+        if spare < 0.0:
+            return False
+        v = float(self.layers.speed_limit_mps[self.layers.record_indices(np.array([end_front_s_m]))[0]])
+        stopping = v * c.oncoming_reaction_s + v * v / (2.0 * c.oncoming_decel_mps2)
+        arrives_after = spare >= v * (self._manoeuvre_s(end_front_s_m - inp.front_s_m, inp.speed_mps))
+        return stopping <= spare or arrives_after
 
     def _manoeuvre_s(self, distance_m: float, speed_mps: float) -> float:
         """Time to drive ``distance_m`` from ``speed_mps``, accelerating to the pass speed."""
@@ -247,6 +312,7 @@ class PassRule:
         return None
 
     def _request(self, o: RouteObstacle, inp: PassInput) -> PassRequest:
+        """The pass around ``o``, not yet approved (the planner holds the look-out offset)."""
         c, lay = self.config, self.layers
         s = inp.front_s_m + o.ds_m
         left = float(lay.lane_left_d_m[lay.record_index(s)])
@@ -256,6 +322,9 @@ class PassRule:
             end_s_m=s + o.length_m / 2.0,
             left_d_m=o.d_m + o.width_m / 2.0,
             max_d_m=left + c.adjacent_width_m,
+            lookout_d_m=max(0.0, left - self.geometry.width_m / 2.0 - c.lookout_margin_m),
+            wait_s_m=s - o.length_m / 2.0 - c.wait_gap_m,
+            approved=False,
         )
 
     def _continue(self, inp: PassInput) -> PassRequest | None:
@@ -266,12 +335,11 @@ class PassRule:
         for o in inp.obstacles:
             if o.track_id == req.track_id:
                 s = inp.front_s_m + o.ds_m
-                req = PassRequest(
-                    track_id=req.track_id,
+                req = dataclasses.replace(
+                    req,
                     start_s_m=min(req.start_s_m, s - o.length_m / 2.0),
                     end_s_m=max(req.end_s_m, s + o.length_m / 2.0),
                     left_d_m=max(req.left_d_m, o.d_m + o.width_m / 2.0),
-                    max_d_m=req.max_d_m,
                     committed=True,
                 )
         back_in_front_s = req.end_s_m + g.rear_overhang_m + c.return_gap_m + c.transition_m
@@ -287,7 +355,7 @@ class PassRule:
         """Stop ``wait_gap_m`` behind the obstacle, if the shuttle stands short of that point or can still
         stop there at ``wait_decel_mps2`` (else the in-path test's stop point alone holds it)."""
         c = self.config
-        stop = inp.front_s_m + o.ds_m - o.length_m / 2.0 - c.wait_gap_m
+        stop = self._wait_point_s_m(inp, o)
         room = stop - inp.front_s_m
         reachable = inp.speed_mps**2 <= 2.0 * c.wait_decel_mps2 * max(room, 0.0)
         if room < 0.0 or not reachable:

@@ -58,6 +58,7 @@ class PassPathConfig:
         steer_limit_share: ... and a shortened one at most this share (room for the tracking error).
         edge_margin_m: the body's left side stays this far inside ``max_d_m``.
         return_gap_m: the body's rear clears the obstacle's front by this before moving back.
+        lookout_ramp_m: the move to the look-out offset inside the lane (waiting to pass) is this long.
         w_offset, w_lateral_accel, w_clearance, w_length: cost weights (per m, per m/s^2, per 1/m,
             per 1/m).
     """
@@ -72,6 +73,7 @@ class PassPathConfig:
     steer_limit_share: float = 0.8
     edge_margin_m: float = 0.3
     return_gap_m: float = 1.0
+    lookout_ramp_m: float = 15.0
     w_offset: float = 1.0
     w_lateral_accel: float = 2.0
     w_clearance: float = 0.5
@@ -124,16 +126,39 @@ class OffsetPassPlanner(LocalPathPlanner):
             self.chosen = None
             return super().offsets_m(s_m, decision, obstacles, ego_d_m)
         ego_s = float(s_m[0]) + self.config.behind_m
-        chosen = self._choose(req, ego_s, ego_d_m, obstacles)
+        base = super().offsets_m(s_m, decision, obstacles, ego_d_m)
+        look = self._lookout_m(s_m, req, ego_s)
+        chosen = self._choose(req, ego_s, ego_d_m, obstacles) if req.approved else None
         if chosen is None:
-            return super().offsets_m(s_m, decision, obstacles, ego_d_m)
+            if not req.approved:
+                self.chosen = None
+            return np.maximum(base, look)
         start, end = self._rear_axle_span(req, ego_s)
-        return pass_offsets_m(s_m, start, end, chosen.offset_m, chosen.length_m)
+        return pass_offsets_m(s_m, start, end, chosen.offset_m, chosen.length_m, look)
+
+    def _lookout_m(self, s_m: FloatArray, req: PassRequest, ego_s_m: float) -> FloatArray:
+        """The look-out offset inside the lane, reached over ``lookout_ramp_m`` as the front gets to
+        the waiting point, held from there."""
+        lap = self._lap(req, ego_s_m)
+        at = req.wait_s_m + lap - self.body_ahead_m  # the rear axle with the front at the wait point
+        u = np.clip(
+            (np.asarray(s_m, dtype=float) - (at - self.pass_config.lookout_ramp_m))
+            / self.pass_config.lookout_ramp_m,
+            0.0,
+            1.0,
+        )
+        return req.lookout_d_m * _smoothstep5(u)
 
     # --- the lattice --------------------------------------------------------------------------------
+    def _lap(self, req: PassRequest, ego_s_m: float) -> float:
+        """What brings the request's s (the front's lap) into the rear axle's lap on a loop."""
+        if not self.route.closed:
+            return 0.0
+        return ego_s_m + self.route.ds_m(ego_s_m, req.start_s_m) - req.start_s_m
+
     def _rear_axle_span(self, req: PassRequest, ego_s_m: float) -> tuple[float, float]:
         """Route s (in the rear axle's lap) where the rear axle must be fully out, and may come back."""
-        lap = ego_s_m + self.route.ds_m(ego_s_m, req.start_s_m) - req.start_s_m if self.route.closed else 0.0
+        lap = self._lap(req, ego_s_m)
         out_by = req.start_s_m + lap - self.body_ahead_m
         back_from = req.end_s_m + lap + self.body_behind_m + self.pass_config.return_gap_m
         return out_by, back_from
@@ -195,7 +220,7 @@ class OffsetPassPlanner(LocalPathPlanner):
     ) -> PassCandidate:
         c = self.pass_config
         s = np.arange(start_m - length_m, end_m + length_m + 0.5, 0.5)
-        d = pass_offsets_m(s, start_m, end_m, offset_m, length_m)
+        d = pass_offsets_m(s, start_m, end_m, offset_m, length_m, self._lookout_m(s, req, ego_s_m))
         corners = self._body_corners_sd(s, d)  # (N, 4, 2) s, d
         if not self._on_road(corners, req):
             return PassCandidate(offset_m, length_m, math.inf, 0.0)
@@ -266,14 +291,20 @@ class OffsetPassPlanner(LocalPathPlanner):
 
 
 def pass_offsets_m(
-    s_m: FloatArray, out_by_m: float, back_from_m: float, offset_m: float, length_m: float
+    s_m: FloatArray,
+    out_by_m: float,
+    back_from_m: float,
+    offset_m: float,
+    length_m: float,
+    from_d_m: FloatArray | float = 0.0,
 ) -> FloatArray:
-    """d(s): 0, a quintic up to ``offset_m`` ending at ``out_by_m``, held, a quintic down from
-    ``back_from_m`` (both over ``length_m``), 0."""
+    """d(s): ``from_d_m`` (the look-out offset), a quintic out to ``offset_m`` ending at ``out_by_m``,
+    held, a quintic back to 0 from ``back_from_m`` (both over ``length_m``)."""
     s = np.asarray(s_m, dtype=float)
-    up = np.clip((s - (out_by_m - length_m)) / length_m, 0.0, 1.0)
-    down = np.clip((s - back_from_m) / length_m, 0.0, 1.0)
-    return offset_m * (_smoothstep5(up) - _smoothstep5(down))
+    up = _smoothstep5(np.clip((s - (out_by_m - length_m)) / length_m, 0.0, 1.0))
+    down = _smoothstep5(np.clip((s - back_from_m) / length_m, 0.0, 1.0))
+    before = np.broadcast_to(np.asarray(from_d_m, dtype=float), s.shape)
+    return before + (offset_m - before) * up - offset_m * down
 
 
 def _smoothstep5(u: FloatArray) -> FloatArray:
