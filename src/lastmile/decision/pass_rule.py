@@ -136,8 +136,12 @@ class PassRule:
         return inp.front_s_m + o.ds_m - o.length_m / 2.0 - self.config.wait_gap_m
 
     def _past_no_return(self, inp: PassInput, o: RouteObstacle) -> bool:
-        room = self._wait_point_s_m(inp, o) - inp.front_s_m
-        return room <= inp.speed_mps**2 / (2.0 * self.config.wait_decel_mps2) + 0.5
+        """The shuttle can no longer stop comfortably ``min_start_gap_m`` behind the obstacle, the
+        closest a pass can be begun from."""
+        c = self.config
+        last_start = inp.front_s_m + o.ds_m - o.length_m / 2.0 - c.min_start_gap_m
+        room = last_start - inp.front_s_m
+        return room <= inp.speed_mps**2 / (2.0 * c.wait_decel_mps2) + 0.5
 
     def _too_close(self, inp: PassInput, o: RouteObstacle) -> str | None:
         """A pass not yet begun needs the front at least ``min_start_gap_m`` behind the obstacle."""
@@ -352,14 +356,18 @@ class PassRule:
         return req
 
     def _wait(self, inp: PassInput, o: RouteObstacle) -> list[StopConstraint]:
-        """Stop ``wait_gap_m`` behind the obstacle, if the shuttle stands short of that point or can still
-        stop there at ``wait_decel_mps2`` (else the in-path test's stop point alone holds it)."""
+        """Stop ``wait_gap_m`` behind the obstacle; a shuttle already past that point (a pass called
+        off, the point moved with the obstacle's track) stops where it comfortably can at
+        ``wait_decel_mps2``, as long as that is ``min_start_gap_m`` or more behind the obstacle (else
+        the in-path test's stop point alone holds it, 3 m behind, where it can no longer steer out)."""
         c = self.config
         stop = self._wait_point_s_m(inp, o)
-        room = stop - inp.front_s_m
-        reachable = inp.speed_mps**2 <= 2.0 * c.wait_decel_mps2 * max(room, 0.0)
-        if room < 0.0 or not reachable:
-            return []
+        soonest = inp.front_s_m + inp.speed_mps**2 / (2.0 * c.wait_decel_mps2)
+        if stop < soonest:
+            stop = soonest
+            last_start = inp.front_s_m + o.ds_m - o.length_m / 2.0 - c.min_start_gap_m
+            if stop > last_start:
+                return []
         return [
             StopConstraint(
                 stop, "waiting to pass", o.track_id, emergency_ok=False, reason=StopReason.OBSTACLE
