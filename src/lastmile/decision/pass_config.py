@@ -29,7 +29,7 @@ class PassConfig:
         wait_gap_m: the front waits this far behind an obstacle it may pass later: room for the rear axle
             to move out (12.6 m for a 2.7 m move at 0.8 of its comfortable length) before the front
             reaches the obstacle, and a view past it: from 20 m behind a car, 0.3 m left of the lane
-            centre, the oncoming lane's centre line is in view for 80 m (60 m from 15 m behind).
+            centre, the oncoming lane's centre line is in view for 107 m (80 m from 15 m behind).
 
         wait_decel_mps2: that point is taken only if reachable at this deceleration (the comfortable
             1 m/s^2 of the minimal risk manoeuvre); otherwise the in-path stop point holds.

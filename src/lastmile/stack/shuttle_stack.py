@@ -118,7 +118,7 @@ class StackConfig:
     control_period_ticks: int = 2
     lateral_controller: str = "heading_pid"
     longitudinal_controller: str = "watonobus"
-    planner: PlannerName = PlannerName.POTENTIAL_FIELD_BEZIER
+    planner: PlannerName = PlannerName.OFFSET_PASS
     radar_mounts: dict[str, SE2] = field(default_factory=dict)
     serve_all_stops: bool = False
     decision: DecisionConfig = field(default_factory=DecisionConfig)

@@ -93,7 +93,10 @@ class StackSettings:
             gem_waypoint (:class:`lastmile.control.lateral.LateralControllerName`).
         longitudinal_controller: watonobus (default) or cascaded_pi (aUToronto's trapezoidal profile
             and cascaded PI).
-        planner, localization: names of the registered implementations.
+        planner: offset_pass (default: WATonoBus's potential field and Bezier curves, and passes of
+            a stationary obstacle blocking the lane by the adjacent lane; ``decision.pass_rule``) or
+            potential_field_bezier (the same without passing: the shuttle waits behind it).
+        localization: the name of the registered implementation.
         cruise_speed_mps: the shuttle's cruise speed (None: decision's default, 20 km/h).
         serve_all_stops: timetable mode (every stop) instead of on request.
         decision, path, longitudinal, lateral: the modules' parameters (their defaults).
@@ -109,7 +112,7 @@ class StackSettings:
     perception: PerceptionMode = PerceptionMode.LIDAR_CAMERA_RADAR
     lateral_controller: LateralControllerName = LateralControllerName.HEADING_PID
     longitudinal_controller: LongitudinalControllerName = LongitudinalControllerName.WATONOBUS
-    planner: PlannerName = PlannerName.POTENTIAL_FIELD_BEZIER
+    planner: PlannerName = PlannerName.OFFSET_PASS
     localization: LocalizationMode = LocalizationMode.EKF
     cruise_speed_mps: float | None = None
     serve_all_stops: bool = False
