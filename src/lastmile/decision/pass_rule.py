@@ -103,7 +103,11 @@ class PassRule:
         why = self._static_why_not(inp, blocker)
         if why is None and mem.phase is not PassPhase.PASSING:
             why = self._too_close(inp, blocker)
-        if why is not None:  # not passable at all: wait in the lane as for any obstacle
+        if why is not None:  # never to be passed: stopped for as any obstacle (the in-path test)
+            mem.phase, mem.request, mem.why, mem.clear_since_s = PassPhase.NONE, None, why, None
+            return None, []
+        why = self._not_yet_standing(inp, blocker)
+        if why is not None:  # it may be passed once it has stood long enough: wait back, in the lane
             mem.phase, mem.request, mem.why, mem.clear_since_s = PassPhase.WAITING, None, why, None
             return None, self._wait(inp, blocker)
         lookout = self._request(blocker, inp)
@@ -188,9 +192,6 @@ class PassRule:
     def _static_why_not(self, inp: PassInput, o: RouteObstacle) -> str | None:
         """Why this obstacle may not be passed at all (None: it may, traffic permitting)."""
         c = self.config
-        since = self.memory.standing_since_s.get(o.track_id)
-        if since is None or inp.t_s - since < c.stationary_s:
-            return "obstacle not standing long enough"
         front_of_it = inp.front_s_m + o.ds_m + o.length_m / 2.0
         if self._traffic_control_ahead(front_of_it):
             return "obstacle waits at a stop line, crosswalk or junction"
@@ -199,6 +200,12 @@ class PassRule:
         rear_of_it = inp.front_s_m + o.ds_m - o.length_m / 2.0
         start = max(inp.front_s_m, rear_of_it - c.wait_gap_m)
         return self._map_forbids(inp, o, start, self._zone_end_front_s_m(inp, o))
+
+    def _not_yet_standing(self, inp: PassInput, o: RouteObstacle) -> str | None:
+        since = self.memory.standing_since_s.get(o.track_id)
+        if since is None or inp.t_s - since < self.config.stationary_s:
+            return "obstacle not standing long enough"
+        return None
 
     def _dynamic_why_not(self, inp: PassInput, o: RouteObstacle) -> str | None:
         """Why traffic forbids the pass now (None: clear)."""
