@@ -243,6 +243,10 @@ class BehaviourStateMachine:
     def _normal_driving(self, cy: Cycle) -> Outcome:
         """Cruise; hand over to INTERSECTION near an all-way stop line, or to PULLOVER near a wanted stop."""
         mem, ctx = self.memory, self.context
+        if self._pass_request is not None and self._pass_request.committed:
+            # Out in the other lane: nothing may take over the path before the pass is finished (a
+            # pull-over or an all-way stop starts from the lane; a stop so reached is missed).
+            return Outcome(cy.speed_cap_mps, "cruise")
         line = next_all_way_stop_line(ctx, cy.front_s_m)
         if line is not None and ctx.ahead_m(line[0], cy.front_s_m) < self.config.intersection_approach_m:
             mem.enter(BehaviourState.INTERSECTION, cy.t_s, "approaching all-way stop")

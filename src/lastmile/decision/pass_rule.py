@@ -12,16 +12,21 @@ it cannot pass. This rule decides *whether* to pass; the offset planner
 - the map lets the shuttle use the lane on its left over the whole manoeuvre: every route record of it
   is plain road or a bus bay (no junction, crosswalk or driveway), the lanelet's left boundary is a
   passable type (``passable_left_types``: broken lines, a virtual line), and the road surface is there;
-- the whole stretch used, with ``oncoming_gap_m`` beyond it, is within ``sight_m`` of the front (the
-  range in which the stack can see oncoming traffic);
+- it can see enough: beyond the stretch used and ``oncoming_gap_m``, the rest of the sight distance
+  (``sight_m``, less where the obstacle hides the oncoming lane: :meth:`PassRule.sight_m`) lets a road
+  user not yet seen, coming at the speed limit, stop in time or arrive only after the manoeuvre;
 - no track is in the adjacent lane over that stretch, and every track coming towards the shuttle there
   stays ``oncoming_gap_m`` beyond where the shuttle's front will be once back in its lane, over the
-  manoeuvre's time plus ``time_margin_s`` (constant velocity).
+  manoeuvre's time plus ``time_margin_s`` (constant velocity), and that has held ``clear_for_s``;
+- the front is ``min_start_gap_m`` or more behind the obstacle (room to steer out).
 
-Otherwise the shuttle waits, ``wait_gap_m`` behind the obstacle (room for the lateral move), and the
-checks are made again every cycle. A pass not yet begun (the shuttle still within ``commit_d_m`` of its
-lane) is called off as soon as a check fails; once begun, it is finished (the in-path test still stops
-the shuttle for anything on the planned path).
+An obstacle the map, a queue or traffic control forbids passing is stopped for as any (the in-path
+test). Where only traffic or the standing clock forbids it, the shuttle waits ``wait_gap_m`` behind it
+(room for the lateral move, a view past it) at the planner's look-out offset, and the checks are made
+again every cycle. A pass not yet committed is called off as soon as a check fails; it is committed
+once the shuttle is ``commit_d_m`` out of its lane or can no longer stop comfortably
+``min_start_gap_m`` behind the obstacle, and is then finished (the in-path test still stops the
+shuttle for anything on the planned path).
 """
 
 from __future__ import annotations
