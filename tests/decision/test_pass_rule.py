@@ -168,3 +168,10 @@ def test_disabled_it_orders_nothing_and_bad_parameters_are_refused() -> None:
     assert _settle(rule, [_obstacle(1, 22.25)]) is None
     with pytest.raises(ConfigError, match=r"passing\.wait_gap_m: expected a positive number"):
         PassConfig(wait_gap_m=0.0)
+
+
+def test_a_moving_lead_car_is_followed_not_waited_for() -> None:
+    rule = _rule()
+    lead = [_obstacle(1, 22.25, v_s_mps=5.0)]
+    request, waits = _cycle(rule, 0.0, lead)
+    assert request is None and waits == [] and rule.phase is PassPhase.NONE

@@ -184,6 +184,8 @@ class PassRule:
         for o in inp.obstacles:
             if o.ds_m + o.length_m / 2.0 < 0.0 or o.ds_m > c.lookahead_m or o.cls.vulnerable:
                 continue
+            if o.track_id not in self.memory.standing_since_s:
+                continue  # moving: a lead to follow, not an obstacle to pass
             s = inp.front_s_m + o.ds_m
             if not self._in_lane(o, s):
                 continue

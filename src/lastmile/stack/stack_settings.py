@@ -133,6 +133,13 @@ class StackSettings:
                 f"detector reads the LiDAR sweeps), got perception = '{self.perception}'"
             )
         check_localization_inputs(self.localization, self.perception, "stack")
+        # Decision checks the pass's room and sight with the clearance the planner keeps: one value.
+        planned, decided = self.path.passing.clearance_m, self.decision.passing.clearance_m
+        if planned != decided:
+            raise ConfigError(
+                f"stack.path.passing.clearance_m: expected the same as stack.decision.passing.clearance_m "
+                f"({decided} m), got {planned} m"
+            )
         if self.cruise_speed_mps is not None:
             # The shuttle's operating speeds: up to its 20 km/h top speed.
             check_range("stack.cruise_speed_mps", self.cruise_speed_mps, 0.5, 20.0 / 3.6 + 1e-9)
