@@ -51,6 +51,11 @@ def test_the_example_configuration_loads_and_round_trips_through_toml(tmp_path: 
             '[stack]\nlocalization = "landmarks"\nperception = "radar_tracking"\n',
             "stack.localization 'landmarks': expected raw LiDAR perception",
         ),
+        (
+            "[stack.path.passing]\nclearance_m = 1.2\n",
+            "stack.path.passing.clearance_m: expected the same as stack.decision.passing.clearance_m",
+        ),
+        ("[stack.decision.passing]\nwait_gap_m = -1.0\n", "passing.wait_gap_m: expected a positive number"),
     ],
 )
 def test_a_bad_configuration_is_one_line_and_exit_2(tmp_path: Path, text: str, expected: str) -> None:

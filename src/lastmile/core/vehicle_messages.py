@@ -89,6 +89,36 @@ class StopReason(Enum):
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
+class PassRequest:
+    """Decision's order to pass a stationary obstacle blocking the lane on its left (issue #20).
+
+    Route s are in the front bumper's lap (the decision's frame for stop points); d is left positive
+    from the route.
+
+    Attributes:
+        track_id: the obstacle being passed.
+        start_s_m, end_s_m: the obstacle's extent along the route (its rear and front).
+        left_d_m: the obstacle's left edge: the planned body keeps its clearance beyond this.
+        max_d_m: the farthest left the body's left side may go (the passable lane's far edge).
+        lookout_d_m: the offset the rear axle holds inside the lane while waiting, to see past it.
+        wait_s_m: where the front waits (the look-out offset is reached by then).
+        approved: the pass may be driven; False: wait at the look-out offset, inside the lane.
+        committed: the shuttle has begun to move out: the pass is finished even if traffic appears
+            (the in-path test still stops for anything on the planned path).
+    """
+
+    track_id: int
+    start_s_m: float
+    end_s_m: float
+    left_d_m: float
+    max_d_m: float
+    lookout_d_m: float = 0.0
+    wait_s_m: float = 0.0
+    approved: bool = False
+    committed: bool = False
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
 class BehaviourDecision:
     """What decision making asks of planning and control this cycle.
 
@@ -100,6 +130,7 @@ class BehaviourDecision:
         risk_track_id: the highest-risk obstacle the decision reacted to (-1: none).
         reason: a short human-readable reason, logged and shown on the HMI.
         stop_reason: why ``stop_at_s_m`` is set (NONE when it is not).
+        pass_request: pass a stationary obstacle by the adjacent lane (None: stay in the lane).
     """
 
     stamp: Stamp
@@ -112,6 +143,7 @@ class BehaviourDecision:
     risk_track_id: int
     reason: str
     stop_reason: StopReason = StopReason.NONE
+    pass_request: PassRequest | None = None
 
 
 TRAJECTORY_COLUMNS = ("x_m", "y_m", "yaw_rad", "curvature_1pm", "s_m")

@@ -21,12 +21,13 @@ from lastmile.core.polyline import Polyline
 from lastmile.core.route_obstacles import route_obstacles
 from lastmile.core.safety_messages import FailSafeLevel, MrmKind
 from lastmile.core.vehicle import VehicleGeometry
-from lastmile.core.vehicle_messages import BehaviourDecision, BehaviourState, StopReason
+from lastmile.core.vehicle_messages import BehaviourDecision, BehaviourState, PassRequest, StopReason
 from lastmile.decision.behaviour_memory import BehaviourMemory, Cycle, DecisionContext, Outcome
 from lastmile.decision.decision_config import DecisionConfig, DecisionInput
 from lastmile.decision.intersection_handling import AllWayStops, handle_intersection, next_all_way_stop_line
 from lastmile.decision.mission import MissionManager
 from lastmile.decision.offroad_unknowns import yieldable_tracks
+from lastmile.decision.pass_rule import PassInput, PassRule
 from lastmile.decision.stop_constraints import (
     StopConstraint,
     crosswalk_constraints,
@@ -57,6 +58,8 @@ class BehaviourStateMachine:
     mission: MissionManager
     config: DecisionConfig = field(default_factory=DecisionConfig)
     memory: BehaviourMemory = field(default_factory=BehaviourMemory)
+    can_pass: bool = False
+    """Pass stationary obstacles by the adjacent lane (the planner can plan it; ``pass_rule``)."""
 
     def __post_init__(self) -> None:
         self.context = DecisionContext(
@@ -68,7 +71,9 @@ class BehaviourStateMachine:
         )
         self.junctions = AllWayStops.from_layers(self.layers, self.config.entry_heading_back_m)
         self.lights = TrafficLightRule(self.layers, self.config.traffic_lights)
+        self.passing = PassRule(self.layers, self.geometry, self.config.passing, self.can_pass)
         self._spot_d_cache: dict[tuple[float, float], float] = {}
+        self._pass_request: PassRequest | None = None
 
     @property
     def state(self) -> BehaviourState:
@@ -157,7 +162,19 @@ class BehaviourStateMachine:
         if sd is not None and sd.level != FailSafeLevel.NONE and sd.emergency_stop:
             self.request_emergency(t_s, "safety: " + "; ".join(sd.reasons))
         speed_cap, mrm = safety_constraints(sd, speed_cap)
-        return Cycle(inp, t_s, front_s, obstacles, constraints + mrm, speed_cap)
+        self._pass_request, waits = self.passing.step(
+            PassInput(
+                t_s=t_s,
+                front_s_m=front_s,
+                route_d_m=inp.route_d_m,
+                speed_mps=inp.speed_mps,
+                obstacles=obstacles,
+                may_start=self.memory.state == BehaviourState.NORMAL_DRIVING and not mrm,
+            )
+        )
+        if self._pass_request is not None and self._pass_request.approved:
+            speed_cap = min(speed_cap, c.passing.pass_speed_mps)
+        return Cycle(inp, t_s, front_s, obstacles, constraints + mrm + waits, speed_cap)
 
     def _crosswalk_hold(
         self, t_s: float, speed_mps: float, yields: list[StopConstraint]
@@ -194,6 +211,10 @@ class BehaviourStateMachine:
         reason = outcome.reason
         if binding is not None and binding.kind not in ("spot",):
             reason = f"{reason}; stop for {binding.kind}"
+        if self._pass_request is not None and self._pass_request.approved:
+            reason = f"{reason}; passing track {self._pass_request.track_id}"
+        elif self.passing.memory.why:
+            reason = f"{reason}; not passing: {self.passing.memory.why}"
         stop_at: float | None
         if outcome.hold_still:
             stop_at, risk, why = cy.front_s_m, outcome.risk_track_id, StopReason.EMERGENCY
@@ -215,12 +236,17 @@ class BehaviourStateMachine:
             risk_track_id=risk,
             reason=reason,
             stop_reason=why,
+            pass_request=self._pass_request,
         )
 
     # --- handlers of the states without a module of their own ------------------------------------
     def _normal_driving(self, cy: Cycle) -> Outcome:
         """Cruise; hand over to INTERSECTION near an all-way stop line, or to PULLOVER near a wanted stop."""
         mem, ctx = self.memory, self.context
+        if self._pass_request is not None and self._pass_request.committed:
+            # Out in the other lane: nothing may take over the path before the pass is finished (a
+            # pull-over or an all-way stop starts from the lane; a stop so reached is missed).
+            return Outcome(cy.speed_cap_mps, "cruise")
         line = next_all_way_stop_line(ctx, cy.front_s_m)
         if line is not None and ctx.ahead_m(line[0], cy.front_s_m) < self.config.intersection_approach_m:
             mem.enter(BehaviourState.INTERSECTION, cy.t_s, "approaching all-way stop")

@@ -13,6 +13,7 @@ from lastmile.core.safety_messages import SafetyDirective
 from lastmile.core.stamp import Stamp
 from lastmile.core.traffic_light_messages import TrafficLightStates
 from lastmile.core.vehicle_messages import Trajectory
+from lastmile.decision.pass_config import PassConfig
 from lastmile.decision.traffic_light_rule import TrafficLightRuleConfig
 from lastmile.hdmap.curb_fit import CURB_GAP_TARGET_M
 
@@ -125,6 +126,9 @@ class DecisionConfig:
         rear_too_close_m: moving rear traffic this close behind the shuttle's rear always holds the merge
             (standing traffic behind it waits for the shuttle: see ``stop_service.rear_blocker``).
         rear_min_closing_mps: rear traffic further back holds it only when closing at least this fast.
+        traffic_lights: the traffic-light rule's parameters.
+        passing: when a stationary obstacle blocking the lane is passed by the adjacent lane
+            (:mod:`lastmile.decision.pass_rule`; off unless the planner can plan the pass).
     """
 
     cruise_speed_mps: float = 20.0 / 3.6
@@ -182,6 +186,7 @@ class DecisionConfig:
     rear_too_close_m: float = 8.0
     rear_min_closing_mps: float = 0.5
     traffic_lights: TrafficLightRuleConfig = field(default_factory=TrafficLightRuleConfig)
+    passing: PassConfig = field(default_factory=PassConfig)
 
     def __post_init__(self) -> None:
         steps = self.in_path_prediction_steps

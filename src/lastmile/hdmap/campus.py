@@ -74,7 +74,8 @@ def _ring(b: OsmBuilder) -> tuple[dict[float, Any], dict[float, Any]]:
         edge_type, edge_sub = ("virtual", "") if opening else ("curbstone", "high")
         if stop is not None:
             edge_type, edge_sub = "line_thin", "dashed"  # the lane's edge is the bay's painted line
-        divider = b.line(RING.curve(s0, s1, 0.0), "line_thin", "solid")
+        marking = "dashed" if lay.passing_allowed(s0, s1) else "solid"
+        divider = b.line(RING.curve(s0, s1, 0.0), "line_thin", marking)
         edge = b.line(RING.curve(s0, s1, -LW), edge_type, edge_sub)
         far = b.line(RING.curve(s0, s1, LW), "curbstone", "high")
         extra = {"turn_direction": "straight"} if opening else {}

@@ -82,6 +82,15 @@ class RingRoad:
             s_m -= length
         raise AssertionError("unreachable: s wrapped into [0, length)")
 
+    def on_straight(self, s0_m: float, s1_m: float) -> bool:
+        """[s0, s1] lies on one straight piece of the ring."""
+        base = 0.0
+        for length, kind, _, _ in self._pieces:
+            if base - 1e-9 <= s0_m and s1_m <= base + length + 1e-9:
+                return kind == "line"
+            base += length
+        return False
+
     def vertex_s(self, s0_m: float, s1_m: float) -> list[float]:
         """Sample positions in [s0, s1]: both ends, every piece boundary, arcs at ARC_STEP_M."""
         out = {s0_m, s1_m}
@@ -185,3 +194,16 @@ def segment(p0: tuple[float, float], p1: tuple[float, float], step_m: float = ST
     n = max(2, math.ceil(math.dist(p0, p1) / step_m) + 1)
     t = np.linspace(0.0, 1.0, n)[:, None]
     return (1 - t) * np.asarray(p0) + t * np.asarray(p1)
+
+
+def passing_allowed(s0_m: float, s1_m: float) -> bool:
+    """The ring's centre line between road s0 and s1 is broken (a driver may cross it to pass an
+    obstruction): on a straight, with no crosswalk, signal stop line or junction mouth on the stretch.
+    Road markings keep such places (and the corners, where the view ahead is short) solid."""
+    if not RING.on_straight(s0_m, s1_m):
+        return False
+    features = [c.centre_s_m for c in CROSSWALKS] + [SIGNAL_CCW_STOP_S_M, SIGNAL_CW_STOP_S_M]
+    mouths = [(T_S0_M, T_S1_M), (PARK_S0_M, PARK_S1_M)]
+    if any(s0_m <= f <= s1_m for f in features):
+        return False
+    return not any(a < s1_m and s0_m < b for a, b in mouths)

@@ -15,6 +15,7 @@ from lastmile.core.route_obstacles import RouteObstacle
 from lastmile.core.stamp import Stamp
 from lastmile.core.vehicle_messages import BehaviourDecision, BehaviourState, StopReason, Trajectory
 from lastmile.planning.bezier import lateral_transition_m, smooth_through
+from lastmile.planning.pass_path_config import PassPathConfig
 from lastmile.planning.potential_field import PotentialFieldConfig, nudge_offsets_m
 
 
@@ -50,6 +51,8 @@ class LocalPathConfig:
             curb). Over 8 m that turn asks about 0.05 /m (0.6 m/s^2 at the 3.5 m/s pull-over
             speed). Longer rounding ends the curve later: with 10 m the bay test's shuttle stood
             0.022 rad off parallel (tests/stack: at most 0.02).
+        field: the potential field's parameters.
+        passing: the offset-pass planner's (``planner = "offset_pass"``; :mod:`lastmile.planning.pass_path`).
     """
 
     behind_m: float = 5.0
@@ -64,6 +67,8 @@ class LocalPathConfig:
     rear_axle_on_spot: bool = False
     exact_body_clearance: bool = False
     floor_rounding_m: float = 8.0
+    # Before ``field``: that attribute's name hides dataclasses.field further down the class body.
+    passing: PassPathConfig = field(default_factory=PassPathConfig)
     field: PotentialFieldConfig = field(default_factory=PotentialFieldConfig)
 
 

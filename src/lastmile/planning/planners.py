@@ -17,6 +17,7 @@ from lastmile.core.route_obstacles import RouteObstacle
 from lastmile.core.stamp import Stamp
 from lastmile.core.vehicle_messages import BehaviourDecision, Trajectory
 from lastmile.planning.local_path import CurbLookup, LocalPathConfig, LocalPathPlanner
+from lastmile.planning.pass_path import DrivableLookup, OffsetPassPlanner
 
 
 class PlannerName(StrEnum):
@@ -24,6 +25,14 @@ class PlannerName(StrEnum):
 
     POTENTIAL_FIELD_BEZIER = "potential_field_bezier"
     """WATonoBus: potential-field nudge inside the lane, Bezier pull-over and merge curves."""
+    OFFSET_PASS = "offset_pass"
+    """The same, and passes a stationary obstacle blocking the lane through the adjacent lane when
+    decision orders it: a lattice of quintic lane-offset moves checked against the road surface and
+    every track (:mod:`lastmile.planning.pass_path`)."""
+
+
+PASSING_PLANNERS = frozenset({PlannerName.OFFSET_PASS})
+"""Planners that can plan a pass: with one of these, decision orders passes (``decision.pass_rule``)."""
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -35,6 +44,8 @@ class PlannerInputs:
         half_width_m: half the vehicle's width.
         curb_right_d_m: route s -> signed curb offset (NaN where there is none).
         body_behind_m, body_ahead_m: the body's extent behind and ahead of the path point.
+        drivable: the map's drivable-area test ((N, 2) points -> (N,) bool), for passes.
+        max_curvature_1pm: the tightest curvature the vehicle steers.
     """
 
     route: Polyline
@@ -42,6 +53,8 @@ class PlannerInputs:
     curb_right_d_m: CurbLookup | None = None
     body_behind_m: float = 0.0
     body_ahead_m: float = 0.0
+    drivable: DrivableLookup | None = None
+    max_curvature_1pm: float = 0.2
 
 
 class PathPlanner(Protocol):
@@ -68,8 +81,22 @@ def _potential_field_bezier(inputs: PlannerInputs, config: LocalPathConfig) -> P
     )
 
 
+def _offset_pass(inputs: PlannerInputs, config: LocalPathConfig) -> PathPlanner:
+    return OffsetPassPlanner(
+        inputs.route,
+        inputs.half_width_m,
+        config,
+        curb_right_d_m=inputs.curb_right_d_m,
+        body_behind_m=inputs.body_behind_m,
+        body_ahead_m=inputs.body_ahead_m,
+        drivable=inputs.drivable,
+        max_curvature_1pm=inputs.max_curvature_1pm,
+    )
+
+
 PATH_PLANNERS: dict[PlannerName, Callable[[PlannerInputs, LocalPathConfig], PathPlanner]] = {
     PlannerName.POTENTIAL_FIELD_BEZIER: _potential_field_bezier,
+    PlannerName.OFFSET_PASS: _offset_pass,
 }
 
 

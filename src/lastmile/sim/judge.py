@@ -11,10 +11,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from lastmile.core.geometry import PreparedPolygon, convex_polygons_overlap, rectangle_corners_m
+from lastmile.core.geometry import (
+    PreparedPolygon,
+    convex_polygons_overlap,
+    point_in_polygon,
+    rectangle_corners_m,
+)
 from lastmile.core.object_class import ObjectClass
 from lastmile.core.polyline import Polyline
 from lastmile.core.run_events import EventKind
+from lastmile.hdmap.model import DRIVABLE_SUBTYPES
 from lastmile.sim.arbiter import EGO_ID
 from lastmile.sim.passengers import PassengerModel, StopVisit
 from lastmile.sim.traffic_signals import SignalController
@@ -35,9 +41,18 @@ class JudgeConfig:
         speed_tolerance_mps: speed over the limit that counts, held for ``speed_hold_s``.
         stop_speed_mps: below this the shuttle has come to a stop (stop lines, stops).
         ttc_log_s: time-to-collision below which a ``min_ttc`` event is logged.
+        wrong_way_gate_d_m: the wrong-way rule looks only while the shuttle's centre is this far left
+            of its route (it cannot be in the opposite lane otherwise; keeps the map query off most ticks).
+        obstruction_reach_m: a stationary car or object in the shuttle's own direction of travel within
+            this of its centre makes driving in the opposite lane legal (passing an obstruction)...
+        passable_lines: ... where the line between the lanes is one of these (crossing a solid line
+            is a violation even then).
     """
 
     speed_limit_mps: float = 20.0 / 3.6
+    wrong_way_gate_d_m: float = 1.0
+    obstruction_reach_m: float = 30.0
+    passable_lines: tuple[str, ...] = ("line_thin:dashed", "line_thick:dashed", "virtual")
     speed_tolerance_mps: float = 0.5
     speed_hold_s: float = 1.0
     stop_speed_mps: float = 0.2
@@ -76,6 +91,8 @@ class Judge:
     _approached: dict[str, int] = field(default_factory=dict)
     _ttc_min_logged: float = math.inf
     _crosswalk_polys: list[tuple[int, PreparedPolygon]] = field(default_factory=list)
+    _route_d: float = 0.0
+    _wrong_way: bool = False
 
     def __post_init__(self) -> None:
         s = self.world.ego.state
@@ -104,6 +121,7 @@ class Judge:
         self._speed()
         self._drivable()
         self._progress()
+        self._wrong_way_rule()
         self._ttc()
 
     # --- collisions ------------------------------------------------------------------------
@@ -279,6 +297,58 @@ class Judge:
             )
         self._off_road = off
 
+    def _wrong_way_rule(self) -> None:
+        """Driving in a lane of the opposite direction is a violation, unless the shuttle is passing a
+        stationary obstruction in its own lane across a passable line (one event per episode)."""
+        if self._route_d < self.config.wrong_way_gate_d_m:
+            self._wrong_way = False
+            return
+        lane = self._lane_against_ego()
+        if lane is None:
+            self._wrong_way = False
+            return
+        if self._wrong_way:
+            return
+        self._wrong_way = True
+        line = self.world.hdmap.lanelets[lane].left_type
+        if line not in self.config.passable_lines:
+            self.emit(
+                EventKind.RULE_VIOLATION, rule="wrong_way", detail=f"crossed a {line or 'unmapped'} line"
+            )
+        elif not self._obstruction_nearby():
+            self.emit(EventKind.RULE_VIOLATION, rule="wrong_way", detail="no stationary obstruction to pass")
+
+    def _lane_against_ego(self) -> int | None:
+        """The lanelet under the shuttle's centre when it runs against the shuttle's heading (None: it
+        does not, or a lanelet in the shuttle's direction overlaps there, as inside a junction)."""
+        x, y = self.world.ego_centre()
+        yaw = self.world.ego.state.yaw_rad
+        against: int | None = None
+        for lid, info in self.world.hdmap.lanelets.items():
+            if info.subtype not in DRIVABLE_SUBTYPES or not point_in_polygon(x, y, info.polygon()):
+                continue
+            along = info.centerline.heading_at(info.centerline.project(x, y).s_m)
+            if math.cos(along - yaw) > 0.0:
+                return None
+            against = lid
+        return against
+
+    def _obstruction_nearby(self) -> bool:
+        """A standing car or object within reach, in a lane of the shuttle's direction."""
+        w, c = self.world, self.config
+        for a in w.agents:
+            if not a.active or a.cls.vulnerable or a.speed_mps > c.stop_speed_mps:
+                continue
+            if w.distance_to_ego_m(a.x_m, a.y_m) > c.obstruction_reach_m:
+                continue
+            lid = w.hdmap.lanelet_at(a.x_m, a.y_m)
+            if lid is None:
+                continue
+            cl = w.hdmap.lanelets[lid].centerline
+            if math.cos(cl.heading_at(cl.project(a.x_m, a.y_m).s_m) - w.ego.state.yaw_rad) > 0.0:
+                return True
+        return False
+
     @property
     def off_road(self) -> bool:
         return self._off_road
@@ -290,6 +360,7 @@ class Judge:
         f = self.service_route.project(s.x_m, s.y_m, hint_s_m=self._route_s, window_m=10.0)
         length = self.service_route.length_m
         ds = self.service_route.ds_m(self._route_s, f.s_m)
+        self._route_d = f.d_m
         if abs(f.d_m) < 8.0:
             self._route_s_total += ds
             self._route_s = f.s_m

@@ -295,12 +295,14 @@ class SensorSuite:
             for i in order:
                 if not visible[i]:
                     continue
-                half_width_rad = math.atan2(0.5 * max(agents[i, 5], agents[i, 6]), ranges[i])
+                mid_rad, half_width_rad = _bearing_span(
+                    xs[i], ys[i], float(agents[i, 2]) - map_from_sensor.yaw_rad, agents[i, 5], agents[i, 6]
+                )
                 p = detection_probability(agents[i, 8], ranges[i], max_range) * fx.radar_detect_factor
                 # Something nearer in the same direction masks most of the return.
-                if any(abs(az[i] - a0) < w0 + half_width_rad * 0.5 for a0, w0 in shadows):
+                if any(abs(mid_rad - a0) < w0 + half_width_rad * 0.5 for a0, w0 in shadows):
                     p *= 0.3
-                shadows.append((float(az[i]), half_width_rad))
+                shadows.append((mid_rad, half_width_rad))
                 if rng.random() >= p:
                     continue
                 noise = (spec.pos_std_m + spec.pos_std_per_m * ranges[i]) * fx.radar_noise_factor
@@ -366,3 +368,22 @@ RCS_DBSM = {
     ObjectClass.CYCLIST: -2.0,
     ObjectClass.ANIMAL: -15.0,
 }
+
+
+def _bearing_span(
+    x_m: float, y_m: float, yaw_rad: float, length_m: float, width_m: float
+) -> tuple[float, float]:
+    """Middle and half-width (rad) of the bearings a box (centre (x, y) and yaw in the sensor frame)
+    spans as seen from the sensor: its outline, not its longest side (a car seen from behind at 15 m
+    spans 3.4 deg either way, not the 8.5 deg its length would give; that hid the whole oncoming lane
+    beyond a parked car from a shuttle waiting to pass it)."""
+    c, s = math.cos(yaw_rad), math.sin(yaw_rad)
+    bearings = [
+        math.atan2(y_m + a * s + b * c, x_m + a * c - b * s)
+        for a in (-0.5 * length_m, 0.5 * length_m)
+        for b in (-0.5 * width_m, 0.5 * width_m)
+    ]
+    lo, hi = min(bearings), max(bearings)
+    if hi - lo > math.pi:  # straddles the sensor's back: take the full outline's reach
+        return math.atan2(y_m, x_m), math.pi / 2.0
+    return 0.5 * (lo + hi), 0.5 * (hi - lo)

@@ -75,7 +75,7 @@ from lastmile.localization.odometry_ekf import OdometryEkf, OdometryEkfConfig, z
 from lastmile.localization.scan_match_localization import ScanMatchingSettings
 from lastmile.perception.late_fusion import radar_detections
 from lastmile.planning.local_path import LocalPathConfig
-from lastmile.planning.planners import PlannerInputs, PlannerName, make_path_planner
+from lastmile.planning.planners import PASSING_PLANNERS, PlannerInputs, PlannerName, make_path_planner
 from lastmile.safety.reliability_config import ReliabilityConfig, default_sensor_specs
 from lastmile.stack.amcl_fusion import AmclFusion
 from lastmile.stack.hmi import HmiComposer
@@ -122,7 +122,7 @@ class StackConfig:
     control_period_ticks: int = 2
     lateral_controller: str = "heading_pid"
     longitudinal_controller: str = "watonobus"
-    planner: PlannerName = PlannerName.POTENTIAL_FIELD_BEZIER
+    planner: PlannerName = PlannerName.OFFSET_PASS
     radar_mounts: dict[str, SE2] = field(default_factory=dict)
     serve_all_stops: bool = False
     decision: DecisionConfig = field(default_factory=DecisionConfig)
@@ -280,7 +280,11 @@ class ShuttleStack:
             stop_order=tuple(rs.stop.id for rs in layers.stops), serve_all=config.serve_all_stops
         )
         self.fsm = BehaviourStateMachine(
-            layers=layers, geometry=geometry, mission=self.mission, config=config.decision
+            layers=layers,
+            geometry=geometry,
+            mission=self.mission,
+            config=config.decision,
+            can_pass=config.planner in PASSING_PLANNERS,
         )
         self.planner = make_path_planner(
             config.planner,
@@ -290,6 +294,8 @@ class ShuttleStack:
                 curb_right_d_m=self._curb_right_d_m,
                 body_behind_m=geometry.rear_overhang_m,
                 body_ahead_m=geometry.length_m - geometry.rear_overhang_m,
+                drivable=layers.hdmap.is_drivable,
+                max_curvature_1pm=math.tan(geometry.max_steer_rad) / geometry.wheelbase_m,
             ),
             _path_config(config),
         )

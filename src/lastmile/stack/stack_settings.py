@@ -103,7 +103,10 @@ class StackSettings:
             gem_waypoint (:class:`lastmile.control.lateral.LateralControllerName`).
         longitudinal_controller: watonobus (default) or cascaded_pi (aUToronto's trapezoidal profile
             and cascaded PI).
-        planner, localization: names of the registered implementations.
+        planner: offset_pass (default: WATonoBus's potential field and Bezier curves, and passes of
+            a stationary obstacle blocking the lane by the adjacent lane; ``decision.pass_rule``) or
+            potential_field_bezier (the same without passing: the shuttle waits behind it).
+        localization: the name of the registered implementation.
         cruise_speed_mps: the shuttle's cruise speed (None: decision's default, 20 km/h).
         serve_all_stops: timetable mode (every stop) instead of on request.
         decision, path, longitudinal, lateral: the modules' parameters (their defaults).
@@ -122,7 +125,7 @@ class StackSettings:
     perception: PerceptionMode = PerceptionMode.LIDAR_CAMERA_RADAR
     lateral_controller: LateralControllerName = LateralControllerName.HEADING_PID
     longitudinal_controller: LongitudinalControllerName = LongitudinalControllerName.WATONOBUS
-    planner: PlannerName = PlannerName.POTENTIAL_FIELD_BEZIER
+    planner: PlannerName = PlannerName.OFFSET_PASS
     localization: LocalizationMode = LocalizationMode.EKF
     cruise_speed_mps: float | None = None
     serve_all_stops: bool = False
@@ -149,6 +152,13 @@ class StackSettings:
             self.scan_matching.load_map()  # a missing or bad map is one line now, not at the first scan
         if self.localization is LocalizationMode.AMCL:
             self.amcl.load_map()
+        # Decision checks the pass's room and sight with the clearance the planner keeps: one value.
+        planned, decided = self.path.passing.clearance_m, self.decision.passing.clearance_m
+        if planned != decided:
+            raise ConfigError(
+                f"stack.path.passing.clearance_m: expected the same as stack.decision.passing.clearance_m "
+                f"({decided} m), got {planned} m"
+            )
         if self.cruise_speed_mps is not None:
             # The shuttle's operating speeds: up to its 20 km/h top speed.
             check_range("stack.cruise_speed_mps", self.cruise_speed_mps, 0.5, 20.0 / 3.6 + 1e-9)
