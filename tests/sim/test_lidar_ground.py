@@ -44,3 +44,15 @@ def test_a_lane_drawn_without_curbs_has_no_step_beside_it(tmp_path: Path) -> Non
     edge = -1.75
     assert _road(g, (30.0, edge - 0.5), (30.0, edge - VERGE_M + 0.2)) == [True, True]
     assert _road(g, (30.0, edge - VERGE_M - 0.5)) == [False]
+
+
+def test_a_curb_far_from_every_lanelet_is_no_error(tmp_path: Path) -> None:
+    """The raster covers the lanelets; a mapped curb beyond it (the Lanelet2 example has them) is
+    skipped (its sidewalk band fell wholly outside the raster and the fill asked for a negative size)."""
+    b = OsmBuilder()
+    straight_lane(b, 0.0, 0.0, 60.0, 0.0)
+    b.way([(200.0, 1.0), (230.0, 1.0)], type="curbstone")  # beside the raster, in its rows
+    hdmap = load_projected_map(b.write(tmp_path / "map.osm"), UTM)
+    assert len(hdmap.curbs) >= 1
+    g = GroundRaster(hdmap)
+    assert _road(g, (30.0, 0.0)) == [True]

@@ -100,6 +100,8 @@ class GroundRaster:
         xc.sort(axis=1)
         n_cross = crosses.sum(axis=1)
         c0, c1 = max(0, math.floor(xs.min())), min(self.width - 1, math.ceil(xs.max()))
+        if c1 < c0:
+            return  # beside the raster (a curb of the map far from every lanelet)
         diff = np.zeros((len(rows), c1 - c0 + 2), dtype=np.int16)
         for k in range(0, int(n_cross.max()) - 1, 2):
             ok = n_cross > k + 1
