@@ -175,3 +175,17 @@ def test_a_moving_lead_car_is_followed_not_waited_for() -> None:
     lead = [_obstacle(1, 22.25, v_s_mps=5.0)]
     request, waits = _cycle(rule, 0.0, lead)
     assert request is None and waits == [] and rule.phase is PassPhase.NONE
+
+
+def test_tracks_splitting_one_parked_car_are_one_obstacle_not_a_queue() -> None:
+    """Raw perception tracks a parked car as several LiDAR clusters side by side along it."""
+    pieces = [
+        dataclasses.replace(_obstacle(k, ahead, d_m=d), length_m=1.6, width_m=w)
+        for k, (ahead, d, w) in enumerate(((20.8, 0.0, 0.7), (22.2, 0.05, 1.3), (23.7, -0.05, 0.2)), start=1)
+    ]
+    rule = _rule()
+    request = _settle(rule, pieces)
+    assert request is not None and request.approved  # type: ignore[attr-defined]
+    assert request.start_s_m == pytest.approx(FRONT_S_M + 20.0)  # type: ignore[attr-defined]
+    assert request.end_s_m == pytest.approx(FRONT_S_M + 24.5)  # type: ignore[attr-defined]
+    assert request.left_d_m == pytest.approx(0.05 + 0.65)  # type: ignore[attr-defined]

@@ -26,6 +26,9 @@ class PassConfig:
         control_clear_m: an obstacle whose front is within this of a stop line, crosswalk or junction
             ahead is waiting at it.
         queue_gap_m: another road user in the lane this close ahead of the obstacle makes it a queue.
+        fragment_gap_m: standing tracks in the lane this close to each other along the road are one
+            obstacle (LiDAR clusters split a parked car into several tracks; cars in a queue stand
+            1-2 m apart or more).
         wait_gap_m: the front waits this far behind an obstacle it may pass later: room for the rear axle
             to move out (12.6 m for a 2.7 m move at 0.8 of its comfortable length) before the front
             reaches the obstacle, and a view past it: from 20 m behind a car, 0.3 m left of the lane
@@ -68,6 +71,7 @@ class PassConfig:
     clearance_m: float = 1.0
     control_clear_m: float = 20.0
     queue_gap_m: float = 15.0
+    fragment_gap_m: float = 1.0
     wait_gap_m: float = 20.0
     wait_decel_mps2: float = 1.0
     transition_m: float = 16.0

@@ -88,6 +88,7 @@ class PassRule:
     ) -> None:
         self.layers, self.geometry, self.config, self.enabled = layers, geometry, config, enabled
         self.memory = PassMemory()
+        self._fragments: set[int] = set()  # the tracks of this cycle's blocker
 
     @property
     def phase(self) -> PassPhase:
@@ -194,7 +195,36 @@ class PassRule:
                 continue  # room on its left inside the lane: the in-lane nudge passes it
             if best is None or o.ds_m < best.ds_m:
                 best = o
-        return best
+        return None if best is None else self._with_fragments(inp, best)
+
+    def _with_fragments(self, inp: PassInput, first: RouteObstacle) -> RouteObstacle:
+        """``first`` grown over the standing tracks in the lane that touch it along the road: LiDAR
+        clusters split a parked car into several tracks (four over 4.5 m, raw perception), which are
+        one obstacle to pass, not a queue. The result keeps ``first``'s track id."""
+        c = self.config
+        lo, hi = first.ds_m - first.length_m / 2.0, first.ds_m + first.length_m / 2.0
+        left, right = first.d_m + first.width_m / 2.0, first.d_m - first.width_m / 2.0
+        self._fragments = {first.track_id}
+        for o in sorted(inp.obstacles, key=lambda k: k.ds_m):
+            if o.track_id in self._fragments or o.cls.vulnerable:
+                continue
+            if o.track_id not in self.memory.standing_since_s or not self._in_lane(o, inp.front_s_m + o.ds_m):
+                continue
+            o_lo, o_hi = o.ds_m - o.length_m / 2.0, o.ds_m + o.length_m / 2.0
+            if o_lo > hi + c.fragment_gap_m or o_hi < lo - c.fragment_gap_m:
+                continue
+            lo, hi = min(lo, o_lo), max(hi, o_hi)
+            left, right = max(left, o.d_m + o.width_m / 2.0), min(right, o.d_m - o.width_m / 2.0)
+            self._fragments.add(o.track_id)
+        ds = 0.5 * (lo + hi)
+        return dataclasses.replace(
+            first,
+            s_m=first.s_m + ds - first.ds_m,
+            ds_m=ds,
+            d_m=0.5 * (left + right),
+            length_m=hi - lo,
+            width_m=left - right,
+        )
 
     def _static_why_not(self, inp: PassInput, o: RouteObstacle) -> str | None:
         """Why this obstacle may not be passed at all (None: it may, traffic permitting)."""
@@ -248,7 +278,7 @@ class PassRule:
         c = self.config
         front = o.ds_m + o.length_m / 2.0
         for other in inp.obstacles:
-            if other.track_id == o.track_id:
+            if other.track_id in self._fragments:
                 continue
             gap = other.ds_m - other.length_m / 2.0 - front
             if 0.0 <= gap < c.queue_gap_m and self._in_lane(other, inp.front_s_m + other.ds_m):
@@ -312,7 +342,7 @@ class PassRule:
         lay = self.layers
         duration = self._manoeuvre_s(end_front_s_m - inp.front_s_m, inp.speed_mps) + c.time_margin_s
         for other in inp.obstacles:
-            if other.track_id == o.track_id:
+            if other.track_id in self._fragments:
                 continue
             s = inp.front_s_m + other.ds_m
             left = float(lay.lane_left_d_m[lay.record_index(s)])
