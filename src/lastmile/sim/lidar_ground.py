@@ -2,15 +2,11 @@
 
 A 0.1 m raster built once from the HD map answers, for any map point, whether it lies on the road
 surface (any lanelet or parking area, at z = 0) or off it (sidewalk and verges, raised by the curb
-height), and how far a road point is from the nearest mapped curb (for snow banks).
-
-A curb step is where the map draws a curb: beside a boundary that is no curb (a painted or virtual
-line, or none drawn) the ground stays at road level for ``VERGE_M`` (a gravel shoulder, the paved
-gap between a junction's turning lanes that no lanelet covers), unless a mapped curb is within
-``SIDEWALK_M`` (the sidewalk behind a curb wins). Before, everything off the lanelets was raised: a
-junction's uncovered wedges stood in the road as curb-high islands and a map with no curbs got a step
-along every lane edge, both seen by the stack as small objects it could not explain. Look-ups are
+height), and how far a road point is from the nearest mapped curb (for snow banks). Look-ups are
 vectorised integer indexing: tens of thousands of ground hits per sweep cost about a millisecond.
+
+Known limit: everything off the lanelets is raised, also where the map draws no curb, so the gap
+between a junction's parting turn lanes that no lanelet covers stands as a curb-high island.
 """
 
 from __future__ import annotations
@@ -22,14 +18,12 @@ import numpy as np
 
 from lastmile.core.errors import ConfigError
 from lastmile.core.geometry import FloatArray
-from lastmile.hdmap.model import DRIVABLE_SUBTYPES, HDMap, is_curb_type
+from lastmile.hdmap.model import HDMap
 
 RESOLUTION_M = 0.1
 CURB_BAND_M = 4.0  # curb distances are stored up to this far from a curb (the widest snow bank)
 _DIST_STEP_M = CURB_BAND_M / 250.0  # 1.6 cm per uint8 level; 255 means "farther than the band"
 _FAR = 255
-VERGE_M = 2.0  # road-level ground beside a boundary that is no curb
-SIDEWALK_M = 2.0  # raised ground behind a mapped curb: a sidewalk (1.5 m is the common minimum)
 
 
 class GroundRaster:
@@ -52,39 +46,11 @@ class GroundRaster:
         self.height = math.ceil((hi[1] - lo[1]) / RESOLUTION_M)
         self.road = np.zeros((self.height, self.width), dtype=bool)
         for poly in polys:
-            self._fill(poly, self.road)
+            self._fill(poly)
         self._curbs = [np.asarray(c.xy_m, dtype=float) for c in hdmap.curbs]
-        verge = np.zeros_like(self.road)
-        for info in hdmap.lanelets.values():
-            if info.subtype not in DRIVABLE_SUBTYPES:
-                continue
-            for bound, kind in ((info.left, info.left_type), (info.right, info.right_type)):
-                if not is_curb_type(kind):
-                    self._fill_band(np.asarray(bound.xy_m, dtype=float), VERGE_M, verge)
-        sidewalk = np.zeros_like(self.road)
-        for xy in self._curbs:
-            self._fill_band(xy, SIDEWALK_M, sidewalk)
-        self.road |= verge & ~sidewalk
         self._curb_code: np.ndarray | None = None
 
-    def _fill_band(self, line: FloatArray, half_width_m: float, target: np.ndarray) -> None:
-        """Mark the cells within about ``half_width_m`` of a polyline: a rectangle per segment and an
-        octagon at each inner vertex (its joints); nothing past the line's two ends (a dead end's road
-        stops there, as does a line that ends at a junction)."""
-        for p, q in itertools.pairwise(line):
-            d = q - p
-            length = float(np.hypot(*d))
-            if length < 1e-9:
-                continue
-            n = np.array([-d[1], d[0]]) / length * half_width_m
-            self._fill(np.array([p - n, q - n, q + n, p + n]), target)
-        angles = np.arange(8) * (np.pi / 4)
-        # An octagon whose sides are half_width_m from its centre (its corners a little beyond).
-        ring = np.column_stack([np.cos(angles), np.sin(angles)]) * (half_width_m / math.cos(math.pi / 8))
-        for v in line[1:-1]:
-            self._fill(v + ring, target)
-
-    def _fill(self, poly: FloatArray, target: np.ndarray) -> None:
+    def _fill(self, poly: FloatArray) -> None:
         """Even-odd scan-line fill of one polygon at cell centres (a difference array per row)."""
         xs = (poly[:, 0] - self.x0_m) / RESOLUTION_M - 0.5
         ys = (poly[:, 1] - self.y0_m) / RESOLUTION_M - 0.5
@@ -100,8 +66,6 @@ class GroundRaster:
         xc.sort(axis=1)
         n_cross = crosses.sum(axis=1)
         c0, c1 = max(0, math.floor(xs.min())), min(self.width - 1, math.ceil(xs.max()))
-        if c1 < c0:
-            return  # beside the raster (a curb of the map far from every lanelet)
         diff = np.zeros((len(rows), c1 - c0 + 2), dtype=np.int16)
         for k in range(0, int(n_cross.max()) - 1, 2):
             ok = n_cross > k + 1
@@ -111,7 +75,7 @@ class GroundRaster:
             np.add.at(diff, (rr, a), 1)
             np.add.at(diff, (rr, b), -1)
         inside = np.cumsum(diff, axis=1)[:, :-1] > 0
-        target[r0 : r1 + 1, c0 : c1 + 1] |= inside
+        self.road[r0 : r1 + 1, c0 : c1 + 1] |= inside
 
     def cells(self, x_m: FloatArray, y_m: FloatArray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Row and column of each point and whether it falls on the raster at all."""
