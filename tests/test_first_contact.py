@@ -76,8 +76,26 @@ def test_every_example_file_runs(name: str, args: list[str], tmp_path: Path) -> 
     assert (tmp_path / "run" / "metrics.json").exists()
 
 
+MAPPING_EXAMPLES = sorted(EXAMPLES.glob("mapping/*.toml"))
+"""Configurations that need a map the user builds first (``lastmile map build``): on a fresh clone
+they are refused in one line, which the test below checks."""
+
+
+@pytest.mark.parametrize("config", MAPPING_EXAMPLES, ids=[p.name for p in MAPPING_EXAMPLES])
+def test_a_mapping_example_before_its_map_is_built_is_one_clear_line(
+    config: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.chdir(tmp_path)  # a fresh clone's working directory: no map built yet
+    out = str(tmp_path / "run")
+    result = CliRunner().invoke(app, ["run", "--config", str(config), "--minutes", "0.01", "--out", out])
+    lines = [line for line in result.output.splitlines() if line.strip()]
+    assert result.exit_code != 0
+    assert len(lines) == 1 and "map" in lines[0] and "no such file" in lines[0], result.output
+
+
 def test_every_example_file_is_in_a_run() -> None:
     named = {Path(a).name for _, args in _example_runs() for a in args if a.endswith(".toml")}
+    named |= {p.name for p in MAPPING_EXAMPLES}  # each refused in one line above
     assert named == {p.name for p in EXAMPLES.glob("*/*.toml")}
     assert {"scenarios", "configs", "routes"} <= {p.parent.name for p in EXAMPLES.glob("*/*.toml")}
 
