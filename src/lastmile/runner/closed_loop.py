@@ -32,6 +32,7 @@ from lastmile.runner.loop_callbacks import (
 from lastmile.runner.run_config import RunConfig, run_config_dict
 from lastmile.sim.scenario import MapSpec, Scenario
 from lastmile.sim.simulation import Simulation
+from lastmile.stack.stack_settings import StackSettings
 from lastmile.stack.vehicle_build import SensorCalibration, build_vehicle
 
 DEFAULT_CONFIG = RunConfig()
@@ -76,7 +77,7 @@ def build_closed_loop(
         layers,
         geometry,
         config.stack,
-        sensor_calibration(world),
+        sensor_calibration(world, config.stack),
         tick_us,
         # Module faults of the scenario reach the stack through its fault-injection port.
         fault_hook=lambda module, now_us: world.faults.module_fault(module, now_us / 1e6),
@@ -84,12 +85,21 @@ def build_closed_loop(
     return ClosedLoop(world, vehicle.software, vehicle.safety, tick_us, callbacks)
 
 
-def sensor_calibration(world: Simulation) -> SensorCalibration:
-    """The simulated sensors' true mounts, as the vehicle's calibration."""
+def sensor_calibration(world: Simulation, stack: StackSettings | None = None) -> SensorCalibration:
+    """The vehicle's calibration: the simulated sensors' true mounts (a real vehicle's nominal ones),
+    the LiDARs' replaced by the mounts file of ``stack.lidar_mounts`` where one is given.
+
+    Raises:
+        ConfigError: the file does not name exactly the rig's LiDARs.
+    """
     rig = world.raw_sensors
+    lidar_mounts = {s.sensor_id: s.base_from_sensor for s in rig.lidar_specs} if rig else {}
+    calibrated = stack.calibrated_lidar_mounts(tuple(lidar_mounts)) if stack is not None else None
+    if calibrated is not None:
+        lidar_mounts = calibrated
     return SensorCalibration(
         radar_mounts=world.radar_mounts,
-        lidar_mounts={s.sensor_id: s.base_from_sensor for s in rig.lidar_specs} if rig else {},
+        lidar_mounts=lidar_mounts,
         cameras=tuple(c.camera for c in rig.cameras) if rig else (),
         light_cameras=world.light_cameras.cameras,
     )
@@ -141,12 +151,13 @@ def run_scenario(
                 black_box_dir,
                 config.loop.black_box_window_s,
                 world,
-                sensor_calibration(world),
+                sensor_calibration(world, config.stack),
                 run=(scenario, config),
             )
             callbacks.append(BlackBoxCallback(box, writer))
         if live is not None:
-            view = LiveView(live_view_config(live[0], live[1], world, sensor_calibration(world)))
+            calibration = sensor_calibration(world, config.stack)
+            view = LiveView(live_view_config(live[0], live[1], world, calibration))
             if on_live is not None:
                 on_live(view.port)
             callbacks.append(LiveViewCallback(view))

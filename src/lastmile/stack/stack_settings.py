@@ -8,6 +8,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from enum import StrEnum
+from pathlib import Path
+
+import numpy as np
 
 from lastmile.control.lateral import LateralConfig, LateralControllerName
 from lastmile.control.longitudinal import LongitudinalConfig, LongitudinalControllerName
@@ -18,6 +21,7 @@ from lastmile.decision.decision_config import DecisionConfig
 from lastmile.localization.amcl_localization import AmclSettings
 from lastmile.localization.ekf_config import PoseEkfConfig
 from lastmile.localization.landmark_extraction import LandmarkExtractionConfig
+from lastmile.localization.lidar_mount_file import check_covers, read_lidar_mounts
 from lastmile.localization.odometry_ekf import OdometryEkfConfig
 from lastmile.localization.scan_match_localization import ScanMatchingSettings
 from lastmile.perception.lidar_detector import LidarDetectorConfig
@@ -120,6 +124,10 @@ class StackSettings:
         lidar_detector: a learned LiDAR detector (``[stack.lidar_detector]``, an ONNX model file and
             its BEV grid; :mod:`lastmile.perception.lidar_detector`) run on every rig frame beside
             the clustering, its boxes going through late fusion to the tracker (raw perception only).
+        lidar_mounts: a LiDAR mounts file (``[[lidar_mount]]`` tables, as ``lastmile calibrate lidar
+            --out`` writes them; :mod:`lastmile.localization.lidar_mount_file`) the stack runs on instead
+            of the vehicle's nominal mounts (in simulation, the simulator's true ones). Empty: the
+            nominal mounts. Raw perception only; it must name every LiDAR of the vehicle.
     """
 
     perception: PerceptionMode = PerceptionMode.LIDAR_CAMERA_RADAR
@@ -140,6 +148,7 @@ class StackSettings:
     amcl: AmclSettings = field(default_factory=AmclSettings)
     safety: SafetySettings = field(default_factory=SafetySettings)
     lidar_detector: LidarDetectorConfig | None = None
+    lidar_mounts: str = ""
 
     def __post_init__(self) -> None:
         if self.lidar_detector is not None and not self.perception.needs_raw_sensors:
@@ -148,6 +157,8 @@ class StackSettings:
                 f"detector reads the LiDAR sweeps), got perception = '{self.perception}'"
             )
         check_localization_inputs(self.localization, self.perception, "stack")
+        if self.lidar_mounts:
+            self.calibrated_lidar_mounts()  # a missing or bad file is one line now, not at the build
         if self.localization is LocalizationMode.SCAN_MATCHING:
             self.scan_matching.load_map()  # a missing or bad map is one line now, not at the first scan
         if self.localization is LocalizationMode.AMCL:
@@ -162,6 +173,29 @@ class StackSettings:
         if self.cruise_speed_mps is not None:
             # The shuttle's operating speeds: up to its 20 km/h top speed.
             check_range("stack.cruise_speed_mps", self.cruise_speed_mps, 0.5, 20.0 / 3.6 + 1e-9)
+
+    def calibrated_lidar_mounts(
+        self, lidar_ids: tuple[str, ...] | None = None
+    ) -> dict[str, np.ndarray] | None:
+        """The mounts of ``lidar_mounts`` by LiDAR id, or None when the nominal ones are used.
+
+        Args:
+            lidar_ids: the vehicle's LiDARs, which the file must name exactly (None: not checked).
+        """
+        if not self.lidar_mounts:
+            return None
+        if not self.perception.needs_raw_sensors:
+            raise ConfigError(
+                f"stack.lidar_mounts: expected perception = '{PerceptionMode.LIDAR_CAMERA_RADAR}' (the "
+                f"mounts place the LiDAR sweeps), got perception = '{self.perception}'"
+            )
+        try:
+            mounts = read_lidar_mounts(Path(self.lidar_mounts))
+            if lidar_ids is not None:
+                check_covers(mounts, lidar_ids, str(self.lidar_mounts))
+        except ConfigError as exc:
+            raise ConfigError(f"stack.lidar_mounts: {exc}") from None
+        return mounts
 
 
 _LIDAR_MODES = (LocalizationMode.LANDMARKS, LocalizationMode.SCAN_MATCHING, LocalizationMode.AMCL)
