@@ -10,6 +10,7 @@ Example (every key optional)::
     perception = "radar_tracking"      # or "lidar_camera_radar" (the default)
     lateral_controller = "pure_pursuit"
     cruise_speed_mps = 3.33
+    lidar_mounts = "calib.toml"        # `lastmile calibrate lidar --out`; read beside this file first
 
     [stack.safety]
     max_decel_mps2 = 5.0
