@@ -25,6 +25,7 @@ from lastmile.planning.local_path import LocalPathConfig
 from lastmile.planning.planners import PlannerName
 from lastmile.safety.failsafe import FailSafeConfig
 from lastmile.safety.hardware_watchdog import HardwareWatchdogConfig
+from lastmile.stack.occupancy_stop import OccupancyStopSettings
 
 
 class LocalizationMode(StrEnum):
@@ -120,6 +121,9 @@ class StackSettings:
         lidar_detector: a learned LiDAR detector (``[stack.lidar_detector]``, an ONNX model file and
             its BEV grid; :mod:`lastmile.perception.lidar_detector`) run on every rig frame beside
             the clustering, its boxes going through late fusion to the tracker (raw perception only).
+        occupancy_stop: GEM's height-map obstacle stop (``[stack.occupancy_stop]``,
+            :mod:`lastmile.stack.occupancy_stop`): the speed capped at v = d / 5 - 1 for the nearest
+            occupied cell on the arc of the wheel angles (raw perception only; off by default).
     """
 
     perception: PerceptionMode = PerceptionMode.LIDAR_CAMERA_RADAR
@@ -140,6 +144,7 @@ class StackSettings:
     amcl: AmclSettings = field(default_factory=AmclSettings)
     safety: SafetySettings = field(default_factory=SafetySettings)
     lidar_detector: LidarDetectorConfig | None = None
+    occupancy_stop: OccupancyStopSettings | None = None
 
     def __post_init__(self) -> None:
         if self.lidar_detector is not None and not self.perception.needs_raw_sensors:
@@ -148,6 +153,11 @@ class StackSettings:
                 f"detector reads the LiDAR sweeps), got perception = '{self.perception}'"
             )
         check_localization_inputs(self.localization, self.perception, "stack")
+        if self.occupancy_stop is not None and not self.perception.needs_raw_sensors:
+            raise ConfigError(
+                f"stack.occupancy_stop: expected perception = '{PerceptionMode.LIDAR_CAMERA_RADAR}' (the "
+                f"grid is built from the LiDAR sweeps), got perception = '{self.perception}'"
+            )
         if self.localization is LocalizationMode.SCAN_MATCHING:
             self.scan_matching.load_map()  # a missing or bad map is one line now, not at the first scan
         if self.localization is LocalizationMode.AMCL:
