@@ -29,6 +29,7 @@ from lastmile.planning.local_path import LocalPathConfig
 from lastmile.planning.planners import PlannerName
 from lastmile.safety.failsafe import FailSafeConfig
 from lastmile.safety.hardware_watchdog import HardwareWatchdogConfig
+from lastmile.stack.occupancy_stop import OccupancyStopSettings
 
 
 class LocalizationMode(StrEnum):
@@ -128,6 +129,9 @@ class StackSettings:
             --out`` writes them; :mod:`lastmile.localization.lidar_mount_file`) the stack runs on instead
             of the vehicle's nominal mounts (in simulation, the simulator's true ones). Empty: the
             nominal mounts. Raw perception only; it must name every LiDAR of the vehicle.
+        occupancy_stop: GEM's height-map obstacle stop (``[stack.occupancy_stop]``,
+            :mod:`lastmile.stack.occupancy_stop`): the speed capped at v = d / 5 - 1 for the nearest
+            occupied cell on the arc of the wheel angles (raw perception only; off by default).
     """
 
     perception: PerceptionMode = PerceptionMode.LIDAR_CAMERA_RADAR
@@ -149,6 +153,7 @@ class StackSettings:
     safety: SafetySettings = field(default_factory=SafetySettings)
     lidar_detector: LidarDetectorConfig | None = None
     lidar_mounts: str = ""
+    occupancy_stop: OccupancyStopSettings | None = None
 
     def __post_init__(self) -> None:
         if self.lidar_detector is not None and not self.perception.needs_raw_sensors:
@@ -159,6 +164,11 @@ class StackSettings:
         check_localization_inputs(self.localization, self.perception, "stack")
         if self.lidar_mounts:
             self.calibrated_lidar_mounts()  # a missing or bad file is one line now, not at the build
+        if self.occupancy_stop is not None and not self.perception.needs_raw_sensors:
+            raise ConfigError(
+                f"stack.occupancy_stop: expected perception = '{PerceptionMode.LIDAR_CAMERA_RADAR}' (the "
+                f"grid is built from the LiDAR sweeps), got perception = '{self.perception}'"
+            )
         if self.localization is LocalizationMode.SCAN_MATCHING:
             self.scan_matching.load_map()  # a missing or bad map is one line now, not at the first scan
         if self.localization is LocalizationMode.AMCL:

@@ -94,6 +94,7 @@ def stack_config(settings: StackSettings, calibration: SensorCalibration, tick_u
         lidar_mounts=calibration.lidar_mounts if raw else {},
         cameras=calibration.cameras if raw else (),
         raw_perception=RawPerceptionConfig(detector=settings.lidar_detector),
+        occupancy_stop=settings.occupancy_stop,
         reliability=ReliabilityConfig(
             sensors=DEFAULT_SENSORS
             + (raw_sensor_specs(tuple(calibration.lidar_mounts), camera_ids) if raw else ())
