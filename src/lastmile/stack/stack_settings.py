@@ -25,6 +25,7 @@ from lastmile.localization.lidar_mount_file import check_covers, read_lidar_moun
 from lastmile.localization.odometry_ekf import OdometryEkfConfig
 from lastmile.localization.scan_match_localization import ScanMatchingSettings
 from lastmile.perception.lidar_detector import LidarDetectorConfig
+from lastmile.perception.pedestrian_verification import PedestrianVerificationConfig
 from lastmile.planning.local_path import LocalPathConfig
 from lastmile.planning.planners import PlannerName
 from lastmile.safety.failsafe import FailSafeConfig
@@ -132,6 +133,10 @@ class StackSettings:
         occupancy_stop: GEM's height-map obstacle stop (``[stack.occupancy_stop]``,
             :mod:`lastmile.stack.occupancy_stop`): the speed capped at v = d / 5 - 1 for the nearest
             occupied cell on the arc of the wheel angles (raw perception only; off by default).
+        pedestrian_verification: NUS's pedestrian verification in the late fusion
+            (``[stack.pedestrian_verification]``, :mod:`lastmile.perception.pedestrian_verification`):
+            a cluster is a pedestrian only when person-shaped and confirmed by a camera pedestrian
+            box (raw perception only; off by default: WATonoBus's camera boxes name the class).
     """
 
     perception: PerceptionMode = PerceptionMode.LIDAR_CAMERA_RADAR
@@ -154,6 +159,7 @@ class StackSettings:
     lidar_detector: LidarDetectorConfig | None = None
     lidar_mounts: str = ""
     occupancy_stop: OccupancyStopSettings | None = None
+    pedestrian_verification: PedestrianVerificationConfig | None = None
 
     def __post_init__(self) -> None:
         if self.lidar_detector is not None and not self.perception.needs_raw_sensors:
@@ -164,11 +170,15 @@ class StackSettings:
         check_localization_inputs(self.localization, self.perception, "stack")
         if self.lidar_mounts:
             self.calibrated_lidar_mounts()  # a missing or bad file is one line now, not at the build
-        if self.occupancy_stop is not None and not self.perception.needs_raw_sensors:
-            raise ConfigError(
-                f"stack.occupancy_stop: expected perception = '{PerceptionMode.LIDAR_CAMERA_RADAR}' (the "
-                f"grid is built from the LiDAR sweeps), got perception = '{self.perception}'"
-            )
+        for key, why in (
+            ("occupancy_stop", "the grid is built from the LiDAR sweeps"),
+            ("pedestrian_verification", "it verifies LiDAR clusters"),
+        ):
+            if getattr(self, key) is not None and not self.perception.needs_raw_sensors:
+                raise ConfigError(
+                    f"stack.{key}: expected perception = '{PerceptionMode.LIDAR_CAMERA_RADAR}' ({why}), "
+                    f"got perception = '{self.perception}'"
+                )
         if self.localization is LocalizationMode.SCAN_MATCHING:
             self.scan_matching.load_map()  # a missing or bad map is one line now, not at the first scan
         if self.localization is LocalizationMode.AMCL:
