@@ -268,7 +268,10 @@ class BehaviourStateMachine:
             mem.enter(BehaviourState.PULLOVER, cy.t_s, why)
             mem.stop.stop_index = stop
             mem.stop.spot_front_s_m, mem.stop.spot_committed = None, False
-            return self._pullover(cy)
+            outcome = self._pullover(cy)
+            if mem.drop_off.deferred_stop_id == stop_id:
+                outcome = dataclasses.replace(outcome, reason=f"{outcome.reason}: {why}")
+            return outcome
         # A passenger's drop-off (Snow Lion's button): to the next safe kerb, or the next stop.
         dropping = start_drop_off(ctx, mem, cy, self.drop_offs)
         if dropping is not None:

@@ -22,8 +22,9 @@ s-layer records, once per route:
 - far enough ahead: the pull-over's route length (``DecisionConfig.transition_m``) and the distance the
   speed law needs to stop comfortably from the present speed
   (:func:`~lastmile.decision.traffic_light_rule.comfortable_stop_m`), whichever is longer;
-- free: no tracked obstacle where the body rests, in the second half of the approach or in the merge
-  room ahead (:func:`~lastmile.decision.pullover_spot.choose_spot`, as at a stop).
+- free: no standing tracked obstacle where the body rests, in the second half of the approach or in
+  the merge room ahead (:func:`~lastmile.decision.pullover_spot.choose_spot`, as at a stop); moving
+  traffic is left to the in-path rule.
 
 The search ends at the next stop's platform: with no safe place before it, the rider gets off there
 (the stop is requested for them). Once halted: the door cycle of a stop (``door_cycle``), at least
@@ -126,10 +127,18 @@ class DropOffPlaces:
         if limit_ahead_m <= earliest_ahead_m:
             return None
         step = lay.step_m
-        ahead = np.arange(0.0, limit_ahead_m + dc.merge_room_m + step, step)
+        approach_m = dc.transition_m * dc.spot_transition_share
+        # From behind the shuttle's own body: a spot it is close to stays where it is.
+        back_m = g.length_m + approach_m if lay.centerline.closed else min(g.length_m + approach_m, front_s_m)
+        # On the records' own grid, so a run starts where its first record does.
+        first = math.floor((front_s_m - back_m) / step) * step
+        ahead = np.arange(first, front_s_m + limit_ahead_m + dc.merge_room_m + step, step) - front_s_m
         idx = lay.record_indices(front_s_m + ahead)
-        # Obstacles in the same "metres ahead of the front" coordinate as the candidate spots.
-        seen = [dataclasses.replace(o, s_m=o.ds_m) for o in obstacles]
+        # Standing obstacles (a radar-tracked parked car wanders below the pass rule's moving speed) in
+        # the same "metres ahead of the front" coordinate as the candidate spots; traffic moves on.
+        seen = [
+            dataclasses.replace(o, s_m=o.ds_m) for o in obstacles if o.speed_mps < dc.passing.moving_speed_mps
+        ]
         for a, b in _runs(ahead, self.allowed[idx], step):
             curb_d = float(np.median(lay.curb_right_d_m[idx[(ahead >= a) & (ahead < b)]]))
             request = SpotRequest(
@@ -139,7 +148,7 @@ class DropOffPlaces:
                 bay_edge_d_m=curb_d + dc.curb_gap_target_m + g.width_m,
                 curb_d_m=curb_d,
                 vehicle_length_m=g.length_m,
-                transition_m=dc.transition_m * dc.spot_transition_share,
+                transition_m=approach_m,
                 margin_m=dc.min_gap_m + dc.spot_extra_margin_m,
                 preferred_front_s_m=earliest_ahead_m if preferred_ahead_m is None else preferred_ahead_m,
                 exit_m=dc.merge_room_m,
@@ -217,10 +226,9 @@ def start_drop_off(
             dv.deferred_stop_id = nxt[0]
         return None
     mem.drop_off = DropOffVisit(spot_front_s_m=found[0], curb_d_m=found[1])
-    mem.enter(
-        BehaviourState.PULLOVER, cy.t_s, f"drop-off requested: kerb {found[0] - cy.front_s_m:.0f} m ahead"
-    )
-    return handle_drop_off_pullover(ctx, mem, cy, places)
+    why = f"drop-off requested: kerb {found[0] - cy.front_s_m:.0f} m ahead"
+    mem.enter(BehaviourState.PULLOVER, cy.t_s, why)
+    return dataclasses.replace(handle_drop_off_pullover(ctx, mem, cy, places), reason=why)
 
 
 def handle_drop_off_pullover(
@@ -276,8 +284,7 @@ def handle_drop_off_onboarding(
     if standing < config.wait_s or t_s - dv.clear_since_s < config.clear_for_s:
         return Outcome(cy.speed_cap_mps, f"drop-off: standing {standing:.1f} s of {config.wait_s:.1f} s")
     ctx.mission.drop_off_served()
-    mem.enter(
-        BehaviourState.MERGING, t_s, f"drop-off served after {standing:.1f} s, no pedestrian near the door"
-    )
+    why = f"drop-off served after {standing:.1f} s standing, no pedestrian near the door"
+    mem.enter(BehaviourState.MERGING, t_s, why)
     mem.stop.merge_from_s_m = inp.route_s_m
-    return Outcome(cy.speed_cap_mps, "merging")
+    return Outcome(cy.speed_cap_mps, why)
