@@ -32,7 +32,9 @@ class DropOffConfig:
             bends, which it leaves undefined; we take a radius under 100 m, which rules out the campus
             corners (40 m) and town turns and keeps gently curving streets).
         kerb_lane_edge_m: the kerb must be within this of the lane's right edge (it is the lane's own
-            edge, with the map's rounding): further out is a bay, its taper or another lane.
+            edge): further out is a bay, its taper, a parking lane or another lane. 0.1 m: the rest
+            offset is laid for the lane's edge, and a kerb 0.1 m further out already puts the door at
+            the service's 0.3 m curb-gap limit (0.2 m target + 0.1 m).
         search_m: how far ahead the search looks on a route without stops (or beyond the last one).
     """
 
@@ -43,7 +45,7 @@ class DropOffConfig:
     junction_clear_m: float = 5.0
     stop_line_clear_m: float = 10.0
     max_curvature_1pm: float = 0.01
-    kerb_lane_edge_m: float = 0.3
+    kerb_lane_edge_m: float = 0.1
     search_m: float = 400.0
 
     def __post_init__(self) -> None:
