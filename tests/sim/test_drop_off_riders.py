@@ -11,6 +11,7 @@ import pytest
 from lastmile.core.errors import ConfigError
 from lastmile.core.rng import component_rng
 from lastmile.evaluation import metrics as m
+from lastmile.evaluation.report_tables import drop_offs_table
 from lastmile.sim.passengers import PassengerConfig, PassengerModel, StopVisit
 from lastmile.sim.scenario import DropOffRequest, Scenario, load_scenario, scenario_to_toml
 from tests.evaluation.synthetic import make_log
@@ -91,3 +92,18 @@ def test_drop_off_metrics_appear_only_in_runs_with_a_request() -> None:
     out = m.compute_metrics(make_log(np.full(100, 2.0), events=events))
     assert (out["drop_offs_requested"], out["drop_offs_served"], out["drop_offs_at_kerb"]) == (2, 1, 1)
     assert out["drop_off_curb_gap_max_m"] == 0.21 and out["drop_off_wait_min_s"] == 11.5
+
+
+def test_the_report_lists_each_drop_off_where_it_was_served() -> None:
+    assert drop_offs_table(make_log(np.full(100, 2.0))) == []
+    served = {"curb_gap_m": 0.2, "body_gap_m": 0.2, "wait_s": 11.0}
+    events = [
+        (1.0, "drop_off_requested", {"passenger_id": 1, "route_s_m": 10.0}),
+        (20.0, "drop_off_served", {"passenger_id": 1, "stop_id": "", "route_s_m": 50.0, **served}),
+        (30.0, "drop_off_requested", {"passenger_id": 2, "route_s_m": 80.0}),
+        (60.0, "drop_off_served", {"passenger_id": 2, "stop_id": "S1", "route_s_m": 120.0, **served}),
+        (70.0, "drop_off_requested", {"passenger_id": 3, "route_s_m": 150.0}),
+    ]
+    rows = [r for r in drop_offs_table(make_log(np.full(100, 2.0), events=events)) if r.startswith("| ")]
+    assert len(rows) == 4  # the header and one row per request
+    assert "| kerb |" in rows[1] and "| stop S1 |" in rows[2] and "not served" in rows[3]
