@@ -236,3 +236,17 @@ def test_drop_off_config_refuses_nonsense_in_one_line() -> None:
         DropOffConfig(wait_s=-1.0)
     with pytest.raises(ConfigError, match=r"DropOffConfig\.max_curvature_1pm"):
         DropOffConfig(max_curvature_1pm=0.0)
+
+
+def test_a_stop_served_anyway_must_be_left_its_own_pull_over(straight_layers) -> None:
+    """From s 130 (front) S1's platform is 70 m ahead. Not wanted, the kerb 32 m on is used; wanted
+    (riders wait there), its pull-over begins 45 m before it, so the rider gets off at S1 instead."""
+    fsm = _fsm(straight_layers)
+    fsm.mission.on_drop_off(DropOffRequestFrame(stamp=Stamp(0)))
+    d = fsm.step(_inp(0.0, 130.0 - FRONT, v=5.0))
+    assert d.state == BehaviourState.PULLOVER and d.stop_at_s_m == pytest.approx(162.0)
+    fsm = _fsm(straight_layers)
+    fsm.mission.requested.add("S1")
+    fsm.mission.on_drop_off(DropOffRequestFrame(stamp=Stamp(0)))
+    d = fsm.step(_inp(0.0, 130.0 - FRONT, v=5.0))
+    assert d.state == BehaviourState.NORMAL_DRIVING and fsm.memory.drop_off.deferred_stop_id == "S1"

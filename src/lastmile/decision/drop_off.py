@@ -26,8 +26,9 @@ s-layer records, once per route:
   the merge room ahead (:func:`~lastmile.decision.pullover_spot.choose_spot`, as at a stop); moving
   traffic is left to the in-path rule.
 
-The search ends at the next stop's platform: with no safe place before it, the rider gets off there
-(the stop is requested for them). Once halted: the door cycle of a stop (``door_cycle``), at least
+The search ends at the next stop's platform (or where its pull-over begins, ``stop_approach_m`` before
+it, when the stop is wanted anyway): with no safe place before it, the rider gets off there (the stop
+is requested for them). Once halted: the door cycle of a stop (``door_cycle``), at least
 ``wait_s`` standing, then no pedestrian, cyclist or animal track within ``clear_radius_m`` of the
 body on the door's side for ``clear_for_s``, then the merge.
 """
@@ -218,7 +219,12 @@ def start_drop_off(
         return None  # on the way to the stop it was handed to
     dv.deferred_stop_id = None
     earliest = max(comfortable_stop_m(cy.inp.speed_mps, ctx.config.traffic_lights), ctx.config.transition_m)
-    limit = nxt[1] if nxt is not None else places.config.search_m
+    limit = places.config.search_m
+    if nxt is not None:
+        # A stop the shuttle will serve anyway is reached by its own pull-over, which begins
+        # ``stop_approach_m`` before its platform: the drop-off must be done (and the shuttle out of
+        # the kerb) before then, else the rider gets off at the stop.
+        limit = nxt[1] - (ctx.config.stop_approach_m if ctx.mission.wants(nxt[0]) else 0.0)
     found = places.find(ctx, cy.front_s_m, earliest, limit, cy.obstacles)
     if found is None:
         if nxt is not None:
