@@ -250,3 +250,18 @@ def test_a_stop_served_anyway_must_be_left_its_own_pull_over(straight_layers) ->
     fsm.mission.on_drop_off(DropOffRequestFrame(stamp=Stamp(0)))
     d = fsm.step(_inp(0.0, 130.0 - FRONT, v=5.0))
     assert d.state == BehaviourState.NORMAL_DRIVING and fsm.memory.drop_off.deferred_stop_id == "S1"
+
+
+def test_the_drop_off_request_is_latched_until_served_and_checked_as_a_frame() -> None:
+    from lastmile.core.errors import MessageError
+
+    mission = MissionManager(stop_order=("S1",))
+    mission.on_drop_off(DropOffRequestFrame(stamp=Stamp(2_000_000), seat=3))
+    mission.on_drop_off(
+        DropOffRequestFrame(stamp=Stamp(5_000_000), seat=3)
+    )  # pressed again: the same request
+    assert mission.drop_off_since_s == 2.0
+    mission.drop_off_served()
+    assert not mission.drop_off_pending and mission.drop_offs_served == 1
+    with pytest.raises(MessageError, match="seat"):
+        DropOffRequestFrame(stamp=Stamp(0), seat=-2).validate()
