@@ -78,8 +78,7 @@ class DropOffPlaces:
         curb, right = lay.curb_right_d_m, lay.lane_right_d_m
         with np.errstate(invalid="ignore"):
             kerbside = np.isfinite(curb) & (np.abs(curb - right) <= c.kerb_lane_edge_m)
-        route = lay.centerline
-        bends = np.array([abs(route.curvature_at(float(s))) for s in lay.s_m]) > c.max_curvature_1pm
+        bends = np.abs(_curvature_1pm(lay)) > c.max_curvature_1pm
         ok = kerbside & (lay.road_type == NORMAL) & ~bends
         for s0, s1 in self._keep_out():
             ok[self._indices(s0, s1)] = False
@@ -159,6 +158,20 @@ class DropOffPlaces:
             if spot is not None:
                 return front_s_m + spot, curb_d
         return None
+
+
+CURVATURE_WINDOW_M = 2.0
+"""Half the chord of the three points the route's curvature is taken through (``Polyline.curvature_at``'s)."""
+
+
+def _curvature_1pm(layers: SLayerDatabase) -> np.ndarray:
+    """(N,) the route's curvature at each record: ``Polyline.curvature_at``, for all records at once."""
+    route, s, w = layers.centerline, layers.s_m, CURVATURE_WINDOW_M
+    a, b, c = route.points_at(s - w), route.points_at(s), route.points_at(s + w)
+    cross = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
+    denom = np.hypot(*(b - a).T) * np.hypot(*(c - b).T) * np.hypot(*(c - a).T)
+    safe = np.where(denom < 1e-12, 1.0, denom)
+    return np.where(denom < 1e-12, 0.0, 2.0 * cross / safe)
 
 
 def _runs(s_m: np.ndarray, flags: np.ndarray, step_m: float) -> list[tuple[float, float]]:
