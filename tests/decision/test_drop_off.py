@@ -265,3 +265,27 @@ def test_the_drop_off_request_is_latched_until_served_and_checked_as_a_frame() -
     assert not mission.drop_off_pending and mission.drop_offs_served == 1
     with pytest.raises(MessageError, match="seat"):
         DropOffRequestFrame(stamp=Stamp(0), seat=-2).validate()
+
+
+def test_a_stops_door_cycle_serves_a_request_only_if_the_door_was_open_after_it(straight_layers) -> None:
+    def at_s1(press_while_closing: bool) -> MissionManager:
+        fsm = _fsm(straight_layers)
+        fsm.mission.requested.add("S1")
+        d = fsm.step(_inp(0.0, 170.0, v=3.0))
+        rear = d.stop_at_s_m - FRONT
+        fsm.step(_inp(1.0, rear))  # arrived: ONBOARDING
+        fsm.step(_inp(2.0, rear, door=True))
+        if not press_while_closing:
+            fsm.mission.on_drop_off(DropOffRequestFrame(stamp=Stamp(3_000_000)))
+        fsm.step(_inp(3.0, rear, door=True))
+        fsm.step(_inp(11.0, rear, door=True))  # dwell and doorway clear: the door starts closing
+        if press_while_closing:
+            fsm.mission.on_drop_off(DropOffRequestFrame(stamp=Stamp(11_500_000)))
+        fsm.step(_inp(11.5, rear, door=True))
+        fsm.step(_inp(12.0, rear))  # closed: MERGING
+        assert fsm.state == BehaviourState.MERGING
+        return fsm.mission
+
+    assert at_s1(press_while_closing=False).drop_offs_served == 1
+    late = at_s1(press_while_closing=True)
+    assert late.drop_offs_served == 0 and late.drop_off_pending, "the rider is still on board"

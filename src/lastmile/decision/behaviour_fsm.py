@@ -292,9 +292,12 @@ class BehaviourStateMachine:
         mem = self.memory
         if mem.drop_off.active:
             return handle_drop_off_onboarding(self.context, mem, cy, self.config.drop_off)
+        if self.mission.drop_off_pending and cy.inp.door_open and not mem.boarding.door_closing:
+            mem.drop_off.door_open_for_rider = True
         outcome = handle_onboarding(self.context, mem, cy)
-        if mem.state == BehaviourState.MERGING and self.mission.drop_off_pending:
-            # The door cycle at a stop lets the rider who asked for a drop-off get off there too.
+        if mem.state == BehaviourState.MERGING and mem.drop_off.door_open_for_rider:
+            # The door cycle at a stop let the rider who asked for a drop-off get off there too (a
+            # request pressed as the door was already closing waits for the next safe place).
             self.mission.drop_off_served()
             mem.drop_off.deferred_stop_id = None
         return outcome

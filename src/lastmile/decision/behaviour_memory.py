@@ -43,6 +43,8 @@ class DropOffVisit:
         deferred_stop_id: no safe place before this stop: the rider gets off there instead.
         halted_since_s: when the shuttle came to a halt at the spot (the paper's wait runs from here).
         clear_since_s: since when no pedestrian track has been near the doorway side (door closed).
+        door_open_for_rider: at a stop, the door was seen open (not yet closing) with the request
+            pending: the rider could get off there.
     """
 
     spot_front_s_m: float | None = None
@@ -51,6 +53,7 @@ class DropOffVisit:
     deferred_stop_id: str | None = None
     halted_since_s: float | None = None
     clear_since_s: float | None = None
+    door_open_for_rider: bool = False
 
     @property
     def active(self) -> bool:
