@@ -71,3 +71,15 @@ def test_hmi_message_rejects_an_unknown_screen_or_light() -> None:
         HmiMessage(stamp=Stamp(0), screen="roof", text="x").validate()
     with pytest.raises(MessageError, match="light"):
         HmiMessage(stamp=Stamp(0), screen="front", text="x", light="purple").validate()
+
+
+def test_a_drop_off_pull_over_tells_the_passengers_it_is_theirs() -> None:
+    import dataclasses
+
+    from lastmile.core.vehicle_messages import StopReason
+
+    drop = dataclasses.replace(
+        _decision(BehaviourState.PULLOVER, stop_at=400.0), stop_reason=StopReason.DROP_OFF
+    )
+    assert cue_for(drop, takeover_request=False) == "dropping_off"
+    assert CUES["dropping_off"].inside == "Stopping for your drop-off"

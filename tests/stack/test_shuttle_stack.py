@@ -7,6 +7,7 @@ from lastmile.core.errors import ConfigError
 from lastmile.core.geometry import SE2
 from lastmile.core.sensor_frames import (
     DoorSensorFrame,
+    DropOffRequestFrame,
     GnssInsFrame,
     ImuFrame,
     RadarFrame,
@@ -153,3 +154,27 @@ def test_a_prediction_horizon_shorter_than_the_vehicle_look_ahead_is_refused() -
     decision = DecisionConfig(vehicle_prediction_horizon_s=7.0)
     with pytest.raises(ConfigError, match=r"vehicle_prediction_horizon_s \(7.0 s\), got 6.0 s"):
         StackConfig(prediction=PredictionConfig(horizon_s=6.0), decision=decision)
+
+
+class _DropOffRig(_StraightRoadRig):
+    """The straight road rig whose passenger presses the seat's drop-off button at tick 1."""
+
+    def sensor_frames(self, tick):
+        frames = super().sensor_frames(tick)
+        if tick == 1:
+            frames.append(DropOffRequestFrame(stamp=Stamp(tick * 10_000), seat=0))
+        return frames
+
+
+def test_a_drop_off_button_makes_the_stack_stop_at_the_kerb_and_open_the_door(straight_layers):
+    config = StackConfig(radar_mounts={"front": FRONT}, reliability=ReliabilityConfig(sensors=RIG_SENSORS))
+    stack = ShuttleStack(straight_layers, G, config)
+    rig = _DropOffRig(door_open_after=0.0)
+    ClosedLoop(rig, stack, build_safety(straight_layers, config.reliability), 10_000).run(3000)
+    assert BehaviourState.PULLOVER in rig.states and BehaviourState.ONBOARDING in rig.states
+    assert any(rig.door_cmds) and stack.mission.drop_offs_served == 1
+    y, yaw = rig.onboard_y[-1]
+    # The plain kerb is the lane's edge (y = -1.75); no bay here. Kept at the curb-gap target.
+    gap = (y - G.width_m / 2) - (-1.75)
+    assert 0.05 < gap <= 0.3 and abs(yaw) < 0.02
+    assert rig.car.state.x_m + G.front_from_rear_axle_m < 93.0, "stopped before the crosswalk's keep-out"

@@ -14,6 +14,7 @@ from lastmile.core.sensor_frames import (
     CameraDetections,
     CrossingPresenceFrame,
     DoorSensorFrame,
+    DropOffRequestFrame,
     GnssInsFrame,
     ImuFrame,
     LidarSweep,
@@ -70,6 +71,7 @@ FRAME_KINDS: dict[type, FrameKind] = {
         lambda f: f"/sensors/traffic_lights/{f.camera_id}",
     ),
     StopCallFrame: FrameKind(_fixed(None), _fixed(None), lambda f: "/sensors/stop_call"),
+    DropOffRequestFrame: FrameKind(_fixed(None), _fixed(None), lambda f: "/sensors/drop_off_request"),
     CrossingPresenceFrame: FrameKind(_fixed(None), _fixed(None), lambda f: "/v2i/crossing_presence"),
     OperatorInput: FrameKind(_fixed(None), _fixed(None), lambda f: "/operator/input"),
 }

@@ -174,6 +174,25 @@ class StopCallFrame:
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
+class DropOffRequestFrame:
+    """A passenger on board pressed the drop-off button by their seat: let me off at the next safe place.
+
+    Snow Lion's function button: the task manager cuts the route short to a temporary destination. It
+    names no stop (a seat button that does is a :class:`StopCallFrame` with source "seat_button").
+
+    Attributes:
+        seat: the seat whose button was pressed (0-based; -1: not reported).
+    """
+
+    stamp: Stamp
+    seat: int = -1
+
+    def validate(self) -> None:
+        if isinstance(self.seat, bool) or not isinstance(self.seat, int) or self.seat < -1:
+            raise MessageError(f"DropOffRequestFrame.seat: expected an int >= -1, got {self.seat!r}")
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
 class CrossingPresenceFrame:
     """An infrastructure camera's report relayed to the shuttle (NUS): pedestrians on a crossing or not.
 
@@ -250,6 +269,7 @@ SensorFrame = (
     | RadarFrame
     | DoorSensorFrame
     | StopCallFrame
+    | DropOffRequestFrame
     | CrossingPresenceFrame
     | LidarSweep
     | CameraDetections

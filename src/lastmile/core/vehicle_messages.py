@@ -78,6 +78,8 @@ class StopReason(Enum):
     BUS_STOP = "bus_stop"
     """The pull-over spot of a stop to serve."""
     ONBOARDING = "onboarding"
+    DROP_OFF = "drop_off"
+    """The kerbside spot of a passenger's unscheduled drop-off (the seat's drop-off button)."""
     REAR_TRAFFIC = "rear_traffic"
     """Waiting at the curb for traffic behind to pass before merging."""
     MINIMAL_RISK_MANOEUVRE = "minimal_risk_manoeuvre"

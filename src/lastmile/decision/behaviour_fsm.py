@@ -24,6 +24,12 @@ from lastmile.core.vehicle import VehicleGeometry
 from lastmile.core.vehicle_messages import BehaviourDecision, BehaviourState, PassRequest, StopReason
 from lastmile.decision.behaviour_memory import BehaviourMemory, Cycle, DecisionContext, Outcome
 from lastmile.decision.decision_config import DecisionConfig, DecisionInput
+from lastmile.decision.drop_off import (
+    DropOffPlaces,
+    handle_drop_off_onboarding,
+    handle_drop_off_pullover,
+    start_drop_off,
+)
 from lastmile.decision.intersection_handling import AllWayStops, handle_intersection, next_all_way_stop_line
 from lastmile.decision.mission import MissionManager
 from lastmile.decision.offroad_unknowns import yieldable_tracks
@@ -72,6 +78,7 @@ class BehaviourStateMachine:
         self.junctions = AllWayStops.from_layers(self.layers, self.config.entry_heading_back_m)
         self.lights = TrafficLightRule(self.layers, self.config.traffic_lights)
         self.passing = PassRule(self.layers, self.geometry, self.config.passing, self.can_pass)
+        self.drop_offs = DropOffPlaces(self.layers, self.config.drop_off)
         self._spot_d_cache: dict[tuple[float, float], float] = {}
         self._pass_request: PassRequest | None = None
 
@@ -254,20 +261,46 @@ class BehaviourStateMachine:
             return self._intersection(cy)
         stop = next_requested_stop(ctx, cy.front_s_m)
         if stop is not None:
-            mem.enter(BehaviourState.PULLOVER, cy.t_s, f"stop {self.layers.stops[stop].stop.id} requested")
+            stop_id = self.layers.stops[stop].stop.id
+            why = f"stop {stop_id} requested"
+            if mem.drop_off.deferred_stop_id == stop_id:
+                why += " (drop-off: no safe place to stop before it)"
+            mem.enter(BehaviourState.PULLOVER, cy.t_s, why)
             mem.stop.stop_index = stop
             mem.stop.spot_front_s_m, mem.stop.spot_committed = None, False
-            return self._pullover(cy)
+            outcome = self._pullover(cy)
+            if mem.drop_off.deferred_stop_id == stop_id:
+                outcome = dataclasses.replace(outcome, reason=f"{outcome.reason}: {why}")
+            return outcome
+        # A passenger's drop-off (Snow Lion's button): to the next safe kerb, or the next stop.
+        dropping = start_drop_off(ctx, mem, cy, self.drop_offs)
+        if dropping is not None:
+            return dropping
+        if mem.drop_off.deferred_stop_id is not None:
+            return Outcome(cy.speed_cap_mps, f"cruise; drop-off at stop {mem.drop_off.deferred_stop_id}")
         return Outcome(cy.speed_cap_mps, "cruise")
 
     def _intersection(self, cy: Cycle) -> Outcome:
         return handle_intersection(self.context, self.junctions, self.memory, cy)
 
     def _pullover(self, cy: Cycle) -> Outcome:
+        if self.memory.drop_off.active:
+            return handle_drop_off_pullover(self.context, self.memory, cy, self.drop_offs)
         return handle_pullover(self.context, self.memory, cy)
 
     def _onboarding(self, cy: Cycle) -> Outcome:
-        return handle_onboarding(self.context, self.memory, cy)
+        mem = self.memory
+        if mem.drop_off.active:
+            return handle_drop_off_onboarding(self.context, mem, cy, self.config.drop_off)
+        if self.mission.drop_off_pending and cy.inp.door_open and not mem.boarding.door_closing:
+            mem.drop_off.door_open_for_rider = True
+        outcome = handle_onboarding(self.context, mem, cy)
+        if mem.state == BehaviourState.MERGING and mem.drop_off.door_open_for_rider:
+            # The door cycle at a stop let the rider who asked for a drop-off get off there too (a
+            # request pressed as the door was already closing waits for the next safe place).
+            self.mission.drop_off_served()
+            mem.drop_off.deferred_stop_id = None
+        return outcome
 
     def _merging(self, cy: Cycle) -> Outcome:
         return handle_merging(self.context, self.memory, cy)
@@ -307,13 +340,19 @@ class BehaviourStateMachine:
         return SE2(x - d * math.sin(yaw), y + d * math.cos(yaw), yaw)
 
     def _spot_pose(self) -> SE2 | None:
+        drop = self.memory.drop_off
+        if drop.spot_front_s_m is not None:
+            return self._curb_pose(drop.spot_front_s_m, drop.curb_d_m)
         visit = self.memory.stop
         if visit.spot_front_s_m is None or visit.stop_index is None:
             return None
-        rs = self.layers.stops[visit.stop_index]
-        rear_s = visit.spot_front_s_m - self.geometry.front_from_rear_axle_m
+        return self._curb_pose(visit.spot_front_s_m, self.layers.stops[visit.stop_index].curb_d_m)
+
+    def _curb_pose(self, spot_front_s_m: float, curb_d_m: float) -> SE2:
+        """Where the rear axle rests with the front at ``spot_front_s_m``, the curb gap kept."""
+        rear_s = spot_front_s_m - self.geometry.front_from_rear_axle_m
         x, y, yaw = self.context.route.point_at(rear_s)
-        d = self.spot_d_m(rs.curb_d_m, rear_s)
+        d = self.spot_d_m(curb_d_m, rear_s)
         return SE2(x - d * math.sin(yaw), y + d * math.cos(yaw), yaw)
 
 

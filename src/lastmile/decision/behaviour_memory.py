@@ -33,6 +33,35 @@ class StopVisit:
 
 
 @dataclass(slots=True)
+class DropOffVisit:
+    """A passenger's unscheduled drop-off being served (``decision.drop_off``).
+
+    Attributes:
+        spot_front_s_m: route s of the front bumper at the kerbside spot; None: no spot (yet).
+        curb_d_m: route d of the kerb there (right < 0).
+        spot_committed: the spot no longer moves (as a stop's: within ``spot_commit_m``).
+        deferred_stop_id: no safe place before this stop: the rider gets off there instead.
+        halted_since_s: when the shuttle came to a halt at the spot (the paper's wait runs from here).
+        clear_since_s: since when no pedestrian track has been near the doorway side (door closed).
+        door_open_for_rider: at a stop, the door was seen open (not yet closing) with the request
+            pending: the rider could get off there.
+    """
+
+    spot_front_s_m: float | None = None
+    curb_d_m: float = 0.0
+    spot_committed: bool = False
+    deferred_stop_id: str | None = None
+    halted_since_s: float | None = None
+    clear_since_s: float | None = None
+    door_open_for_rider: bool = False
+
+    @property
+    def active(self) -> bool:
+        """Serving a drop-off at the kerb (not deferred to a stop)."""
+        return self.spot_front_s_m is not None
+
+
+@dataclass(slots=True)
 class Boarding:
     """The door cycle at a stop (times in seconds of the stack clock)."""
 
@@ -66,6 +95,7 @@ class BehaviourMemory:
         state: the current behaviour state.
         previous_state: the state an emergency stop returns to once released.
         stop, boarding, intersection: the per-state memories above.
+        drop_off: the drop-off being served at the kerb (PULLOVER, ONBOARDING, MERGING without a stop).
         emergency_clear_since_s: when the emergency stop's causes were first seen gone, standing.
         transitions: (t_s, from state, to state, why) of every state change.
     """
@@ -75,6 +105,7 @@ class BehaviourMemory:
     stop: StopVisit = field(default_factory=StopVisit)
     boarding: Boarding = field(default_factory=Boarding)
     intersection: IntersectionVisit = field(default_factory=IntersectionVisit)
+    drop_off: DropOffVisit = field(default_factory=DropOffVisit)
     emergency_clear_since_s: float | None = None
     crosswalk_hold: tuple[float, int, float] | None = None
     """(stop point, track id, last seen yielding s) of a crosswalk yield the shuttle stands for."""
@@ -90,7 +121,8 @@ class BehaviourMemory:
         self.state = state
 
     def finish_stop(self, t_s: float, why: str) -> None:
-        """The stop is served (or skipped): forget it and drive on."""
+        """The stop (or the kerbside drop-off) is served (or skipped): forget it and drive on."""
+        self.drop_off = DropOffVisit(deferred_stop_id=self.drop_off.deferred_stop_id)
         self.stop.stop_index = None
         self.stop.spot_front_s_m = None
         self.stop.spot_committed = False

@@ -13,6 +13,7 @@ from lastmile.core.safety_messages import SafetyDirective
 from lastmile.core.stamp import Stamp
 from lastmile.core.traffic_light_messages import TrafficLightStates
 from lastmile.core.vehicle_messages import Trajectory
+from lastmile.decision.drop_off_config import DropOffConfig
 from lastmile.decision.pass_config import PassConfig
 from lastmile.decision.traffic_light_rule import TrafficLightRuleConfig
 from lastmile.hdmap.curb_fit import CURB_GAP_TARGET_M
@@ -129,6 +130,7 @@ class DecisionConfig:
         traffic_lights: the traffic-light rule's parameters.
         passing: when a stationary obstacle blocking the lane is passed by the adjacent lane
             (:mod:`lastmile.decision.pass_rule`; off unless the planner can plan the pass).
+        drop_off: a passenger's unscheduled drop-off (Snow Lion's button; :mod:`lastmile.decision.drop_off`).
     """
 
     cruise_speed_mps: float = 20.0 / 3.6
@@ -187,6 +189,7 @@ class DecisionConfig:
     rear_min_closing_mps: float = 0.5
     traffic_lights: TrafficLightRuleConfig = field(default_factory=TrafficLightRuleConfig)
     passing: PassConfig = field(default_factory=PassConfig)
+    drop_off: DropOffConfig = field(default_factory=DropOffConfig)
 
     def __post_init__(self) -> None:
         steps = self.in_path_prediction_steps

@@ -7,6 +7,7 @@ import math
 from lastmile.core.route_obstacles import RouteObstacle
 from lastmile.core.vehicle_messages import BehaviourState, StopReason
 from lastmile.decision.behaviour_memory import BehaviourMemory, Boarding, Cycle, DecisionContext, Outcome
+from lastmile.decision.decision_config import DecisionConfig, DecisionInput
 from lastmile.decision.pullover_spot import SpotRequest, choose_spot
 from lastmile.decision.stop_constraints import StopConstraint
 from lastmile.hdmap.layers import RouteStop
@@ -79,15 +80,27 @@ def _rechoose_spot(ctx: DecisionContext, mem: BehaviourMemory, rs: RouteStop, cy
 def handle_onboarding(ctx: DecisionContext, mem: BehaviourMemory, cy: Cycle) -> Outcome:
     """Door open at least ``dwell_min_s`` and until the doorway has been clear ``doorway_clear_s``;
     MERGING once the door is closed (the stop then counts as served)."""
-    c, b, inp, t_s = ctx.config, mem.boarding, cy.inp, cy.t_s
+    inp, t_s = cy.inp, cy.t_s
     cy.constraints.append(StopConstraint(cy.front_s_m, "onboarding", -1, False, StopReason.ONBOARDING))
+    door = door_cycle(ctx.config, mem.boarding, inp, t_s, cy.speed_cap_mps)
+    if door is not None:
+        return door
+    if mem.stop.stop_index is not None:
+        ctx.mission.served(ctx.layers.stops[mem.stop.stop_index].stop.id)
+    mem.enter(BehaviourState.MERGING, t_s, "door closed")
+    mem.stop.merge_from_s_m = inp.route_s_m
+    return Outcome(cy.speed_cap_mps, "closing door")
+
+
+def door_cycle(
+    c: DecisionConfig, b: Boarding, inp: DecisionInput, t_s: float, cap_mps: float
+) -> Outcome | None:
+    """The door's cycle at a standstill (a stop or a drop-off): open at least ``dwell_min_s`` and until
+    the doorway has been clear ``doorway_clear_s``, then closed; None once it has closed."""
     if b.door_closing:
         if not inp.door_open:
-            if mem.stop.stop_index is not None:
-                ctx.mission.served(ctx.layers.stops[mem.stop.stop_index].stop.id)
-            mem.enter(BehaviourState.MERGING, t_s, "door closed")
-            mem.stop.merge_from_s_m = inp.route_s_m
-        return Outcome(cy.speed_cap_mps, "closing door")
+            return None
+        return Outcome(cap_mps, "closing door")
     if inp.door_open and b.door_open_since_s is None:
         b.door_open_since_s = t_s
     if inp.person_in_doorway or not inp.door_open:
@@ -101,8 +114,8 @@ def handle_onboarding(ctx: DecisionContext, mem: BehaviourMemory, cy: Cycle) -> 
         and t_s - b.doorway_clear_since_s >= c.doorway_clear_s
     ):
         b.door_closing = True
-        return Outcome(cy.speed_cap_mps, "closing door")
-    return Outcome(cy.speed_cap_mps, "passengers boarding", door_open=True)
+        return Outcome(cap_mps, "closing door")
+    return Outcome(cap_mps, "passengers boarding", door_open=True)
 
 
 def handle_merging(ctx: DecisionContext, mem: BehaviourMemory, cy: Cycle) -> Outcome:

@@ -56,15 +56,21 @@ INVALID = MetricResult(None, False)
 
 MetricFn = Callable[[RunSignals], MetricResult]
 _REGISTRY: dict[str, MetricFn] = {}
+_ONLY_WITH: dict[str, str] = {}
+"""Metrics written only when the log holds an event of the given kind (a feature the run exercised)."""
 
 
-def register_metric(name: str) -> Callable[[MetricFn], MetricFn]:
-    """Decorator adding a metric function under ``name``; names are unique."""
+def register_metric(name: str, only_with: str | None = None) -> Callable[[MetricFn], MetricFn]:
+    """Decorator adding a metric function under ``name``; names are unique. With ``only_with`` (an event
+    kind) the metric is left out of runs whose log has no such event, so adding a feature's metrics
+    leaves the metrics of runs that never use it as they were."""
 
     def add(fn: MetricFn) -> MetricFn:
         if name in _REGISTRY:
             raise ConfigError(f"register_metric: expected a new metric name, got {name!r} twice")
         _REGISTRY[name] = fn
+        if only_with is not None:
+            _ONLY_WITH[name] = only_with
         return fn
 
     return add
@@ -256,6 +262,22 @@ register_metric("pullover_longitudinal_error_max_m")(
     lambda sig: _max(_field(sig, "stop_served", "longitudinal_error_m"))
 )
 
+# Snow Lion's unscheduled drop-off (seat button): only in runs where a rider asked for one.
+_DROP = "drop_off_requested"
+register_metric("drop_offs_requested", only_with=_DROP)(_count("drop_off_requested"))
+register_metric("drop_offs_served", only_with=_DROP)(_count("drop_off_served"))
+register_metric("drop_offs_at_kerb", only_with=_DROP)(
+    lambda sig: _ok(sum(1 for e in sig.events("drop_off_served") if not e.data["stop_id"]))
+)
+register_metric("drop_off_curb_gap_max_m", only_with=_DROP)(
+    lambda sig: _max(_field(sig, "drop_off_served", "curb_gap_m"))
+)
+register_metric("drop_off_wait_min_s", only_with=_DROP)(
+    lambda sig: (
+        _ok(min(_field(sig, "drop_off_served", "wait_s"))) if sig.events("drop_off_served") else INVALID
+    )
+)
+
 
 @register_metric("loops_completed")
 def _loops(sig: RunSignals) -> MetricResult:
@@ -409,6 +431,9 @@ def compute_metrics(log: run_log.RunLog, comfort: ComfortLimits = SHUTTLE_COMFOR
       signal hovering at the threshold counts once. ``km_per_hard_braking`` and ``km_per_takeover``
       are distance in km divided by the count, and ``None`` when the count is zero (infinity is not
       JSON).
+    - ``drop_offs_requested`` / ``drop_offs_served`` / ``drop_offs_at_kerb`` (served away from a stop),
+      ``drop_off_curb_gap_max_m`` (door to kerb, the referee's), ``drop_off_wait_min_s`` (the shortest
+      standstill at a served drop-off): only in runs with a ``drop_off_requested`` event.
     - ``passengers_served``: passengers picked up (``passenger_boarded`` events);
       ``passengers_alighted`` counts drop-offs. Riders still waiting at the end of the run have no
       wait time in the log, so ``mean_wait_s``/``max_wait_s`` cover boarded riders only.
@@ -441,7 +466,11 @@ def compute_metrics(log: run_log.RunLog, comfort: ComfortLimits = SHUTTLE_COMFOR
         ConfigError: an optional ``meta.config`` key the metrics read is not a finite number.
     """
     sig = RunSignals(log, comfort)
-    return {name: _clean(fn(sig), name) for name, fn in _REGISTRY.items()}
+    return {
+        name: _clean(fn(sig), name)
+        for name, fn in _REGISTRY.items()
+        if name not in _ONLY_WITH or sig.events(_ONLY_WITH[name])
+    }
 
 
 def _write_json(doc: Mapping[str, Any], path: Path, what: str) -> Path:

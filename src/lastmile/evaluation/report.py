@@ -120,6 +120,16 @@ _METRIC_GROUPS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "loops_completed",
         ),
     ),
+    (
+        "Drop-offs",
+        (
+            "drop_offs_requested",
+            "drop_offs_served",
+            "drop_offs_at_kerb",
+            "drop_off_curb_gap_max_m",
+            "drop_off_wait_min_s",
+        ),
+    ),
     ("Share of time in each behaviour state", tuple(f"time_share_{s}" for s in run_log.STATE_NAMES)),
 )
 
@@ -473,6 +483,7 @@ def write_report(
         "## Stops",
         "",
         *report_tables.stops_table(log),
+        *report_tables.drop_offs_table(log),
         "## Speed and acceleration",
         "",
         f"![speed and acceleration over time with behaviour states]({SPEED_PNG})",

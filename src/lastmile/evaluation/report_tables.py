@@ -196,6 +196,36 @@ def stops_table(log: run_log.RunLog) -> list[str]:
     return [*header, *(row for _, row in rows), ""]
 
 
+def drop_offs_table(log: run_log.RunLog) -> list[str]:
+    """Passengers' drop-off requests (the seat's button) and where each was served: at the kerb or,
+    with no safe place before it, at the next stop. Nothing for a run without requests."""
+    asked = log.events_of(EventKind.DROP_OFF_REQUESTED)
+    if not asked:
+        return []
+    served = {e.data["passenger_id"]: e for e in log.events_of(EventKind.DROP_OFF_SERVED)}
+    lines = [
+        "### Drop-offs",
+        "",
+        "| passenger | pressed [s] | at route s [m] | served at | moved off [s] | route s [m] | curb gap [m] "
+        "| standing [s] |",
+        "|---:|---:|---:|---|---:|---:|---:|---:|",
+    ]
+    for e in asked:
+        pid = e.data["passenger_id"]
+        head = f"| {pid} | {e.t_s:.1f} | {float(e.data['route_s_m']):.1f} "
+        got = served.get(pid)
+        if got is None:
+            lines.append(head + "| not served | - | - | - | - |")
+            continue
+        d = got.data
+        where = f"stop {md(str(d['stop_id']))}" if d["stop_id"] else "kerb"
+        lines.append(
+            head + f"| {where} | {got.t_s:.1f} | {float(d['route_s_m']):.1f} | {float(d['curb_gap_m']):.2f} "
+            f"| {float(d['wait_s']):.1f} |"
+        )
+    return [*lines, ""]
+
+
 def state_timeline(log: run_log.RunLog, max_rows: int) -> list[str]:
     """The behaviour states in the order the stack took them, with how long each lasted."""
     changes = log.events_of(EventKind.STATE_CHANGE)

@@ -19,6 +19,8 @@ class Passenger:
     destination: str
     arrived_s: float
     boarded_s: float | None = None
+    alight_anywhere: bool = False
+    """Pressed the drop-off button: gets off at the next door opening, at a stop or at the kerb."""
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -58,8 +60,17 @@ class PassengerModel:
     """Riders at the stops and on board, and the door they move through."""
 
     def __init__(
-        self, stops: tuple[BusStop, ...], config: PassengerConfig, rng: np.random.Generator, seats: int
+        self,
+        stops: tuple[BusStop, ...],
+        config: PassengerConfig,
+        rng: np.random.Generator,
+        seats: int,
+        drop_off_times_s: tuple[float, ...] = (),
     ) -> None:
+        """Args:
+        drop_off_times_s: one rider on board from the start per entry, who presses the drop-off
+            button at that time (``Scenario.drop_off_requests``).
+        """
         self.stops = {s.id: s for s in stops}
         self.order = [s.id for s in stops]
         self.config = config
@@ -89,6 +100,32 @@ class PassengerModel:
         for stop_id, count in config.initial_waiting.items():
             for _ in range(count):
                 self._add(stop_id, 0.0)
+        if len(drop_off_times_s) > seats:
+            raise ConfigError(
+                f"drop_off_requests: expected at most {seats} riders on board (the seats), "
+                f"got {len(drop_off_times_s)}"
+            )
+        self._presses: list[tuple[float, Passenger]] = []
+        for t_s in sorted(drop_off_times_s):
+            rider = Passenger(self._next_id, "", "", 0.0, boarded_s=0.0)
+            self._next_id += 1
+            self.onboard.append(rider)
+            self._presses.append((t_s, rider))
+        self._kerb_drop_offs = False
+        """A drop-off rider has pressed and may get off away from a stop (or is getting off there)."""
+        self.drop_off_alightings: list[tuple[int, str | None]] = []
+        """(passenger id, stop id or None at the kerb) of drop-off riders who got off, for the referee."""
+
+    def press_due(self, t_s: float) -> list[tuple[int, int]]:
+        """The drop-off buttons pressed by ``t_s``: (passenger id, seat) of each; those riders now get
+        off at the next door opening."""
+        out = []
+        while self._presses and self._presses[0][0] <= t_s:
+            _, rider = self._presses.pop(0)
+            rider.alight_anywhere = True
+            self._kerb_drop_offs = True
+            out.append((rider.id, self.onboard.index(rider)))
+        return out
 
     def _draw_gap(self) -> float:
         rate = self.config.arrivals_per_stop_per_min / 60.0
@@ -119,16 +156,20 @@ class PassengerModel:
         self.door_position = (
             min(1.0, self.door_position + rate) if want_open else max(0.0, self.door_position - rate)
         )
+        if self.door_position >= 1.0 and at_stop is None and self._kerb_drop_offs:
+            return self._alight_at_kerb(t_s, dt_s)
         if self.door_position < 1.0 or at_stop is None or self.visit is None:
             return events
         if self._transfer_left_s > 0.0:
             self._transfer_left_s -= dt_s
             return events
         visit = self.visit
-        leaving = [p for p in self.onboard if p.destination == at_stop]
+        leaving = [p for p in self.onboard if p.destination == at_stop or p.alight_anywhere]
         if leaving:
             p = leaving[0]
             self.onboard.remove(p)
+            if p.alight_anywhere:
+                self.drop_off_alightings.append((p.id, at_stop))
             visit.alighted += 1
             self._transfer_left_s = self.config.board_s
             ride = t_s - (p.boarded_s or t_s)
@@ -154,6 +195,22 @@ class PassengerModel:
                 )
             )
         return events
+
+    def _alight_at_kerb(self, t_s: float, dt_s: float) -> list[tuple[EventKind, dict[str, object]]]:
+        """The door open away from any stop: a rider who pressed the drop-off button gets off (one
+        every ``board_s``); nobody else does."""
+        if self._transfer_left_s > 0.0:
+            self._transfer_left_s -= dt_s
+            return []
+        p = next((p for p in self.onboard if p.alight_anywhere), None)
+        if p is None:
+            self._kerb_drop_offs = False  # everyone who asked is off, and the last one is through
+            return []
+        self.onboard.remove(p)
+        self.drop_off_alightings.append((p.id, None))
+        self._transfer_left_s = self.config.board_s
+        ride = round(t_s - (p.boarded_s or t_s), 3)
+        return [(EventKind.PASSENGER_ALIGHTED, {"passenger_id": p.id, "stop_id": "", "ride_s": ride})]
 
     def end_visit(self) -> dict[str, object] | None:
         """Once the door has closed on a visit: the visit's ``stop_served`` event data, and the visit

@@ -154,6 +154,18 @@ class Walker:
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
+class DropOffRequest:
+    """A rider on board from the start who presses the drop-off button by their seat at ``t_s``: they
+    want to get off at the next safe place, not at a stop (Snow Lion's unscheduled drop-off). They get
+    off at the first door opening after the press, wherever the shuttle stands."""
+
+    t_s: float
+
+    def __post_init__(self) -> None:
+        check_range("drop_off_requests.t_s", self.t_s, 0.0, 24 * 3600.0)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
 class MapSpec:
     """The map the world is built on (and the shuttle's service route on it).
 
@@ -202,6 +214,8 @@ class Scenario:
     """Pedestrians, timed as given, at every mapped crosswalk the service route crosses (any map)."""
     walkers: tuple[Walker, ...] = ()
     static_obstacles: tuple[StaticObstacle, ...] = ()
+    drop_off_requests: tuple[DropOffRequest, ...] = ()
+    """Riders on board who ask to get off between stops (``[[drop_off_requests]] t_s = 95.0``)."""
     faults: tuple[FaultSpec, ...] = ()
     snow_cover_lane_m: float = 0.0
     """In snow, this much of the lane beside the curb lies under snow at curb height (raw LiDAR only)."""

@@ -19,6 +19,7 @@ from lastmile.core.object_class import ObjectClass
 from lastmile.core.rng import component_rng
 from lastmile.core.sensor_frames import (
     DoorSensorFrame,
+    DropOffRequestFrame,
     GnssInsFrame,
     ImuFrame,
     RadarFrame,
@@ -172,6 +173,10 @@ class SensorSuite:
         self.push(
             StopCallFrame(stamp=Stamp(now_us), stop_id=stop_id, source=source), self.rates.v2i_latency_us
         )
+
+    def push_drop_off(self, now_us: int, seat: int) -> None:
+        """A seat's drop-off button, on the vehicle's own bus (the door sensor's latency)."""
+        self.push(DropOffRequestFrame(stamp=Stamp(now_us), seat=seat), self.rates.door_latency_us)
 
     def sample(self, tick: int) -> None:
         """Capture every sensor due at ``tick``."""

@@ -27,6 +27,7 @@ from lastmile.hdmap.layer_builder import route_crosswalks
 from lastmile.hdmap.model import HDMap
 from lastmile.hdmap.routing import route, route_polyline
 from lastmile.sim.agents import CAR_LENGTH_M, CAR_WIDTH_M, Agent, PathCar, StopLineOnPath, WalkingAgent
+from lastmile.sim.drop_offs import DropOffReferee
 from lastmile.sim.faults import FaultInjector
 from lastmile.sim.judge import Event, Judge
 from lastmile.sim.map_traffic import MapTraffic, all_way_stop_lines_on
@@ -95,7 +96,11 @@ class Simulation:
             if isinstance(agent, PathCar):
                 agent.obey_signals(self.signals, hdmap)
         self.passengers = PassengerModel(
-            hdmap.stops, scenario.passengers, component_rng(scenario.seed, "passengers"), geometry.seats
+            hdmap.stops,
+            scenario.passengers,
+            component_rng(scenario.seed, "passengers"),
+            geometry.seats,
+            drop_off_times_s=tuple(r.t_s for r in scenario.drop_off_requests),
         )
         # On a route map the referee judges the limits the map states (the campus keeps its 20 km/h).
         self.judge = Judge(
@@ -107,6 +112,7 @@ class Simulation:
             unmapped_speed_limit_mps=unmapped_speed_limit_mps,
         )
         self.operator = OperatorModel(self.judge)
+        self.drop_offs = DropOffReferee(self.judge)
         self.estop_operator = OperatorEStop(
             scenario.estop_in_state, scenario.estop_release_s, scenario.estop_min_speed_mps
         )
@@ -186,6 +192,9 @@ class Simulation:
         for stop_id, source in self.passengers.new_calls:
             self.sensors.push_stop_call(tick * self.tick_us, stop_id, source)
         self.passengers.new_calls.clear()
+        for passenger_id, seat in self.passengers.press_due(w.t_s):
+            self.sensors.push_drop_off(tick * self.tick_us, seat)
+            self.drop_offs.requested(passenger_id)
         for agent in w.agents:
             if agent.active or agent.steps_while_away:
                 agent.step(w, self.dt_s)
@@ -234,6 +243,9 @@ class Simulation:
             j.emit(kind, **data)
         if was_closed and p.door_position > 0.0 and at_stop is not None and p.visit is None:
             p.visit = j.open_visit(at_stop)
+        for passenger_id, stop_id in p.drop_off_alightings:
+            self.drop_offs.alighted(passenger_id, stop_id)
+        p.drop_off_alightings.clear()
         served = p.end_visit()
         if served is not None:
             j.emit(EventKind.STOP_SERVED, **served)
@@ -248,6 +260,7 @@ class Simulation:
             reported_state: the behaviour state the vehicle shows (the e-stop operator presses in one).
         """
         self.judge.step()
+        self.drop_offs.step()
         self.operator.step(takeover_request, self.passengers.door_position > 0.0)
         now = Stamp(self._tick * self.tick_us)
         # The safety driver handing back is the operator's reset of a latched emergency stop.

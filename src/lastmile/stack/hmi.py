@@ -13,7 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from lastmile.core.stamp import Stamp
-from lastmile.core.vehicle_messages import BehaviourDecision, BehaviourState, HmiMessage
+from lastmile.core.vehicle_messages import BehaviourDecision, BehaviourState, HmiMessage, StopReason
 
 
 @dataclass(frozen=True, slots=True)
@@ -42,6 +42,13 @@ CUES: dict[str, HmiCue] = {
     "pulling_over": HmiCue(
         "Pulling over", "Pulling over - shuttle stopping", "Arriving at the stop", "indicator_right", "amber"
     ),
+    "dropping_off": HmiCue(
+        "Pulling over",
+        "Pulling over - shuttle stopping",
+        "Stopping for your drop-off",
+        "indicator_right",
+        "amber",
+    ),
     "doors_open": HmiCue(
         "Boarding", "Passengers boarding", "Doors open - please board", "door_chime", "amber"
     ),
@@ -65,7 +72,8 @@ def cue_for(decision: BehaviourDecision | None, takeover_request: bool) -> str:
     if state == BehaviourState.EMERGENCY_STOP:
         return "emergency_stop"
     if state == BehaviourState.PULLOVER:
-        return "pulling_over"
+        # A passenger's drop-off (the seat's button): the passengers hear it is theirs, not a stop.
+        return "dropping_off" if decision.stop_reason == StopReason.DROP_OFF else "pulling_over"
     if state == BehaviourState.ONBOARDING:
         return "doors_open"
     if state == BehaviourState.MERGING:

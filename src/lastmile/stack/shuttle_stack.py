@@ -40,6 +40,7 @@ from lastmile.core.sensor_frames import (
     CameraDetections,
     CrossingPresenceFrame,
     DoorSensorFrame,
+    DropOffRequestFrame,
     GnssInsFrame,
     ImuFrame,
     LidarSweep,
@@ -513,6 +514,7 @@ class ShuttleStack:
             RadarFrame: self._on_radar,
             DoorSensorFrame: self._on_door,
             StopCallFrame: self.mission.on_call,
+            DropOffRequestFrame: self.mission.on_drop_off,
             CrossingPresenceFrame: self.v2i.on_frame,
         }
         handlers.update(self._localization_handlers())
