@@ -35,6 +35,19 @@ def load_toml(path: Path) -> dict[str, Any]:
         raise ConfigError(f"{path}: expected valid TOML, got a syntax error ({exc})") from None
 
 
+def file_candidates(source: Path, given: str) -> list[Path]:
+    """Where a path written in the file ``source`` may point, in order: itself when absolute, else
+    beside ``source``, then from the working directory (the project's examples name files from the
+    repository root, where the CLI runs; a user's files usually sit beside the one naming them)."""
+    p = Path(given).expanduser()
+    return [p] if p.is_absolute() else [source.parent / p, Path.cwd() / p]
+
+
+def resolve_file(source: Path, given: str) -> Path | None:
+    """The first of :func:`file_candidates` that is a file, or None."""
+    return next((c for c in file_candidates(source, given) if c.is_file()), None)
+
+
 def from_mapping(cls: type[T], data: Any, where: str) -> T:
     """Build the dataclass ``cls`` from a mapping, recursively.
 

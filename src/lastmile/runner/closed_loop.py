@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from dataclasses import asdict
 from pathlib import Path
@@ -9,6 +10,7 @@ from typing import Any
 
 from threadpoolctl import threadpool_limits
 
+from lastmile.core.camera_model import PinholeCamera
 from lastmile.core.vehicle import VehicleGeometry
 from lastmile.evaluation.metrics import compute_metrics, write_metrics, write_timing
 from lastmile.evaluation.report import write_report
@@ -30,8 +32,10 @@ from lastmile.runner.loop_callbacks import (
     live_view_config,
 )
 from lastmile.runner.run_config import RunConfig, run_config_dict
+from lastmile.sim.camera import default_cameras
 from lastmile.sim.scenario import MapSpec, Scenario
 from lastmile.sim.simulation import Simulation
+from lastmile.stack.stack_settings import StackSettings
 from lastmile.stack.vehicle_build import SensorCalibration, build_vehicle
 
 DEFAULT_CONFIG = RunConfig()
@@ -76,7 +80,7 @@ def build_closed_loop(
         layers,
         geometry,
         config.stack,
-        sensor_calibration(world),
+        sensor_calibration(world, config.stack),
         tick_us,
         # Module faults of the scenario reach the stack through its fault-injection port.
         fault_hook=lambda module, now_us: world.faults.module_fault(module, now_us / 1e6),
@@ -84,14 +88,35 @@ def build_closed_loop(
     return ClosedLoop(world, vehicle.software, vehicle.safety, tick_us, callbacks)
 
 
-def sensor_calibration(world: Simulation) -> SensorCalibration:
-    """The simulated sensors' true mounts, as the vehicle's calibration."""
+def sensor_calibration(world: Simulation, stack: StackSettings | None = None) -> SensorCalibration:
+    """The vehicle's calibration: the simulated sensors' true mounts (a real vehicle's nominal ones),
+    the cameras' replaced by the mounts file of ``stack.camera_mounts`` where one is given.
+
+    Raises:
+        ConfigError: the file does not name exactly the vehicle's cameras.
+    """
     rig = world.raw_sensors
+    cameras = tuple(c.camera for c in rig.cameras) if rig else ()
+    light_cameras = world.light_cameras.cameras
+    # The vehicle carries its cameras whichever perception runs (radar mode builds no raw rig).
+    carried = [c.camera for c in rig.cameras] if rig else list(default_cameras(world.world.geometry))
+    ids = tuple(sorted({c.camera_id for c in carried} | {c.camera_id for c in light_cameras}))
+    calibrated = stack.calibrated_camera_mounts(ids) if stack is not None else None
+    if calibrated is not None:
+        cameras = _remounted(cameras, calibrated)
+        light_cameras = _remounted(light_cameras, calibrated)
     return SensorCalibration(
         radar_mounts=world.radar_mounts,
         lidar_mounts={s.sensor_id: s.base_from_sensor for s in rig.lidar_specs} if rig else {},
-        cameras=tuple(c.camera for c in rig.cameras) if rig else (),
-        light_cameras=world.light_cameras.cameras,
+        cameras=cameras,
+        light_cameras=light_cameras,
+    )
+
+
+def _remounted(cameras: tuple[PinholeCamera, ...], mounts: dict[str, Any]) -> tuple[PinholeCamera, ...]:
+    """The cameras with ``camera_from_base`` from ``mounts`` (their optical centres derived anew)."""
+    return tuple(
+        dataclasses.replace(c, camera_from_base=mounts[c.camera_id], centre_base_m=None) for c in cameras
     )
 
 
@@ -141,12 +166,13 @@ def run_scenario(
                 black_box_dir,
                 config.loop.black_box_window_s,
                 world,
-                sensor_calibration(world),
+                sensor_calibration(world, config.stack),
                 run=(scenario, config),
             )
             callbacks.append(BlackBoxCallback(box, writer))
         if live is not None:
-            view = LiveView(live_view_config(live[0], live[1], world, sensor_calibration(world)))
+            calibration = sensor_calibration(world, config.stack)
+            view = LiveView(live_view_config(live[0], live[1], world, calibration))
             if on_live is not None:
                 on_live(view.port)
             callbacks.append(LiveViewCallback(view))

@@ -385,7 +385,7 @@ def _build_shuttles(
             out_dir / f"shuttle-{k}" / "recordings",
             run_config.loop.black_box_window_s,
             loop.world,
-            sensor_calibration(loop.world),
+            sensor_calibration(loop.world, run_config.stack),
             run=(scenario, run_config),
         )
         loop.callbacks.extend(

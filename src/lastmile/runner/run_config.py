@@ -10,6 +10,7 @@ Example (every key optional)::
     perception = "radar_tracking"      # or "lidar_camera_radar" (the default)
     lateral_controller = "pure_pursuit"
     cruise_speed_mps = 3.33
+    camera_mounts = "cameras.toml"     # `lastmile calibrate camera --out`; read beside this file first
 
     [stack.safety]
     max_decel_mps2 = 5.0
@@ -29,7 +30,7 @@ from typing import Any
 
 import tomli_w
 
-from lastmile.core.config import check_range, from_mapping, load_toml
+from lastmile.core.config import check_range, from_mapping, load_toml, resolve_file
 from lastmile.core.errors import ConfigError
 from lastmile.core.perception_mode import PerceptionMode
 from lastmile.sim.faults import RAW_SENSOR_TARGET_PREFIXES
@@ -93,9 +94,29 @@ class RunConfig:
             )
 
 
+FILE_KEYS = (("stack", "camera_mounts"),)
+"""Keys naming files; read beside the configuration file first, then from the working directory."""
+
+
 def load_run_config(path: Path) -> RunConfig:
-    """Read and check a run configuration TOML file."""
-    return from_mapping(RunConfig, load_toml(path), str(path))
+    """Read and check a run configuration TOML file (the files it names: :data:`FILE_KEYS`)."""
+    data = load_toml(path)
+    for keys in FILE_KEYS:
+        _resolve_file_key(data, keys, path)
+    return from_mapping(RunConfig, data, str(path))
+
+
+def _resolve_file_key(data: dict[str, Any], keys: tuple[str, ...], source: Path) -> None:
+    table: Any = data
+    for key in keys[:-1]:
+        table = table.get(key) if isinstance(table, dict) else None
+    if not isinstance(table, dict):
+        return
+    given = table.get(keys[-1])
+    if isinstance(given, str) and given:
+        # Not found anywhere: left as written, for the module's own one-line message.
+        found = resolve_file(source, given)
+        table[keys[-1]] = str(found) if found is not None else given
 
 
 def run_config_dict(config: RunConfig) -> dict[str, Any]:

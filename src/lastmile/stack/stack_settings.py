@@ -8,6 +8,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from enum import StrEnum
+from pathlib import Path
+
+import numpy as np
 
 from lastmile.control.lateral import LateralConfig, LateralControllerName
 from lastmile.control.longitudinal import LongitudinalConfig, LongitudinalControllerName
@@ -16,6 +19,7 @@ from lastmile.core.errors import ConfigError
 from lastmile.core.perception_mode import PerceptionMode
 from lastmile.decision.decision_config import DecisionConfig
 from lastmile.localization.amcl_localization import AmclSettings
+from lastmile.localization.camera_mount_file import check_covers, read_camera_mounts
 from lastmile.localization.ekf_config import PoseEkfConfig
 from lastmile.localization.landmark_extraction import LandmarkExtractionConfig
 from lastmile.localization.odometry_ekf import OdometryEkfConfig
@@ -120,6 +124,11 @@ class StackSettings:
         lidar_detector: a learned LiDAR detector (``[stack.lidar_detector]``, an ONNX model file and
             its BEV grid; :mod:`lastmile.perception.lidar_detector`) run on every rig frame beside
             the clustering, its boxes going through late fusion to the tracker (raw perception only).
+        camera_mounts: a camera mounts file (``[[camera_mount]]`` tables, as ``lastmile calibrate camera
+            --out`` writes them; :mod:`lastmile.localization.camera_mount_file`) whose mounts the stack
+            uses instead of the vehicle's nominal ones (in simulation, the simulator's true ones), for
+            raw perception's cameras and the traffic-light cameras alike. Empty: the nominal mounts. It
+            must name every camera of the vehicle.
     """
 
     perception: PerceptionMode = PerceptionMode.LIDAR_CAMERA_RADAR
@@ -140,6 +149,7 @@ class StackSettings:
     amcl: AmclSettings = field(default_factory=AmclSettings)
     safety: SafetySettings = field(default_factory=SafetySettings)
     lidar_detector: LidarDetectorConfig | None = None
+    camera_mounts: str = ""
 
     def __post_init__(self) -> None:
         if self.lidar_detector is not None and not self.perception.needs_raw_sensors:
@@ -148,6 +158,8 @@ class StackSettings:
                 f"detector reads the LiDAR sweeps), got perception = '{self.perception}'"
             )
         check_localization_inputs(self.localization, self.perception, "stack")
+        if self.camera_mounts:
+            self.calibrated_camera_mounts()  # a missing or bad file is one line now, not at the build
         if self.localization is LocalizationMode.SCAN_MATCHING:
             self.scan_matching.load_map()  # a missing or bad map is one line now, not at the first scan
         if self.localization is LocalizationMode.AMCL:
@@ -162,6 +174,24 @@ class StackSettings:
         if self.cruise_speed_mps is not None:
             # The shuttle's operating speeds: up to its 20 km/h top speed.
             check_range("stack.cruise_speed_mps", self.cruise_speed_mps, 0.5, 20.0 / 3.6 + 1e-9)
+
+    def calibrated_camera_mounts(
+        self, camera_ids: tuple[str, ...] | None = None
+    ) -> dict[str, np.ndarray] | None:
+        """``camera_from_base`` of ``camera_mounts`` by camera id, or None when the nominal ones are used.
+
+        Args:
+            camera_ids: the vehicle's cameras, which the file must name exactly (None: not checked).
+        """
+        if not self.camera_mounts:
+            return None
+        try:
+            mounts = read_camera_mounts(Path(self.camera_mounts))
+            if camera_ids is not None:
+                check_covers(mounts, camera_ids, str(self.camera_mounts))
+        except ConfigError as exc:
+            raise ConfigError(f"stack.camera_mounts: {exc}") from None
+        return mounts
 
 
 _LIDAR_MODES = (LocalizationMode.LANDMARKS, LocalizationMode.SCAN_MATCHING, LocalizationMode.AMCL)
