@@ -878,7 +878,9 @@ def calibrate_camera(
     ],
     lidar_mount: Annotated[str, typer.Option(help="LiDAR in the base frame: x,y,z,roll,pitch,yaw (m, deg).")],
     camera_id: Annotated[str, typer.Option(help="The camera's id in the mounts file.")] = "front",
-    out: Annotated[Path | None, typer.Option(help="Write the mount as [[camera_mount]] TOML here.")] = None,
+    out: Annotated[
+        Path | None, typer.Option(help="Write the mount as [[camera_mount]] TOML (other cameras' rows kept).")
+    ] = None,
 ) -> None:
     """Calibrate a camera's mount against a LiDAR on a checkerboard (Zhang & Pless); print before/after;
     write TOML."""
@@ -886,18 +888,18 @@ def calibrate_camera(
     from rich.table import Table
 
     from lastmile.core.output_dir import prepare_output_file
-    from lastmile.localization.camera_mount_file import write_camera_mounts
+    from lastmile.localization.camera_mount_file import merge_camera_mounts, read_rows
     from lastmile.runner import camera_calibration_files as cc
 
     try:
         checkerboard = cc.parse_board(board, square)
         nominal_pose = cc.parse_mount(nominal, "--nominal")
         lidar_pose = cc.parse_mount(lidar_mount, "--lidar-mount")
-        if out is not None:
-            prepare_output_file(out, "--out")
+        if out is not None and prepare_output_file(out, "--out").exists():
+            read_rows(out)  # an existing file's other cameras are kept: a bad one is refused before the work
         cal = cc.calibrate_folder(folder, cc.read_intrinsics(intrinsics), checkerboard, nominal_pose)
         if out is not None:
-            write_camera_mounts(out, [cc.mount_row(camera_id, cal, lidar_pose)])
+            merge_camera_mounts(out, cc.mount_row(camera_id, cal, lidar_pose))
     except (LastmileError, OSError) as exc:
         typer.echo(f"lastmile calibrate camera: {exc}", err=True)
         raise typer.Exit(2) from None

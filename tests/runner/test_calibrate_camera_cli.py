@@ -12,7 +12,13 @@ from typer.testing import CliRunner
 
 from lastmile.cli import app
 from lastmile.core.errors import ConfigError
-from lastmile.localization.camera_mount_file import MountPose, camera_from_parent, read_camera_mounts
+from lastmile.localization.camera_mount_file import (
+    CameraMountRow,
+    MountPose,
+    camera_from_parent,
+    read_camera_mounts,
+    write_camera_mounts,
+)
 from lastmile.localization.lidar_calibration import mount_difference
 from lastmile.runner.camera_calibration_files import read_intrinsics
 from tests.localization.camera_lidar_session import INTRINSICS, TRUE_IN_LIDAR, TRUTH, perturbed, session
@@ -70,11 +76,16 @@ def test_calibrates_the_camera_and_writes_its_mount_in_the_base_frame(folder, tm
 
     nominal = body_pose(perturbed(TRUTH, np.random.default_rng(2)))
     out = tmp_path / "cameras.toml"
+    rear = CameraMountRow(
+        camera_id="rear", x_m=-0.5, y_m=0.0, z_m=2.2, roll_rad=0.0, pitch_rad=0.1, yaw_rad=3.1
+    )
+    write_camera_mounts(out, [rear])  # calibrated before: kept
     result = CliRunner().invoke(app, _args(folder, _text(nominal), "--camera-id", "front", "--out", str(out)))
     assert result.exit_code == 0, result.output
     assert "view07" in result.output and "camera in the LiDAR frame, after" in result.output
     mounts = read_camera_mounts(out)
-    assert list(mounts) == ["front"]
+    assert sorted(mounts) == ["front", "rear"]
+    np.testing.assert_allclose(mounts["rear"], rear.camera_from_base(), atol=1e-6)
     # The written camera_from_base is the calibrated camera_from_lidar carried by the LiDAR's mount.
     truth_base = camera_from_parent(TRUE_IN_LIDAR) @ np.linalg.inv(LIDAR_IN_BASE.parent_from_child())
     pos_m, rot_rad = mount_difference(np.linalg.inv(truth_base), np.linalg.inv(mounts["front"]))
@@ -104,6 +115,15 @@ def test_bad_options_are_one_line(folder, change, expected):
     assert result.exit_code == 2
     assert expected in result.output
     assert len(result.output.strip().splitlines()) == 1
+
+
+def test_an_existing_output_that_is_no_mounts_file_is_refused_before_the_work(folder, tmp_path):
+    out = tmp_path / "notes.toml"
+    out.write_text('title = "not mounts"\n')
+    result = CliRunner().invoke(app, _args(folder, _text(TRUE_IN_LIDAR), "--out", str(out)))
+    assert result.exit_code == 2
+    assert "notes.toml: unknown key 'title'; expected only [[camera_mount]] tables" in result.output
+    assert out.read_text() == 'title = "not mounts"\n'
 
 
 def test_an_image_without_its_cloud_is_one_line(folder, tmp_path):

@@ -166,6 +166,26 @@ def mount_table(row: CameraMountRow) -> dict[str, Any]:
     return out
 
 
+def read_rows(path: Path) -> list[CameraMountRow]:
+    """The rows of a ``[[camera_mount]]`` file, checked as :func:`read_camera_mounts` checks them."""
+    read_camera_mounts(path)
+    return [
+        from_mapping(CameraMountRow, raw, f"{path}: camera_mount[{i}]")
+        for i, raw in enumerate(load_toml(path)["camera_mount"])
+    ]
+
+
+def merge_camera_mounts(path: Path, row: CameraMountRow) -> None:
+    """Write ``row`` into the mounts file at ``path``: the other cameras' rows of an existing file are
+    kept (one camera is calibrated at a time; the stack needs them all), this camera's replaced.
+
+    Raises:
+        ConfigError: an existing file that is not a valid ``[[camera_mount]]`` file (left untouched).
+    """
+    rows = read_rows(path) if path.exists() else []
+    write_camera_mounts(path, [r for r in rows if r.camera_id != row.camera_id] + [row])
+
+
 def write_camera_mounts(path: Path, rows: list[CameraMountRow]) -> None:
     """Write ``[[camera_mount]]`` tables with a header naming the frames."""
     header = (
