@@ -3,6 +3,7 @@ to within 2 cm / 0.1 degree), its one-line refusals, and the camera mount frames
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import sys
 
@@ -20,7 +21,13 @@ from lastmile.localization.checkerboard_detection import (
     opencv,
 )
 from lastmile.localization.lidar_planes import _fit
-from lastmile.sim.calibration_target import SpinningLidarSpec, board_poses, sweep_board
+from lastmile.sim.calibration_target import (
+    PROJECT_CAMERA,
+    SpinningLidarSpec,
+    board_poses,
+    render_board_image,
+    sweep_board,
+)
 from tests.localization.camera_lidar_session import (
     BOARD,
     BOARD_SPEC,
@@ -166,3 +173,19 @@ def test_a_mount_pose_is_the_camera_model_s_mounting():
     assert (back.roll_rad, back.pitch_rad, back.yaw_rad) == pytest.approx(
         (0.0, math.radians(5.0), math.radians(10.0)), abs=1e-12
     )
+
+
+def test_a_distorted_lens_s_board_plane_is_found_with_the_intrinsics_distortion():
+    distortion = (-0.25, 0.08, 0.001, -0.0005, 0.0)  # a wide-angle lens's barrel distortion
+    imager = dataclasses.replace(PROJECT_CAMERA, distortion=distortion)
+    intrinsics = dataclasses.replace(INTRINSICS, distortion=distortion)
+    rng = np.random.default_rng(4)
+    for lidar_from_board in board_poses(rng, 2, BOARD_SPEC, distance_m=(2.5, 4.5)):
+        image = render_board_image(imager, BOARD_SPEC, TRUTH @ lidar_from_board, rng, supersample=2)
+        normal, offset = board_plane(TRUTH @ lidar_from_board)
+        view = detect_board(image, intrinsics, BOARD, "distorted")
+        assert math.degrees(math.acos(min(1.0, normal @ view.normal))) < 0.2
+        assert abs(view.offset_m - offset) < 0.005
+        # Ignoring the distortion puts the corners off the pinhole's reprojection (refused above 1 px).
+        with pytest.raises(CalibrationError, match=r"expected the corners to reproject within 1.0 px RMS"):
+            detect_board(image, INTRINSICS, BOARD, "distorted")

@@ -51,7 +51,8 @@ class BoardSpec:
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class ImagerSpec:
-    """An undistorted pinhole camera for rendering: K and the image size (pixels)."""
+    """A pinhole camera for rendering: K, the image size (pixels) and Brown-Conrady distortion
+    (OpenCV's k1 k2 p1 p2 k3; zeros: none)."""
 
     fx_px: float
     fy_px: float
@@ -59,6 +60,25 @@ class ImagerSpec:
     cy_px: float
     width_px: int
     height_px: int
+    distortion: tuple[float, float, float, float, float] = (0.0, 0.0, 0.0, 0.0, 0.0)
+
+    def distorted(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Normalised image coordinates through the lens model (OpenCV's order of terms)."""
+        k1, k2, p1, p2, k3 = self.distortion
+        r2 = x * x + y * y
+        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        return (
+            x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x),
+            y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y,
+        )
+
+    def undistorted(self, xd: np.ndarray, yd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The inverse of :meth:`distorted` by fixed-point iteration (as OpenCV's undistortPoints)."""
+        x, y = xd.copy(), yd.copy()
+        for _ in range(20):
+            dx, dy = self.distorted(x, y)
+            x, y = x + (xd - dx), y + (yd - dy)
+        return x, y
 
     def matrix(self) -> np.ndarray:
         """(3, 3) K."""
@@ -102,16 +122,17 @@ def render_board_image(
     offsets = (np.arange(n) + 0.5) / n - 0.5
     rot, t = camera_from_board[:3, :3], camera_from_board[:3, 3]
     normal = rot[:, 2]
-    kinv = np.linalg.inv(imager.matrix())
     x0, x1, y0, y1 = board.extent_m()
     out = np.full((h, w), 110.0)
     # Only the board's projected box is traced (the rest is background).
     outline = np.array([[x, y, 0.0] for x in (x0, x1) for y in (y0, y1)]) @ rot.T + t
     if (outline[:, 2] > 0.05).all():
-        uv = outline @ imager.matrix().T
-        uv = uv[:, :2] / uv[:, 2:3]
-        u_lo, v_lo = np.clip(np.floor(uv.min(axis=0)).astype(int) - 1, 0, (w, h))
-        u_hi, v_hi = np.clip(np.ceil(uv.max(axis=0)).astype(int) + 2, 0, (w, h))
+        xd, yd = imager.distorted(outline[:, 0] / outline[:, 2], outline[:, 1] / outline[:, 2])
+        uv = np.column_stack([imager.fx_px * xd + imager.cx_px, imager.fy_px * yd + imager.cy_px])
+        # Distortion bends the board's edges between its corners: a margin of 2 % of the image.
+        pad = 2 + (int(0.02 * max(w, h)) if any(imager.distortion) else 0)
+        u_lo, v_lo = np.clip(np.floor(uv.min(axis=0)).astype(int) - pad, 0, (w, h))
+        u_hi, v_hi = np.clip(np.ceil(uv.max(axis=0)).astype(int) + pad, 0, (w, h))
     else:
         u_lo, v_lo, u_hi, v_hi = 0, 0, w, h
     if u_hi <= u_lo or v_hi <= v_lo:
@@ -120,7 +141,11 @@ def render_board_image(
     img = np.zeros(u.shape)
     for du in offsets:
         for dv in offsets:
-            rays = np.stack([u + 0.5 + du, v + 0.5 + dv, np.ones_like(u)], axis=-1) @ kinv.T
+            # OpenCV's pixel (u, v) is centred on (u, v): its samples lie within half a pixel of it.
+            xn, yn = (u + du - imager.cx_px) / imager.fx_px, (v + dv - imager.cy_px) / imager.fy_px
+            if any(imager.distortion):
+                xn, yn = imager.undistorted(xn, yn)
+            rays = np.stack([xn, yn, np.ones_like(u)], axis=-1)
             # Ray s * r meets the plane normal . (x - t) = 0 at s = normal . t / normal . r.
             denom = rays @ normal
             with np.errstate(divide="ignore", invalid="ignore"):
