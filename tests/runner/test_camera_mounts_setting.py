@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from lastmile.core.errors import ConfigError
+from lastmile.core.vehicle import VehicleGeometry
 from lastmile.localization.camera_mount_file import (
     CameraMountRow,
     MountPose,
@@ -20,6 +21,7 @@ from lastmile.localization.camera_mount_file import (
 )
 from lastmile.runner.closed_loop import build_closed_loop, sensor_calibration
 from lastmile.runner.run_config import load_run_config
+from lastmile.sim.camera import default_cameras
 from lastmile.sim.scenario import Scenario
 from lastmile.stack.shuttle_stack import ShuttleStack
 
@@ -40,9 +42,8 @@ def _config(folder: Path, mounts_name: str, perception: str = "lidar_camera_rada
 
 
 def _true_poses() -> dict[str, MountPose]:
-    world = build_closed_loop(SCENARIO).world
-    assert world.raw_sensors is not None
-    return {c.camera.camera_id: body_pose(c.camera.camera_from_base) for c in world.raw_sensors.cameras}
+    """The simulator's cameras (the vehicle's, whichever perception runs)."""
+    return {c.camera_id: body_pose(c.camera_from_base) for c in default_cameras(VehicleGeometry())}
 
 
 @pytest.mark.parametrize("perception", ["lidar_camera_radar", "radar_tracking"])
