@@ -898,8 +898,9 @@ def calibrate_camera(
         if out is not None and prepare_output_file(out, "--out").exists():
             read_rows(out)  # an existing file's other cameras are kept: a bad one is refused before the work
         cal = cc.calibrate_folder(folder, cc.read_intrinsics(intrinsics), checkerboard, nominal_pose)
+        mount = cc.mount_row(camera_id, cal, lidar_pose)
         if out is not None:
-            merge_camera_mounts(out, cc.mount_row(camera_id, cal, lidar_pose))
+            merge_camera_mounts(out, mount)
     except (LastmileError, OSError) as exc:
         typer.echo(f"lastmile calibrate camera: {exc}", err=True)
         raise typer.Exit(2) from None
@@ -909,7 +910,7 @@ def calibrate_camera(
     for row in cc.view_rows(cal):
         table.add_row(*row)
     Console(width=200).print(table)
-    for line in cc.summary_lines(cal):
+    for line in cc.summary_lines(cal, mount):
         typer.echo(line)
     if out is not None:
         typer.echo(f"wrote {out}")

@@ -83,6 +83,7 @@ def test_calibrates_the_camera_and_writes_its_mount_in_the_base_frame(folder, tm
     result = CliRunner().invoke(app, _args(folder, _text(nominal), "--camera-id", "front", "--out", str(out)))
     assert result.exit_code == 0, result.output
     assert "view07" in result.output and "camera in the LiDAR frame, after" in result.output
+    assert "camera front in the base frame, after: (" in result.output
     mounts = read_camera_mounts(out)
     assert sorted(mounts) == ["front", "rear"]
     np.testing.assert_allclose(mounts["rear"], rear.camera_from_base(), atol=1e-6)

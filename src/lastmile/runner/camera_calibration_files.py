@@ -235,12 +235,13 @@ def view_rows(cal: CameraLidarCalibration) -> list[tuple[str, ...]]:
     return rows
 
 
-def summary_lines(cal: CameraLidarCalibration) -> list[str]:
-    """Before / after in the LiDAR frame, the correction, the fit and the spread."""
+def summary_lines(cal: CameraLidarCalibration, row: CameraMountRow) -> list[str]:
+    """Before / after in the LiDAR frame, the mount in the base frame, the correction, fit and spread."""
     spread_axis = ", ".join(f"{v:+.2f}" for v in cal.weakest_direction)
     return [
         f"camera in the LiDAR frame, before: {degrees_text(body_pose(cal.nominal_camera_from_lidar))}",
         f"camera in the LiDAR frame, after:  {degrees_text(body_pose(cal.camera_from_lidar))}",
+        f"camera {row.camera_id} in the base frame, after: {degrees_text(body_pose(row.camera_from_base()))}",
         f"correction {cal.correction_m * 100:.2f} cm, {math.degrees(cal.correction_rad):.3f} deg; "
         f"{len(cal.views)} views ({len(cal.skipped)} skipped), RMSE {cal.rmse_m * 100:.2f} cm; board normals "
         f"tilt {math.degrees(cal.normal_spread_rad):.1f} deg RMS towards their least-covered direction "
