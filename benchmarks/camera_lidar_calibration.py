@@ -1,6 +1,8 @@
 """LiDAR-to-camera calibration on a checkerboard: ours against the linear solution and Zhang & Pless's.
 
 Run: python benchmarks/camera_lidar_calibration.py [--trials 10] [--views 20] [--sweeps 1 3] [--json out.json]
+(``--write-session DIR`` writes one session as files for ``lastmile calibrate camera`` and prints the
+command.)
 
 Scene (``sim/calibration_target.py``): the simulator's 2048 x 1536, 70-degree camera and a VLP-32C
 (its beam elevations, 0.2 degrees, 2 cm range noise) 0.3 m apart; a 7 x 5 (inner corners) board of
@@ -122,13 +124,54 @@ def trial(seed: int, views: int, sweeps: int) -> dict[str, tuple[float, float, f
     return out
 
 
+def write_session(folder: Path, views: int, seed: int = 19) -> None:
+    """A session as files for ``lastmile calibrate camera`` (PNG + KITTI .bin per view, intrinsics.toml
+    beside the folder), and the command with a nominal mount 0.2 m / 2 deg off the truth."""
+    import cv2
+
+    from lastmile.localization.camera_mount_file import body_pose
+
+    rng = np.random.default_rng(seed)
+    board = BoardSpec()
+    truth = camera_from_parent(TRUE_IN_LIDAR)
+    nominal = body_pose(perturbed(truth, rng))
+    folder.mkdir(parents=True, exist_ok=True)
+    poses = board_poses(rng, views, board, distance_m=(2.5, 4.5))
+    for k, (image, cloud) in enumerate(simulate_session(rng, poses, truth, board)):
+        cv2.imwrite(str(folder / f"view{k:02d}.png"), image)
+        rows = np.zeros((len(cloud), 4), dtype="<f4")
+        rows[:, :3] = cloud
+        (folder / f"view{k:02d}.bin").write_bytes(rows.tobytes())
+    im = PROJECT_CAMERA
+    intrinsics = folder.parent / "intrinsics.toml"
+    intrinsics.write_text(
+        f"fx = {im.fx_px}\nfy = {im.fy_px}\ncx = {im.cx_px}\ncy = {im.cy_px}\n"
+        f"width = {im.width_px}\nheight = {im.height_px}\n"
+    )
+    angles = (math.degrees(a) for a in (nominal.roll_rad, nominal.pitch_rad, nominal.yaw_rad))
+    text = ",".join(f"{v:.4f}" for v in (nominal.x_m, nominal.y_m, nominal.z_m, *angles))
+    t = TRUE_IN_LIDAR
+    true_deg = ", ".join(f"{math.degrees(a):.2f}" for a in (t.roll_rad, t.pitch_rad, t.yaw_rad))
+    print(f"wrote {views} views to {folder}; the camera's true pose in the LiDAR frame: "
+          f"({t.x_m}, {t.y_m}, {t.z_m}) m rpy ({true_deg}) deg")  # fmt: skip
+    out = folder.parent / "cameras.toml"
+    print(f"lastmile calibrate camera {folder} --intrinsics {intrinsics} --board 7x5 --square 0.1 "
+          f"--nominal={text} --lidar-mount=1.5,0,2.0,0,0,0 --out {out}")  # fmt: skip
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--trials", type=int, default=10)
     parser.add_argument("--views", type=int, default=20)
     parser.add_argument("--sweeps", type=int, nargs="+", default=[1, 3])
     parser.add_argument("--json", type=Path, default=None)
+    parser.add_argument(
+        "--write-session", type=Path, default=None, help="write one session as files, and stop"
+    )
     args = parser.parse_args()
+    if args.write_session is not None:
+        write_session(args.write_session, args.views)
+        return
     loads = [os.getloadavg()[0]]
     reference = [matrix_products_ms()]
     report: dict[str, object] = {"views": args.views, "trials": args.trials, "sessions": {}}
