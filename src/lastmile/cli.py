@@ -927,7 +927,8 @@ def _map_recording(path: Path | None, run_config: RunConfig) -> tuple[LoopCallba
         raise ConfigError(
             f"--record-map: expected raw LiDAR perception, got '{run_config.stack.perception}' (no sweeps)"
         )
-    return (LidarMapRecording(prepare_output_file(path, "--record-map"), min_travel_m=2.0),)
+    out = prepare_output_file(path, "--record-map")
+    return (LidarMapRecording(out, min_travel_m=2.0, stack=run_config.stack),)
 
 
 @app.command()

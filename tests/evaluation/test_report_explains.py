@@ -176,3 +176,17 @@ def test_each_stop_visit_says_how_many_riders_were_left_waiting_and_whether_the_
     r.write_report(log, m.compute_metrics(log), tmp_path)
     rows = [ln for ln in (tmp_path / r.REPORT_FILE).read_text().splitlines() if ln.startswith("| S")]
     assert [row.rsplit("|", 2)[1].strip() for row in rows] == ["2 (full)", "1", "0"]
+
+
+def test_a_takeover_the_vehicle_safety_asked_for_says_why(tmp_path: Path) -> None:
+    reason = "localization: protection level 1.96 sigma = 0.75 m > lane margin 0.75 m"
+    events = [
+        (20.0, "safety", {"level": "SPEED_LIMIT", "mrm": "NONE", "reason": "sensor:gnss: no fix"}),
+        (34.7, "safety", {"level": "MINIMAL_RISK_MANOEUVRE", "mrm": "STOP_IN_LANE", "reason": reason}),
+        (34.7, "takeover", {"reason": "stack_request"}),
+    ]
+    log = _log(events)
+    text = r.write_report(log, m.compute_metrics(log), tmp_path).read_text()
+    cause = f"vehicle safety's minimal risk manoeuvre (stop in lane) at 34.70 s: {reason}"
+    assert f"- takeover at 34.7 s: {cause}" in text
+    assert f"| 34.70 | takeover | reason=stack_request; cause: {cause} |" in text

@@ -16,7 +16,7 @@ from lastmile.core.stamp import Stamp
 from lastmile.perception.camera_geometry import box_corners_3d, box_iou
 from lastmile.perception.cluster_geometry import ClusterSet, describe_clusters
 from lastmile.perception.late_fusion import LateFusionConfig, fuse
-from lastmile.perception.pedestrian_verification import verify_pedestrians
+from lastmile.perception.pedestrian_verification import PedestrianVerificationConfig, verify_pedestrians
 
 CAM = PinholeCamera.mounted(
     "front",
@@ -141,3 +141,34 @@ def test_radar_only_objects_are_dropped_unless_asked_for():
     assert len(out) == 2
     extra = out.table[np.argmax(out.table[:, 0])]
     assert extra[0] == 34.5 and extra[2] == 2.0 and extra[7] == ObjectClass.UNKNOWN
+
+
+def test_nus_verification_names_pedestrians_only_person_shaped_verified_clusters():
+    # A person, and a knee-high post a camera pedestrian box also falls on (a false detection, or a
+    # pedestrian the LiDAR sees only in part): WATonoBus's boxes name both, NUS only the person.
+    cs = _clusters([(12.0, 2.0, 0.5, 0.5, 1.7), (10.0, -2.0, 0.5, 0.5, 0.6), (18.0, 0.0, 4.4, 1.8, 1.5)])
+    boxes = [_image_box(12.0, 2.0, 0.5, 0.5, 1.7), _image_box(10.0, -2.0, 0.5, 0.5, 0.6)]
+    car_box = _image_box(18.0, 0.0, 4.4, 1.8, 1.5)
+    det = CameraDetections(
+        stamp=Stamp(0),
+        camera_id="front",
+        boxes=np.array(
+            [*[[*b, int(ObjectClass.PEDESTRIAN), 0.9] for b in boxes], [*car_box, int(ObjectClass.CAR), 0.9]],
+            dtype=np.float32,
+        ),
+    )
+
+    def classes(config: LateFusionConfig) -> list[int]:
+        t = fuse(Stamp(0), cs, (), None, [CAM], [det], config=config).table
+        return [
+            int(t[np.argmin(np.hypot(t[:, 0] - x, t[:, 1] - y)), 7]) for x, y in ((12, 2), (10, -2), (18, 0))
+        ]
+
+    ped, unk, car = int(ObjectClass.PEDESTRIAN), int(ObjectClass.UNKNOWN), int(ObjectClass.CAR)
+    assert classes(LateFusionConfig()) == [ped, ped, car]
+    nus = LateFusionConfig(pedestrian_verification=PedestrianVerificationConfig())
+    assert classes(nus) == [ped, unk, car]  # other classes stay the camera's
+    # Without a camera pedestrian box nobody is verified, however person-shaped.
+    no_ped = CameraDetections(stamp=Stamp(0), camera_id="front", boxes=det.boxes[2:])
+    t = fuse(Stamp(0), cs, (), None, [CAM], [no_ped], config=nus).table
+    assert int(ObjectClass.PEDESTRIAN) not in t[:, 7].astype(int).tolist()

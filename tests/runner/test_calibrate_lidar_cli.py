@@ -15,7 +15,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
 from typer.testing import CliRunner
 
 from lastmile.cli import app
@@ -24,6 +23,7 @@ from lastmile.core.sensor_frames import LidarSweep
 from lastmile.core.stamp import Stamp
 from lastmile.core.vehicle_messages import LocalizationEstimate
 from lastmile.localization.lidar_calibration import calibrate_by_icp, mount_difference
+from lastmile.localization.lidar_mount_file import read_lidar_mounts
 from lastmile.recorder.foxglove_views import ViewBuilder, planar_matrix
 from lastmile.recorder.mcap_dump import write_mcap
 from lastmile.recorder.replay import read_recording
@@ -82,14 +82,6 @@ def recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return _write(tmp_path_factory.mktemp("rec") / "calib.mcap", True, (200_000, 500_000))
 
 
-def _mount(row: dict[str, object]) -> np.ndarray:
-    out = np.eye(4)
-    angles = [float(row[k]) for k in ("roll_rad", "pitch_rad", "yaw_rad")]  # type: ignore[arg-type]
-    out[:3, :3] = Rotation.from_euler("xyz", angles).as_matrix()
-    out[:3, 3] = [float(row[k]) for k in ("x_m", "y_m", "z_m")]  # type: ignore[arg-type]
-    return out
-
-
 @pytest.mark.parametrize("method", ["icp", "planes"])
 def test_finds_the_true_mount_of_a_perturbed_lidar(recording: Path, tmp_path: Path, method: str) -> None:
     out = tmp_path / "calib.toml"
@@ -100,10 +92,11 @@ def test_finds_the_true_mount_of_a_perturbed_lidar(recording: Path, tmp_path: Pa
     assert "lidar_left" in result.output and "2/2" in result.output
     rows = {r["sensor_id"]: r for r in tomllib.loads(out.read_text())["lidar_mount"]}
     assert rows["front"]["source"] == "reference"
-    np.testing.assert_allclose(_mount(rows["front"]), REFERENCE, atol=1e-5)
+    mounts = read_lidar_mounts(out)  # what `[stack] lidar_mounts` runs the stack on
+    np.testing.assert_allclose(mounts["front"], REFERENCE, atol=1e-5)
     left = rows["left"]
     assert left["source"] == "calibrated" and left["frames"] == 2
-    shift_m, turn_rad = mount_difference(TRUE_MOUNT, _mount(left))
+    shift_m, turn_rad = mount_difference(TRUE_MOUNT, mounts["left"])
     assert shift_m < 0.02
     assert math.degrees(turn_rad) < 0.1
     assert float(left["correction_m"]) == pytest.approx(0.2, abs=0.02)

@@ -90,7 +90,27 @@ def cause_of(log: run_log.RunLog, event: run_log.RunEvent) -> str:
     if active:
         f = active[-1]
         return f"injected fault {f.data['kind']}:{f.data['target']} since {f.t_s:.1f} s"
-    return ""
+    return _safety_cause(log, event)
+
+
+SAFETY_LEVELS = ("MINIMAL_RISK_MANOEUVRE", "EMERGENCY_STOP")
+"""Vehicle-safety levels that ask for a takeover (a run's ``safety`` events carry the level by name)."""
+
+
+def _safety_cause(log: run_log.RunLog, event: run_log.RunEvent) -> str:
+    """The vehicle safety's directive behind a takeover the stack requested: its level, manoeuvre and
+    the monitors' reasons (a GNSS outage's minimal-risk stop says why the pose was lost)."""
+    directives = [
+        s
+        for s in log.events_of(EventKind.SAFETY)
+        if 0.0 <= event.t_s - s.t_s <= CAUSE_WINDOW_S and s.data.get("level") in SAFETY_LEVELS
+    ]
+    if not directives:
+        return ""
+    d = directives[-1].data
+    level = str(d["level"]).lower().replace("_", " ")
+    mrm = f" ({str(d['mrm']).lower().replace('_', ' ')})" if d.get("mrm") not in (None, "NONE") else ""
+    return f"vehicle safety's {level}{mrm} at {directives[-1].t_s:.2f} s: {d.get('reason', '')}"
 
 
 def events_table(log: run_log.RunLog, max_rows: int) -> list[str]:

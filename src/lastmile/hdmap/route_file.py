@@ -34,7 +34,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from lastmile.core.config import from_mapping, load_toml
+from lastmile.core.config import file_candidates, from_mapping, load_toml, resolve_file
 from lastmile.core.errors import ConfigError
 from lastmile.hdmap.projection import (
     PROJECTOR_INFO_FILE,
@@ -221,16 +221,11 @@ def read_route_file(path: str | Path) -> RouteSpec:
 
 
 def _resolve(source: Path, given: str, key: str) -> Path:
-    """A path as written: absolute, else beside the route file, else from the working directory.
-
-    The project's examples name the shared maps from the repository root (``../shared/...``), which
-    is where the CLI is run; a user's route file usually sits beside its map.
-    """
-    p = Path(given).expanduser()
-    tried = [p] if p.is_absolute() else [source.parent / p, Path.cwd() / p]
-    for candidate in tried:
-        if candidate.is_file():
-            return candidate
+    """A path as written: absolute, else beside the route file, else from the working directory."""
+    found = resolve_file(source, given)
+    if found is not None:
+        return found
+    tried = file_candidates(source, given)
     raise ConfigError(
         f"{source}: {key}: expected a file at {given!r}, got none (looked in {', '.join(map(str, tried))})"
     )

@@ -81,6 +81,8 @@ def read_grid(yaml_path: Path | str) -> OccupancyGrid:
         raise MapError(f"{path}: expected an occupancy map (.yaml, map_server format), got no such file")
     try:
         meta = yaml.safe_load(path.read_text())
+    except UnicodeDecodeError:
+        raise MapError(f"{path}: expected map_server YAML text, got binary data (the .pgm image?)") from None
     except (OSError, yaml.YAMLError) as exc:
         raise MapError(
             f"{path}: expected map_server YAML, could not read it ({type(exc).__name__})"

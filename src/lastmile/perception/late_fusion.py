@@ -16,6 +16,12 @@
    the camera detection's score when higher. A learned LiDAR detector's rows
    (:mod:`lastmile.perception.lidar_detector`) come with their class and score: a camera box that
    names a class replaces the detector's, one of class UNKNOWN leaves it.
+4. Optionally NUS's pedestrian verification (its section III; ``pedestrian_verification``,
+   :mod:`lastmile.perception.pedestrian_verification`) decides who is a pedestrian instead of step 2's
+   boxes: a LiDAR cluster is one only when it is shaped like a standing person and a camera
+   pedestrian box overlaps its projected box well enough; a pedestrian label step 2 gave any other
+   cluster is withdrawn (UNKNOWN: NUS tracks unverified candidates as generic dynamic objects, which
+   decision still avoids). Other classes are step 2's.
 """
 
 from __future__ import annotations
@@ -36,6 +42,7 @@ from lastmile.core.sensor_frames import CAMERA_BOX_COLUMNS, RADAR_COLUMNS, Camer
 from lastmile.core.stamp import Stamp
 from lastmile.perception.camera_geometry import box_corners_3d, box_iou
 from lastmile.perception.cluster_geometry import ClusterSet
+from lastmile.perception.pedestrian_verification import PedestrianVerificationConfig, verify_pedestrians
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -47,6 +54,8 @@ class LateFusionConfig:
     confirm_with_radar: drop objects confirmed by neither radar nor camera (bad-weather mode).
     keep_radar_only: also output radar objects no cluster explains (default off: radar ghosts).
     radar_only_size_m: footprint given to radar-only objects.
+    pedestrian_verification: NUS's verification of LiDAR pedestrian candidates by the camera (None:
+        WATonoBus's camera boxes name pedestrians like every other class).
     """
 
     radar_gate_m: float = 1.5
@@ -55,6 +64,7 @@ class LateFusionConfig:
     confirm_with_radar: bool = False
     keep_radar_only: bool = False
     radar_only_size_m: float = 1.0
+    pedestrian_verification: PedestrianVerificationConfig | None = None
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.radar_gate_m) and self.radar_gate_m > 0):
@@ -208,6 +218,8 @@ def fuse_objects(
                 f"fuse: expected detections from a known camera {sorted(by_id)}, got {det.camera_id!r}"
             )
         _associate_camera(rows, by_id[det.camera_id], det, cfg, cls, score, camera_ok)
+    if cfg.pedestrian_verification is not None:
+        _nus_pedestrians(clusters, by_id, camera_detections, cfg.pedestrian_verification, cls, camera_ok)
     keep = np.ones(n, dtype=bool)
     if cfg.confirm_with_radar:
         keep = (rows[:, 9] > 0) | camera_ok
@@ -235,6 +247,26 @@ def fuse_objects(
         z_min_m=r[:, 2].copy(),
         z_max_m=r[:, 3].copy(),
     )
+
+
+def _nus_pedestrians(
+    clusters: ClusterSet,
+    cameras: Mapping[str, PinholeCamera],
+    camera_detections: Sequence[CameraDetections],
+    config: PedestrianVerificationConfig,
+    cls: np.ndarray,
+    camera_ok: np.ndarray,
+) -> None:
+    """NUS: pedestrians are the candidates some camera verifies; nobody else keeps that class."""
+    verified = np.zeros(len(clusters.table), dtype=bool)
+    for det in camera_detections:
+        out = verify_pedestrians(clusters, cameras[det.camera_id], det, config)
+        verified[out.rows[out.verified]] = True
+    ped = int(ObjectClass.PEDESTRIAN)
+    rows = np.arange(len(verified))
+    cls[rows[(cls[: len(verified)] == ped) & ~verified]] = int(ObjectClass.UNKNOWN)
+    cls[rows[verified]] = ped
+    camera_ok[rows[verified]] = True
 
 
 def _apply_lidar_priors(

@@ -96,9 +96,12 @@ def height_map(xyz_m: npt.ArrayLike, config: HeightMapConfig | None = None) -> H
 
 
 def nearest_obstacle_on_path_m(
-    grid: HeightMap, steer_rad: float, config: HeightMapConfig | None = None
+    grid: HeightMap, steer_rad: float, config: HeightMapConfig | None = None, min_s_m: float = 0.0
 ) -> float:
-    """Arc length (m) to the nearest occupied cell on the bicycle-model path; inf when clear."""
+    """Arc length (m) to the nearest occupied cell on the bicycle-model path; inf when clear.
+
+    ``min_s_m``: cells nearer along the path are not counted (those beside the vehicle's own body,
+    e.g. a curb it stands at, when the grid is centred on the rear axle)."""
     cfg = config or HeightMapConfig()
     if not math.isfinite(steer_rad):
         raise MessageError(f"nearest_obstacle_on_path_m: expected a finite steering angle, got {steer_rad}")
@@ -117,7 +120,7 @@ def nearest_obstacle_on_path_m(
         lat = np.abs(rho - abs(R))
         ang = np.arctan2(dx, -dy if R > 0 else dy)
         s = np.abs(R) * np.mod(ang, 2 * math.pi)
-    on = (s >= 0) & (s <= cfg.lookahead_m) & (lat <= cfg.path_half_width_m + grid.cell_m / 2)
+    on = (s >= min_s_m) & (s <= cfg.lookahead_m) & (lat <= cfg.path_half_width_m + grid.cell_m / 2)
     return float(s[on].min()) if on.any() else math.inf
 
 

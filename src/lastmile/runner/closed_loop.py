@@ -90,24 +90,29 @@ def build_closed_loop(
 
 def sensor_calibration(world: Simulation, stack: StackSettings | None = None) -> SensorCalibration:
     """The vehicle's calibration: the simulated sensors' true mounts (a real vehicle's nominal ones),
-    the cameras' replaced by the mounts file of ``stack.camera_mounts`` where one is given.
+    the LiDARs' replaced by the mounts file of ``stack.lidar_mounts`` and the cameras' by that of
+    ``stack.camera_mounts`` where one is given.
 
     Raises:
-        ConfigError: the file does not name exactly the vehicle's cameras.
+        ConfigError: a file does not name exactly the rig's LiDARs or the vehicle's cameras.
     """
     rig = world.raw_sensors
+    lidar_mounts = {s.sensor_id: s.base_from_sensor for s in rig.lidar_specs} if rig else {}
+    calibrated = stack.calibrated_lidar_mounts(tuple(lidar_mounts)) if stack is not None else None
+    if calibrated is not None:
+        lidar_mounts = calibrated
     cameras = tuple(c.camera for c in rig.cameras) if rig else ()
     light_cameras = world.light_cameras.cameras
     # The vehicle carries its cameras whichever perception runs (radar mode builds no raw rig).
-    carried = [c.camera for c in rig.cameras] if rig else list(default_cameras(world.world.geometry))
+    carried = list(cameras) if rig else list(default_cameras(world.world.geometry))
     ids = tuple(sorted({c.camera_id for c in carried} | {c.camera_id for c in light_cameras}))
-    calibrated = stack.calibrated_camera_mounts(ids) if stack is not None else None
-    if calibrated is not None:
-        cameras = _remounted(cameras, calibrated)
-        light_cameras = _remounted(light_cameras, calibrated)
+    camera_mounts = stack.calibrated_camera_mounts(ids) if stack is not None else None
+    if camera_mounts is not None:
+        cameras = _remounted(cameras, camera_mounts)
+        light_cameras = _remounted(light_cameras, camera_mounts)
     return SensorCalibration(
         radar_mounts=world.radar_mounts,
-        lidar_mounts={s.sensor_id: s.base_from_sensor for s in rig.lidar_specs} if rig else {},
+        lidar_mounts=lidar_mounts,
         cameras=cameras,
         light_cameras=light_cameras,
     )

@@ -33,6 +33,7 @@ from lastmile.localization.lidar_calibration import (
     calibrate_by_planes,
     mount_difference,
 )
+from lastmile.localization.lidar_mount_file import mount_row
 from lastmile.recorder.foxglove_views import BASE_FRAME, MAP_FRAME, TF_TOPIC
 from lastmile.recorder.replay import Recording, read_recording
 
@@ -231,21 +232,6 @@ def _summarise(frame_id: str, nominal: np.ndarray, results: list[FrameResult]) -
         spread_m=max(d[0] for d in diffs),
         spread_rad=max(d[1] for d in diffs),
     )
-
-
-def mount_row(frame_id: str, mount: np.ndarray) -> dict[str, Any]:
-    """A mount as a TOML table: position, and roll, pitch, yaw as extrinsic x-y-z Euler angles."""
-    roll, pitch, yaw = Rotation.from_matrix(mount[:3, :3]).as_euler("xyz")
-    x, y, z = (float(v) for v in mount[:3, 3])
-    return {
-        "sensor_id": frame_id.removeprefix("lidar_"),
-        "x_m": round(x, 5),
-        "y_m": round(y, 5),
-        "z_m": round(z, 5),
-        "roll_rad": round(float(roll), 6),
-        "pitch_rad": round(float(pitch), 6),
-        "yaw_rad": round(float(yaw), 6),
-    }
 
 
 def write_mounts(path: Path, reference: str, ref_mount: np.ndarray, results: list[SensorResult]) -> bool:

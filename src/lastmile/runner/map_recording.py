@@ -22,6 +22,7 @@ from lastmile.recorder.mcap_dump import write_mcap
 from lastmile.recorder.topic_recorder import sensor_topic
 from lastmile.runner.loop import ClosedLoop, LoopCallback, TickRecord
 from lastmile.runner.loop_callbacks import sensor_frame_mounts
+from lastmile.stack.stack_settings import StackSettings
 
 ESTIMATE_TOPIC = "/localization/estimate"
 
@@ -29,8 +30,9 @@ ESTIMATE_TOPIC = "/localization/estimate"
 class LidarMapRecording(LoopCallback):
     """Keeps a run's LiDAR rig frames (thinned by travel) and pose estimates; writes them to ``path``."""
 
-    def __init__(self, path: Path, min_travel_m: float = 1.0) -> None:
+    def __init__(self, path: Path, min_travel_m: float = 1.0, stack: StackSettings | None = None) -> None:
         self.path = path
+        self.stack = stack  # whose ``lidar_mounts`` file, if any, gives the mounts the drive records
         self.min_travel_m = min_travel_m
         self.entries: list[tuple[int, str, Any]] = []
         self.rig_frames = 0
@@ -44,7 +46,7 @@ class LidarMapRecording(LoopCallback):
 
         self._mounts = {
             k: v
-            for k, v in sensor_frame_mounts(sensor_calibration(loop.world)).items()
+            for k, v in sensor_frame_mounts(sensor_calibration(loop.world, self.stack)).items()
             if k.startswith("lidar_")
         }
 

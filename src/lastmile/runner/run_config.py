@@ -10,7 +10,8 @@ Example (every key optional)::
     perception = "radar_tracking"      # or "lidar_camera_radar" (the default)
     lateral_controller = "pure_pursuit"
     cruise_speed_mps = 3.33
-    camera_mounts = "cameras.toml"     # `lastmile calibrate camera --out`; read beside this file first
+    lidar_mounts = "calib.toml"        # `lastmile calibrate lidar --out`; read beside this file first
+    camera_mounts = "cameras.toml"     # `lastmile calibrate camera --out`; likewise
 
     [stack.safety]
     max_decel_mps2 = 5.0
@@ -94,7 +95,13 @@ class RunConfig:
             )
 
 
-FILE_KEYS = (("stack", "camera_mounts"),)
+FILE_KEYS = (
+    ("stack", "lidar_mounts"),
+    ("stack", "camera_mounts"),
+    ("stack", "scan_matching", "map"),
+    ("stack", "amcl", "map"),
+    ("stack", "lidar_detector", "model"),
+)
 """Keys naming files; read beside the configuration file first, then from the working directory."""
 
 

@@ -81,6 +81,7 @@ from lastmile.stack.amcl_fusion import AmclFusion
 from lastmile.stack.hmi import HmiComposer
 from lastmile.stack.landmark_fusion import LandmarkFusion
 from lastmile.stack.module_guard import ModuleGuard
+from lastmile.stack.occupancy_stop import OccupancyStop, OccupancyStopSettings
 from lastmile.stack.profiler import ModuleProfiler
 from lastmile.stack.raw_perception import RawPerception, RawPerceptionConfig
 from lastmile.stack.scan_match_fusion import ScanMatchFusion
@@ -115,6 +116,7 @@ class StackConfig:
         prediction: map-aware prediction of the tracks (Snow Lion's constant velocity, lanes and
             crosswalks), handed to decision; its horizon must cover the decision's crosswalk and
             vehicle look-aheads.
+        occupancy_stop: GEM's height-map obstacle stop (raw perception; None: off).
     """
 
     tick_us: int = 10_000
@@ -145,6 +147,7 @@ class StackConfig:
     light_cameras: tuple[PinholeCamera, ...] = ()
     traffic_lights: TrafficLightTrackerConfig = field(default_factory=TrafficLightTrackerConfig)
     prediction: PredictionConfig = field(default_factory=lambda: PredictionConfig(horizon_s=6.0))
+    occupancy_stop: OccupancyStopSettings | None = None
 
     def __post_init__(self) -> None:
         # Decision reads the predicted paths this far ahead; shorter paths would silently shorten it.
@@ -269,6 +272,12 @@ class ShuttleStack:
             if config.localization is LocalizationMode.AMCL and isinstance(self.ekf, PoseEkf)
             else None
         )
+        # GEM's height-map obstacle stop (an option): a speed cap from each rig frame's grid.
+        self.occupancy_stop = (
+            OccupancyStop(config.occupancy_stop, geometry)
+            if config.occupancy_stop is not None and config.perception_mode.needs_raw_sensors
+            else None
+        )
         self.light_tracker = (
             TrafficLightTracker(layers.hdmap.traffic_lights, config.light_cameras, config.traffic_lights)
             if layers.hdmap.traffic_lights and config.light_cameras
@@ -304,6 +313,7 @@ class ShuttleStack:
         self._tick = 0
         self._now = Stamp(0)
         self._speed_mps = 0.0
+        self._wheel_angles_rad = (0.0, 0.0)  # front, rear: the last odometry frame's
         self._yaw_rate_radps = 0.0
         self._door_open = False
         self._person_in_doorway = False
@@ -378,6 +388,10 @@ class ShuttleStack:
             if done and self.amcl is not None and raw.last_result is not None:
                 with p.measure("amcl"):
                     self._guarded("localization", now, self.amcl.fuse, self.ekf, raw.last_result)
+            if done and self.occupancy_stop is not None and raw.last_result is not None:
+                with p.measure("perception"):
+                    stop = self.occupancy_stop.update
+                    self._guarded("tracking", now, stop, raw.last_result, *self._wheel_angles_rad)
         if planning_cycle:
             with p.measure("tracking"):
                 source = raw.tracks if raw is not None else self.tracker.tracks
@@ -448,6 +462,8 @@ class ShuttleStack:
         if self.amcl is not None:
             counters.update(self.amcl.counters())
             perception["amcl_update_cpu_p50_ms"] = self.amcl.cpu_p50_ms()
+        if self.occupancy_stop is not None:
+            counters.update(self.occupancy_stop.counters())
         return VehicleReport(modules=self.profiler.summary(), counters=counters, perception=perception)
 
     def _guarded(self, module: str, now: Stamp, fn: Callable[..., object], *args: object) -> object:
@@ -516,6 +532,7 @@ class ShuttleStack:
 
         def odometry(frame: WheelOdometryFrame) -> None:
             self._speed_mps = frame.speed_mps
+            self._wheel_angles_rad = (frame.steer_front_rad, frame.steer_rear_rad)
 
         def imu(frame: ImuFrame) -> None:
             self._yaw_rate_radps = frame.yaw_rate_radps
@@ -642,6 +659,8 @@ class ShuttleStack:
         cap = self.lateral.speed_cap_mps(
             path, path_s, d.speed_limit_mps, self.config.longitudinal.nominal_accel_mps2
         )
+        if self.occupancy_stop is not None:  # GEM's obstacle stop lowers it further
+            cap = self.occupancy_stop.cap_mps(cap)
         v_ref = self.longitudinal.reference_speed_mps(self._trajectory, path_s, cap)
         accel = self.longitudinal.step(dt, est.speed_mps, v_ref, gap)
         self.lateral.set_speed_reference(v_ref)  # a coupled lateral model predicts with it

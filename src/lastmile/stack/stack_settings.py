@@ -18,17 +18,20 @@ from lastmile.core.config import check_range
 from lastmile.core.errors import ConfigError
 from lastmile.core.perception_mode import PerceptionMode
 from lastmile.decision.decision_config import DecisionConfig
+from lastmile.localization import camera_mount_file
 from lastmile.localization.amcl_localization import AmclSettings
-from lastmile.localization.camera_mount_file import check_covers, read_camera_mounts
 from lastmile.localization.ekf_config import PoseEkfConfig
 from lastmile.localization.landmark_extraction import LandmarkExtractionConfig
+from lastmile.localization.lidar_mount_file import check_covers, read_lidar_mounts
 from lastmile.localization.odometry_ekf import OdometryEkfConfig
 from lastmile.localization.scan_match_localization import ScanMatchingSettings
 from lastmile.perception.lidar_detector import LidarDetectorConfig
+from lastmile.perception.pedestrian_verification import PedestrianVerificationConfig
 from lastmile.planning.local_path import LocalPathConfig
 from lastmile.planning.planners import PlannerName
 from lastmile.safety.failsafe import FailSafeConfig
 from lastmile.safety.hardware_watchdog import HardwareWatchdogConfig
+from lastmile.stack.occupancy_stop import OccupancyStopSettings
 
 
 class LocalizationMode(StrEnum):
@@ -124,6 +127,17 @@ class StackSettings:
         lidar_detector: a learned LiDAR detector (``[stack.lidar_detector]``, an ONNX model file and
             its BEV grid; :mod:`lastmile.perception.lidar_detector`) run on every rig frame beside
             the clustering, its boxes going through late fusion to the tracker (raw perception only).
+        lidar_mounts: a LiDAR mounts file (``[[lidar_mount]]`` tables, as ``lastmile calibrate lidar
+            --out`` writes them; :mod:`lastmile.localization.lidar_mount_file`) the stack runs on instead
+            of the vehicle's nominal mounts (in simulation, the simulator's true ones). Empty: the
+            nominal mounts. Raw perception only; it must name every LiDAR of the vehicle.
+        occupancy_stop: GEM's height-map obstacle stop (``[stack.occupancy_stop]``,
+            :mod:`lastmile.stack.occupancy_stop`): the speed capped at v = d / 5 - 1 for the nearest
+            occupied cell on the arc of the wheel angles (raw perception only; off by default).
+        pedestrian_verification: NUS's pedestrian verification in the late fusion
+            (``[stack.pedestrian_verification]``, :mod:`lastmile.perception.pedestrian_verification`):
+            a cluster is a pedestrian only when person-shaped and confirmed by a camera pedestrian
+            box (raw perception only; off by default: WATonoBus's camera boxes name the class).
         camera_mounts: a camera mounts file (``[[camera_mount]]`` tables, as ``lastmile calibrate camera
             --out`` writes them; :mod:`lastmile.localization.camera_mount_file`) whose mounts the stack
             uses instead of the vehicle's nominal ones (in simulation, the simulator's true ones), for
@@ -149,6 +163,9 @@ class StackSettings:
     amcl: AmclSettings = field(default_factory=AmclSettings)
     safety: SafetySettings = field(default_factory=SafetySettings)
     lidar_detector: LidarDetectorConfig | None = None
+    lidar_mounts: str = ""
+    occupancy_stop: OccupancyStopSettings | None = None
+    pedestrian_verification: PedestrianVerificationConfig | None = None
     camera_mounts: str = ""
 
     def __post_init__(self) -> None:
@@ -160,6 +177,17 @@ class StackSettings:
         check_localization_inputs(self.localization, self.perception, "stack")
         if self.camera_mounts:
             self.calibrated_camera_mounts()  # a missing or bad file is one line now, not at the build
+        if self.lidar_mounts:
+            self.calibrated_lidar_mounts()  # a missing or bad file is one line now, not at the build
+        for key, why in (
+            ("occupancy_stop", "the grid is built from the LiDAR sweeps"),
+            ("pedestrian_verification", "it verifies LiDAR clusters"),
+        ):
+            if getattr(self, key) is not None and not self.perception.needs_raw_sensors:
+                raise ConfigError(
+                    f"stack.{key}: expected perception = '{PerceptionMode.LIDAR_CAMERA_RADAR}' ({why}), "
+                    f"got perception = '{self.perception}'"
+                )
         if self.localization is LocalizationMode.SCAN_MATCHING:
             self.scan_matching.load_map()  # a missing or bad map is one line now, not at the first scan
         if self.localization is LocalizationMode.AMCL:
@@ -175,6 +203,29 @@ class StackSettings:
             # The shuttle's operating speeds: up to its 20 km/h top speed.
             check_range("stack.cruise_speed_mps", self.cruise_speed_mps, 0.5, 20.0 / 3.6 + 1e-9)
 
+    def calibrated_lidar_mounts(
+        self, lidar_ids: tuple[str, ...] | None = None
+    ) -> dict[str, np.ndarray] | None:
+        """The mounts of ``lidar_mounts`` by LiDAR id, or None when the nominal ones are used.
+
+        Args:
+            lidar_ids: the vehicle's LiDARs, which the file must name exactly (None: not checked).
+        """
+        if not self.lidar_mounts:
+            return None
+        if not self.perception.needs_raw_sensors:
+            raise ConfigError(
+                f"stack.lidar_mounts: expected perception = '{PerceptionMode.LIDAR_CAMERA_RADAR}' (the "
+                f"mounts place the LiDAR sweeps), got perception = '{self.perception}'"
+            )
+        try:
+            mounts = read_lidar_mounts(Path(self.lidar_mounts))
+            if lidar_ids is not None:
+                check_covers(mounts, lidar_ids, str(self.lidar_mounts))
+        except ConfigError as exc:
+            raise ConfigError(f"stack.lidar_mounts: {exc}") from None
+        return mounts
+
     def calibrated_camera_mounts(
         self, camera_ids: tuple[str, ...] | None = None
     ) -> dict[str, np.ndarray] | None:
@@ -186,9 +237,9 @@ class StackSettings:
         if not self.camera_mounts:
             return None
         try:
-            mounts = read_camera_mounts(Path(self.camera_mounts))
+            mounts = camera_mount_file.read_camera_mounts(Path(self.camera_mounts))
             if camera_ids is not None:
-                check_covers(mounts, camera_ids, str(self.camera_mounts))
+                camera_mount_file.check_covers(mounts, camera_ids, str(self.camera_mounts))
         except ConfigError as exc:
             raise ConfigError(f"stack.camera_mounts: {exc}") from None
         return mounts

@@ -17,6 +17,7 @@ from lastmile.core.geometry import SE2
 from lastmile.core.safety_messages import FailSafeLevel
 from lastmile.core.vehicle import VehicleGeometry
 from lastmile.hdmap.layers import SLayerDatabase
+from lastmile.perception.late_fusion import LateFusionConfig
 from lastmile.safety.failsafe import FailSafeArbiter, FailSafeConfig
 from lastmile.safety.hardware_watchdog import HardwareWatchdog, HardwareWatchdogConfig
 from lastmile.safety.health_monitor import HealthMonitor, ModuleSpec
@@ -93,7 +94,11 @@ def stack_config(settings: StackSettings, calibration: SensorCalibration, tick_u
         perception_mode=settings.perception,
         lidar_mounts=calibration.lidar_mounts if raw else {},
         cameras=calibration.cameras if raw else (),
-        raw_perception=RawPerceptionConfig(detector=settings.lidar_detector),
+        raw_perception=RawPerceptionConfig(
+            detector=settings.lidar_detector,
+            fusion=LateFusionConfig(pedestrian_verification=settings.pedestrian_verification),
+        ),
+        occupancy_stop=settings.occupancy_stop,
         reliability=ReliabilityConfig(
             sensors=DEFAULT_SENSORS
             + (raw_sensor_specs(tuple(calibration.lidar_mounts), camera_ids) if raw else ())
