@@ -859,6 +859,63 @@ def calibrate_lidar(
         raise typer.Exit(1)
 
 
+@calibrate_app.command("camera")
+def calibrate_camera(
+    folder: Annotated[
+        Path, typer.Argument(help="Folder of image + cloud pairs (same stem: PNG/JPG + PCD/.bin).")
+    ],
+    intrinsics: Annotated[
+        Path,
+        typer.Option(help="fx fy cx cy width height [k1 k2 p1 p2 k3] TOML/YAML, or ROS camera_info YAML."),
+    ],
+    board: Annotated[str, typer.Option(help="Inner corners COLSxROWS, e.g. 7x5.")],
+    square: Annotated[float, typer.Option(help="Side of a square, m.")],
+    nominal: Annotated[
+        str,
+        typer.Option(
+            help="Camera in the LiDAR frame: x,y,z,roll,pitch,yaw (m, deg; body x along the optical axis)."
+        ),
+    ],
+    lidar_mount: Annotated[str, typer.Option(help="LiDAR in the base frame: x,y,z,roll,pitch,yaw (m, deg).")],
+    camera_id: Annotated[str, typer.Option(help="The camera's id in the mounts file.")] = "front",
+    out: Annotated[
+        Path | None, typer.Option(help="Write the mount as [[camera_mount]] TOML (other cameras' rows kept).")
+    ] = None,
+) -> None:
+    """Calibrate a camera's mount against a LiDAR on a checkerboard (Zhang & Pless); print before/after;
+    write TOML."""
+    from rich.console import Console
+    from rich.table import Table
+
+    from lastmile.core.output_dir import prepare_output_file
+    from lastmile.localization.camera_mount_file import merge_camera_mounts, read_rows
+    from lastmile.runner import camera_calibration_files as cc
+
+    try:
+        checkerboard = cc.parse_board(board, square)
+        nominal_pose = cc.parse_mount(nominal, "--nominal")
+        lidar_pose = cc.parse_mount(lidar_mount, "--lidar-mount")
+        if out is not None and prepare_output_file(out, "--out").exists():
+            read_rows(out)  # an existing file's other cameras are kept: a bad one is refused before the work
+        cal = cc.calibrate_folder(folder, cc.read_intrinsics(intrinsics), checkerboard, nominal_pose)
+        mount = cc.mount_row(camera_id, cal, lidar_pose)
+        if out is not None:
+            merge_camera_mounts(out, mount)
+    except (LastmileError, OSError) as exc:
+        typer.echo(f"lastmile calibrate camera: {exc}", err=True)
+        raise typer.Exit(2) from None
+    table = Table(title=f"{folder.name}: camera {camera_id} against the LiDAR ({len(cal.views)} views)")
+    for col in cc.VIEW_COLUMNS:
+        table.add_column(col)
+    for row in cc.view_rows(cal):
+        table.add_row(*row)
+    Console(width=200).print(table)
+    for line in cc.summary_lines(cal, mount):
+        typer.echo(line)
+    if out is not None:
+        typer.echo(f"wrote {out}")
+
+
 def _map_recording(path: Path | None, run_config: RunConfig) -> tuple[LoopCallback, ...]:
     """``run --record-map``: the mapping drive's recorder (raw LiDAR perception only)."""
     if path is None:

@@ -20,6 +20,10 @@ from lastmile.core.stamp import Stamp
 
 # Base axes (x fwd, y left, z up) to optical axes (x right, y down, z fwd) for a camera looking ahead.
 _OPTICAL_FROM_MOUNT = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
+_OPTICAL_FROM_MOUNT.setflags(write=False)
+OPTICAL_FROM_BODY = _OPTICAL_FROM_MOUNT
+"""(3, 3) rotation from a camera's body frame (x along the optical axis, y left, z up: ROS's
+``camera_link``) to its optical frame (x right, y down, z along the axis: ``camera_optical_frame``)."""
 
 
 @dataclass(frozen=True, slots=True, kw_only=True, eq=False)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from dataclasses import asdict
 from pathlib import Path
@@ -9,6 +10,7 @@ from typing import Any
 
 from threadpoolctl import threadpool_limits
 
+from lastmile.core.camera_model import PinholeCamera
 from lastmile.core.vehicle import VehicleGeometry
 from lastmile.evaluation.metrics import compute_metrics, write_metrics, write_timing
 from lastmile.evaluation.report import write_report
@@ -30,6 +32,7 @@ from lastmile.runner.loop_callbacks import (
     live_view_config,
 )
 from lastmile.runner.run_config import RunConfig, run_config_dict
+from lastmile.sim.camera import default_cameras
 from lastmile.sim.scenario import MapSpec, Scenario
 from lastmile.sim.simulation import Simulation
 from lastmile.stack.stack_settings import StackSettings
@@ -87,21 +90,38 @@ def build_closed_loop(
 
 def sensor_calibration(world: Simulation, stack: StackSettings | None = None) -> SensorCalibration:
     """The vehicle's calibration: the simulated sensors' true mounts (a real vehicle's nominal ones),
-    the LiDARs' replaced by the mounts file of ``stack.lidar_mounts`` where one is given.
+    the LiDARs' replaced by the mounts file of ``stack.lidar_mounts`` and the cameras' by that of
+    ``stack.camera_mounts`` where one is given.
 
     Raises:
-        ConfigError: the file does not name exactly the rig's LiDARs.
+        ConfigError: a file does not name exactly the rig's LiDARs or the vehicle's cameras.
     """
     rig = world.raw_sensors
     lidar_mounts = {s.sensor_id: s.base_from_sensor for s in rig.lidar_specs} if rig else {}
     calibrated = stack.calibrated_lidar_mounts(tuple(lidar_mounts)) if stack is not None else None
     if calibrated is not None:
         lidar_mounts = calibrated
+    cameras = tuple(c.camera for c in rig.cameras) if rig else ()
+    light_cameras = world.light_cameras.cameras
+    # The vehicle carries its cameras whichever perception runs (radar mode builds no raw rig).
+    carried = list(cameras) if rig else list(default_cameras(world.world.geometry))
+    ids = tuple(sorted({c.camera_id for c in carried} | {c.camera_id for c in light_cameras}))
+    camera_mounts = stack.calibrated_camera_mounts(ids) if stack is not None else None
+    if camera_mounts is not None:
+        cameras = _remounted(cameras, camera_mounts)
+        light_cameras = _remounted(light_cameras, camera_mounts)
     return SensorCalibration(
         radar_mounts=world.radar_mounts,
         lidar_mounts=lidar_mounts,
-        cameras=tuple(c.camera for c in rig.cameras) if rig else (),
-        light_cameras=world.light_cameras.cameras,
+        cameras=cameras,
+        light_cameras=light_cameras,
+    )
+
+
+def _remounted(cameras: tuple[PinholeCamera, ...], mounts: dict[str, Any]) -> tuple[PinholeCamera, ...]:
+    """The cameras with ``camera_from_base`` from ``mounts`` (their optical centres derived anew)."""
+    return tuple(
+        dataclasses.replace(c, camera_from_base=mounts[c.camera_id], centre_base_m=None) for c in cameras
     )
 
 

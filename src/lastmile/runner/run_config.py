@@ -11,6 +11,7 @@ Example (every key optional)::
     lateral_controller = "pure_pursuit"
     cruise_speed_mps = 3.33
     lidar_mounts = "calib.toml"        # `lastmile calibrate lidar --out`; read beside this file first
+    camera_mounts = "cameras.toml"     # `lastmile calibrate camera --out`; likewise
 
     [stack.safety]
     max_decel_mps2 = 5.0
@@ -96,6 +97,7 @@ class RunConfig:
 
 FILE_KEYS = (
     ("stack", "lidar_mounts"),
+    ("stack", "camera_mounts"),
     ("stack", "scan_matching", "map"),
     ("stack", "amcl", "map"),
     ("stack", "lidar_detector", "model"),

@@ -18,6 +18,7 @@ from lastmile.core.config import check_range
 from lastmile.core.errors import ConfigError
 from lastmile.core.perception_mode import PerceptionMode
 from lastmile.decision.decision_config import DecisionConfig
+from lastmile.localization import camera_mount_file
 from lastmile.localization.amcl_localization import AmclSettings
 from lastmile.localization.ekf_config import PoseEkfConfig
 from lastmile.localization.landmark_extraction import LandmarkExtractionConfig
@@ -137,6 +138,11 @@ class StackSettings:
             (``[stack.pedestrian_verification]``, :mod:`lastmile.perception.pedestrian_verification`):
             a cluster is a pedestrian only when person-shaped and confirmed by a camera pedestrian
             box (raw perception only; off by default: WATonoBus's camera boxes name the class).
+        camera_mounts: a camera mounts file (``[[camera_mount]]`` tables, as ``lastmile calibrate camera
+            --out`` writes them; :mod:`lastmile.localization.camera_mount_file`) whose mounts the stack
+            uses instead of the vehicle's nominal ones (in simulation, the simulator's true ones), for
+            raw perception's cameras and the traffic-light cameras alike. Empty: the nominal mounts. It
+            must name every camera of the vehicle.
     """
 
     perception: PerceptionMode = PerceptionMode.LIDAR_CAMERA_RADAR
@@ -160,6 +166,7 @@ class StackSettings:
     lidar_mounts: str = ""
     occupancy_stop: OccupancyStopSettings | None = None
     pedestrian_verification: PedestrianVerificationConfig | None = None
+    camera_mounts: str = ""
 
     def __post_init__(self) -> None:
         if self.lidar_detector is not None and not self.perception.needs_raw_sensors:
@@ -168,6 +175,8 @@ class StackSettings:
                 f"detector reads the LiDAR sweeps), got perception = '{self.perception}'"
             )
         check_localization_inputs(self.localization, self.perception, "stack")
+        if self.camera_mounts:
+            self.calibrated_camera_mounts()  # a missing or bad file is one line now, not at the build
         if self.lidar_mounts:
             self.calibrated_lidar_mounts()  # a missing or bad file is one line now, not at the build
         for key, why in (
@@ -215,6 +224,24 @@ class StackSettings:
                 check_covers(mounts, lidar_ids, str(self.lidar_mounts))
         except ConfigError as exc:
             raise ConfigError(f"stack.lidar_mounts: {exc}") from None
+        return mounts
+
+    def calibrated_camera_mounts(
+        self, camera_ids: tuple[str, ...] | None = None
+    ) -> dict[str, np.ndarray] | None:
+        """``camera_from_base`` of ``camera_mounts`` by camera id, or None when the nominal ones are used.
+
+        Args:
+            camera_ids: the vehicle's cameras, which the file must name exactly (None: not checked).
+        """
+        if not self.camera_mounts:
+            return None
+        try:
+            mounts = camera_mount_file.read_camera_mounts(Path(self.camera_mounts))
+            if camera_ids is not None:
+                camera_mount_file.check_covers(mounts, camera_ids, str(self.camera_mounts))
+        except ConfigError as exc:
+            raise ConfigError(f"stack.camera_mounts: {exc}") from None
         return mounts
 
 
