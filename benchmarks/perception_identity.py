@@ -9,8 +9,9 @@ snapshot; after, compare against it:
 Frames: 4 synthetic three-LiDAR rig frames (the speed benchmark's, map curb given), 2 frames of the
 simulator's own rig (clear and snow, as the speed benchmark makes them) and, when the KITTI data is
 present, the 3 KITTI object frames twice: with ring and time made up as the speed benchmark's
-clustering rows do, and as ``lastmile perceive`` reads the ``.bin`` files (no curb). Compared element by element: the cropped
-cloud, ground, noise, labels, curb obstacle and surface points, the cluster table, hulls and labels.
+clustering rows do, and as ``lastmile perceive`` reads the ``.bin`` files (no curb). Compared element
+by element: the cropped cloud, ground, noise, labels, curb obstacle and surface points, the cluster
+table, hulls and labels.
 Exit status 1 on any difference.
 """
 

@@ -130,9 +130,39 @@ def test_deskew_bins_and_transforms_equal_the_float32_array_expressions(seed, n,
         assert np.array_equal(out[:, i], ref + Tc[4 * i + 3][bins])
 
 
+def _key_window_counts(line, ring, az, rng_m, z, radius, query, reach, tan_s) -> np.ndarray:
+    """The scan-pattern count as its definition on the keys: for each line around the query's and
+    each of the three seam windows, the points whose key ``line * 10 + (az + pi)`` lies in
+    ``[line * 10 + lo, line * 10 + hi]``, then the range and height tests."""
+    key = line.astype(np.float64) * 10.0 + (az + math.pi)
+    out = np.zeros(len(query), np.int64)
+    for qi, me in enumerate(query):
+        q_az, q_w = az[me] + math.pi, radius[me] / max(rng_m[me], 1e-9)
+        tall = np.abs(ring - ring[me]) * rng_m[me] * tan_s + radius[me]
+        near = (
+            (np.arange(len(key)) != me)
+            & (np.abs(rng_m - rng_m[me]) <= radius[me])
+            & (np.abs(z - z[me]) <= tall)
+        )
+        for dr in range(-reach, reach + 1):
+            base = float(line[me] + dr) * 10.0
+            for s in range(3):
+                shift = (s - 1) * 2 * math.pi
+                lo = min(max(q_az - q_w + shift, 0.0), 2 * math.pi)
+                hi = min(max(q_az + q_w + shift, 0.0), 2 * math.pi)
+                if hi > lo:
+                    out[qi] += np.count_nonzero(near & (key >= base + lo) & (key <= base + hi))
+    return out
+
+
 @settings(max_examples=30, deadline=None)
-@given(seed=st.integers(0, 10_000), n=st.integers(2, 300), reach=st.integers(1, 3))
-def test_scan_window_counts_equal_the_scan_neighbour_definition(seed, n, reach) -> None:
+@given(
+    seed=st.integers(0, 10_000),
+    n=st.integers(2, 300),
+    reach=st.integers(1, 3),
+    n_bins=st.sampled_from([1, 7, 720]),
+)
+def test_scan_window_counts_equal_the_scan_neighbour_definition(seed, n, reach, n_bins) -> None:
     from lastmile.perception.dror_kernel import scan_window_counts
 
     rng_ = np.random.default_rng(seed)
@@ -141,16 +171,19 @@ def test_scan_window_counts_equal_the_scan_neighbour_definition(seed, n, reach) 
     line = sensor * (6 + 2 * reach) + ring
     az = rng_.uniform(-math.pi, math.pi, n)
     az[::5] = np.round(az[::5], 1)  # shared azimuths: windows ending exactly on a point
+    az[::11] = math.pi * rng_.choice([-1.0, 1.0])  # on the seam
     rng_m = rng_.uniform(0.5, 20, n)
     rng_m[::3] = np.round(rng_m[::3])
+    rng_m[::13] = rng_.uniform(0.0, 0.05)  # at the sensor: windows wider than a turn
     z = rng_.normal(0, 1, n)
     radius = rng_.uniform(0.05, 1.0, n)
-    width = radius / rng_m
+    width = radius / np.maximum(rng_m, 1e-9)
     query = np.flatnonzero(rng_.random(n) < 0.5)
-    key = line.astype(np.float64) * 10.0 + (az + math.pi)
-    order = np.argsort(key, kind="stable")
+    pool = np.arange(n)
     tan_s = math.tan(math.radians(3.4))
-    got = scan_window_counts(key[order], order, line, ring, az, rng_m, z, radius, width, query, reach, tan_s)
+    got = scan_window_counts(pool, line, ring, az, rng_m, z, radius, query, reach, tan_s, n_bins)
+    # Bit for bit the count on the keys, whatever the buckets.
+    assert np.array_equal(got, _key_window_counts(line, ring, az, rng_m, z, radius, query, reach, tan_s))
     for qi, me in enumerate(query):
         d_az = np.abs((az - az[me] + math.pi) % (2 * math.pi) - math.pi)  # wrapped azimuth gap
         tall = np.abs(ring - ring[me]) * rng_m[me] * tan_s + radius[me]
@@ -161,6 +194,8 @@ def test_scan_window_counts_equal_the_scan_neighbour_definition(seed, n, reach) 
             & (np.abs(rng_m - rng_m[me]) <= radius[me])
             & (np.abs(z - z[me]) <= tall)
         )
+        if width[me] >= math.pi:
+            continue  # a window wider than the turn: the seam windows overlap (counted twice)
         # Only where the gap is clearly inside or outside the window (the kernel's window edges
         # are float sums on the key; the pipeline's bit identity is checked on real frames).
         edge = np.abs(d_az - width[me]) < 1e-9
@@ -262,3 +297,26 @@ def test_ground_ring_prelude_equals_its_array_expressions(seed, n) -> None:
     assert np.array_equal(tol, cfg.threshold_m(r))
     assert np.array_equal(by_ring, order)
     assert np.array_equal(ring_start, np.searchsorted(ring[order], np.arange(len(cfg.sectors_per_ring) + 1)))
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 10_000), n=st.integers(1, 400), k=st.integers(1, 4), sparse=st.booleans())
+def test_scan_line_sure_counts_each_lines_neighbours_in_the_given_order(seed, n, k, sparse) -> None:
+    from lastmile.perception.dror_kernel import scan_line_sure
+
+    rng_ = np.random.default_rng(seed)
+    key = rng_.integers(0, 5, n) * (10**9 if sparse else 1)  # sparse keys: ranked, not offset
+    x, y, z = (np.round(rng_.normal(0, 0.3, n), 2) for _ in range(3))  # ties on the radius
+    radius = rng_.choice([0.1, 0.2, 0.5], n)
+    # The definition: lines grouped stably, the pairs k apart at most within a line.
+    order = np.argsort(key, kind="stable")
+    count = np.zeros(n, np.int64)
+    for off in range(1, k + 1):
+        a, b = order[:-off], order[off:]
+        same = key[a] == key[b]
+        d2 = (x[b] - x[a]) ** 2 + (y[b] - y[a]) ** 2 + (z[b] - z[a]) ** 2
+        r = np.minimum(radius[a], radius[b])
+        hit = same & (d2 <= r * r)
+        np.add.at(count, a[hit], 1)
+        np.add.at(count, b[hit], 1)
+    assert np.array_equal(scan_line_sure(x, y, z, key, radius, k), count >= k)

@@ -153,14 +153,12 @@ def dror_keep_mask(
             )
         failed = test[~keep[test]]
         if len(failed):
-            width = radius / np.maximum(rng, 1e-9)  # the radius's angular width (multiplier columns)
             count = _scan_neighbours(
                 grid,
                 np.arctan2(dy, dx),
                 rng,
                 p[:, 2],
                 radius,
-                width,
                 failed,
                 cfg.ring_reach,
                 cfg.ring_spacing_rad,
@@ -169,48 +167,59 @@ def dror_keep_mask(
     return keep
 
 
+# Azimuth bins per scan line in the scan-pattern test's buckets: 0.5 deg, a few columns of a
+# spinning LiDAR, so a window (multiplier columns either side) reads a handful of buckets.
+_SCAN_BINS = 720
+# Buckets of the scan-pattern test at most (lines x bins): a cloud numbering its rings sparsely
+# gets fewer, wider bins (the counts do not change, only the points read per window).
+_SCAN_BUCKETS_MAX = 1 << 21
+
+
 def _scan_neighbours(
     grid: np.ndarray,
     azimuth: np.ndarray,
     rng: np.ndarray,
     z: np.ndarray,
     radius: np.ndarray,
-    width: np.ndarray,
     query: np.ndarray,
     ring_reach: int,
     ring_spacing_rad: float,
 ) -> np.ndarray:
     """(Q,) for each ``query`` point: other points of its LiDAR within ``ring_reach`` rings, within
-    its angular ``width`` in azimuth (wrapping at +-pi), within its ``radius`` in range and at a
-    height one beam spacing per ring could reach."""
+    its angular width ``radius / range`` in azimuth (wrapping at +-pi), within its ``radius`` in
+    range and at a height one beam spacing per ring could reach."""
+    # Counted from 0 (a count depends only on which line a point is on and on ring differences).
     sensor = grid[:, 0].astype(np.int64)
+    sensor -= sensor.min()
     ring = grid[:, 1].astype(np.int64)
+    ring -= ring.min()
     n_rings = int(ring.max()) + 2 * ring_reach + 1
+    if (int(sensor.max()) + 1) * n_rings > _SCAN_BUCKETS_MAX:
+        raise MessageError(
+            f"dror_keep_mask.scan_grid: expected at most {_SCAN_BUCKETS_MAX} scan lines (sensors x "
+            f"rings), got sensors spanning {int(sensor.max()) + 1} and rings spanning {n_rings}"
+        )
     line = sensor * n_rings + ring  # rings of one sensor are consecutive line numbers
     # Candidates farther in range than any query's radius cannot count: only the near pool is
-    # sorted by (line, azimuth) as one float key (a margin keeps the bound safe from rounding).
+    # bucketed (a margin keeps the bound safe from rounding).
     q_rng = rng[query]
     pool = np.flatnonzero(
         (rng <= q_rng.max() + 2.0 * radius[query].max() + 1e-6)
         & (rng >= q_rng.min() - 2.0 * radius[query].max() - 1e-6)
     )
-    key = line[pool].astype(np.float64) * 10.0 + (azimuth[pool] + np.pi)
-    # Stable: a sweep lists each ring's returns in firing order, so the keys come in a few sorted
-    # runs that a merge sort takes in linear time (equal keys' order does not change a count).
-    order = np.argsort(key, kind="stable")
+    n_lines = int(line[pool].max()) + 1 if len(pool) else 1
     return scan_window_counts(
-        key[order],
-        pool[order],
+        pool,
         line,
         ring,
         np.ascontiguousarray(azimuth, dtype=np.float64),
         rng,
         np.ascontiguousarray(z, dtype=np.float64),
         radius,
-        width,
         np.asarray(query, dtype=np.int64),
         ring_reach,
         math.tan(ring_spacing_rad),
+        max(1, min(_SCAN_BINS, _SCAN_BUCKETS_MAX // n_lines)),
     )
 
 
