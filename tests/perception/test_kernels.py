@@ -320,3 +320,35 @@ def test_scan_line_sure_counts_each_lines_neighbours_in_the_given_order(seed, n,
         np.add.at(count, a[hit], 1)
         np.add.at(count, b[hit], 1)
     assert np.array_equal(scan_line_sure(x, y, z, key, radius, k), count >= k)
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 10_000), n=st.integers(0, 400))
+def test_merge_transform_and_crop_equal_their_float32_array_expressions(seed, n) -> None:
+    from lastmile.perception.deskew_kernel import crop_points, rigid_transform_into
+
+    rng_ = np.random.default_rng(seed)
+    p = rng_.normal(0, 20, (n, 6)).astype(np.float32)
+    B = rng_.normal(0, 1, (4, 4)).astype(np.float32)
+    out = np.full((n + 3, 6), np.nan, np.float32)
+    rigid_transform_into(p, B, out, 2, 7)
+    for i in range(3):
+        ref = p[:, 0] * B[i, 0] + p[:, 1] * B[i, 1] + p[:, 2] * B[i, 2] + B[i, 3]
+        assert np.array_equal(out[2 : 2 + n, i], ref)
+    assert np.array_equal(out[2 : 2 + n, 3:5], p[:, 3:5]) and (out[2 : 2 + n, 5] == 7).all()
+    assert np.isnan(out[:2]).all() and np.isnan(out[2 + n :]).all()  # nothing else written
+    # Bounds a float32 coordinate can equal while the float64 bound differs (1.2, 4.6), NaN too.
+    bounds = dict(x_min=-1.2, x_max=4.6, half_width=1.2, z_max=1.2, ego_x_min=-0.3, ego_x_max=1.2, ego_w=0.3)
+    pts = rng_.choice(np.array([-1.2, -0.3, 0.0, 0.3, 1.2, 4.6, 5.0, np.nan], np.float32), (n, 6))
+    x, y, z = pts[:, 0], pts[:, 1], pts[:, 2]
+    roi = (x >= bounds["x_min"]) & (x <= bounds["x_max"]) & (np.abs(y) <= bounds["half_width"])
+    roi &= z <= bounds["z_max"]
+    ego = (x >= bounds["ego_x_min"]) & (x <= bounds["ego_x_max"]) & (np.abs(y) <= bounds["ego_w"])
+    rows, kept, xyz = crop_points(
+        pts,
+        np.array([bounds[k] for k in ("x_min", "x_max", "half_width", "z_max")], np.float32),
+        np.array([bounds[k] for k in ("ego_x_min", "ego_x_max", "ego_w")], np.float32),
+    )
+    assert np.array_equal(rows, np.flatnonzero(roi & ~ego))
+    assert np.array_equal(kept, pts[rows], equal_nan=True)
+    assert np.array_equal(xyz, pts[rows, :3].astype(np.float64), equal_nan=True)

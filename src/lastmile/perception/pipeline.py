@@ -25,9 +25,10 @@ from lastmile.perception.cluster_geometry import ClusterGeometryConfig, ClusterS
 from lastmile.perception.cluster_split import ClusterSplitConfig, split_pedestrians
 from lastmile.perception.clustering import euclidean_cluster_labels
 from lastmile.perception.curbs import CurbConfig, CurbEstimate, detect_curb
+from lastmile.perception.deskew_kernel import crop_points
 from lastmile.perception.ground import GROUND_SEGMENTERS, AdaptiveGridConfig, make_ground_segmenter
 from lastmile.perception.himmelsbach import HimmelsbachConfig
-from lastmile.perception.merge import MergedCloud, merge_sweeps
+from lastmile.perception.merge import MergedCloud, merged_points
 from lastmile.perception.motion_compensation import PoseTrajectory
 from lastmile.perception.road_region import RoadMask
 from lastmile.perception.scan_density import return_weights, ring_spacing_from_points
@@ -186,22 +187,24 @@ class LidarPipeline:
         """
         cfg = self.config
         clock = _StageClock()
-        merged = merge_sweeps(sweeps, base_from_sensor, trajectory, time_bin_us=cfg.time_bin_us)
+        # The merged points stay the pipeline's own array: only the cropped cloud is kept (and
+        # checked and frozen as a MergedCloud).
+        stamp, pts = merged_points(sweeps, base_from_sensor, trajectory, time_bin_us=cfg.time_bin_us)
         clock.lap("compensate_merge")
-        pts = merged.points
         c = cfg.crop
-        x, y, z = pts[:, 0], pts[:, 1], pts[:, 2]
-        roi = (x >= c.x_min_m) & (x <= c.x_max_m) & (np.abs(y) <= c.half_width_m) & (z <= c.z_max_m)
-        ego = (x >= c.ego_x_min_m) & (x <= c.ego_x_max_m) & (np.abs(y) <= c.ego_half_width_m)
-        source_index = np.flatnonzero(roi & ~ego)
-        cloud = MergedCloud(
-            stamp=merged.stamp,
-            points=np.take(pts, source_index, axis=0),  # take: ~4x faster than [] on rows
-            sensor_ids=merged.sensor_ids,
-            compensated=merged.compensated,
+        # One compiled pass: the rows inside the region and outside the ego body, and the kept
+        # coordinates in float64 (every stage computes in float64 and would otherwise copy).
+        source_index, kept, xyz = crop_points(
+            pts,
+            np.array([c.x_min_m, c.x_max_m, c.half_width_m, c.z_max_m], dtype=np.float32),
+            np.array([c.ego_x_min_m, c.ego_x_max_m, c.ego_half_width_m], dtype=np.float32),
         )
-        # Converted once: every stage computes in float64 and would otherwise copy on its own.
-        xyz = cloud.points[:, :3].astype(np.float64)
+        cloud = MergedCloud(
+            stamp=stamp,
+            points=kept,
+            sensor_ids=tuple(s.sensor_id for s in sweeps),
+            compensated=trajectory is not None,
+        )
         clock.lap("crop")
         ground = self.ground_segmenter.segment(xyz, road_mask)
         clock.lap("ground")
