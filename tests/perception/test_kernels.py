@@ -352,3 +352,21 @@ def test_merge_transform_and_crop_equal_their_float32_array_expressions(seed, n)
     assert np.array_equal(rows, np.flatnonzero(roi & ~ego))
     assert np.array_equal(kept, pts[rows], equal_nan=True)
     assert np.array_equal(xyz, pts[rows, :3].astype(np.float64), equal_nan=True)
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 10_000), n=st.integers(1, 400), n_seg=st.sampled_from([1, 7, 360]))
+def test_himmelsbach_fill_and_segment_members_equal_their_array_expressions(seed, n, n_seg) -> None:
+    from lastmile.perception.himmelsbach import _fill_forward
+    from lastmile.perception.himmelsbach_kernel import fill_forward, segment_members
+
+    rng_ = np.random.default_rng(seed)
+    ids = np.where(rng_.random((n_seg, 9)) < 0.6, -1, rng_.integers(0, 50, (n_seg, 9)))
+    assert np.array_equal(fill_forward(ids), _fill_forward(ids))
+    az = rng_.uniform(-math.pi, math.pi, n)
+    az[::7] = rng_.choice([-math.pi, math.pi, 0.0])  # the seam and a segment edge
+    points = np.sort(rng_.choice(n, size=max(1, n // 10), replace=False))
+    segment = (np.floor((az + math.pi) / (2 * math.pi) * n_seg).astype(np.int64)) % n_seg
+    need = np.zeros(n_seg, dtype=bool)
+    need[segment[points]] = True
+    assert np.array_equal(segment_members(az, points, n_seg), np.flatnonzero(need[segment]))

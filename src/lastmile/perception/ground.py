@@ -27,6 +27,7 @@ from lastmile.perception.ground_kernel import (
     weighted_sums,
 )
 from lastmile.perception.himmelsbach import HimmelsbachConfig, HimmelsbachGroundSegmenter
+from lastmile.perception.himmelsbach_kernel import segment_members
 from lastmile.perception.road_region import RoadMask
 
 BoolArray = npt.NDArray[np.bool_]
@@ -285,12 +286,8 @@ class AdaptiveGridGroundSegmenter:
         """Himmelsbach's labels for ``points``, from one pass over the points of their segments
         only: a segment's labels depend on its own points alone, so a subset made of whole
         segments gets the labels the whole cloud would."""
-        n_seg = self._himmelsbach.config.n_segments
-        # Himmelsbach's own segment formula on the same arctan2 values.
-        segment = (np.floor((az + math.pi) / (2 * math.pi) * n_seg).astype(np.int64)) % n_seg
-        need = np.zeros(n_seg, dtype=bool)
-        need[segment[points]] = True
-        members = np.flatnonzero(need[segment])
+        # Himmelsbach's own segment formula on the same arctan2 values, in one compiled pass.
+        members = segment_members(az, points, self._himmelsbach.config.n_segments)
         labels = np.zeros(len(p), dtype=bool)
         labels[members] = self._himmelsbach.segment(p[members], road_mask)
         ground[points] = labels[points]
