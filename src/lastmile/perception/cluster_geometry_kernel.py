@@ -34,18 +34,25 @@ def _support(
     sin: np.ndarray,
     out: np.ndarray,
 ) -> None:
-    """``out[j]``: the first of ``cand[:n_cand]`` farthest along direction j."""
-    for j in range(cos.shape[0]):
-        c, s = cos[j], sin[j]
-        best = -np.inf
-        arg = cand[0]
-        for q in range(n_cand):
-            i = cand[q]
-            v = x[i] * c + y[i] * s
-            if v > best:
-                best = v
-                arg = i
-        out[j] = arg
+    """``out[j]``: the first of ``cand[:n_cand]`` farthest along direction j.
+
+    One pass over the candidates for all directions (each direction's comparisons in candidate
+    order, as a pass per direction makes them): the directions' running maxima are independent,
+    so they proceed side by side instead of one dependent chain at a time.
+    """
+    n_dir = cos.shape[0]
+    best = np.full(n_dir, -np.inf)
+    first = cand[0]
+    for j in range(n_dir):
+        out[j] = first
+    for q in range(n_cand):
+        i = cand[q]
+        xi, yi = x[i], y[i]
+        for j in range(n_dir):
+            v = xi * cos[j] + yi * sin[j]
+            if v > best[j]:
+                best[j] = v
+                out[j] = i
 
 
 @njit(cache=True, nogil=True)
@@ -92,7 +99,7 @@ def hull_support(
                 inside = True
                 for j in range(n_dir):
                     v = poly[j]
-                    w = poly[(j + 1) % n_dir]
+                    w = poly[j + 1] if j + 1 < n_dir else poly[0]  # no integer division per edge
                     ex, ey = x[w] - x[v], y[w] - y[v]
                     if not (ex * (qy - y[v]) - ey * (qx - x[v]) > 0):
                         inside = False

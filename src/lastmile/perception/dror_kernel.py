@@ -347,3 +347,70 @@ def first_of_each_value(bits: np.ndarray) -> np.ndarray:
                 break
             h = (h + 1) & mask
     return first[:m]
+
+
+@njit(cache=True, nogil=True)
+def dror_columns(
+    xyz: np.ndarray,
+    points: np.ndarray,
+    rows: np.ndarray,
+    unit_xy: np.ndarray,
+    unit_step: np.ndarray,
+    floor_step: float,
+    multiplier: float,
+    min_radius: float,
+) -> tuple[
+    np.ndarray,
+    np.ndarray,
+    np.ndarray,
+    np.ndarray,
+    np.ndarray,
+    np.ndarray,
+    np.ndarray,
+    np.ndarray,
+    np.ndarray,
+    np.ndarray,
+]:
+    """DROR's per-point inputs for ``rows`` of a merged cloud, in one pass: x, y, z, the offsets
+    dx, dy from the point's LiDAR, its range (libm ``hypot``, as ``np.hypot``), its radius
+    ``max(min_radius, multiplier * range * max(step, floor_step))``, its scan key ``sensor * 1000 +
+    ring``, its sensor and its ring (float32 columns truncated, as ``astype(np.int64)``).
+
+    Args:
+        xyz: (N, 3) float64 cloud coordinates.
+        points: (N, >= 6) float32 cloud (ring in column 4, sensor index in column 5).
+        rows: (M,) int64 rows to take.
+        unit_xy: (S, 2) float64 each LiDAR's horizontal position; unit_step (S,) its column step.
+    """
+    m = rows.shape[0]
+    x = np.empty(m)
+    y = np.empty(m)
+    z = np.empty(m)
+    dx = np.empty(m)
+    dy = np.empty(m)
+    rng = np.empty(m)
+    radius = np.empty(m)
+    key = np.empty(m, np.int64)
+    sensor = np.empty(m, np.int64)
+    ring = np.empty(m, np.int64)
+    n_units = unit_xy.shape[0]
+    for q in range(m):
+        i = rows[q]
+        s = np.int64(points[i, 5])
+        if s < 0 or s >= n_units:
+            raise ValueError("dror_columns: a sensor index outside the units given")
+        r = np.int64(points[i, 4])
+        xi, yi = xyz[i, 0], xyz[i, 1]
+        x[q], y[q], z[q] = xi, yi, xyz[i, 2]
+        ox = xi - unit_xy[s, 0]
+        oy = yi - unit_xy[s, 1]
+        dx[q], dy[q] = ox, oy
+        h = np.hypot(ox, oy)
+        rng[q] = h
+        step = unit_step[s] if unit_step[s] >= floor_step else floor_step
+        a = multiplier * h * step
+        radius[q] = a if a >= min_radius else min_radius
+        key[q] = s * 1000 + r
+        sensor[q] = s
+        ring[q] = r
+    return x, y, z, dx, dy, rng, radius, key, sensor, ring
