@@ -48,23 +48,23 @@ def enough_neighbours(
     n_pool = pool.shape[0]
     side = r_max * (1.0 + 1e-6)  # a neighbour within r_max never lands two cells away despite rounding
     lo0, lo1, lo2 = np.inf, np.inf, np.inf
+    hi0, hi1, hi2 = -np.inf, -np.inf, -np.inf
     for j in pool:
-        lo0 = min(lo0, x[j])
-        lo1 = min(lo1, y[j])
-        lo2 = min(lo2, z[j])
-    cx = np.empty(n_pool, np.int64)
-    cy = np.empty(n_pool, np.int64)
-    cz = np.empty(n_pool, np.int64)
+        lo0, hi0 = min(lo0, x[j]), max(hi0, x[j])
+        lo1, hi1 = min(lo1, y[j]), max(hi1, y[j])
+        lo2, hi2 = min(lo2, z[j]), max(hi2, z[j])
+    # The cell formula is monotone in the coordinate, so the largest cell index is the largest
+    # coordinate's (+1: room for the -1 neighbour offset; +2: for the +1 one and the count).
+    ny = np.int64(np.floor((hi1 - lo1) / side)) + 3
+    nz = np.int64(np.floor((hi2 - lo2) / side)) + 3
+    n_keys = (np.int64(np.floor((hi0 - lo0) / side)) + 3) * ny * nz
+    key = np.empty(n_pool, np.int64)
     for q in range(n_pool):
         j = pool[q]
-        # +1: room for the -1 neighbour offset
-        cx[q] = np.int64(np.floor((x[j] - lo0) / side)) + 1
-        cy[q] = np.int64(np.floor((y[j] - lo1) / side)) + 1
-        cz[q] = np.int64(np.floor((z[j] - lo2) / side)) + 1
-    ny = cy.max() + 2
-    nz = cz.max() + 2
-    n_keys = (cx.max() + 2) * ny * nz
-    key = (cx * ny + cy) * nz + cz
+        cx = np.int64(np.floor((x[j] - lo0) / side)) + 1
+        cy = np.int64(np.floor((y[j] - lo1) / side)) + 1
+        cz = np.int64(np.floor((z[j] - lo2) / side)) + 1
+        key[q] = (cx * ny + cy) * nz + cz
     # Pool points grouped by cell (coordinates copied in that order): ``first[c]`` .. ``first[c + 1]``
     # when bucketed; for a grid too large for buckets, the sorted keys are searched instead.
     bucketed = n_keys <= _CELLS_PER_POINT * n_pool + _CELLS_SPARE
