@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from lastmile.perception.cluster_geometry_kernel import box_extents, cluster_sums, hull_support
+from lastmile.perception.cluster_geometry_kernel import box_extents, cloud_cluster_sums, hull_support
 from lastmile.perception.deskew_kernel import bin_transforms, time_bins
 from lastmile.perception.ground_kernel import plane_residuals, weighted_sums
 
@@ -47,12 +47,19 @@ def test_support_points_are_the_first_points_farthest_along_each_direction(seed,
 def test_cluster_sums_and_extents_equal_bincount_and_reductions(seed, n, k) -> None:
     xy, lab = _clusters(seed, n, k)
     p = np.c_[xy, np.random.default_rng(seed).normal(0, 1, n)]
-    count, sx, sy, zmin = cluster_sums(p, lab, k)
-    assert np.array_equal(count, np.bincount(lab, minlength=k))
-    assert np.array_equal(sx, np.bincount(lab, weights=p[:, 0], minlength=k))
-    assert np.array_equal(sy, np.bincount(lab, weights=p[:, 1], minlength=k))
+    unit = np.random.default_rng(seed).integers(0, 3, n).astype(np.float32)
+    weight = np.array([1.0, 2.5, 1.0 / 3.0])
+    cloud_lab = np.where(np.arange(n) % 5 == 4, -1, lab)  # unlabelled points are skipped
+    count, sx, sy, zmin, size = cloud_cluster_sums(p, cloud_lab, unit, weight, k)
+    has = cloud_lab >= 0
+    lab_h = cloud_lab[has]
+    assert np.array_equal(count, np.bincount(lab_h, minlength=k))
+    assert np.array_equal(sx, np.bincount(lab_h, weights=p[has, 0], minlength=k))
+    assert np.array_equal(sy, np.bincount(lab_h, weights=p[has, 1], minlength=k))
+    w = weight[unit[has].astype(np.int64)]
+    assert np.array_equal(size, np.bincount(lab_h, weights=w, minlength=k))
     zref = np.full(k, np.inf)
-    np.minimum.at(zref, lab, p[:, 2])
+    np.minimum.at(zref, lab_h, p[has, 2])
     assert np.array_equal(zmin, zref)
     _, starts, counts = np.unique(lab, return_index=True, return_counts=True)
     ang = np.random.default_rng(seed).uniform(0, math.pi, len(starts))

@@ -21,7 +21,7 @@ from lastmile.core.errors import ConfigError
 from lastmile.core.object_class import ObjectClass
 from lastmile.core.objects import DETECTION_COLUMNS, DetectedObjects
 from lastmile.core.sensor_frames import LidarSweep
-from lastmile.perception.cluster_geometry import ClusterGeometryConfig, ClusterSet, describe_clusters
+from lastmile.perception.cluster_geometry import ClusterGeometryConfig, ClusterSet, describe_cloud_clusters
 from lastmile.perception.cluster_split import ClusterSplitConfig, split_pedestrians
 from lastmile.perception.clustering import euclidean_cluster_labels
 from lastmile.perception.curbs import CurbConfig, CurbEstimate, detect_curb
@@ -242,16 +242,12 @@ class LidarPipeline:
         if cfg.split.enabled:
             labels = split_pedestrians(xyz, labels, ground, cfg.split)
         clock.lap("clustering")
-        has = labels >= 0
-        has_idx = np.flatnonzero(has)
-        weight = None
+        unit_weight = None
         if cfg.weight_by_unit_density:
             spacing = [ring_spacing_from_points(sweep_of[sid].points) for sid in cloud.sensor_ids]
-            weight = return_weights(np.maximum(steps, cfg.dror.azimuth_step_rad), spacing)
-            weight = weight[cloud.points[has_idx, 5].astype(np.int64)]
-        clusters = describe_clusters(
-            np.take(xyz, has_idx, axis=0), cloud.points[has_idx, 3], labels[has_idx], cfg.geometry, weight
-        )
+            unit_weight = return_weights(np.maximum(steps, cfg.dror.azimuth_step_rad), spacing)
+        # The labelled points read in place (no gather of them first).
+        clusters = describe_cloud_clusters(xyz, cloud.points, labels, unit_weight, cfg.geometry)
         clock.lap("cluster_geometry")
         snow_surface = np.zeros(len(xyz), dtype=bool)
         if curb_lines_xy_m is not None:
