@@ -377,3 +377,26 @@ def test_himmelsbach_fill_and_segment_members_equal_their_array_expressions(seed
     need = np.zeros(n_seg, dtype=bool)
     need[segment[points]] = True
     assert np.array_equal(segment_members(az, points, n_seg), np.flatnonzero(need[segment]))
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    seed=st.integers(0, 10_000),
+    n=st.integers(0, 20_000),
+    distinct=st.integers(1, 30_000),
+    run=st.integers(1, 40),
+)
+def test_first_of_each_value_finds_np_uniques_first_indices(seed, n, distinct, run) -> None:
+    # Runs of equal values (a column listed beam by beam) and more distinct values than the
+    # starting table holds (it grows) alike.
+    from lastmile.perception.dror_kernel import first_of_each_value
+
+    rng_ = np.random.default_rng(seed)
+    values = np.repeat(rng_.integers(0, distinct, n) * 0.25, run)[:n]
+    values[::7] *= -1.0  # -0.0 and +0.0 are one value
+    _, first = np.unique(values, return_index=True)
+    got, finite = first_of_each_value(values)
+    assert finite and np.array_equal(got, np.sort(first))
+    if n:
+        values[n // 2] = np.nan
+        assert not first_of_each_value(values)[1]

@@ -317,25 +317,46 @@ def scan_window_counts(
 
 
 @njit(cache=True, nogil=True)
-def first_of_each_value(bits: np.ndarray) -> np.ndarray:
-    """Indices of the first occurrence of each distinct value of ``bits`` (uint64), in order of
-    appearance, by open-addressing hashing: one pass, whatever the order of the input.
+def first_of_each_value(values: np.ndarray) -> tuple[np.ndarray, bool]:
+    """Indices of the first occurrence of each distinct value of ``values`` (float64, contiguous;
+    -0.0 the same value as +0.0), in order of appearance, by open-addressing hashing of the bit
+    patterns: one pass, whatever the order of the input. Also whether every value is finite
+    (when one is not, the indices are empty: the caller sorts instead).
 
     A sweep's firing times take a few thousand distinct values (its columns) over ~10^5 points;
-    sorting them all to find those values costs ~10x this pass.
+    sorting them all to find those values costs ~10x this pass. The table is sized for the
+    distinct values met so far (grown fourfold, the firsts re-inserted in order, whenever it is
+    half full), so it stays in cache instead of spanning twice the sweep; a value equal to the
+    one before it (a column listed beam by beam) is no first and skips the table.
     """
-    n = bits.shape[0]
-    size = 1
-    while size < 2 * n:
-        size *= 2
-    shift = np.uint64(64 - int(np.log2(size)))
-    table = np.full(size, -1, np.int64)
+    n = values.shape[0]
     first = np.empty(n, np.int64)
-    m = 0
+    if n == 0:
+        return first, True
+    bits = values.view(np.uint64)
     mult = np.uint64(0x9E3779B97F4A7C15)
-    mask = size - 1
+    size = 4096
+    shift = np.uint64(64 - 12)
+    table = np.full(size, -1, np.int64)
+    m = 0
     for i in range(n):
-        h = np.int64((bits[i] * mult) >> shift)
+        v = values[i]
+        if not np.isfinite(v):
+            return first[:0], False
+        if i > 0 and v == values[i - 1]:
+            continue
+        b = np.uint64(0) if v == 0.0 else bits[i]
+        if 2 * m >= size:
+            size *= 4
+            shift -= np.uint64(2)
+            table = np.full(size, -1, np.int64)
+            for f in range(m):
+                c = np.uint64(0) if values[first[f]] == 0.0 else bits[first[f]]
+                h = np.int64((c * mult) >> shift)
+                while table[h] >= 0:
+                    h = (h + 1) & (size - 1)
+                table[h] = first[f]
+        h = np.int64((b * mult) >> shift)
         while True:
             j = table[h]
             if j < 0:
@@ -343,10 +364,10 @@ def first_of_each_value(bits: np.ndarray) -> np.ndarray:
                 first[m] = i
                 m += 1
                 break
-            if bits[j] == bits[i]:
+            if values[j] == v:
                 break
-            h = (h + 1) & mask
-    return first[:m]
+            h = (h + 1) & (size - 1)
+    return first[:m], True
 
 
 @njit(cache=True, nogil=True)

@@ -321,15 +321,13 @@ def azimuth_step_from_times(t_offset_us: npt.ArrayLike) -> float:
     """
     t = np.asarray(t_offset_us)
     # Distinct values, sorted: widening float32 to float64 is exact and one-to-one, so the float64
-    # bit patterns tell the values apart (+0.0 for -0.0). Found by hashing in one pass (a sweep
-    # listed ring by ring, as KITTI's, is not in time order: np.unique's sort of every point cost
-    # ~3-5 ms on 120k points), then only the distinct values are sorted; the same values as
-    # np.unique. Non-finite times (never in a validated sweep) go the sorting way.
-    w = t.astype(np.float64) + 0.0
-    if len(w) and np.isfinite(w).all():
-        t = np.sort(w[first_of_each_value(w.view(np.uint64))])
-    else:
-        t = np.unique(t if t.dtype == np.float32 else w)
+    # values tell the times apart (+0.0 for -0.0). Found by hashing in one pass (a sweep listed
+    # ring by ring, as KITTI's, is not in time order: np.unique's sort of every point cost ~3-5 ms
+    # on 120k points), then only the distinct values are sorted; the same values as np.unique.
+    # Non-finite times (never in a validated sweep) go the sorting way.
+    w = np.ascontiguousarray(t, dtype=np.float64).reshape(-1)
+    first, finite = first_of_each_value(w)
+    t = np.sort(w[first] + 0.0) if finite else np.unique(t if t.dtype == np.float32 else w + 0.0)
     t = t.astype(np.float64)
     if len(t) < 2:
         return 0.0
