@@ -23,7 +23,7 @@ from lastmile.core.objects import DETECTION_COLUMNS, DetectedObjects
 from lastmile.core.sensor_frames import LidarSweep
 from lastmile.perception.cluster_geometry import ClusterGeometryConfig, ClusterSet, describe_cloud_clusters
 from lastmile.perception.cluster_split import ClusterSplitConfig, split_pedestrians
-from lastmile.perception.clustering import euclidean_cluster_labels
+from lastmile.perception.clustering import euclidean_cluster_labels, euclidean_cluster_rows
 from lastmile.perception.curbs import CurbConfig, CurbEstimate, detect_curb
 from lastmile.perception.deskew_kernel import crop_points
 from lastmile.perception.ground import GROUND_SEGMENTERS, AdaptiveGridConfig, make_ground_segmenter
@@ -233,7 +233,7 @@ class LidarPipeline:
         clock.lap("curbs")
         labels = np.full(len(xyz), -1, dtype=np.int64)
         objects = ng[~curb_surface[ng]]
-        labels[objects] = euclidean_cluster_labels(np.take(xyz, objects, axis=0), cfg.cluster_eps_m)
+        labels[objects] = euclidean_cluster_rows(xyz, objects, cfg.cluster_eps_m)
         # Reassigned points the ground step had taken become obstacle points of their own.
         newly = np.flatnonzero(curb_obstacle & (labels < 0) & ~noise)
         if len(newly):
