@@ -218,7 +218,6 @@ def test_ground_ring_kernels_equal_their_array_expressions(seed, n, n_sec) -> No
     cfg = AdaptiveGridConfig()
     rng_ = np.random.default_rng(seed)
     x, y = rng_.uniform(-40, 40, n), rng_.uniform(-40, 40, n)
-    rng_.normal(0, 0.3, n)  # (the draws the cases were made with)
     az = np.arctan2(y, x)
     az[::4] = np.round(az[::4], 1)  # sector boundaries hit exactly
     tol, road = rng_.uniform(0.1, 0.35, n), rng_.random(n) < 0.5
