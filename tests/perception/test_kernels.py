@@ -213,17 +213,20 @@ def test_scan_window_counts_equal_the_scan_neighbour_definition(seed, n, reach, 
 @given(seed=st.integers(0, 10_000), n=st.integers(1, 500), n_sec=st.sampled_from([8, 16, 32]))
 def test_ground_ring_kernels_equal_their_array_expressions(seed, n, n_sec) -> None:
     from lastmile.perception.ground import AdaptiveGridConfig, _low_quantile
-    from lastmile.perception.ground_kernel import classify_ring, low_quantile
+    from lastmile.perception.ground_kernel import classify_ring, low_quantile, ring_points
 
     cfg = AdaptiveGridConfig()
     rng_ = np.random.default_rng(seed)
     x, y = rng_.uniform(-40, 40, n), rng_.uniform(-40, 40, n)
+    z = rng_.normal(0, 0.3, n)
     az = np.arctan2(y, x)
     az[::4] = np.round(az[::4], 1)  # sector boundaries hit exactly
     tol, road = rng_.uniform(0.1, 0.35, n), rng_.random(n) < 0.5
     idx = np.sort(rng_.choice(n, size=max(1, n // 2), replace=False))
-    window = tol[idx]
-    region = (np.floor((az[idx] + math.pi) / (2 * math.pi / n_sec)).astype(int) % n_sec) * 2 + road[idx]
+    px, _, pz, window, region = ring_points(idx, x, y, z, az, tol, road, 2 * math.pi / n_sec, n_sec)
+    sec = np.floor((az[idx] + math.pi) / (2 * math.pi / n_sec)).astype(int) % n_sec
+    assert np.array_equal(region, sec * 2 + road[idx])
+    assert np.array_equal(px, x[idx]) and np.array_equal(pz, z[idx]) and np.array_equal(window, tol[idx])
     res = rng_.normal(0, 0.3, len(idx))
     res[::3] = np.round(res[::3], 2)  # on histogram bin edges
     sane = (res >= -cfg.max_below_m) & (res <= cfg.seed_window_m)
@@ -291,40 +294,16 @@ def test_ground_ring_prelude_equals_its_array_expressions(seed, n) -> None:
     if n:
         x[:: max(1, n // 7)] = np.asarray(cfg.ring_edges_m)[g.integers(0, len(cfg.ring_edges_m))]  # on edges
         y[:: max(1, n // 7)] = 0.0
-    z = g.normal(0, 1, n)
-    az = np.arctan2(y, x)
-    if n:
-        az[:: max(1, n // 5)] = g.choice([-math.pi, math.pi, 0.0])  # the seam, a sector edge
-    road = g.random(n) < 0.5
     edges = np.asarray(cfg.ring_edges_m)
-    n_sec = np.asarray(cfg.sectors_per_ring)
-    sector_rad = np.array([2 * math.pi / s for s in cfg.sectors_per_ring])
-    by_ring, ring_start, px, py, pz, window, region = ring_prelude(
-        x,
-        y,
-        z,
-        az,
-        road,
-        edges,
-        cfg.threshold_near_m,
-        cfg.threshold_per_m,
-        cfg.threshold_max_m,
-        n_sec,
-        sector_rad,
+    tol, by_ring, ring_start = ring_prelude(
+        x, y, edges, cfg.threshold_near_m, cfg.threshold_per_m, cfg.threshold_max_m, len(cfg.sectors_per_ring)
     )
     r = np.hypot(x, y)
     ring = np.searchsorted(edges, r, side="right") - 1
     order = np.argsort(ring, kind="stable")
-    tol = cfg.threshold_m(r)
+    assert np.array_equal(tol, cfg.threshold_m(r))
     assert np.array_equal(by_ring, order)
     assert np.array_equal(ring_start, np.searchsorted(ring[order], np.arange(len(cfg.sectors_per_ring) + 1)))
-    for k, s in enumerate(cfg.sectors_per_ring):
-        rows = slice(ring_start[k], ring_start[k + 1])
-        idx = by_ring[rows]
-        sec = np.floor((az[idx] + math.pi) / (2 * math.pi / s)).astype(int) % s
-        assert np.array_equal(region[rows], sec * 2 + road[idx])
-        for got, col in ((px, x), (py, y), (pz, z), (window, tol)):
-            assert np.array_equal(got[rows], col[idx])
 
 
 @settings(max_examples=30, deadline=None)

@@ -22,6 +22,7 @@ from lastmile.perception.ground_kernel import (
     low_quantile,
     plane_residuals,
     plane_systems,
+    ring_points,
     ring_prelude,
     weighted_sums,
 )
@@ -187,23 +188,17 @@ class AdaptiveGridGroundSegmenter:
         x, y, z = (np.ascontiguousarray(p[:, i]) for i in range(3))
         az = np.arctan2(y, x)
         road = np.ones(n, dtype=bool) if road_mask is None else np.asarray(road_mask(p[:, :2]), dtype=bool)
-        # Two compiled passes (ground_kernel.ring_prelude): range, tolerance (cfg.threshold_m's
-        # arithmetic), ring = number of edges at or below the range minus one, then the points
-        # grouped by ring once (a stable counting sort) with each ring's x, y, z, tolerance and
-        # region gathered in order, instead of a scan of the cloud and a gather per ring.
-        n_sec_of = np.asarray(cfg.sectors_per_ring, dtype=np.int64)
-        by_ring, ring_start, gx, gy, gz, gwindow, gregion = ring_prelude(
+        # One compiled pass (ground_kernel.ring_prelude): range, tolerance (cfg.threshold_m's
+        # arithmetic), ring = number of edges at or below the range minus one, and the points
+        # grouped by ring once (a stable counting sort) instead of a scan of the cloud per ring.
+        tol, by_ring, ring_start = ring_prelude(
             x,
             y,
-            z,
-            az,
-            road,
             np.asarray(cfg.ring_edges_m, dtype=np.float64),
             cfg.threshold_near_m,
             cfg.threshold_per_m,
             cfg.threshold_max_m,
-            n_sec_of,
-            np.array([2 * math.pi / n_sec for n_sec in cfg.sectors_per_ring]),
+            len(cfg.sectors_per_ring),
         )
         # Prior planes of the previous ring per sector (a, b, c); the first ring's prior is z = 0.
         prev_planes = np.zeros((1, 2, 3))
@@ -218,8 +213,7 @@ class AdaptiveGridGroundSegmenter:
             if len(idx) == 0:
                 prev_planes, prev_sectors = prior, n_sec
                 continue
-            ring = slice(ring_start[k], ring_start[k + 1])
-            px, py, pz, window, region = gx[ring], gy[ring], gz[ring], gwindow[ring], gregion[ring]
+            px, py, pz, window, region = ring_points(idx, x, y, z, az, tol, road, 2 * math.pi / n_sec, n_sec)
             planes = prior.reshape(-1, 3).copy()
             fitted = np.ones(2 * n_sec, dtype=bool)
             low = np.zeros(0)

@@ -87,6 +87,39 @@ def weighted_sums(
 
 
 @njit(cache=True, nogil=True)
+def ring_points(
+    idx: np.ndarray,
+    x: np.ndarray,
+    y: np.ndarray,
+    z: np.ndarray,
+    az: np.ndarray,
+    tol: np.ndarray,
+    road: np.ndarray,
+    sector_rad: float,
+    n_sec: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """One ring's points gathered in one pass: x, y, z, tolerance, and region ``2 * sector + road``
+    with ``sector = floor((az + pi) / sector_rad) mod n_sec`` (the array expression's arithmetic)."""
+    m = idx.shape[0]
+    px = np.empty(m)
+    py = np.empty(m)
+    pz = np.empty(m)
+    window = np.empty(m)
+    region = np.empty(m, np.int64)
+    for q in range(m):
+        i = idx[q]
+        px[q] = x[i]
+        py[q] = y[i]
+        pz[q] = z[i]
+        window[q] = tol[i]
+        sec = np.int64(np.floor((az[i] + np.pi) / sector_rad))
+        if sec < 0 or sec >= n_sec:  # only az = pi (or outside +-pi): the integer division is slow
+            sec %= n_sec
+        region[q] = sec * 2 + (1 if road[i] else 0)
+    return px, py, pz, window, region
+
+
+@njit(cache=True, nogil=True)
 def low_quantile(
     res: np.ndarray,
     region: np.ndarray,
@@ -223,37 +256,24 @@ def accept_planes(
 def ring_prelude(
     x: np.ndarray,
     y: np.ndarray,
-    z: np.ndarray,
-    az: np.ndarray,
-    road: np.ndarray,
     edges: np.ndarray,
     near_m: float,
     per_m: float,
     max_m: float,
-    n_sec: np.ndarray,
-    sector_rad: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Two passes over the cloud: each point's ground tolerance and ring, then the points grouped
-    by ring with what the ring's fit reads gathered beside them.
+    n_rings: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One pass over the cloud: each point's ground tolerance, the points grouped by ring, and where
+    each ring's group starts.
 
     The array expressions it replaces: ``r = np.hypot(x, y)`` (the same libm ``hypot``),
     ``tol = np.minimum(near_m + per_m * r, max_m)``, ``ring = (number of edges <= r) - 1``,
-    ``by_ring = np.argsort(ring, kind="stable")`` (here a counting sort, stable too),
-    ``ring_start = np.searchsorted(ring[by_ring], np.arange(n_rings + 1))``, and per ring ``k``
-    (rows ``idx = by_ring[ring_start[k]:ring_start[k + 1]]``) ``x[idx]``, ``y[idx]``, ``z[idx]``,
-    ``tol[idx]`` and the region ``2 * sector + road[idx]`` with ``sector = floor((az + pi) /
-    sector_rad[k]) mod n_sec[k]``.
-
-    Args:
-        n_sec: (n_rings,) int64 sectors of each ring; sector_rad: (n_rings,) their width
-            ``2 pi / n_sec`` (as Python computes it).
+    ``by_ring = np.argsort(ring, kind="stable")`` (here a counting sort, stable too) and
+    ``ring_start = np.searchsorted(ring[by_ring], np.arange(n_rings + 1))``.
 
     Returns:
-        (N,) int64 by_ring, (n_rings + 1,) int64 ring_start, then (N,) px, py, pz, window and
-        int64 region in ``by_ring`` order (defined for the rows of rings 0 .. n_rings - 1).
+        (N,) tol, (N,) int64 by_ring, (n_rings + 1,) int64 ring_start.
     """
     n = x.shape[0]
-    n_rings = sector_rad.shape[0]
     n_edges = edges.shape[0]
     tol = np.empty(n)
     ring = np.empty(n, np.int64)
@@ -276,21 +296,8 @@ def ring_prelude(
     for k in range(n_rings + 1):
         ring_start[k] = count[min(k, n_edges) + 1]
     by_ring = np.empty(n, np.int64)
-    px = np.empty(n)
-    py = np.empty(n)
-    pz = np.empty(n)
-    window = np.empty(n)
-    region = np.zeros(n, np.int64)
     for i in range(n):
-        k = ring[i]
-        q = count[k + 1]
-        count[k + 1] += 1
-        by_ring[q] = i
-        if k < 0 or k >= n_rings:
-            continue  # a NaN range or beyond the grid: never fitted
-        px[q], py[q], pz[q], window[q] = x[i], y[i], z[i], tol[i]
-        sec = np.int64(np.floor((az[i] + np.pi) / sector_rad[k]))
-        if sec < 0 or sec >= n_sec[k]:  # only az = pi (or outside +-pi): the integer division is slow
-            sec %= n_sec[k]
-        region[q] = sec * 2 + (1 if road[i] else 0)
-    return by_ring, ring_start, px, py, pz, window, region
+        slot = ring[i] + 1
+        by_ring[count[slot]] = i
+        count[slot] += 1
+    return tol, by_ring, ring_start
