@@ -232,13 +232,15 @@ class LidarPipeline:
             curb_surface[curb.surface_idx] = True
         clock.lap("curbs")
         labels = np.full(len(xyz), -1, dtype=np.int64)
-        objects = ng[~curb_surface[ng]]
+        # Without a curb estimate no point is curb surface or reassigned (the masks are empty).
+        objects = ng if curb is None else ng[~curb_surface[ng]]
         labels[objects] = euclidean_cluster_rows(xyz, objects, cfg.cluster_eps_m)
-        # Reassigned points the ground step had taken become obstacle points of their own.
-        newly = np.flatnonzero(curb_obstacle & (labels < 0) & ~noise)
-        if len(newly):
-            extra = euclidean_cluster_labels(xyz[newly], cfg.cluster_eps_m)
-            labels[newly] = extra + (labels.max() + 1)
+        if curb is not None:
+            # Reassigned points the ground step had taken become obstacle points of their own.
+            newly = np.flatnonzero(curb_obstacle & (labels < 0) & ~noise)
+            if len(newly):
+                extra = euclidean_cluster_labels(xyz[newly], cfg.cluster_eps_m)
+                labels[newly] = extra + (labels.max() + 1)
         if cfg.split.enabled:
             labels = split_pedestrians(xyz, labels, ground, cfg.split)
         clock.lap("clustering")
