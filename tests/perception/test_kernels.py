@@ -233,7 +233,10 @@ def test_ground_ring_kernels_equal_their_array_expressions(seed, n, n_sec) -> No
     low = low_quantile(res, region, 2 * n_sec, cfg.max_below_m, cfg.seed_window_m, 0.05, cfg.seed_quantile)
     assert np.array_equal(low, _low_quantile(res[sane], region[sane], 2 * n_sec, cfg))
     ground = np.zeros(n, dtype=bool)
-    classify_ring(idx, res, region, window, 2 * n_sec, cfg.smooth_floor_m, cfg.smooth_sigmas, ground)
+    below = classify_ring(
+        idx, res, region, window, 2 * n_sec, cfg.smooth_floor_m, cfg.smooth_sigmas, ground, cfg.max_below_m
+    )
+    assert np.array_equal(below, np.bincount(region[res < -cfg.max_below_m], minlength=2 * n_sec))
     inlier = np.abs(res) <= window
     n_in = np.bincount(region[inlier], minlength=2 * n_sec)
     ss = np.bincount(region[inlier], weights=res[inlier] ** 2, minlength=2 * n_sec)

@@ -69,7 +69,9 @@ def enough_neighbours(
     # when bucketed; for a grid too large for buckets, the sorted keys are searched instead.
     bucketed = n_keys <= _CELLS_PER_POINT * n_pool + _CELLS_SPARE
     if bucketed:
-        first = np.zeros(n_keys + 1, np.int64)
+        # int32 offsets (a pool is far below 2**31 points): the bucket array is mostly empty
+        # cells, and zeroing, summing and copying it is this kernel's largest memory traffic.
+        first = np.zeros(n_keys + 1, np.int32)
         for q in range(n_pool):
             first[key[q] + 1] += 1
         for c in range(n_keys):
@@ -81,7 +83,7 @@ def enough_neighbours(
             fill[key[q]] += 1
         skey = np.empty(0, np.int64)
     else:
-        first = np.empty(0, np.int64)
+        first = np.empty(0, np.int32)
         order = np.argsort(key)
         skey = key[order]
     px = np.empty(n_pool)
