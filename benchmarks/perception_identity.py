@@ -6,9 +6,12 @@ snapshot; after, compare against it:
     python benchmarks/perception_identity.py save /tmp/pipeline_before.npz
     python benchmarks/perception_identity.py compare /tmp/pipeline_before.npz
 
-Frames: 4 synthetic three-LiDAR rig frames (the speed benchmark's, map curb given) and, when the
-KITTI data is present, the 3 KITTI object frames (no curb). Compared element by element: the cropped
-cloud, ground, noise, labels, curb obstacle and surface points, the cluster table, hulls and labels.
+Frames: 4 synthetic three-LiDAR rig frames (the speed benchmark's, map curb given), 2 frames of the
+simulator's own rig (clear and snow, as the speed benchmark makes them) and, when the KITTI data is
+present, the 3 KITTI object frames twice: with ring and time made up as the speed benchmark's
+clustering rows do, and as ``lastmile perceive`` reads the ``.bin`` files (no curb). Compared element
+by element: the cropped cloud, ground, noise, labels, curb obstacle and surface points, the cluster
+table, hulls and labels.
 Exit status 1 on any difference.
 """
 
@@ -32,7 +35,7 @@ from tests.perception import kitti  # noqa: E402
 
 from lastmile.perception.motion_compensation import PoseTrajectory, se3_matrix  # noqa: E402
 from lastmile.perception.pipeline import LidarPipeline  # noqa: E402
-from perception_speed import _kitti_sweep, _rig_frame  # noqa: E402
+from perception_speed import _kitti_sweep, _rig_frame, _sim_rig_frames, kitti_frames  # noqa: E402
 
 RIG_SEEDS = (0, 1, 2, 3)
 
@@ -53,6 +56,11 @@ def outputs() -> dict[str, np.ndarray]:
     )
     for name in kitti.frame_names():
         runs.append((f"kitti{name}", pipe.process([_kitti_sweep(kitti.load_frame(name))], k_ext, k_traj)))
+    for name, (sweeps, ext, traj, curb) in kitti_frames():
+        runs.append((f"perceive {name}", pipe.process(sweeps, ext, traj, None, curb)))
+    for weather in ("clear", "snow"):
+        sweeps, ext, traj, curb = _sim_rig_frames(weather, 1)[0]
+        runs.append((f"sim {weather}", pipe.process(sweeps, ext, traj, None, curb)))
     for frame, r in runs:
         arrays = {
             "cloud": r.cloud.points,

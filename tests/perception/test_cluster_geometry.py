@@ -5,10 +5,12 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial import ConvexHull
 
+from lastmile.core.errors import MessageError
 from lastmile.perception.cluster_geometry import ClusterGeometryConfig, ClusterKind, describe_clusters
 
 
@@ -102,3 +104,34 @@ def test_every_hull_vertex_is_its_clusters_farthest_point_in_its_direction(
         got = cs.hull_xy[i, :, 0] * np.cos(ang) + cs.hull_xy[i, :, 1] * np.sin(ang)
         np.testing.assert_array_equal(got, best)
         assert set(map(tuple, cs.hull(i))) <= set(map(tuple, pts[ConvexHull(pts).vertices]))
+
+
+@pytest.mark.parametrize("weighted", [False, True])
+def test_clusters_of_a_whole_cloud_equal_those_of_its_gathered_labelled_rows(weighted) -> None:
+    # The pipeline's entry reads the labelled points in place: the same clusters, to the bit,
+    # as describe_clusters on the labelled rows gathered first.
+    from lastmile.perception.cluster_geometry import describe_cloud_clusters
+    from lastmile.perception.clustering import euclidean_cluster_labels
+
+    rng = np.random.default_rng(4)
+    n = 3000
+    xyz = np.c_[rng.uniform(-30, 30, (n, 2)), rng.uniform(0, 2, n)]
+    xyz[: n // 2, :2] = rng.normal(0, 0.4, (n // 2, 2)) + rng.uniform(-20, 20, (n // 2 // 50, 2)).repeat(
+        50, 0
+    )
+    points = np.c_[xyz, rng.uniform(0, 255, n), rng.integers(0, 16, n), rng.integers(0, 3, n)].astype(
+        np.float32
+    )
+    xyz = points[:, :3].astype(np.float64)
+    labels = np.full(n, -1, np.int64)
+    rows = np.flatnonzero(rng.random(n) < 0.8)  # the rest: ground or noise
+    labels[rows] = euclidean_cluster_labels(xyz[rows], 0.5)
+    unit_weight = np.array([1.0, 2.5, 7.0]) if weighted else None
+    point_weight = unit_weight[points[rows, 5].astype(np.int64)] if weighted else None
+    expected = describe_clusters(xyz[rows], points[rows, 3], labels[rows], None, point_weight)
+    got = describe_cloud_clusters(xyz, points, labels, unit_weight)
+    assert len(expected) > 5
+    for name in ("table", "hull_xy", "hull_new", "labels"):
+        assert np.array_equal(getattr(got, name), getattr(expected, name))
+    with pytest.raises(MessageError, match="unit_weight"):
+        describe_cloud_clusters(xyz, points, labels, np.array([1.0, 0.5, 1.0]))

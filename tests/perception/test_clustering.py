@@ -73,3 +73,19 @@ def test_empty_cloud_and_bad_input():
         euclidean_cluster_labels(np.zeros((4, 3)), 0.0)
     with pytest.raises(MessageError, match="finite coordinates"):
         euclidean_cluster_labels(np.array([[0.0, 0.0, np.nan]]), 0.5)
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 10_000), n=st.integers(1, 600), eps=st.sampled_from([0.3, 0.5, 1.0]))
+def test_rows_of_a_cloud_cluster_as_the_gathered_points(seed, n, eps) -> None:
+    from lastmile.perception.clustering import euclidean_cluster_rows
+
+    rng = np.random.default_rng(seed)
+    xyz = np.round(rng.uniform(-10, 10, (n, 3)) * rng.uniform(0.05, 1.0), 2)  # ties at eps
+    rows = np.flatnonzero(rng.random(n) < 0.7)
+    got = euclidean_cluster_rows(xyz, rows, eps)
+    assert np.array_equal(got, euclidean_cluster_labels(xyz[rows], eps))
+    if len(rows):
+        xyz[rows[-1], 1] = np.nan
+        with pytest.raises(MessageError, match="finite"):
+            euclidean_cluster_rows(xyz, rows, eps)

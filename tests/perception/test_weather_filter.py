@@ -224,3 +224,31 @@ def test_the_scan_pattern_test_keeps_flakes_out_on_a_whole_rig() -> None:
     g0, g1 = np.concatenate(gone[False]), np.concatenate(gone[True])
     assert k1.mean() >= k0.mean() and (k1 >= k0).all()  # only ever adds points back
     assert g1.mean() >= 0.9 and g0.mean() - g1.mean() <= 0.02
+
+
+def test_rows_of_a_merged_cloud_get_the_mask_of_their_gathered_inputs() -> None:
+    # dror_keep_rows gathers each point's LiDAR position, step, scan key and grid from its
+    # sensor index in one compiled pass: the verdicts are dror_keep_mask's on those gathered
+    # arrays, bit for bit (every unit of the rig in snow, mixed steps).
+    from lastmile.perception.merge import merged_points
+    from lastmile.perception.weather_filter import dror_keep_rows
+
+    rng = np.random.default_rng(11)
+    scene = campus_scene(rng)
+    rig = default_rig()
+    sweeps = [sweep(scene, lidar, 0, rng, snowflakes=300)[0] for lidar in rig]
+    _, pts = merged_points(sweeps, {lidar.sensor_id: lidar.base_from_sensor for lidar in rig})
+    xyz = pts[:, :3].astype(np.float64)
+    rows = np.flatnonzero(~make_ground_segmenter("adaptive_grid").segment(xyz))
+    unit_xy = np.array([[lidar.x_m, lidar.y_m] for lidar in rig])
+    unit_step = np.radians([0.1, 0.4, 0.2])  # one below the floor: floored at 0.2 deg
+    sensor = pts[rows, 5].astype(np.int64)
+    ring = pts[rows, 4].astype(np.int64)
+    expected = dror_keep_mask(
+        xyz[rows], DrorConfig(), unit_xy[sensor], sensor * 1000 + ring, unit_step[sensor], np.c_[sensor, ring]
+    )
+    got = dror_keep_rows(xyz, pts, rows, unit_xy, unit_step, DrorConfig())
+    assert (~expected).sum() > 100  # the flakes go
+    assert np.array_equal(got, expected)
+    with pytest.raises(MessageError, match="finite"):
+        dror_keep_rows(xyz, pts, rows, unit_xy, np.array([np.nan, 0.1, 0.1]))

@@ -29,7 +29,7 @@ from lastmile.core.errors import ConfigError, MessageError
 from lastmile.perception.cluster_geometry_kernel import (
     box_extents,
     calipers_pick,
-    cluster_sums,
+    cloud_cluster_sums,
     gather_by_cluster,
     hull_support,
     refine_pick,
@@ -172,9 +172,10 @@ def describe_clusters(
     if lab.min() < 0:
         raise MessageError(f"describe_clusters: expected labels >= 0, got {lab.min()}")
     n_cl = int(lab.max()) + 1
-    count, sum_x, sum_y, zmin = cluster_sums(p, lab, n_cl)
-    cx = sum_x / np.maximum(count, 1)
-    cy = sum_y / np.maximum(count, 1)
+    # One sensor of weight 1: the weighted size is the count (the point weights are below).
+    count, sum_x, sum_y, zmin, _ = cloud_cluster_sums(
+        p, lab, np.zeros(len(lab), np.float32), np.ones(1), n_cl
+    )
     size: np.ndarray = count
     if point_weight is not None:
         wt = np.asarray(point_weight, dtype=np.float64).reshape(-1)
@@ -183,6 +184,62 @@ def describe_clusters(
                 f"describe_clusters.point_weight: expected ({len(p)},) finite >= 1, got {wt.shape}"
             )
         size = np.bincount(lab, weights=wt, minlength=n_cl)
+    return _describe(p, inten, lab, count, sum_x, sum_y, zmin, size, cfg)
+
+
+def describe_cloud_clusters(
+    xyz_m: np.ndarray,
+    points: np.ndarray,
+    labels: np.ndarray,
+    unit_weight: npt.ArrayLike | None = None,
+    config: ClusterGeometryConfig | None = None,
+) -> ClusterSet:
+    """:func:`describe_clusters` of the labelled points of a whole merged cloud, read in place.
+
+    The same clusters, to the bit, as ``describe_clusters(xyz_m[rows], points[rows, 3],
+    labels[rows], config, unit_weight[sensor of rows])`` over the rows with a label; the sums, the
+    weighted sizes and the grouping by cluster read the cloud directly (compiled passes), without
+    gathering the labelled rows first.
+
+    Args:
+        xyz_m: (N, 3) float64 base-frame points of the cloud.
+        points: (N, >= 6) float32 merged cloud (intensity in column 3, sensor index in column 5).
+        labels: (N,) int64 cluster labels, negative for unclustered points.
+        unit_weight: (S,) weight of one return of each LiDAR, by sensor index
+            (:func:`scan_density.return_weights`, each >= 1); None: every point 1.
+    """
+    cfg = config or ClusterGeometryConfig()
+    lab = np.asarray(labels, dtype=np.int64).reshape(-1)
+    if not (len(xyz_m) == len(points) == len(lab)):
+        raise MessageError(
+            f"describe_cloud_clusters: expected equal lengths, got {len(xyz_m)} points, {len(points)} "
+            f"cloud rows, {len(lab)} labels"
+        )
+    n_units = int(points[:, 5].max()) + 1 if len(points) else 1
+    w = np.ones(n_units) if unit_weight is None else np.asarray(unit_weight, dtype=np.float64).reshape(-1)
+    if not (np.isfinite(w).all() and (w >= 1.0).all()):
+        raise MessageError(f"describe_cloud_clusters.unit_weight: expected finite >= 1, got {w}")
+    if len(lab) == 0 or lab.max() < 0:
+        return _empty(cfg.hull_directions)
+    count, sum_x, sum_y, zmin, size = cloud_cluster_sums(xyz_m, lab, points[:, 5], w, int(lab.max()) + 1)
+    return _describe(xyz_m, points[:, 3], lab, count, sum_x, sum_y, zmin, size, cfg)
+
+
+def _describe(
+    p: np.ndarray,
+    inten: np.ndarray,
+    lab: np.ndarray,
+    count: np.ndarray,
+    sum_x: np.ndarray,
+    sum_y: np.ndarray,
+    zmin: np.ndarray,
+    size: np.ndarray,
+    cfg: ClusterGeometryConfig,
+) -> ClusterSet:
+    """The size filter, then the geometry of the kept clusters, from the per-label sums."""
+    D = cfg.hull_directions
+    cx = sum_x / np.maximum(count, 1)
+    cy = sum_y / np.maximum(count, 1)
     keep = (
         (count >= cfg.min_points_floor)
         & (size >= cfg.min_points(np.hypot(cx, cy)))
@@ -192,7 +249,7 @@ def describe_clusters(
     if len(kept) == 0:
         return _empty(D)
     # One pass gathers the kept points in cluster order (compiled counting sort).
-    row_of_label = np.full(n_cl, -1, dtype=np.int64)
+    row_of_label = np.full(len(count), -1, dtype=np.int64)
     row_of_label[kept] = np.arange(len(kept))
     cnt = count[kept]
     x, y, ins, starts, z0, z1 = gather_by_cluster(p, inten, lab, row_of_label, cnt)

@@ -34,18 +34,25 @@ def _support(
     sin: np.ndarray,
     out: np.ndarray,
 ) -> None:
-    """``out[j]``: the first of ``cand[:n_cand]`` farthest along direction j."""
-    for j in range(cos.shape[0]):
-        c, s = cos[j], sin[j]
-        best = -np.inf
-        arg = cand[0]
-        for q in range(n_cand):
-            i = cand[q]
-            v = x[i] * c + y[i] * s
-            if v > best:
-                best = v
-                arg = i
-        out[j] = arg
+    """``out[j]``: the first of ``cand[:n_cand]`` farthest along direction j.
+
+    One pass over the candidates for all directions (each direction's comparisons in candidate
+    order, as a pass per direction makes them): the directions' running maxima are independent,
+    so they proceed side by side instead of one dependent chain at a time.
+    """
+    n_dir = cos.shape[0]
+    best = np.full(n_dir, -np.inf)
+    first = cand[0]
+    for j in range(n_dir):
+        out[j] = first
+    for q in range(n_cand):
+        i = cand[q]
+        xi, yi = x[i], y[i]
+        for j in range(n_dir):
+            v = xi * cos[j] + yi * sin[j]
+            if v > best[j]:
+                best[j] = v
+                out[j] = i
 
 
 @njit(cache=True, nogil=True)
@@ -92,7 +99,7 @@ def hull_support(
                 inside = True
                 for j in range(n_dir):
                     v = poly[j]
-                    w = poly[(j + 1) % n_dir]
+                    w = poly[j + 1] if j + 1 < n_dir else poly[0]  # no integer division per edge
                     ex, ey = x[w] - x[v], y[w] - y[v]
                     if not (ex * (qy - y[v]) - ey * (qx - x[v]) > 0):
                         inside = False
@@ -194,32 +201,13 @@ def box_extents(
 
 
 @njit(cache=True, nogil=True)
-def cluster_sums(
-    p: np.ndarray, lab: np.ndarray, n_cl: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Per label 0..n_cl-1: point count, sum of x, sum of y (added in point order, as
-    ``np.bincount`` does) and lowest z, of the (N, 3) points ``p``."""
-    count = np.zeros(n_cl, np.int64)
-    sx = np.zeros(n_cl)
-    sy = np.zeros(n_cl)
-    zmin = np.full(n_cl, np.inf)
-    for i in range(lab.shape[0]):
-        c = lab[i]
-        count[c] += 1
-        sx[c] += p[i, 0]
-        sy[c] += p[i, 1]
-        zmin[c] = min(zmin[c], p[i, 2])
-    return count, sx, sy, zmin
-
-
-@njit(cache=True, nogil=True)
 def gather_by_cluster(
     p: np.ndarray, intensity: np.ndarray, lab: np.ndarray, row_of_label: np.ndarray, counts: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The points of the kept clusters grouped by cluster row, in input order within a cluster.
 
     Args:
-        p: (N, 3) points; intensity: (N,); lab: (N,) labels.
+        p: (N, 3) points; intensity: (N,); lab: (N,) labels (negative: no cluster, skipped).
         row_of_label: (C,) int64 row of each label's cluster, -1 for a dropped cluster.
         counts: (K,) points per kept row.
 
@@ -238,6 +226,8 @@ def gather_by_cluster(
     z1 = np.full(n_rows, -np.inf)
     fill = starts.copy()
     for i in range(lab.shape[0]):
+        if lab[i] < 0:
+            continue  # an unlabelled point (ground, noise, curb) of a whole cloud
         k = row_of_label[lab[i]]
         if k < 0:
             continue
@@ -247,3 +237,36 @@ def gather_by_cluster(
         z0[k] = min(z0[k], p[i, 2])
         z1[k] = max(z1[k], p[i, 2])
     return x, y, inten, starts, z0, z1
+
+
+@njit(cache=True, nogil=True)
+def cloud_cluster_sums(
+    p: np.ndarray, lab: np.ndarray, unit: np.ndarray, unit_weight: np.ndarray, n_cl: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per label 0..n_cl-1 of the labelled points of a whole cloud (labels < 0 skipped): point
+    count, sum of x, sum of y (added in point order, as ``np.bincount`` does), lowest z, and the
+    weighted size: the sum of ``unit_weight[unit[i]]`` over its points, in point order too.
+
+    Args:
+        p: (N, 3) points; lab: (N,) int64 labels; unit: (N,) float32 sensor index of each point;
+        unit_weight: (S,) weight of one return of each sensor.
+    """
+    count = np.zeros(n_cl, np.int64)
+    sx = np.zeros(n_cl)
+    sy = np.zeros(n_cl)
+    zmin = np.full(n_cl, np.inf)
+    size = np.zeros(n_cl)
+    n_units = unit_weight.shape[0]
+    for i in range(lab.shape[0]):
+        c = lab[i]
+        if c < 0:
+            continue
+        s = np.int64(unit[i])
+        if s < 0 or s >= n_units:
+            raise ValueError("cloud_cluster_sums: a sensor index outside the weights given")
+        count[c] += 1
+        sx[c] += p[i, 0]
+        sy[c] += p[i, 1]
+        zmin[c] = min(zmin[c], p[i, 2])
+        size[c] += unit_weight[s]
+    return count, sx, sy, zmin, size

@@ -18,7 +18,12 @@ import numpy as np
 import numpy.typing as npt
 
 from lastmile.core.errors import MessageError
-from lastmile.perception.clustering_kernel import grid_cell_keys, grid_cluster_labels, radix_argsort
+from lastmile.perception.clustering_kernel import (
+    grid_cell_keys,
+    grid_cluster_labels,
+    radix_argsort,
+    row_cell_keys,
+)
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -72,4 +77,31 @@ def euclidean_cluster_labels(xyz_m: npt.ArrayLike, eps_m: float) -> IntArray:
     # point): a radix sort of the non-negative keys, linear where argsort's is N log N.
     order = radix_argsort(key)
     labels: IntArray = grid_cluster_labels(cols[0], cols[1], cols[2], key, order, ny, nz, eps_m * eps_m)
+    return labels
+
+
+def euclidean_cluster_rows(xyz_m: np.ndarray, rows: np.ndarray, eps_m: float) -> IntArray:
+    """:func:`euclidean_cluster_labels` of the points ``xyz_m[rows]``, the same labels to the bit,
+    with the rows' coordinates gathered and their cells keyed in one compiled pass (no (M, 3) copy,
+    no column copies).
+
+    Args:
+        xyz_m: (N, 3) float64 points (C order).
+        rows: (M,) int64 rows to cluster.
+        eps_m: the link length.
+
+    Raises:
+        MessageError: if ``eps_m`` is not positive and finite or a coordinate is not finite.
+    """
+    if not (math.isfinite(eps_m) and eps_m > 0.0):
+        raise MessageError(f"euclidean_cluster_rows: expected a positive finite eps_m, got {eps_m}")
+    if len(rows) == 0:
+        return np.zeros(0, dtype=np.int64)
+    side = eps_m / math.sqrt(3.0) * (1.0 - 1e-6)  # as euclidean_cluster_labels
+    x, y, z, key, ny, nz, finite = row_cell_keys(
+        np.ascontiguousarray(xyz_m, dtype=np.float64), np.asarray(rows, dtype=np.int64), side
+    )
+    if not finite:
+        raise MessageError("euclidean_cluster_rows: expected finite coordinates, got NaN or inf")
+    labels: IntArray = grid_cluster_labels(x, y, z, key, radix_argsort(key), ny, nz, eps_m * eps_m)
     return labels

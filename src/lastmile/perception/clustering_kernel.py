@@ -47,6 +47,45 @@ def grid_cell_keys(x: np.ndarray, y: np.ndarray, z: np.ndarray, side: float) -> 
 
 
 @njit(cache=True, nogil=True)
+def row_cell_keys(
+    xyz: np.ndarray, rows: np.ndarray, side: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.int64, np.int64, bool]:
+    """:func:`grid_cell_keys` of the points ``xyz[rows]`` (rows >= 1), with their x, y, z columns
+    gathered in the same passes, and whether every coordinate is finite (when one is not, the
+    keys are meaningless: the caller raises).
+
+    Returns:
+        x, y, z (M,) float64, keys (M,) int64, ny, nz, finite.
+    """
+    m = rows.shape[0]
+    x = np.empty(m)
+    y = np.empty(m)
+    z = np.empty(m)
+    lo0, lo1, lo2 = np.inf, np.inf, np.inf
+    hi1, hi2 = -np.inf, -np.inf
+    finite = True
+    for q in range(m):
+        i = rows[q]
+        a, b, c = xyz[i, 0], xyz[i, 1], xyz[i, 2]
+        x[q], y[q], z[q] = a, b, c
+        finite = finite and np.isfinite(a) and np.isfinite(b) and np.isfinite(c)
+        lo0, lo1, lo2 = min(lo0, a), min(lo1, b), min(lo2, c)
+        hi1, hi2 = max(hi1, b), max(hi2, c)
+    key = np.zeros(m, np.int64)
+    if not finite:
+        return x, y, z, key, np.int64(0), np.int64(0), False
+    # The cell formula is monotone in the coordinate: the largest index is the largest coordinate's.
+    ny = np.int64(np.floor((hi1 - lo1) / side)) + 2 + 3
+    nz = np.int64(np.floor((hi2 - lo2) / side)) + 2 + 3
+    for q in range(m):
+        cx = np.int64(np.floor((x[q] - lo0) / side)) + 2
+        cy = np.int64(np.floor((y[q] - lo1) / side)) + 2
+        cz = np.int64(np.floor((z[q] - lo2) / side)) + 2
+        key[q] = (cx * ny + cy) * nz + cz
+    return x, y, z, key, ny, nz, True
+
+
+@njit(cache=True, nogil=True)
 def grid_cluster_labels(
     x: np.ndarray,
     y: np.ndarray,

@@ -27,6 +27,7 @@ from lastmile.perception.ground_kernel import (
     weighted_sums,
 )
 from lastmile.perception.himmelsbach import HimmelsbachConfig, HimmelsbachGroundSegmenter
+from lastmile.perception.himmelsbach_kernel import segment_members
 from lastmile.perception.road_region import RoadMask
 
 BoolArray = npt.NDArray[np.bool_]
@@ -214,7 +215,6 @@ class AdaptiveGridGroundSegmenter:
                 continue
             px, py, pz, window, region = ring_points(idx, x, y, z, az, tol, road, 2 * math.pi / n_sec, n_sec)
             planes = prior.reshape(-1, 3).copy()
-            fitted = np.ones(2 * n_sec, dtype=bool)
             low = np.zeros(0)
             for it in range(cfg.iterations + 1):
                 # Compiled passes (ground_kernel): the same arithmetic as array expressions.
@@ -234,12 +234,22 @@ class AdaptiveGridGroundSegmenter:
                     px, py, pz, res, region, 2 * n_sec, it == 0, low, window,
                     cfg.max_below_m, cfg.seed_window_m, cfg.seed_band_m,
                 )  # fmt: skip
-                planes, fitted = _fit_planes(sums, prior.reshape(-1, 3), cfg)
+                planes, _ = _fit_planes(sums, prior.reshape(-1, 3), cfg)
             # Tolerance per region: the range-dependent one, tightened where the fit is smooth.
-            classify_ring(idx, res, region, window, 2 * n_sec, cfg.smooth_floor_m, cfg.smooth_sigmas, ground)
+            below = classify_ring(
+                idx,
+                res,
+                region,
+                window,
+                2 * n_sec,
+                cfg.smooth_floor_m,
+                cfg.smooth_sigmas,
+                ground,
+                cfg.max_below_m,
+            )
             if road_mask is not None and cfg.edge_margin_m > 0.0:
                 edge_candidates.append(_edge_candidates(idx, px, py, pz, window, region, planes, ground))
-            poor = self._poor_points(res, region, fitted) if cfg.level_change_fallback else None
+            poor = self._poor_points(below, region) if cfg.level_change_fallback else None
             if poor is not None:
                 fallback_idx.append(idx[poor])
             prev_planes, prev_sectors = planes.reshape(n_sec, 2, 3), n_sec
@@ -285,24 +295,24 @@ class AdaptiveGridGroundSegmenter:
         """Himmelsbach's labels for ``points``, from one pass over the points of their segments
         only: a segment's labels depend on its own points alone, so a subset made of whole
         segments gets the labels the whole cloud would."""
-        n_seg = self._himmelsbach.config.n_segments
-        # Himmelsbach's own segment formula on the same arctan2 values.
-        segment = (np.floor((az + math.pi) / (2 * math.pi) * n_seg).astype(np.int64)) % n_seg
-        need = np.zeros(n_seg, dtype=bool)
-        need[segment[points]] = True
-        members = np.flatnonzero(need[segment])
+        # Himmelsbach's own segment formula on the same arctan2 values, in one compiled pass.
+        members = segment_members(az, points, self._himmelsbach.config.n_segments)
         labels = np.zeros(len(p), dtype=bool)
         labels[members] = self._himmelsbach.segment(p[members], road_mask)
         ground[points] = labels[points]
 
-    def _poor_points(self, res: np.ndarray, region: np.ndarray, fitted: np.ndarray) -> np.ndarray | None:
+    def _poor_points(self, below: np.ndarray, region: np.ndarray) -> np.ndarray | None:
         """(M,) bool points of the ring in a region whose own plane was rejected while
         ``min_fit_points`` of its points lie more than ``max_below_m`` below the plane it kept (a
         surface the grid cannot reach from its prior: the road beyond a level change); None when
-        there is none."""
-        cfg = self.config
-        below = np.bincount(region[res < -cfg.max_below_m], minlength=len(fitted))
-        poor_region = below >= cfg.min_fit_points
+        there is none.
+
+        Args:
+            below: (R,) each region's points more than ``max_below_m`` below its plane (counted
+                by ``ground_kernel.classify_ring``).
+            region: (M,) the ring's points' regions.
+        """
+        poor_region = below >= self.config.min_fit_points
         return poor_region[region] if poor_region.any() else None
 
 

@@ -166,20 +166,30 @@ def classify_ring(
     smooth_floor_m: float,
     smooth_sigmas: float,
     ground: np.ndarray,
-) -> None:
+    max_below_m: float,
+) -> np.ndarray:
     """Marks ``ground[idx[q]]`` where the residual is within the point's tolerance, tightened per
-    region to ``max(smooth_floor_m, smooth_sigmas * rms)`` of the region's inlier residuals."""
+    region to ``max(smooth_floor_m, smooth_sigmas * rms)`` of the region's inlier residuals.
+
+    Returns:
+        (n_regions,) int64 how many of each region's points lie more than ``max_below_m`` below
+        its plane (``np.bincount(region[res < -max_below_m])``, counted in the same pass).
+    """
     n_in = np.zeros(n_regions)
     ss = np.zeros(n_regions)
+    below = np.zeros(n_regions, np.int64)
     for q in range(res.shape[0]):
         if abs(res[q]) <= window[q]:
             n_in[region[q]] += 1.0
             ss[region[q]] += res[q] * res[q]
+        if res[q] < -max_below_m:
+            below[region[q]] += 1
     smooth = np.empty(n_regions)
     for g in range(n_regions):
         smooth[g] = max(smooth_floor_m, smooth_sigmas * np.sqrt(ss[g] / max(n_in[g], 1.0)))
     for q in range(res.shape[0]):
         ground[idx[q]] = res[q] <= min(window[q], smooth[region[q]])
+    return below
 
 
 @njit(cache=True, nogil=True)

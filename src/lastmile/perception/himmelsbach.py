@@ -20,7 +20,13 @@ import numpy as np
 import numpy.typing as npt
 
 from lastmile.core.errors import ConfigError
-from lastmile.perception.himmelsbach_kernel import label_points, lowest_per_cell, point_cells, walk_lines
+from lastmile.perception.himmelsbach_kernel import (
+    fill_forward,
+    label_points,
+    lowest_per_cell,
+    point_cells,
+    walk_lines,
+)
 from lastmile.perception.road_region import RoadMask
 
 
@@ -110,12 +116,15 @@ class HimmelsbachGroundSegmenter:
         )  # fmt: skip
 
         # Bins without a prototype use the nearest line before them in range (after them at the start).
-        filled = _fill_forward(bin_line)
+        filled = fill_forward(bin_line)  # compiled: the array form is _fill_forward
         return label_points(seg, b, r, z, filled, line_m, line_b, valid, cfg.ground_distance_m)
 
 
 def _fill_forward(ids: np.ndarray) -> np.ndarray:
-    """Replace -1 entries by the last non-negative entry to their left (or the first to their right)."""
+    """Replace -1 entries by the last non-negative entry to their left (or the first to their right).
+
+    The array form of ``himmelsbach_kernel.fill_forward`` (which the segmenter calls), kept as the
+    reference the kernel is tested against."""
     S, B = ids.shape
     pos = np.where(ids >= 0, np.arange(B)[None, :], -1)
     last = np.maximum.accumulate(pos, axis=1)

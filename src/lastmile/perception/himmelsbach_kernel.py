@@ -148,3 +148,46 @@ def label_points(
         if line >= 0 and valid[seg[i], k] and height <= ground_distance_m:
             out[i] = True
     return out
+
+
+@njit(cache=True, nogil=True)
+def fill_forward(ids: np.ndarray) -> np.ndarray:
+    """(S, B) ``ids`` with each -1 replaced by the last non-negative entry to its left in its row,
+    or, before the row's first non-negative entry, by that entry (rows without one stay -1)."""
+    n_seg, n_bins = ids.shape
+    out = np.empty_like(ids)
+    for s in range(n_seg):
+        lead = -1
+        for b in range(n_bins):
+            if ids[s, b] >= 0:
+                lead = ids[s, b]
+                break
+        last = lead
+        for b in range(n_bins):
+            if ids[s, b] >= 0:
+                last = ids[s, b]
+            out[s, b] = last
+    return out
+
+
+@njit(cache=True, nogil=True)
+def segment_members(az: np.ndarray, points: np.ndarray, n_segments: int) -> np.ndarray:
+    """Ascending indices of every point whose segment (:func:`point_cells`'s formula on ``az``)
+    holds one of ``points``."""
+    need = np.zeros(n_segments, np.bool_)
+    for q in range(points.shape[0]):
+        need[_segment(az[points[q]], n_segments)] = True
+    members = np.empty(az.shape[0], np.int64)
+    m = 0
+    for i in range(az.shape[0]):
+        if need[_segment(az[i], n_segments)]:
+            members[m] = i
+            m += 1
+    return members[:m].copy()
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _segment(az: float, n_segments: int) -> np.int64:
+    k = np.int64(np.floor((az + np.pi) / (2 * np.pi) * n_segments))
+    # Python's modulo only where needed (az = pi or outside +-pi): the integer division is slow.
+    return k if 0 <= k < n_segments else k % n_segments

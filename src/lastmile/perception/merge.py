@@ -18,6 +18,7 @@ from lastmile.core.arrays import frozen_array
 from lastmile.core.errors import MessageError
 from lastmile.core.sensor_frames import LIDAR_COLUMNS, LidarSweep
 from lastmile.core.stamp import Stamp
+from lastmile.perception.deskew_kernel import rigid_transform_into
 from lastmile.perception.motion_compensation import (
     PoseTrajectory,
     _apply_bin_transforms,
@@ -80,7 +81,25 @@ def merge_sweeps(
     ref_stamp: Stamp | None = None,
     time_bin_us: int = 500,
 ) -> MergedCloud:
-    """Bring every sweep into the base frame and concatenate them.
+    """Bring every sweep into the base frame and concatenate them (:func:`merged_points` as a
+    checked, read-only :class:`MergedCloud`)."""
+    stamp, points = merged_points(sweeps, base_from_sensor, trajectory, ref_stamp, time_bin_us)
+    ids = tuple(s.sensor_id for s in sweeps)
+    return MergedCloud(stamp=stamp, points=points, sensor_ids=ids, compensated=trajectory is not None)
+
+
+def merged_points(
+    sweeps: Sequence[LidarSweep],
+    base_from_sensor: Mapping[str, npt.ArrayLike],
+    trajectory: PoseTrajectory | None = None,
+    ref_stamp: Stamp | None = None,
+    time_bin_us: int = 500,
+) -> tuple[Stamp, np.ndarray]:
+    """The reference stamp and the (N, 6) float32 points (:data:`MERGED_COLUMNS`) of every sweep in
+    the base frame, concatenated in the order given (sensor index = position in ``sweeps``).
+
+    The array is the caller's own (not copied, not frozen): the pipeline crops it at once and
+    checks only what it keeps (points of validated sweeps through finite extrinsics).
 
     Args:
         sweeps: one sweep per LiDAR (distinct sensor ids).
@@ -134,13 +153,10 @@ def merge_sweeps(
             T = ref_from_map @ M[b0 : b0 + len(centres)] @ B  # (n_bins, 4, 4): base(ref) <- sensor(t_bin)
             out[row : row + n, :3] = _apply_bin_transforms(pts[:, :3], bins, T)
             b0, j = b0 + len(centres), j + 1
-        elif trajectory is None:
-            Bf = B.astype(np.float32)
-            for i in range(3):
-                out[row : row + n, i] = (
-                    pts[:, 0] * Bf[i, 0] + pts[:, 1] * Bf[i, 1] + pts[:, 2] * Bf[i, 2] + Bf[i, 3]
-                )
-        out[row : row + n, 3:5] = pts[:, 3:5]
-        out[row : row + n, 5] = k
+            out[row : row + n, 3:5] = pts[:, 3:5]
+            out[row : row + n, 5] = k
+        else:
+            # Compiled: the float32 array expressions' arithmetic in one pass over the sweep.
+            rigid_transform_into(pts, B.astype(np.float32), out, row, k)
         row += n
-    return MergedCloud(stamp=Stamp(ref), points=out, sensor_ids=ids, compensated=trajectory is not None)
+    return Stamp(ref), out

@@ -21,18 +21,19 @@ from lastmile.core.errors import ConfigError
 from lastmile.core.object_class import ObjectClass
 from lastmile.core.objects import DETECTION_COLUMNS, DetectedObjects
 from lastmile.core.sensor_frames import LidarSweep
-from lastmile.perception.cluster_geometry import ClusterGeometryConfig, ClusterSet, describe_clusters
+from lastmile.perception.cluster_geometry import ClusterGeometryConfig, ClusterSet, describe_cloud_clusters
 from lastmile.perception.cluster_split import ClusterSplitConfig, split_pedestrians
-from lastmile.perception.clustering import euclidean_cluster_labels
+from lastmile.perception.clustering import euclidean_cluster_labels, euclidean_cluster_rows
 from lastmile.perception.curbs import CurbConfig, CurbEstimate, detect_curb
+from lastmile.perception.deskew_kernel import crop_points
 from lastmile.perception.ground import GROUND_SEGMENTERS, AdaptiveGridConfig, make_ground_segmenter
 from lastmile.perception.himmelsbach import HimmelsbachConfig
-from lastmile.perception.merge import MergedCloud, merge_sweeps
+from lastmile.perception.merge import MergedCloud, merged_points
 from lastmile.perception.motion_compensation import PoseTrajectory
 from lastmile.perception.road_region import RoadMask
 from lastmile.perception.scan_density import return_weights, ring_spacing_from_points
 from lastmile.perception.snow_surface import SnowSurfaceConfig, drop_clusters, snow_surface_clusters
-from lastmile.perception.weather_filter import DrorConfig, azimuth_step_from_times, dror_keep_mask
+from lastmile.perception.weather_filter import DrorConfig, azimuth_step_from_times, dror_keep_rows
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -186,22 +187,24 @@ class LidarPipeline:
         """
         cfg = self.config
         clock = _StageClock()
-        merged = merge_sweeps(sweeps, base_from_sensor, trajectory, time_bin_us=cfg.time_bin_us)
+        # The merged points stay the pipeline's own array: only the cropped cloud is kept (and
+        # checked and frozen as a MergedCloud).
+        stamp, pts = merged_points(sweeps, base_from_sensor, trajectory, time_bin_us=cfg.time_bin_us)
         clock.lap("compensate_merge")
-        pts = merged.points
         c = cfg.crop
-        x, y, z = pts[:, 0], pts[:, 1], pts[:, 2]
-        roi = (x >= c.x_min_m) & (x <= c.x_max_m) & (np.abs(y) <= c.half_width_m) & (z <= c.z_max_m)
-        ego = (x >= c.ego_x_min_m) & (x <= c.ego_x_max_m) & (np.abs(y) <= c.ego_half_width_m)
-        source_index = np.flatnonzero(roi & ~ego)
-        cloud = MergedCloud(
-            stamp=merged.stamp,
-            points=np.take(pts, source_index, axis=0),  # take: ~4x faster than [] on rows
-            sensor_ids=merged.sensor_ids,
-            compensated=merged.compensated,
+        # One compiled pass: the rows inside the region and outside the ego body, and the kept
+        # coordinates in float64 (every stage computes in float64 and would otherwise copy).
+        source_index, kept, xyz = crop_points(
+            pts,
+            np.array([c.x_min_m, c.x_max_m, c.half_width_m, c.z_max_m], dtype=np.float32),
+            np.array([c.ego_x_min_m, c.ego_x_max_m, c.ego_half_width_m], dtype=np.float32),
         )
-        # Converted once: every stage computes in float64 and would otherwise copy on its own.
-        xyz = cloud.points[:, :3].astype(np.float64)
+        cloud = MergedCloud(
+            stamp=stamp,
+            points=kept,
+            sensor_ids=tuple(s.sensor_id for s in sweeps),
+            compensated=trajectory is not None,
+        )
         clock.lap("crop")
         ground = self.ground_segmenter.segment(xyz, road_mask)
         clock.lap("ground")
@@ -212,19 +215,9 @@ class LidarPipeline:
         sweep_of = {s.sensor_id: s for s in sweeps}
         steps = np.array([azimuth_step_from_times(sweep_of[sid].points[:, 5]) for sid in cloud.sensor_ids])
         if cfg.weather_filter and len(ng):
-            sensor = cloud.points[ng, 5].astype(np.int64)  # only the points DROR sees
-            # take: a row gather of the (S, 2) table ~4x cheaper than fancy indexing (same rows)
-            sensor_xy = np.take(_sensor_xy(cloud, base_from_sensor), sensor, axis=0)
-            ring = cloud.points[ng, 4].astype(np.int64)
-            scan = sensor * 1000 + ring
-            keep = dror_keep_mask(
-                np.take(xyz, ng, axis=0),
-                cfg.dror,
-                sensor_xy,
-                scan,
-                np.take(steps, sensor),
-                scan_grid=np.c_[sensor, ring],
-            )
+            # Each point ranged from its own LiDAR, with that unit's column step; the scan key
+            # and grid from its sensor index and ring (gathered in one compiled pass).
+            keep = dror_keep_rows(xyz, cloud.points, ng, _sensor_xy(cloud, base_from_sensor), steps, cfg.dror)
             noise[ng[~keep]] = True
             ng = ng[keep]
         clock.lap("weather_filter")
@@ -239,26 +232,24 @@ class LidarPipeline:
             curb_surface[curb.surface_idx] = True
         clock.lap("curbs")
         labels = np.full(len(xyz), -1, dtype=np.int64)
-        objects = ng[~curb_surface[ng]]
-        labels[objects] = euclidean_cluster_labels(np.take(xyz, objects, axis=0), cfg.cluster_eps_m)
-        # Reassigned points the ground step had taken become obstacle points of their own.
-        newly = np.flatnonzero(curb_obstacle & (labels < 0) & ~noise)
-        if len(newly):
-            extra = euclidean_cluster_labels(xyz[newly], cfg.cluster_eps_m)
-            labels[newly] = extra + (labels.max() + 1)
+        # Without a curb estimate no point is curb surface or reassigned (the masks are empty).
+        objects = ng if curb is None else ng[~curb_surface[ng]]
+        labels[objects] = euclidean_cluster_rows(xyz, objects, cfg.cluster_eps_m)
+        if curb is not None:
+            # Reassigned points the ground step had taken become obstacle points of their own.
+            newly = np.flatnonzero(curb_obstacle & (labels < 0) & ~noise)
+            if len(newly):
+                extra = euclidean_cluster_labels(xyz[newly], cfg.cluster_eps_m)
+                labels[newly] = extra + (labels.max() + 1)
         if cfg.split.enabled:
             labels = split_pedestrians(xyz, labels, ground, cfg.split)
         clock.lap("clustering")
-        has = labels >= 0
-        has_idx = np.flatnonzero(has)
-        weight = None
+        unit_weight = None
         if cfg.weight_by_unit_density:
             spacing = [ring_spacing_from_points(sweep_of[sid].points) for sid in cloud.sensor_ids]
-            weight = return_weights(np.maximum(steps, cfg.dror.azimuth_step_rad), spacing)
-            weight = weight[cloud.points[has_idx, 5].astype(np.int64)]
-        clusters = describe_clusters(
-            np.take(xyz, has_idx, axis=0), cloud.points[has_idx, 3], labels[has_idx], cfg.geometry, weight
-        )
+            unit_weight = return_weights(np.maximum(steps, cfg.dror.azimuth_step_rad), spacing)
+        # The labelled points read in place (no gather of them first).
+        clusters = describe_cloud_clusters(xyz, cloud.points, labels, unit_weight, cfg.geometry)
         clock.lap("cluster_geometry")
         snow_surface = np.zeros(len(xyz), dtype=bool)
         if curb_lines_xy_m is not None:

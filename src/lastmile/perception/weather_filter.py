@@ -35,6 +35,7 @@ import numpy.typing as npt
 
 from lastmile.core.errors import ConfigError, MessageError
 from lastmile.perception.dror_kernel import (
+    dror_columns,
     enough_neighbours,
     first_of_each_value,
     scan_line_sure,
@@ -130,37 +131,124 @@ def dror_keep_mask(
             raise MessageError(f"dror_keep_mask.azimuth_step_rad: expected ({n},) finite, got {given.shape}")
         step = np.maximum(given, cfg.azimuth_step_rad)
     radius = np.maximum(cfg.min_radius_m, cfg.multiplier * rng * step)
-    candidate = rng <= cfg.max_range_m
-    sure = np.zeros(n, dtype=bool)
-    cols = [np.ascontiguousarray(p[:, i]) for i in range(3)]  # the compiled kernels read columns
+    key = None
     if scan_key is not None:
         key = np.asarray(scan_key).reshape(-1)
         if key.shape != (n,):
             raise MessageError(f"dror_keep_mask.scan_key: expected ({n},), got {key.shape}")
-        sure = scan_line_sure(*cols, key.astype(np.int64), radius, cfg.min_neighbours)
+        key = key.astype(np.int64)
+    grid = None
+    if scan_grid is not None:
+        grid = np.asarray(scan_grid)
+        if grid.shape != (n, 2) or not np.issubdtype(grid.dtype, np.integer):
+            raise MessageError(
+                f"dror_keep_mask.scan_grid: expected ({n}, 2) int, got {grid.shape} {grid.dtype}"
+            )
+        grid = grid.astype(np.int64)
+    # The compiled kernels read columns.
+    x, y, z = (np.ascontiguousarray(p[:, i]) for i in range(3))
+    return _dror_mask(
+        cfg,
+        x,
+        y,
+        z,
+        dx,
+        dy,
+        rng,
+        radius,
+        key,
+        None if grid is None else grid[:, 0],
+        None if grid is None else grid[:, 1],
+    )
+
+
+def dror_keep_rows(
+    xyz_m: np.ndarray,
+    points: np.ndarray,
+    rows: np.ndarray,
+    unit_xy_m: np.ndarray,
+    unit_step_rad: np.ndarray,
+    config: DrorConfig | None = None,
+) -> npt.NDArray[np.bool_]:
+    """(M,) bool, True for the ``rows`` of a merged cloud DROR keeps: :func:`dror_keep_mask` of
+    those rows with each point's LiDAR position, column step, scan key ``sensor * 1000 + ring``
+    and scan grid ``sensor, ring`` taken from its sensor index, gathered in one compiled pass
+    (``dror_kernel.dror_columns``) instead of a dozen array expressions over the rows.
+
+    Args:
+        xyz_m: (N, 3) float64 coordinates of the cloud.
+        points: (N, >= 6) float32 merged cloud (:data:`merge.MERGED_COLUMNS`: ring in column 4,
+            sensor index in column 5).
+        rows: (M,) int64 rows tested (e.g. the non-ground points).
+        unit_xy_m: (S, 2) horizontal position of each LiDAR, by sensor index.
+        unit_step_rad: (S,) each LiDAR's horizontal resolution (:func:`azimuth_step_from_times`),
+            floored at ``config.azimuth_step_rad``.
+    """
+    cfg = config or DrorConfig()
+    rows = np.asarray(rows, dtype=np.int64)
+    unit_xy = np.ascontiguousarray(unit_xy_m, dtype=np.float64)
+    unit_step = np.ascontiguousarray(unit_step_rad, dtype=np.float64).reshape(-1)
+    if unit_xy.ndim != 2 or unit_xy.shape[1] != 2 or unit_step.shape != (len(unit_xy),):
+        raise MessageError(
+            f"dror_keep_rows: expected (S, 2) positions and (S,) steps, got {unit_xy.shape} and "
+            f"{unit_step.shape}"
+        )
+    if not (np.isfinite(unit_xy).all() and np.isfinite(unit_step).all()):
+        raise MessageError("dror_keep_rows: expected finite LiDAR positions and steps, got NaN or inf")
+    if len(rows) == 0:
+        return np.ones(0, dtype=bool)
+    x, y, z, dx, dy, rng, radius, key, sensor, ring = dror_columns(
+        np.ascontiguousarray(xyz_m, dtype=np.float64),
+        points,
+        rows,
+        unit_xy,
+        unit_step,
+        cfg.azimuth_step_rad,
+        cfg.multiplier,
+        cfg.min_radius_m,
+    )
+    return _dror_mask(cfg, x, y, z, dx, dy, rng, radius, key, sensor, ring)
+
+
+def _dror_mask(
+    cfg: DrorConfig,
+    x: np.ndarray,
+    y: np.ndarray,
+    z: np.ndarray,
+    dx: np.ndarray,
+    dy: np.ndarray,
+    rng: np.ndarray,
+    radius: np.ndarray,
+    key: np.ndarray | None,
+    sensor: np.ndarray | None,
+    ring: np.ndarray | None,
+) -> npt.NDArray[np.bool_]:
+    """DROR's verdicts from its per-point inputs (:func:`dror_keep_mask`'s steps after the radius):
+    the scan-line shortcut (with ``key``), the neighbour count of the rest within ``max_range_m``,
+    and the scan-pattern test of the removed ones (with ``sensor`` and ``ring``)."""
+    n = len(x)
+    keep = np.ones(n, dtype=bool)
+    candidate = rng <= cfg.max_range_m
+    sure = np.zeros(n, dtype=bool)
+    if key is not None:
+        sure = scan_line_sure(x, y, z, key, radius, cfg.min_neighbours)
     test = np.flatnonzero(candidate & ~sure)
     if len(test) == 0:
         return keep
     # Only points that can lie within a tested point's radius are candidate neighbours.
     r_max = float(radius[test].max())
     pool = np.flatnonzero(rng <= cfg.max_range_m + r_max)
-    keep[test] = enough_neighbours(*cols, pool, test, radius, r_max, cfg.min_neighbours)
-    if scan_grid is not None and cfg.ring_reach > 0:
-        grid = np.asarray(scan_grid)
-        if grid.shape != (n, 2) or not np.issubdtype(grid.dtype, np.integer):
-            raise MessageError(
-                f"dror_keep_mask.scan_grid: expected ({n}, 2) int, got {grid.shape} {grid.dtype}"
-            )
+    keep[test] = enough_neighbours(x, y, z, pool, test, radius, r_max, cfg.min_neighbours)
+    if sensor is not None and ring is not None and cfg.ring_reach > 0:
         failed = test[~keep[test]]
         if len(failed):
-            width = radius / np.maximum(rng, 1e-9)  # the radius's angular width (multiplier columns)
             count = _scan_neighbours(
-                grid,
+                sensor,
+                ring,
                 np.arctan2(dy, dx),
                 rng,
-                p[:, 2],
+                z,
                 radius,
-                width,
                 failed,
                 cfg.ring_reach,
                 cfg.ring_spacing_rad,
@@ -169,48 +257,58 @@ def dror_keep_mask(
     return keep
 
 
+# Azimuth bins per scan line in the scan-pattern test's buckets: 0.5 deg, a few columns of a
+# spinning LiDAR, so a window (multiplier columns either side) reads a handful of buckets.
+_SCAN_BINS = 720
+# Buckets of the scan-pattern test at most (lines x bins): a cloud numbering its rings sparsely
+# gets fewer, wider bins (the counts do not change, only the points read per window).
+_SCAN_BUCKETS_MAX = 1 << 21
+
+
 def _scan_neighbours(
-    grid: np.ndarray,
+    sensor: np.ndarray,
+    ring: np.ndarray,
     azimuth: np.ndarray,
     rng: np.ndarray,
     z: np.ndarray,
     radius: np.ndarray,
-    width: np.ndarray,
     query: np.ndarray,
     ring_reach: int,
     ring_spacing_rad: float,
 ) -> np.ndarray:
     """(Q,) for each ``query`` point: other points of its LiDAR within ``ring_reach`` rings, within
-    its angular ``width`` in azimuth (wrapping at +-pi), within its ``radius`` in range and at a
-    height one beam spacing per ring could reach."""
-    sensor = grid[:, 0].astype(np.int64)
-    ring = grid[:, 1].astype(np.int64)
+    its angular width ``radius / range`` in azimuth (wrapping at +-pi), within its ``radius`` in
+    range and at a height one beam spacing per ring could reach."""
+    # Counted from 0 (a count depends only on which line a point is on and on ring differences).
+    sensor = sensor - sensor.min()
+    ring = ring - ring.min()
     n_rings = int(ring.max()) + 2 * ring_reach + 1
+    if (int(sensor.max()) + 1) * n_rings > _SCAN_BUCKETS_MAX:
+        raise MessageError(
+            f"dror_keep_mask.scan_grid: expected at most {_SCAN_BUCKETS_MAX} scan lines (sensors x "
+            f"rings), got sensors spanning {int(sensor.max()) + 1} and rings spanning {n_rings}"
+        )
     line = sensor * n_rings + ring  # rings of one sensor are consecutive line numbers
     # Candidates farther in range than any query's radius cannot count: only the near pool is
-    # sorted by (line, azimuth) as one float key (a margin keeps the bound safe from rounding).
+    # bucketed (a margin keeps the bound safe from rounding).
     q_rng = rng[query]
     pool = np.flatnonzero(
         (rng <= q_rng.max() + 2.0 * radius[query].max() + 1e-6)
         & (rng >= q_rng.min() - 2.0 * radius[query].max() - 1e-6)
     )
-    key = line[pool].astype(np.float64) * 10.0 + (azimuth[pool] + np.pi)
-    # Stable: a sweep lists each ring's returns in firing order, so the keys come in a few sorted
-    # runs that a merge sort takes in linear time (equal keys' order does not change a count).
-    order = np.argsort(key, kind="stable")
+    n_lines = int(line[pool].max()) + 1 if len(pool) else 1
     return scan_window_counts(
-        key[order],
-        pool[order],
+        pool,
         line,
         ring,
         np.ascontiguousarray(azimuth, dtype=np.float64),
         rng,
         np.ascontiguousarray(z, dtype=np.float64),
         radius,
-        width,
         np.asarray(query, dtype=np.int64),
         ring_reach,
         math.tan(ring_spacing_rad),
+        max(1, min(_SCAN_BINS, _SCAN_BUCKETS_MAX // n_lines)),
     )
 
 
@@ -223,15 +321,13 @@ def azimuth_step_from_times(t_offset_us: npt.ArrayLike) -> float:
     """
     t = np.asarray(t_offset_us)
     # Distinct values, sorted: widening float32 to float64 is exact and one-to-one, so the float64
-    # bit patterns tell the values apart (+0.0 for -0.0). Found by hashing in one pass (a sweep
-    # listed ring by ring, as KITTI's, is not in time order: np.unique's sort of every point cost
-    # ~3-5 ms on 120k points), then only the distinct values are sorted; the same values as
-    # np.unique. Non-finite times (never in a validated sweep) go the sorting way.
-    w = t.astype(np.float64) + 0.0
-    if len(w) and np.isfinite(w).all():
-        t = np.sort(w[first_of_each_value(w.view(np.uint64))])
-    else:
-        t = np.unique(t if t.dtype == np.float32 else w)
+    # values tell the times apart (+0.0 for -0.0). Found by hashing in one pass (a sweep listed
+    # ring by ring, as KITTI's, is not in time order: np.unique's sort of every point cost ~3-5 ms
+    # on 120k points), then only the distinct values are sorted; the same values as np.unique.
+    # Non-finite times (never in a validated sweep) go the sorting way.
+    w = np.ascontiguousarray(t, dtype=np.float64).reshape(-1)
+    first, finite = first_of_each_value(w)
+    t = np.sort(w[first] + 0.0) if finite else np.unique(t if t.dtype == np.float32 else w + 0.0)
     t = t.astype(np.float64)
     if len(t) < 2:
         return 0.0
