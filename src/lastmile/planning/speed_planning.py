@@ -1,0 +1,272 @@
+"""Snow Lion's speed planning, wired: limits along the path, an s-t + QP profile, replanned on events.
+
+Each planning cycle :meth:`StQpSpeedPlanning.update` builds, along the planned path ahead of the front
+bumper,
+
+- the speed limit (:mod:`lastmile.planning.speed_limits`): the route's / decision's / the path
+  planner's cap, the curvature limit (eq. 1), the pedestrian-clearance limit (eq. 2: each pedestrian's
+  gap to the body, less the width inflation, while the body is beside it) and the terminal stop (the
+  nearest of decision's and the path planner's stop points);
+- the predicted occupancy of the path by every road user at constant velocity (Snow Lion predicts
+  with a constant velocity model): the stretch of path it covers while its footprint overlaps the
+  shuttle's corridor (a lead car all the time, a crossing pedestrian while in the lane);
+
+and replans (:class:`~lastmile.planning.st_speed.StSpeedPlanner`: s-t search, then the warm-started
+OSQP piecewise-jerk QP) only on events, as Snow Lion does: no plan yet, the plan in use near its end
+(``replan_remaining_s``), an interaction (a road user occupying the path within the horizon, or a
+pedestrian-clearance limit below the cap: then every cycle, 10 Hz), or the stop point or cap moved.
+:meth:`reference` gives the longitudinal controller the plan's speed ``lead_s`` ahead (the drive's
+lag) and, when the plan comes to rest, the gap to where it does.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from enum import StrEnum
+
+import numpy as np
+
+from lastmile.core.errors import ConfigError
+from lastmile.core.object_class import ObjectClass
+from lastmile.core.polyline import Polyline
+from lastmile.core.route_obstacles import RouteObstacle
+from lastmile.core.vehicle_messages import Trajectory
+from lastmile.planning.speed_limits import (
+    ClearanceSpeedConfig,
+    clearance_speed_limit_mps,
+    combined_speed_limit_mps,
+)
+from lastmile.planning.st_speed import SpeedPlan, StObstacle, StSpeedConfig, StSpeedPlanner
+
+
+class SpeedPlannerName(StrEnum):
+    """Speed planners by name (the run configuration's ``[stack] speed_planner``)."""
+
+    CONTROLLER = "controller"
+    """The longitudinal controller's own law alone (its curvature limit and decision's stops)."""
+    ST_QP = "st_qp"
+    """Snow Lion's: limits (eqs. 1-2, terminal stop), s-t search over predicted road users and an
+    OSQP piecewise-jerk QP, replanned on events; the controller tracks its speed."""
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SpeedPlanningConfig:
+    """Parameters of :class:`StQpSpeedPlanning` (``[stack.speed_planning]``).
+
+    Attributes:
+        st: the s-t search and QP.
+        clearance: eq. (2)'s thresholds and speeds.
+        pedestrian_inflation_m: w_o added to a pedestrian's width in eq. (2) (the behaviour
+            planner's common-road inflation).
+        max_lateral_accel_mps2: eq. (1)'s a_lat (the longitudinal law's comfort bound).
+        stop_decel_mps2: the terminal limit's deceleration (inside Snow Lion's -1.83 m/s^2).
+        corridor_margin_m: a road user occupies the path while its footprint is within this of the
+            shuttle's body sideways (the in-path test's margin).
+        station_step_m: the limit's station spacing.
+        replan_remaining_s: a plan with less than this left is replaced ("near its end").
+        stop_moved_m, cap_moved_mps: a stop point moved, or a cap changed, by more than these is an
+            event.
+        lead_s: the reference is read this far ahead in the plan (the drive's ~0.25 s lag).
+        rest_speed_mps: the plan is at rest where its speed first falls below this.
+    """
+
+    st: StSpeedConfig = field(default_factory=StSpeedConfig)
+    clearance: ClearanceSpeedConfig = field(default_factory=ClearanceSpeedConfig)
+    pedestrian_inflation_m: float = 0.5
+    max_lateral_accel_mps2: float = 1.0
+    stop_decel_mps2: float = 1.2
+    corridor_margin_m: float = 0.5
+    station_step_m: float = 1.0
+    replan_remaining_s: float = 3.0
+    stop_moved_m: float = 0.5
+    cap_moved_mps: float = 0.1
+    lead_s: float = 0.3
+    rest_speed_mps: float = 0.05
+
+    def __post_init__(self) -> None:
+        for name in ("max_lateral_accel_mps2", "stop_decel_mps2", "station_step_m", "replan_remaining_s"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0.0):
+                raise ConfigError(f"stack.speed_planning.{name}: expected a positive number, got {value}")
+        if self.replan_remaining_s >= self.st.horizon_s:
+            raise ConfigError(
+                f"stack.speed_planning.replan_remaining_s: expected less than the horizon "
+                f"({self.st.horizon_s} s), got {self.replan_remaining_s}"
+            )
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SpeedInput:
+    """What a planning cycle hands the speed planner.
+
+    Attributes:
+        now_s: the cycle's time.
+        trajectory: the path planned this cycle.
+        front_s_m: route s of the front bumper; path_s_m: the rear axle's station on the path.
+        speed_mps, accel_mps2: the shuttle's speed and its last commanded acceleration.
+        cap_mps: the lowest of decision's and the path planner's limits.
+        stop_gap_m: the front's distance to the nearest stop point (None: none).
+        obstacles: road users along the route.
+    """
+
+    now_s: float
+    trajectory: Trajectory
+    front_s_m: float
+    path_s_m: float
+    speed_mps: float
+    accel_mps2: float
+    cap_mps: float
+    stop_gap_m: float | None
+    obstacles: list[RouteObstacle]
+
+
+class StQpSpeedPlanning:
+    """The wired speed planner: builds its inputs, replans on events, hands out the reference."""
+
+    def __init__(
+        self,
+        route: Polyline,
+        half_width_m: float,
+        body_length_m: float,
+        config: SpeedPlanningConfig | None = None,
+    ) -> None:
+        self.route = route
+        self.config = c = config or SpeedPlanningConfig()
+        self.half_width_m = half_width_m
+        self.body_length_m = body_length_m
+        self.planner = StSpeedPlanner(c.st)
+        self.plan: SpeedPlan | None = None
+        self._plan_t0_s = 0.0
+        self._plan_front_s = 0.0
+        self._last_stop_gap: float | None = None
+        self._last_cap = math.inf
+        self.replans = 0
+        self.cycles = 0
+        self.unsolved = 0
+
+    def update(self, inp: SpeedInput) -> bool:
+        """Replan if an event calls for it; returns whether it did."""
+        c = self.config
+        self.cycles += 1
+        stations = np.arange(0.0, c.st.max_speed_mps * c.st.horizon_s + 10.0, c.station_step_m)
+        limit, clearance_binds = self._limits(inp, stations)
+        obstacles = self._occupancy(inp)
+        due = self._due(inp, bool(obstacles) or clearance_binds)
+        if not due:
+            return False
+        self.plan = self.planner.plan(stations, limit, max(inp.speed_mps, 0.0), inp.accel_mps2, obstacles)
+        self.unsolved += not self.plan.solved
+        self._plan_t0_s, self._plan_front_s = inp.now_s, inp.front_s_m
+        self._last_stop_gap, self._last_cap = inp.stop_gap_m, inp.cap_mps
+        self.replans += 1
+        return True
+
+    def reference(self, now_s: float, front_s_m: float) -> tuple[float, float | None]:
+        """(the plan's speed ``lead_s`` ahead, the front's gap to where the plan is at rest or None)."""
+        plan = self.plan
+        if plan is None:
+            return math.inf, None
+        c = self.config
+        t = now_s - self._plan_t0_s
+        v = float(np.interp(t + c.lead_s, plan.t_s, plan.v_mps))
+        # At rest for good: the plan's speed stays below ``rest_speed_mps`` from some knot to its end
+        # (a plan that starts at rest and then moves off is not a stop).
+        moving = np.flatnonzero(plan.v_mps >= c.rest_speed_mps)
+        k = int(moving[-1]) + 1 if len(moving) else 0
+        gap = None
+        if k < len(plan.v_mps):
+            gap = float(plan.s_m[k]) - self._rel(self._plan_front_s, front_s_m)
+        return v, gap
+
+    # --- events -------------------------------------------------------------------------------------
+    def _due(self, inp: SpeedInput, interacting: bool) -> bool:
+        c = self.config
+        if self.plan is None or interacting:
+            return True
+        left_s = float(self.plan.t_s[-1]) - (inp.now_s - self._plan_t0_s)
+        if left_s < c.replan_remaining_s:
+            return True
+        if abs(inp.cap_mps - self._last_cap) > c.cap_moved_mps and math.isfinite(
+            inp.cap_mps + self._last_cap
+        ):
+            return True
+        if math.isfinite(inp.cap_mps) != math.isfinite(self._last_cap):
+            return True
+        old, new = self._last_stop_gap, inp.stop_gap_m
+        if (old is None) != (new is None):
+            return True
+        if old is not None and new is not None:
+            moved = new - (old - self._rel(self._plan_front_s, inp.front_s_m))
+            return abs(moved) > c.stop_moved_m
+        return False
+
+    # --- inputs -------------------------------------------------------------------------------------
+    def _limits(self, inp: SpeedInput, stations: np.ndarray) -> tuple[np.ndarray, bool]:
+        """The combined limit at the front's stations, and whether eq. (2) binds below the cap."""
+        c = self.config
+        pts = inp.trajectory.points
+        kappa = np.interp(inp.path_s_m + stations, pts[:, 4], np.abs(pts[:, 3]), right=0.0)
+        clearance = self._pedestrian_clearance(inp, stations)
+        stop = None if inp.stop_gap_m is None else max(inp.stop_gap_m, 0.0)
+        cap = min(inp.cap_mps, c.st.max_speed_mps)
+        limit = combined_speed_limit_mps(
+            stations, kappa, cap, c.max_lateral_accel_mps2, clearance, c.clearance, stop, c.stop_decel_mps2
+        )
+        binds = False
+        if clearance is not None:
+            finite = np.isfinite(clearance)
+            binds = bool(np.any(clearance_speed_limit_mps(clearance[finite], c.clearance) < cap - 1e-6))
+        return limit, binds
+
+    def _pedestrian_clearance(self, inp: SpeedInput, stations: np.ndarray) -> np.ndarray | None:
+        """(L,) eq. (2)'s clearance c at each station (inf where no pedestrian is beside the body)."""
+        c = self.config
+        out = np.full(stations.shape, np.inf)
+        seen = False
+        for o in inp.obstacles:
+            if o.cls is not ObjectClass.PEDESTRIAN:
+                continue
+            ahead = self._rel(inp.front_s_m, o.s_m)
+            if ahead < -self.body_length_m or ahead > stations[-1]:
+                continue
+            gap = abs(o.d_m - self._path_d(inp, ahead)) - self.half_width_m - o.width_m / 2.0
+            gap -= c.pedestrian_inflation_m
+            # Beside the body: from the front reaching it to the rear leaving it.
+            beside = (stations >= ahead - o.length_m / 2.0) & (stations <= ahead + self.body_length_m)
+            out = np.where(beside, np.minimum(out, max(gap, 0.0)), out)
+            seen = True
+        return out if seen else None
+
+    def _path_d(self, inp: SpeedInput, ahead_m: float) -> float:
+        """The planned path's route offset ``ahead_m`` from the front (from the trajectory's points)."""
+        pts = inp.trajectory.points
+        s = inp.front_s_m + ahead_m
+        path_s = float(np.clip(inp.path_s_m + ahead_m, pts[0, 4], pts[-1, 4]))
+        x = float(np.interp(path_s, pts[:, 4], pts[:, 0]))
+        y = float(np.interp(path_s, pts[:, 4], pts[:, 1]))
+        bx, by, heading = self.route.point_at(s)
+        return -(x - bx) * math.sin(heading) + (y - by) * math.cos(heading)
+
+    def _occupancy(self, inp: SpeedInput) -> list[StObstacle]:
+        """Each road user's occupancy of the path over the horizon, at constant velocity."""
+        c = self.config
+        t = np.arange(0.0, c.st.horizon_s + 1e-9, 0.25)
+        path_d = self._path_d(inp, 0.0)
+        out = []
+        for o in inp.obstacles:
+            ahead = self._rel(inp.front_s_m, o.s_m)
+            s = ahead + o.v_s_mps * t
+            d = o.d_m + o.v_d_mps * t
+            inside = np.abs(d - path_d) < self.half_width_m + o.width_m / 2.0 + c.corridor_margin_m
+            inside &= s + o.length_m / 2.0 > 0.0  # not behind the front
+            idx = np.flatnonzero(inside)
+            if len(idx) == 0 or ahead > c.st.max_speed_mps * c.st.horizon_s + 10.0:
+                continue
+            k = slice(int(idx[0]), int(idx[-1]) + 1)
+            lo = np.maximum(s[k] - o.length_m / 2.0, 0.0)
+            out.append(StObstacle(t_s=t[k], s_lo_m=lo, s_hi_m=np.maximum(s[k] + o.length_m / 2.0, lo)))
+        return out
+
+    def _rel(self, from_s: float, to_s: float) -> float:
+        return self.route.ds_m(from_s, to_s) if self.route.closed else to_s - from_s
