@@ -79,6 +79,9 @@ class StSpeedConfig:
         headway_s: behind an obstacle, s + headway * v <= its rear - gap + headway * its speed: closing
             in faster than it moves needs room in proportion (so the horizon never ends at the gap at a
             speed the next plan cannot shed comfortably).
+        closing_s: behind an obstacle the QP aims at its speed plus the room beyond the following
+            distance (gap + headway x its speed) divided by this (a time-gap controller's closing
+            time; 4 s closes a 4 m surplus at 1 m/s faster).
         w_speed, w_accel, w_jerk, w_guide: QP weights on the speed error (to the limit), acceleration,
             jerk and distance to the search's stations.
         eps, max_iter: OSQP tolerance and iteration cap.
@@ -96,6 +99,7 @@ class StSpeedConfig:
     max_jerk_mps3: float = 1.8
     follow_gap_m: float = 3.0
     headway_s: float = 1.5
+    closing_s: float = 4.0
     w_speed: float = 1.0
     w_accel: float = 1.0
     w_jerk: float = 1.0
@@ -323,6 +327,7 @@ class StSpeedPlanner:
         s_lo = np.zeros(n1)
         s_hi = np.full(n1, 1e6)
         head_hi = np.full(n1, 1e9)
+        v_follow = np.full(n1, np.inf)
         for k, tk in enumerate(t):
             for ob in obstacles:
                 iv = ob.interval_at(float(tk))
@@ -330,9 +335,14 @@ class StSpeedPlanner:
                     continue
                 if iv[0] - c.follow_gap_m >= guide[k] - 1e-6:
                     s_hi[k] = min(s_hi[k], iv[0] - c.follow_gap_m)
+                    v_ob = ob.speed_at(float(tk))
                     if k > 0:  # the current state is given: a violated headway there is no choice
-                        v_ob = ob.speed_at(float(tk))
                         head_hi[k] = min(head_hi[k], iv[0] - c.follow_gap_m + c.headway_s * v_ob)
+                    # Behind it, the speed aimed at is its own plus the room beyond the following
+                    # distance closed over ``closing_s`` (aiming at the limit instead closed in at
+                    # full acceleration and overshot: +-1 m/s around a car at 3 m/s).
+                    room = iv[0] - c.follow_gap_m - c.headway_s * v_ob - guide[k]
+                    v_follow[k] = min(v_follow[k], v_ob + max(room, 0.0) / c.closing_s)
                 elif iv[1] + c.follow_gap_m <= guide[k] + 1e-6:
                     s_lo[k] = max(s_lo[k], iv[1] + c.follow_gap_m)
         v_lim = np.interp(guide, ls, lv)
@@ -354,7 +364,8 @@ class StSpeedPlanner:
         lo[0] = hi[0] = 0.0
         lo[n1] = hi[n1] = v0
         lo[2 * n1] = hi[2 * n1] = a0
-        q = np.concatenate([-2.0 * c.w_guide * guide, -2.0 * c.w_speed * v_lim, np.zeros(n1)])
+        v_aim = np.minimum(v_lim, v_follow)
+        q = np.concatenate([-2.0 * c.w_guide * guide, -2.0 * c.w_speed * v_aim, np.zeros(n1)])
         return lo, hi, q
 
     def _from_search(self, search: np.ndarray, t_search: np.ndarray, c: StSpeedConfig) -> SpeedPlan:

@@ -81,6 +81,7 @@ from lastmile.planning.speed_planning import (
     SpeedPlannerName,
     SpeedPlanningConfig,
     StQpSpeedPlanning,
+    terminal_gap_m,
 )
 from lastmile.safety.reliability_config import ReliabilityConfig, default_sensor_specs
 from lastmile.stack.amcl_fusion import AmclFusion
@@ -648,7 +649,8 @@ class ShuttleStack:
         if not est.valid or self._route_s is None:
             return
         front_s = self._route_s + self.geometry.front_from_rear_axle_m
-        gap = None if d.stop_at_s_m is None else self.route.ds_m(front_s, d.stop_at_s_m)
+        gap = terminal_gap_m(d, obstacles, self.route, front_s)
+        following = d.stop_at_s_m is not None and gap is None
         self.speed.update(
             SpeedInput(
                 now_s=int(now) / 1e6,
@@ -660,6 +662,7 @@ class ShuttleStack:
                 cap_mps=min(d.speed_limit_mps, self._trajectory.speed_limit_mps),
                 stop_gap_m=self._planner_stop_gap_m(gap, front_s),
                 obstacles=obstacles,
+                following=following,
             )
         )
 
@@ -693,10 +696,8 @@ class ShuttleStack:
         )
         v_ref = self.longitudinal.reference_speed_mps(self._trajectory, path_s, cap)
         if self.speed is not None:
-            v_plan, plan_gap = self.speed.reference(int(now) / 1e6, front_s)
+            v_plan, gap = self.speed.reference(int(now) / 1e6, front_s, gap, est.speed_mps)
             v_ref = min(v_ref, v_plan)
-            if plan_gap is not None:
-                gap = plan_gap if gap is None else min(gap, plan_gap)
         accel = self.longitudinal.step(dt, est.speed_mps, v_ref, gap)
         self.lateral.set_speed_reference(v_ref)  # a coupled lateral model predicts with it
         emergency = d.state == BehaviourState.EMERGENCY_STOP and est.speed_mps > 0.05
