@@ -91,9 +91,10 @@ class BehaviourConfig:
     Cost (Snow Lion's d_t = argmin J_s + J_d + J_o + J_dyn): J_s = w_s (1 - s_m(d) / s_max), J_d =
     w_d1 |d - d_0| + w_d2 |d|, J_o = w_o1 / c_avg + w_o2 / c_min, J_dyn = w_dyn when the candidate's path
     meets a moving road user's constant-velocity path (scaled down the later it meets it). The
-    weights are ours: a blocked path (J_s) outweighs everything but a collision risk (J_dyn); a
-    metre of clearance lost near 0.5 m costs about what a metre off the centre does; w_d2 above w_d1
-    so that, with nothing beside it, the centre line is cheaper than staying off it.
+    weights are ours: a blocked path (J_s) outweighs everything but a collision risk (J_dyn); an
+    obstacle at the inflation's edge (0.5 m) moves the path a quarter metre away from it (J_o falls by
+    0.67, J_d rises by 0.375), one 1.5 m off does not; w_d2 above w_d1 so that, with nothing beside
+    it, the centre line is cheaper than staying off it.
 
     Attributes:
         common_road, parking_lot, unprotected_intersection: the scenario profiles.
@@ -126,8 +127,8 @@ class BehaviourConfig:
     w_s: float = 10.0
     w_d1: float = 0.5
     w_d2: float = 1.0
-    w_o1: float = 0.25
-    w_o2: float = 0.25
+    w_o1: float = 0.5
+    w_o2: float = 0.5
     w_dyn: float = 100.0
     clearance_cap_m: float = 3.0
     switch_delay_s: float = 1.0

@@ -21,6 +21,7 @@ lag) and, when the plan comes to rest, the gap to where it does.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from enum import StrEnum
@@ -71,7 +72,7 @@ class SpeedPlanningConfig:
         stop_moved_m, cap_moved_mps: a stop point moved, or a cap changed, by more than these is an
             event.
         lead_s: the reference is read this far ahead in the plan (the drive's ~0.25 s lag).
-        rest_speed_mps: the plan is at rest where its speed stays below this.
+        rest_speed_mps: a plan whose last knot is slower than this comes to rest where it ends.
         stitch_tolerance_mps: a new plan starts from the plan in use while the measured speed is
             within this of it (Apollo's trajectory stitching), else from the measured state.
         urgent_decel_mps2: decision's stop point behind a followed road user binds the controller
@@ -89,7 +90,7 @@ class SpeedPlanningConfig:
     stop_moved_m: float = 0.5
     cap_moved_mps: float = 0.1
     lead_s: float = 0.3
-    rest_speed_mps: float = 0.05
+    rest_speed_mps: float = 0.3
     urgent_decel_mps2: float = 1.8
     stitch_tolerance_mps: float = 0.5
 
@@ -185,13 +186,23 @@ class StQpSpeedPlanning:
         c = self.config
         self.cycles += 1
         stations = np.arange(0.0, c.st.max_speed_mps * c.st.horizon_s + 10.0, c.station_step_m)
-        limit, clearance_binds = self._limits(inp, stations)
         obstacles = self._occupancy(inp)
+        # A road user standing in the path is a terminal stop ``follow_gap_m`` behind it: the QP
+        # alone approaches that bound ever more slowly and never comes to rest inside its horizon.
+        standing = [
+            float(ob.s_lo_m[0]) - c.st.follow_gap_m
+            for ob, o in obstacles
+            if o.speed_mps < STATIC_SPEED_MPS and ob.t_s[0] == 0.0
+        ]
+        if standing:
+            stop = min(standing) if inp.stop_gap_m is None else min(inp.stop_gap_m, *standing)
+            inp = dataclasses.replace(inp, stop_gap_m=stop)
+        limit, clearance_binds = self._limits(inp, stations)
         due = self._due(inp, bool(obstacles) or clearance_binds)
         if not due:
             return False
         v0, a0 = self._start(inp)
-        self.plan = self.planner.plan(stations, limit, v0, a0, obstacles)
+        self.plan = self.planner.plan(stations, limit, v0, a0, [ob for ob, _ in obstacles])
         self.unsolved += not self.plan.solved
         self._plan_t0_s, self._plan_front_s = inp.now_s, inp.front_s_m
         self._last_stop_gap, self._last_cap = inp.stop_gap_m, inp.cap_mps
@@ -222,12 +233,11 @@ class StQpSpeedPlanning:
             needed = max(speed_mps, 0.0) ** 2 / (2.0 * max(gap, 0.01))
             if needed <= c.urgent_decel_mps2:
                 gap = None
-        # At rest for good: the plan's speed stays below ``rest_speed_mps`` from some knot to its end
-        # (a plan that starts at rest and then moves off is not a stop).
-        moving = np.flatnonzero(plan.v_mps >= c.rest_speed_mps)
-        k = int(moving[-1]) + 1 if len(moving) else 0
-        if k < len(plan.v_mps):
-            rest = float(plan.s_m[k]) - self._rel(self._plan_front_s, front_s_m)
+        # A plan ending (nearly) at rest stops where it ends: the QP creeps on towards its bound at a
+        # few cm/s rather than reaching rest inside its horizon, so the controller is handed that end
+        # as its stop point (a plan that starts at rest and moves off is no stop).
+        if float(plan.v_mps[-1]) < c.rest_speed_mps:
+            rest = float(plan.s_m[-1]) - self._rel(self._plan_front_s, front_s_m)
             gap = rest if gap is None else min(gap, rest)
         return v, gap
 
@@ -314,7 +324,7 @@ class StQpSpeedPlanning:
         bx, by, heading = self.route.point_at(s)
         return -(x - bx) * math.sin(heading) + (y - by) * math.cos(heading)
 
-    def _occupancy(self, inp: SpeedInput) -> list[StObstacle]:
+    def _occupancy(self, inp: SpeedInput) -> list[tuple[StObstacle, RouteObstacle]]:
         """Each road user's occupancy of the path over the horizon, at constant velocity."""
         c = self.config
         t = np.arange(0.0, c.st.horizon_s + 1e-9, 0.25)
@@ -331,7 +341,8 @@ class StQpSpeedPlanning:
                 continue
             k = slice(int(idx[0]), int(idx[-1]) + 1)
             lo = np.maximum(s[k] - o.length_m / 2.0, 0.0)
-            out.append(StObstacle(t_s=t[k], s_lo_m=lo, s_hi_m=np.maximum(s[k] + o.length_m / 2.0, lo)))
+            hi = np.maximum(s[k] + o.length_m / 2.0, lo)
+            out.append((StObstacle(t_s=t[k], s_lo_m=lo, s_hi_m=hi), o))
         return out
 
     def _rel(self, from_s: float, to_s: float) -> float:
