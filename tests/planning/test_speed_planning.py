@@ -58,7 +58,7 @@ def _input(t_s: float, obstacles: list[RouteObstacle], speed: float = 4.0, **kw:
 
 
 def _planner() -> StQpSpeedPlanning:
-    return StQpSpeedPlanning(ROUTE, HALF_W, LENGTH)
+    return StQpSpeedPlanning(ROUTE, HALF_W, LENGTH, 3.75)
 
 
 def test_an_open_road_is_replanned_only_near_the_end_of_the_plan() -> None:

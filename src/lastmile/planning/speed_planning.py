@@ -92,7 +92,7 @@ class SpeedPlanningConfig:
     lead_s: float = 0.3
     rest_speed_mps: float = 0.3
     urgent_decel_mps2: float = 1.8
-    stitch_tolerance_mps: float = 0.5
+    stitch_tolerance_mps: float = 0.3
 
     def __post_init__(self) -> None:
         for name in ("max_lateral_accel_mps2", "stop_decel_mps2", "station_step_m", "replan_remaining_s"):
@@ -164,12 +164,14 @@ class StQpSpeedPlanning:
         route: Polyline,
         half_width_m: float,
         body_length_m: float,
+        front_from_rear_m: float,
         config: SpeedPlanningConfig | None = None,
     ) -> None:
         self.route = route
         self.config = c = config or SpeedPlanningConfig()
         self.half_width_m = half_width_m
         self.body_length_m = body_length_m
+        self.front_from_rear_m = front_from_rear_m
         self.planner = StSpeedPlanner(c.st)
         self.plan: SpeedPlan | None = None
         self._plan_t0_s = 0.0
@@ -247,10 +249,13 @@ class StQpSpeedPlanning:
         last command, each plan's first 0.3 s only extrapolated the drive's lag, and behind a car at
         3 m/s the speed swung between 2.1 and 4.6 m/s), else the measured speed and last command."""
         c = self.config
-        measured = (max(inp.speed_mps, 0.0), inp.accel_mps2)
+        # At rest the brake's hold (-1 m/s^2 commanded) is no motion: a plan from it could not
+        # leave rest within its jerk limit.
+        rest = inp.speed_mps < 0.05
+        measured = (max(inp.speed_mps, 0.0), max(inp.accel_mps2, 0.0) if rest else inp.accel_mps2)
         plan = self.plan
-        if plan is None:
-            return measured
+        if plan is None or not plan.solved:
+            return measured  # a fall-back stop is no intent to carry over
         t = inp.now_s - self._plan_t0_s
         if t > float(plan.t_s[-1]):
             return measured
@@ -300,13 +305,14 @@ class StQpSpeedPlanning:
         c = self.config
         out = np.full(stations.shape, np.inf)
         seen = False
+        offsets = self._path_offsets(inp)
         for o in inp.obstacles:
             if o.cls is not ObjectClass.PEDESTRIAN:
                 continue
             ahead = self._rel(inp.front_s_m, o.s_m)
             if ahead < -self.body_length_m or ahead > stations[-1]:
                 continue
-            gap = abs(o.d_m - self._path_d(inp, ahead)) - self.half_width_m - o.width_m / 2.0
+            gap = abs(o.d_m - float(np.interp(ahead, *offsets))) - self.half_width_m - o.width_m / 2.0
             gap -= c.pedestrian_inflation_m
             # Beside the body: from the front reaching it to the rear leaving it.
             beside = (stations >= ahead - o.length_m / 2.0) & (stations <= ahead + self.body_length_m)
@@ -314,27 +320,43 @@ class StQpSpeedPlanning:
             seen = True
         return out if seen else None
 
-    def _path_d(self, inp: SpeedInput, ahead_m: float) -> float:
-        """The planned path's route offset ``ahead_m`` from the front (from the trajectory's points)."""
+    def _path_offsets(self, inp: SpeedInput) -> tuple[np.ndarray, np.ndarray]:
+        """(distance ahead of the front, route offset d) of the planned path's points: a road user is
+        in the way where it is near the path at its own station (a bay's path runs at the platform
+        and then out to the lane; measured at the front alone, passengers on the platform ahead
+        stood in the way of the merge)."""
         pts = inp.trajectory.points
-        s = inp.front_s_m + ahead_m
-        path_s = float(np.clip(inp.path_s_m + ahead_m, pts[0, 4], pts[-1, 4]))
-        x = float(np.interp(path_s, pts[:, 4], pts[:, 0]))
-        y = float(np.interp(path_s, pts[:, 4], pts[:, 1]))
-        bx, by, heading = self.route.point_at(s)
-        return -(x - bx) * math.sin(heading) + (y - by) * math.cos(heading)
+        ahead = pts[:, 4] - inp.path_s_m - self.front_from_rear_m
+        s = inp.front_s_m + ahead
+        base = self.route.points_at(s)
+        tangent = self.route.points_at(s + 0.5) - self.route.points_at(s - 0.5)
+        heading = np.arctan2(tangent[:, 1], tangent[:, 0])
+        d = -(pts[:, 0] - base[:, 0]) * np.sin(heading) + (pts[:, 1] - base[:, 1]) * np.cos(heading)
+        return ahead, d
 
     def _occupancy(self, inp: SpeedInput) -> list[tuple[StObstacle, RouteObstacle]]:
         """Each road user's occupancy of the path over the horizon, at constant velocity."""
         c = self.config
         t = np.arange(0.0, c.st.horizon_s + 1e-9, 0.25)
-        path_d = self._path_d(inp, 0.0)
+        offsets = self._path_offsets(inp)
         out = []
         for o in inp.obstacles:
             ahead = self._rel(inp.front_s_m, o.s_m)
-            s = ahead + o.v_s_mps * t
-            d = o.d_m + o.v_d_mps * t
-            inside = np.abs(d - path_d) < self.half_width_m + o.width_m / 2.0 + c.corridor_margin_m
+            if ahead - o.length_m / 2.0 < 0.0 and o.v_s_mps > STATIC_SPEED_MPS:
+                # Alongside or behind the front and moving our way (a car overtaking while the
+                # shuttle merges): not ours to stop for; once its rear is past the front it is a lead
+                # (decision's in-path test skips it likewise). Clipped at the front, it read as a
+                # wall there: a full-deceleration stop in the middle of a merge.
+                continue
+            # Slower than ``STATIC_SPEED_MPS`` is standing, as decision and the path planners take
+            # it: a parked car's radar track creeps at 0.2 m/s, and over 4 s that walked it into
+            # the path of a shuttle merging past it (a full-deceleration stop).
+            moving = o.speed_mps >= STATIC_SPEED_MPS
+            s = ahead + (o.v_s_mps * t if moving else 0.0 * t)
+            d = o.d_m + (o.v_d_mps * t if moving else 0.0 * t)
+            inside = (
+                np.abs(d - np.interp(s, *offsets)) < self.half_width_m + o.width_m / 2.0 + c.corridor_margin_m
+            )
             inside &= s + o.length_m / 2.0 > 0.0  # not behind the front
             idx = np.flatnonzero(inside)
             if len(idx) == 0 or ahead > c.st.max_speed_mps * c.st.horizon_s + 10.0:

@@ -155,6 +155,16 @@ def _blocked(
     return out
 
 
+def _braking_speed(t: np.ndarray, v0: float, a0: float, decel: float, jerk: float) -> np.ndarray:
+    """The speed at ``t`` braking as hard as allowed: the acceleration falls from ``a0`` at ``jerk``
+    to ``-decel``, then holds (never below rest)."""
+    a0 = max(a0, -decel)
+    t_ramp = (a0 + decel) / jerk
+    v_ramp = v0 + a0 * t_ramp - 0.5 * jerk * t_ramp**2
+    v = np.where(t < t_ramp, v0 + a0 * t - 0.5 * jerk * t**2, v_ramp - decel * (t - t_ramp))
+    return np.maximum(v, 0.0)
+
+
 def st_search(
     limit_s_m: np.ndarray,
     limit_v_mps: np.ndarray,
@@ -188,7 +198,10 @@ def st_search(
         s1 = s[None, :] + 0.5 * (v[None, :] + v1) * dt
         lim = np.interp(s1, limit_s_m, limit_v_mps)
         src = np.broadcast_to(np.arange(len(live)), v1.shape)
-        ok = v1 <= lim + 1e-9
+        # A start above the limit (the cap fell, a bay's 3.5 m/s at 5.5 m/s) is shed at full
+        # deceleration, not a dead end for every state (the QP's bounds allow the same).
+        shed = v0_mps - c.max_decel_mps2 * (k + 1) * dt + 0.5 * c.search_dv_mps  # the grid's rounding
+        ok = v1 <= np.maximum(lim, shed) + 1e-9
         s0b = np.broadcast_to(s, s1.shape)
         ok[ok] = ~_blocked(obstacles, k * dt, (k + 1) * dt, s0b[ok], s1[ok], c.follow_gap_m)
         step = c.w_speed * (np.minimum(lim, v_top) - v1) ** 2 + c.w_accel * (accels[:, None] ** 2)
@@ -346,8 +359,10 @@ class StSpeedPlanner:
                 elif iv[1] + c.follow_gap_m <= guide[k] + 1e-6:
                     s_lo[k] = max(s_lo[k], iv[1] + c.follow_gap_m)
         v_lim = np.interp(guide, ls, lv)
-        # An initial overspeed is shed at full deceleration rather than making the problem infeasible.
-        v_hi = np.maximum(v_lim, v0 - c.max_decel_mps2 * t)
+        # An initial overspeed is shed at full deceleration, reached at the jerk limit from the
+        # current acceleration, rather than making the problem infeasible (a cap falling from 5.5 to
+        # 3.5 m/s ahead of a bay: with the bound v0 - D t the first knots were out of reach).
+        v_hi = np.maximum(v_lim, _braking_speed(t, v0, a0, c.max_decel_mps2, c.max_jerk_mps3) + 0.05)
         lo = np.concatenate(
             [
                 s_lo,

@@ -311,7 +311,13 @@ class ShuttleStack:
         )
         # Snow Lion's s-t + QP speed planner, when selected: the controller tracks its speed.
         self.speed = (
-            StQpSpeedPlanning(self.route, geometry.width_m / 2.0, geometry.length_m, config.speed_planning)
+            StQpSpeedPlanning(
+                self.route,
+                geometry.width_m / 2.0,
+                geometry.length_m,
+                geometry.front_from_rear_axle_m,
+                config.speed_planning,
+            )
             if config.speed_planner is SpeedPlannerName.ST_QP
             else None
         )
