@@ -2,7 +2,8 @@
 users, one core.
 
 Run: python benchmarks/planning_load.py [--minutes 6] [--perception radar|lidar]
-         [--controllers heading_pid snow_lion_mpc] [--json benchmarks/results/planning_load.json]
+         [--controllers heading_pid snow_lion_mpc] [--planner offset_pass|snow_lion_behaviour|...]
+         [--speed-planner controller|st_qp] [--json benchmarks/results/planning_load.json]
 
 The default service with 24 more cars on the ring (20 oncoming every 100 m, 4 in the shuttle's
 direction every 500 m), pedestrians at every crosswalk (a mean gap of 10 s) and 30 cars parked on the
@@ -35,6 +36,8 @@ from rich.console import Console
 from rich.table import Table
 
 from lastmile.core.perception_mode import PerceptionMode
+from lastmile.planning.planners import PlannerName
+from lastmile.planning.speed_planning import SpeedPlannerName
 from lastmile.runner.closed_loop import build_closed_loop
 from lastmile.runner.run_config import RunConfig
 from lastmile.sim.scenario import CrosswalkPedestrians, RingCar, Scenario, StaticObstacle, default_service
@@ -106,6 +109,14 @@ def main() -> None:
         default=["heading_pid", "snow_lion_mpc"],
         choices=[c.value for c in LateralControllerName],
     )
+    parser.add_argument(
+        "--planner", default=PlannerName.OFFSET_PASS.value, choices=[p.value for p in PlannerName]
+    )
+    parser.add_argument(
+        "--speed-planner",
+        default=SpeedPlannerName.CONTROLLER.value,
+        choices=[p.value for p in SpeedPlannerName],
+    )
     parser.add_argument("--crowd", type=int, default=25, help="tracks that make a cycle crowded")
     parser.add_argument("--json", type=Path, default=Path("benchmarks/results/planning_load.json"))
     args = parser.parse_args()
@@ -115,16 +126,22 @@ def main() -> None:
     rows: dict[str, dict[str, float]] = {}
     for name in args.controllers:
         base = RunConfig().with_perception(mode)
-        config = dataclasses.replace(
-            base, stack=dataclasses.replace(base.stack, lateral_controller=LateralControllerName(name))
+        speed = SpeedPlannerName(args.speed_planner)
+        stack = dataclasses.replace(
+            base.stack,
+            lateral_controller=LateralControllerName(name),
+            planner=PlannerName(args.planner),
+            speed_planner=None if speed is SpeedPlannerName.CONTROLLER else speed,
         )
+        config = dataclasses.replace(base, stack=stack)
         rows[f"{name}, 30+ road users"] = _measure(_loaded(args.minutes), config, args.crowd)
         if name == args.controllers[0]:
             rows[f"{name}, default road users"] = _measure(
                 default_service(seed=0, minutes=args.minutes), config, args.crowd
             )
     table = Table(
-        title=f"planning cycle, {args.minutes:g} simulated min, {args.perception} perception, one core"
+        title=f"planning cycle, {args.minutes:g} simulated min, {args.perception} perception, planner "
+        f"{args.planner}, speed {args.speed_planner}, one core"
     )
     for col in (
         "run",
@@ -169,6 +186,8 @@ def main() -> None:
             {
                 "minutes": args.minutes,
                 "perception": args.perception,
+                "planner": args.planner,
+                "speed_planner": args.speed_planner,
                 "target_p95_ms": TARGET_P95_MS,
                 "snow_lion_p95_ms": SNOW_LION_P95_MS,
                 "runs": rows,

@@ -12,6 +12,7 @@ import pytest
 
 from lastmile.core.geometry import rectangle_corners_m
 from lastmile.planning.planners import PlannerName
+from lastmile.runner.run_config import RunConfig
 from lastmile.sim.passengers import PassengerConfig
 from lastmile.sim.scenario import RingCar, Scenario, StaticObstacle
 from tests.closed_loop.harness import RADAR, Step, steps
@@ -19,6 +20,11 @@ from tests.closed_loop.harness import RADAR, Step, steps
 pytestmark = pytest.mark.closed_loop
 NO_RIDERS = PassengerConfig(arrivals_per_stop_per_min=0.0, initial_waiting={})
 PASSING = dataclasses.replace(RADAR, stack=dataclasses.replace(RADAR.stack, planner=PlannerName.OFFSET_PASS))
+SNOW_LION = dataclasses.replace(
+    RADAR, stack=dataclasses.replace(RADAR.stack, planner=PlannerName.SNOW_LION_BEHAVIOUR)
+)
+"""Snow Lion's behaviour planner passes through the same lattice when decision orders a pass."""
+PLANNERS = pytest.mark.parametrize("config", [PASSING, SNOW_LION], ids=["offset_pass", "snow_lion_behaviour"])
 CAR_S_M = 430.0
 """The parked car's centre (route s), in the middle of the shuttle's lane."""
 PARKED = StaticObstacle(route_s_m=CAR_S_M, kind="car", length_m=4.5, width_m=1.8)
@@ -61,7 +67,7 @@ def _sample(step: Step) -> Sample:
     return Sample(step.t_s, float(ego[:, 1].max()), gap, tuple(oncoming))
 
 
-def _run_until_back_in_lane(scenario: Scenario) -> tuple[Step, list[Sample]]:
+def _run_until_back_in_lane(scenario: Scenario, config: RunConfig = PASSING) -> tuple[Step, list[Sample]]:
     seen: list[Sample] = []
 
     def back(step: Step) -> bool:
@@ -69,14 +75,15 @@ def _run_until_back_in_lane(scenario: Scenario) -> tuple[Step, list[Sample]]:
         return judge.route_s_m > CAR_S_M + 25.0 and abs(judge._route_d) < 0.2  # type: ignore[attr-defined]
 
     last = None
-    for step in steps(scenario, until=back, config=PASSING):
+    for step in steps(scenario, until=back, config=config):
         last = step
         seen.append(_sample(step))
     assert last is not None
     return last, seen
 
 
-def test_passes_a_parked_car_when_the_opposite_lane_is_clear() -> None:
+@PLANNERS
+def test_passes_a_parked_car_when_the_opposite_lane_is_clear(config: RunConfig) -> None:
     scenario = Scenario(
         name="pass_clear",
         minutes=0.75,
@@ -84,7 +91,7 @@ def test_passes_a_parked_car_when_the_opposite_lane_is_clear() -> None:
         start_route_s_m=360.0,
         static_obstacles=(PARKED,),
     )
-    last, seen = _run_until_back_in_lane(scenario)
+    last, seen = _run_until_back_in_lane(scenario, config)
     assert last.sim.judge.route_s_m > CAR_S_M + 25.0, "the shuttle did not get past the parked car"
     assert max(s.left_y_m for s in seen) > 1.5, "it never used the opposite lane"
     gaps = [s.gap_to_car_m for s in seen if s.gap_to_car_m is not None]
@@ -94,7 +101,8 @@ def test_passes_a_parked_car_when_the_opposite_lane_is_clear() -> None:
     assert abs(last.sim.judge._route_d) < 0.2  # type: ignore[attr-defined]  # back in its lane
 
 
-def test_waits_behind_it_while_cars_come_the_other_way_then_passes() -> None:
+@PLANNERS
+def test_waits_behind_it_while_cars_come_the_other_way_then_passes(config: RunConfig) -> None:
     """Two oncoming cars 60 m apart at 6 m/s: the shuttle holds behind the parked car until the last
     has gone by, never with its body over the centre line while one is near, then passes."""
     oncoming = tuple(
@@ -108,7 +116,7 @@ def test_waits_behind_it_while_cars_come_the_other_way_then_passes() -> None:
         static_obstacles=(PARKED,),
         ring_cars=oncoming,
     )
-    last, seen = _run_until_back_in_lane(scenario)
+    last, seen = _run_until_back_in_lane(scenario, config)
     crossed = [s for s in seen if s.left_y_m > 0.0]  # some of the body over the centre line
     assert crossed, "it never passed"
     for s in crossed:

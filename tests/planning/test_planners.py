@@ -10,6 +10,7 @@ from lastmile.core.polyline import Polyline
 from lastmile.planning.local_path import LocalPathPlanner
 from lastmile.planning.pass_path import OffsetPassPlanner
 from lastmile.planning.planners import PlannerInputs, PlannerName, make_path_planner
+from lastmile.planning.snow_lion_behaviour import SnowLionBehaviourPlanner
 
 
 def _inputs() -> PlannerInputs:
@@ -21,9 +22,13 @@ def test_every_registered_name_builds_its_planner() -> None:
     assert isinstance(planner, LocalPathPlanner) and planner.half_width_m == 1.0
     assert isinstance(make_path_planner("potential_field_bezier", _inputs()), LocalPathPlanner)
     assert isinstance(make_path_planner("offset_pass", _inputs()), OffsetPassPlanner)
+    assert isinstance(make_path_planner("snow_lion_behaviour", _inputs()), SnowLionBehaviourPlanner)
 
 
 def test_an_unknown_planner_is_named_with_the_known_ones() -> None:
-    expected = r"planner: expected one of \['potential_field_bezier', 'offset_pass'\], got 'lattice'"
+    expected = (
+        r"planner: expected one of \['potential_field_bezier', 'offset_pass', 'snow_lion_behaviour'\], "
+        r"got 'lattice'"
+    )
     with pytest.raises(ConfigError, match=expected):
         make_path_planner("lattice", _inputs())

@@ -103,3 +103,16 @@ def test_infinite_limits_are_capped_at_the_top_speed():
     p = StSpeedPlanner()
     plan = p.plan(S, np.full(S.shape, np.inf), 5.0, 0.0)
     assert plan.solved and plan.v_mps.max() <= p.config.max_speed_mps + 1e-3
+
+
+@pytest.mark.parametrize("a0", [0.0, -0.3, 0.5])
+def test_a_start_above_the_limit_is_shed_within_the_jerk_limit_not_a_full_stop(a0: float):
+    """The cap falls from 5.5 to 3.5 m/s ahead of a bay: the search and the QP shed the overspeed
+    (braking reached at the jerk limit) instead of finding no way at all."""
+    p = StSpeedPlanner()
+    plan = p.plan(S, np.full(S.shape, 3.5), 5.5, a0)
+    assert plan.solved
+    c = p.config
+    assert np.all(np.abs(plan.jerk_mps3) <= c.max_jerk_mps3 + 1e-3)
+    assert plan.a_mps2.min() >= -c.max_decel_mps2 - 1e-3
+    assert plan.v_mps[-1] <= 3.5 + 1e-3 and plan.v_mps.min() > 2.0

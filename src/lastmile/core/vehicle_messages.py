@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from enum import Enum
 from typing import Any
@@ -153,16 +154,25 @@ TRAJECTORY_COLUMNS = ("x_m", "y_m", "yaw_rad", "curvature_1pm", "s_m")
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class Trajectory:
-    """The local path to follow (geometry only; speed comes from the longitudinal law).
+    """The local path to follow (geometry; speed comes from the longitudinal law, within the
+    planner's limits below).
 
     Attributes:
         points: (N, 5) float64, columns :data:`TRAJECTORY_COLUMNS`, ``s_m`` from the path start.
         route_s0_m: route s of the first point (to relate path s to map features).
+        speed_limit_mps: the planner's reference speed cap (a scenario's v_r; inf: none of its own).
+        stop_at_route_s_m: route s where the front bumper must stop for the planner (a truncated
+            reference route, a lane stop at an observation area; None: drive on).
+        truncated: Snow Lion's pi_s: the path meets a static obstacle, and the reference route ends
+            before it.
     """
 
     stamp: Stamp
     points: np.ndarray
     route_s0_m: float
+    speed_limit_mps: float = math.inf
+    stop_at_route_s_m: float | None = None
+    truncated: bool = False
 
     def __post_init__(self) -> None:
         object.__setattr__(

@@ -14,6 +14,7 @@ from lastmile.core.polyline import Polyline
 from lastmile.core.route_obstacles import RouteObstacle
 from lastmile.core.stamp import Stamp
 from lastmile.core.vehicle_messages import BehaviourDecision, BehaviourState, StopReason, Trajectory
+from lastmile.planning.behaviour_config import BehaviourConfig
 from lastmile.planning.bezier import lateral_transition_m, smooth_through
 from lastmile.planning.pass_path_config import PassPathConfig
 from lastmile.planning.potential_field import PotentialFieldConfig, nudge_offsets_m
@@ -53,6 +54,9 @@ class LocalPathConfig:
             0.022 rad off parallel (tests/stack: at most 0.02).
         field: the potential field's parameters.
         passing: the offset-pass planner's (``planner = "offset_pass"``; :mod:`lastmile.planning.pass_path`).
+        behaviour: Snow Lion's behaviour planner's (``planner = "snow_lion_behaviour"``;
+            :mod:`lastmile.planning.snow_lion_behaviour`; None: its defaults, and the run's
+            configuration echo stays as it was before the planner existed).
     """
 
     behind_m: float = 5.0
@@ -69,6 +73,7 @@ class LocalPathConfig:
     floor_rounding_m: float = 8.0
     # Before ``field``: that attribute's name hides dataclasses.field further down the class body.
     passing: PassPathConfig = field(default_factory=PassPathConfig)
+    behaviour: BehaviourConfig | None = None
     field: PotentialFieldConfig = field(default_factory=PotentialFieldConfig)
 
 

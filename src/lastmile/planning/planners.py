@@ -16,8 +16,10 @@ from lastmile.core.polyline import Polyline
 from lastmile.core.route_obstacles import RouteObstacle
 from lastmile.core.stamp import Stamp
 from lastmile.core.vehicle_messages import BehaviourDecision, Trajectory
+from lastmile.hdmap.layers import SLayerDatabase
 from lastmile.planning.local_path import CurbLookup, LocalPathConfig, LocalPathPlanner
 from lastmile.planning.pass_path import DrivableLookup, OffsetPassPlanner
+from lastmile.planning.snow_lion_behaviour import SnowLionBehaviourPlanner
 
 
 class PlannerName(StrEnum):
@@ -29,9 +31,14 @@ class PlannerName(StrEnum):
     """The same, and passes a stationary obstacle blocking the lane through the adjacent lane when
     decision orders it: a lattice of quintic lane-offset moves checked against the road surface and
     every track (:mod:`lastmile.planning.pass_path`)."""
+    SNOW_LION_BEHAVIOUR = "snow_lion_behaviour"
+    """Snow Lion's behaviour planner: scenario tags on the route choose the lateral-offset candidates,
+    obstacle inflation and reference speed; d_t = argmin(J_s + J_d + J_o + J_dyn) with the 1/f_p
+    guard, the truncation flag and observation areas at unprotected intersections; passes, pull-overs
+    and merges as ``offset_pass`` (:mod:`lastmile.planning.snow_lion_behaviour`)."""
 
 
-PASSING_PLANNERS = frozenset({PlannerName.OFFSET_PASS})
+PASSING_PLANNERS = frozenset({PlannerName.OFFSET_PASS, PlannerName.SNOW_LION_BEHAVIOUR})
 """Planners that can plan a pass: with one of these, decision orders passes (``decision.pass_rule``)."""
 
 
@@ -46,6 +53,7 @@ class PlannerInputs:
         body_behind_m, body_ahead_m: the body's extent behind and ahead of the path point.
         drivable: the map's drivable-area test ((N, 2) points -> (N,) bool), for passes.
         max_curvature_1pm: the tightest curvature the vehicle steers.
+        layers: the route's s-layer records (scenario tags and lane widths for the behaviour planner).
     """
 
     route: Polyline
@@ -55,6 +63,7 @@ class PlannerInputs:
     body_ahead_m: float = 0.0
     drivable: DrivableLookup | None = None
     max_curvature_1pm: float = 0.2
+    layers: SLayerDatabase | None = None
 
 
 class PathPlanner(Protocol):
@@ -94,9 +103,24 @@ def _offset_pass(inputs: PlannerInputs, config: LocalPathConfig) -> PathPlanner:
     )
 
 
+def _snow_lion_behaviour(inputs: PlannerInputs, config: LocalPathConfig) -> PathPlanner:
+    return SnowLionBehaviourPlanner(
+        inputs.route,
+        inputs.half_width_m,
+        config,
+        curb_right_d_m=inputs.curb_right_d_m,
+        body_behind_m=inputs.body_behind_m,
+        body_ahead_m=inputs.body_ahead_m,
+        drivable=inputs.drivable,
+        max_curvature_1pm=inputs.max_curvature_1pm,
+        layers=inputs.layers,
+    )
+
+
 PATH_PLANNERS: dict[PlannerName, Callable[[PlannerInputs, LocalPathConfig], PathPlanner]] = {
     PlannerName.POTENTIAL_FIELD_BEZIER: _potential_field_bezier,
     PlannerName.OFFSET_PASS: _offset_pass,
+    PlannerName.SNOW_LION_BEHAVIOUR: _snow_lion_behaviour,
 }
 
 

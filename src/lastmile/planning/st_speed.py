@@ -79,6 +79,9 @@ class StSpeedConfig:
         headway_s: behind an obstacle, s + headway * v <= its rear - gap + headway * its speed: closing
             in faster than it moves needs room in proportion (so the horizon never ends at the gap at a
             speed the next plan cannot shed comfortably).
+        closing_s: behind an obstacle the QP aims at its speed plus the room beyond the following
+            distance (gap + headway x its speed) divided by this (a time-gap controller's closing
+            time; 4 s closes a 4 m surplus at 1 m/s faster).
         w_speed, w_accel, w_jerk, w_guide: QP weights on the speed error (to the limit), acceleration,
             jerk and distance to the search's stations.
         eps, max_iter: OSQP tolerance and iteration cap.
@@ -96,6 +99,7 @@ class StSpeedConfig:
     max_jerk_mps3: float = 1.8
     follow_gap_m: float = 3.0
     headway_s: float = 1.5
+    closing_s: float = 4.0
     w_speed: float = 1.0
     w_accel: float = 1.0
     w_jerk: float = 1.0
@@ -151,6 +155,16 @@ def _blocked(
     return out
 
 
+def _braking_speed(t: np.ndarray, v0: float, a0: float, decel: float, jerk: float) -> np.ndarray:
+    """The speed at ``t`` braking as hard as allowed: the acceleration falls from ``a0`` at ``jerk``
+    to ``-decel``, then holds (never below rest)."""
+    a0 = max(a0, -decel)
+    t_ramp = (a0 + decel) / jerk
+    v_ramp = v0 + a0 * t_ramp - 0.5 * jerk * t_ramp**2
+    v = np.where(t < t_ramp, v0 + a0 * t - 0.5 * jerk * t**2, v_ramp - decel * (t - t_ramp))
+    return np.maximum(v, 0.0)
+
+
 def st_search(
     limit_s_m: np.ndarray,
     limit_v_mps: np.ndarray,
@@ -184,7 +198,10 @@ def st_search(
         s1 = s[None, :] + 0.5 * (v[None, :] + v1) * dt
         lim = np.interp(s1, limit_s_m, limit_v_mps)
         src = np.broadcast_to(np.arange(len(live)), v1.shape)
-        ok = v1 <= lim + 1e-9
+        # A start above the limit (the cap fell, a bay's 3.5 m/s at 5.5 m/s) is shed at full
+        # deceleration, not a dead end for every state (the QP's bounds allow the same).
+        shed = v0_mps - c.max_decel_mps2 * (k + 1) * dt + 0.5 * c.search_dv_mps  # the grid's rounding
+        ok = v1 <= np.maximum(lim, shed) + 1e-9
         s0b = np.broadcast_to(s, s1.shape)
         ok[ok] = ~_blocked(obstacles, k * dt, (k + 1) * dt, s0b[ok], s1[ok], c.follow_gap_m)
         step = c.w_speed * (np.minimum(lim, v_top) - v1) ** 2 + c.w_accel * (accels[:, None] ** 2)
@@ -323,6 +340,7 @@ class StSpeedPlanner:
         s_lo = np.zeros(n1)
         s_hi = np.full(n1, 1e6)
         head_hi = np.full(n1, 1e9)
+        v_follow = np.full(n1, np.inf)
         for k, tk in enumerate(t):
             for ob in obstacles:
                 iv = ob.interval_at(float(tk))
@@ -330,14 +348,21 @@ class StSpeedPlanner:
                     continue
                 if iv[0] - c.follow_gap_m >= guide[k] - 1e-6:
                     s_hi[k] = min(s_hi[k], iv[0] - c.follow_gap_m)
+                    v_ob = ob.speed_at(float(tk))
                     if k > 0:  # the current state is given: a violated headway there is no choice
-                        v_ob = ob.speed_at(float(tk))
                         head_hi[k] = min(head_hi[k], iv[0] - c.follow_gap_m + c.headway_s * v_ob)
+                    # Behind it, the speed aimed at is its own plus the room beyond the following
+                    # distance closed over ``closing_s`` (aiming at the limit instead closed in at
+                    # full acceleration and overshot: +-1 m/s around a car at 3 m/s).
+                    room = iv[0] - c.follow_gap_m - c.headway_s * v_ob - guide[k]
+                    v_follow[k] = min(v_follow[k], v_ob + max(room, 0.0) / c.closing_s)
                 elif iv[1] + c.follow_gap_m <= guide[k] + 1e-6:
                     s_lo[k] = max(s_lo[k], iv[1] + c.follow_gap_m)
         v_lim = np.interp(guide, ls, lv)
-        # An initial overspeed is shed at full deceleration rather than making the problem infeasible.
-        v_hi = np.maximum(v_lim, v0 - c.max_decel_mps2 * t)
+        # An initial overspeed is shed at full deceleration, reached at the jerk limit from the
+        # current acceleration, rather than making the problem infeasible (a cap falling from 5.5 to
+        # 3.5 m/s ahead of a bay: with the bound v0 - D t the first knots were out of reach).
+        v_hi = np.maximum(v_lim, _braking_speed(t, v0, a0, c.max_decel_mps2, c.max_jerk_mps3) + 0.05)
         lo = np.concatenate(
             [
                 s_lo,
@@ -354,7 +379,8 @@ class StSpeedPlanner:
         lo[0] = hi[0] = 0.0
         lo[n1] = hi[n1] = v0
         lo[2 * n1] = hi[2 * n1] = a0
-        q = np.concatenate([-2.0 * c.w_guide * guide, -2.0 * c.w_speed * v_lim, np.zeros(n1)])
+        v_aim = np.minimum(v_lim, v_follow)
+        q = np.concatenate([-2.0 * c.w_guide * guide, -2.0 * c.w_speed * v_aim, np.zeros(n1)])
         return lo, hi, q
 
     def _from_search(self, search: np.ndarray, t_search: np.ndarray, c: StSpeedConfig) -> SpeedPlan:

@@ -34,7 +34,7 @@ from lastmile.core.objects import DetectedObjects, TrackedObjects, empty_tracks
 from lastmile.core.perception_mode import PerceptionMode
 from lastmile.core.polyline import Polyline
 from lastmile.core.predictions import PredictedPaths
-from lastmile.core.route_obstacles import route_obstacles
+from lastmile.core.route_obstacles import RouteObstacle, route_obstacles
 from lastmile.core.safety_messages import SafetyDirective
 from lastmile.core.sensor_frames import (
     CameraDetections,
@@ -77,6 +77,13 @@ from lastmile.localization.scan_match_localization import ScanMatchingSettings
 from lastmile.perception.late_fusion import radar_detections
 from lastmile.planning.local_path import LocalPathConfig
 from lastmile.planning.planners import PASSING_PLANNERS, PlannerInputs, PlannerName, make_path_planner
+from lastmile.planning.speed_planning import (
+    SpeedInput,
+    SpeedPlannerName,
+    SpeedPlanningConfig,
+    StQpSpeedPlanning,
+    terminal_gap_m,
+)
 from lastmile.safety.reliability_config import ReliabilityConfig, default_sensor_specs
 from lastmile.stack.amcl_fusion import AmclFusion
 from lastmile.stack.hmi import HmiComposer
@@ -126,6 +133,8 @@ class StackConfig:
     lateral_controller: str = "heading_pid"
     longitudinal_controller: str = "watonobus"
     planner: PlannerName = PlannerName.OFFSET_PASS
+    speed_planner: SpeedPlannerName | None = None
+    speed_planning: SpeedPlanningConfig | None = None
     radar_mounts: dict[str, SE2] = field(default_factory=dict)
     serve_all_stops: bool = False
     decision: DecisionConfig = field(default_factory=DecisionConfig)
@@ -306,8 +315,21 @@ class ShuttleStack:
                 body_ahead_m=geometry.length_m - geometry.rear_overhang_m,
                 drivable=layers.hdmap.is_drivable,
                 max_curvature_1pm=math.tan(geometry.max_steer_rad) / geometry.wheelbase_m,
+                layers=layers,
             ),
             _path_config(config),
+        )
+        # Snow Lion's s-t + QP speed planner, when selected: the controller tracks its speed.
+        self.speed = (
+            StQpSpeedPlanning(
+                self.route,
+                geometry.width_m / 2.0,
+                geometry.length_m,
+                geometry.front_from_rear_axle_m,
+                config.speed_planning,
+            )
+            if config.speed_planner is SpeedPlannerName.ST_QP
+            else None
         )
         self.longitudinal = make_longitudinal_controller(config.longitudinal_controller, config.longitudinal)
         self.lateral = make_lateral_controller(config.lateral_controller, geometry, config.lateral)
@@ -460,6 +482,12 @@ class ShuttleStack:
         if self.scan_matching is not None:
             counters.update(self.scan_matching.counters())
             perception["scan_match_update_cpu_p50_ms"] = self.scan_matching.cpu_p50_ms()
+        if self.speed is not None:
+            counters.update(
+                speed_plans=self.speed.replans,
+                speed_cycles=self.speed.cycles,
+                speed_unsolved=self.speed.unsolved,
+            )
         if self.amcl is not None:
             counters.update(self.amcl.counters())
             perception["amcl_update_cpu_p50_ms"] = self.amcl.cpu_p50_ms()
@@ -636,6 +664,32 @@ class ShuttleStack:
         )
         self._trajectory = self.planner.plan(now, self._route_s, self._route_d, self._decision, obstacles)
         self._path = Polyline(self._trajectory.points[:, :2])
+        if self.speed is not None:
+            self._plan_speed(now, obstacles)
+
+    def _plan_speed(self, now: Stamp, obstacles: list[RouteObstacle]) -> None:
+        """The s-t + QP speed planner's cycle (it replans only on events)."""
+        d, path, est = self._decision, self._path, self.ekf.estimate(now)
+        assert self.speed is not None and d is not None and path is not None and self._trajectory is not None
+        if not est.valid or self._route_s is None:
+            return
+        front_s = self._route_s + self.geometry.front_from_rear_axle_m
+        gap = terminal_gap_m(d, obstacles, self.route, front_s)
+        following = d.stop_at_s_m is not None and gap is None
+        self.speed.update(
+            SpeedInput(
+                now_s=int(now) / 1e6,
+                trajectory=self._trajectory,
+                front_s_m=front_s,
+                path_s_m=path.project(est.map_from_base.x_m, est.map_from_base.y_m).s_m,
+                speed_mps=est.speed_mps,
+                accel_mps2=self._command.accel_mps2,
+                cap_mps=min(d.speed_limit_mps, self._trajectory.speed_limit_mps),
+                stop_gap_m=self._planner_stop_gap_m(gap, front_s),
+                obstacles=obstacles,
+                following=following,
+            )
+        )
 
     def _control(self, now: Stamp) -> None:
         d, path, est = self._decision, self._path, self.ekf.estimate(now)
@@ -656,14 +710,21 @@ class ShuttleStack:
         if gap is not None and d.stop_at_s_m is not None:
             gap = self.route.ds_m(front_s, d.stop_at_s_m)  # the shorter way round on the loop
         assert self._trajectory is not None
+        gap = self._planner_stop_gap_m(gap, front_s)
         path_s = path.project(pose.x_m, pose.y_m).s_m
         # A lateral controller with a speed law of its own (GEM's v_max = sqrt(0.5 r)) lowers the cap.
         cap = self.lateral.speed_cap_mps(
-            path, path_s, d.speed_limit_mps, self.config.longitudinal.nominal_accel_mps2
+            path,
+            path_s,
+            min(d.speed_limit_mps, self._trajectory.speed_limit_mps),
+            self.config.longitudinal.nominal_accel_mps2,
         )
         if self.occupancy_stop is not None:  # GEM's obstacle stop lowers it further
             cap = self.occupancy_stop.cap_mps(cap)
         v_ref = self.longitudinal.reference_speed_mps(self._trajectory, path_s, cap)
+        if self.speed is not None:
+            v_plan, gap = self.speed.reference(int(now) / 1e6, front_s, gap, est.speed_mps)
+            v_ref = min(v_ref, v_plan)
         accel = self.longitudinal.step(dt, est.speed_mps, v_ref, gap)
         self.lateral.set_speed_reference(v_ref)  # a coupled lateral model predicts with it
         emergency = d.state == BehaviourState.EMERGENCY_STOP and est.speed_mps > 0.05
@@ -683,6 +744,15 @@ class ShuttleStack:
             door_open=d.door_open,
             emergency_brake=emergency,
         )
+
+    def _planner_stop_gap_m(self, gap_m: float | None, front_s_m: float) -> float | None:
+        """The nearer of decision's stop gap and the planner's (a truncated route, a lane stop)."""
+        assert self._trajectory is not None
+        stop = self._trajectory.stop_at_route_s_m
+        if stop is None:
+            return gap_m
+        planned = self.route.ds_m(front_s_m, stop)
+        return planned if gap_m is None else min(gap_m, planned)
 
     def _path_for_law(self, path: Polyline, rear_steer: bool) -> Polyline:
         """The path of the lateral law's own point: the planned one (laid for the rear axle, or the centre

@@ -29,6 +29,7 @@ from lastmile.perception.lidar_detector import LidarDetectorConfig
 from lastmile.perception.pedestrian_verification import PedestrianVerificationConfig
 from lastmile.planning.local_path import LocalPathConfig
 from lastmile.planning.planners import PlannerName
+from lastmile.planning.speed_planning import SpeedPlannerName, SpeedPlanningConfig
 from lastmile.safety.failsafe import FailSafeConfig
 from lastmile.safety.hardware_watchdog import HardwareWatchdogConfig
 from lastmile.stack.occupancy_stop import OccupancyStopSettings
@@ -112,7 +113,12 @@ class StackSettings:
             and cascaded PI).
         planner: offset_pass (default: WATonoBus's potential field and Bezier curves, and passes of
             a stationary obstacle blocking the lane by the adjacent lane; ``decision.pass_rule``) or
-            potential_field_bezier (the same without passing: the shuttle waits behind it).
+            potential_field_bezier (the same without passing: the shuttle waits behind it) or
+            snow_lion_behaviour (Snow Lion's behaviour planner; passes as offset_pass does).
+        speed_planner: None or controller (the default: the longitudinal law alone) or st_qp (Snow
+            Lion's s-t search + OSQP QP over predicted road users, eqs. 1-2 and the terminal stop,
+            replanned on events; :mod:`lastmile.planning.speed_planning`).
+        speed_planning: its parameters (None: the defaults).
         localization: the name of the registered implementation.
         cruise_speed_mps: the shuttle's cruise speed (None: decision's default, 20 km/h).
         serve_all_stops: timetable mode (every stop) instead of on request.
@@ -149,6 +155,8 @@ class StackSettings:
     lateral_controller: LateralControllerName = LateralControllerName.HEADING_PID
     longitudinal_controller: LongitudinalControllerName = LongitudinalControllerName.WATONOBUS
     planner: PlannerName = PlannerName.OFFSET_PASS
+    speed_planner: SpeedPlannerName | None = None
+    speed_planning: SpeedPlanningConfig | None = None
     localization: LocalizationMode = LocalizationMode.EKF
     cruise_speed_mps: float | None = None
     serve_all_stops: bool = False

@@ -78,6 +78,8 @@ def stack_config(settings: StackSettings, calibration: SensorCalibration, tick_u
         lateral_controller=settings.lateral_controller,
         longitudinal_controller=settings.longitudinal_controller,
         planner=settings.planner,
+        speed_planner=settings.speed_planner,
+        speed_planning=settings.speed_planning,
         radar_mounts=calibration.radar_mounts,
         light_cameras=calibration.light_cameras,
         serve_all_stops=settings.serve_all_stops,
