@@ -29,3 +29,23 @@ def frozen_array(values: npt.ArrayLike, dtype: npt.DTypeLike, columns: int | Non
         raise MessageError(f"{what}: expected finite values, got NaN or inf")
     arr.setflags(write=False)
     return arr
+
+
+def check_frozen_array(values: npt.ArrayLike, dtype: npt.DTypeLike, columns: int | None, what: str) -> None:
+    """Raises exactly when :func:`frozen_array` would, without its copy when ``values`` already is an
+    array of ``dtype`` (a message's own field: ``validate()`` runs on every frame, several times).
+
+    Raises:
+        MessageError: naming ``what`` if the shape is wrong or a value is NaN or infinite.
+    """
+    if not (isinstance(values, np.ndarray) and values.dtype == np.dtype(dtype)):
+        frozen_array(values, dtype, columns, what)
+        return
+    arr = values
+    if columns is None:
+        if arr.ndim != 1:
+            raise MessageError(f"{what}: expected a 1-D array, got shape {arr.shape}")
+    elif arr.size != 0 and (arr.ndim != 2 or arr.shape[1] != columns):
+        raise MessageError(f"{what}: expected shape (N, {columns}), got {arr.shape}")
+    if arr.dtype.kind == "f" and arr.size and not (np.isfinite(arr.min()) and np.isfinite(arr.max())):
+        raise MessageError(f"{what}: expected finite values, got NaN or inf")

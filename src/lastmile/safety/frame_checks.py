@@ -28,6 +28,39 @@ def sensor_key(frame: SensorFrame) -> str | None:
     return frame_kinds.stream_key(frame)
 
 
+class ArrayBytes:
+    """An array's exact content as a digest part: equal when dtype, shape and every byte are (as
+    ``hash(a.tobytes())`` compares them, without copying a LiDAR sweep's megabyte each frame).
+
+    The comparison looks at the first bytes before the rest: a healthy sensor's noise makes
+    consecutive frames differ there, so only a frozen stream pays for the whole comparison. A
+    message's arrays are read-only; a writable one is copied, so that a later change cannot make it
+    equal to its successor.
+    """
+
+    __slots__ = ("_array",)
+    _HEAD = 256  # elements compared first
+
+    def __init__(self, array: np.ndarray) -> None:
+        self._array = array if not array.flags.writeable else array.copy()
+
+    def _bytes_view(self) -> np.ndarray:
+        return np.ascontiguousarray(self._array).reshape(-1).view(np.uint8)
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, ArrayBytes):
+            return NotImplemented
+        a, b = self._array, other._array
+        if a.dtype != b.dtype or a.shape != b.shape:
+            return False
+        va, vb = self._bytes_view(), other._bytes_view()
+        head = self._HEAD * a.dtype.itemsize
+        return bool(np.array_equal(va[:head], vb[:head]) and np.array_equal(va[head:], vb[head:]))
+
+    def __hash__(self) -> int:
+        return hash((self._array.dtype.str, self._array.shape, self._array.tobytes()))
+
+
 @singledispatch
 def payload_digest(frame: SensorFrame) -> tuple[object, ...] | None:
     """Everything but the stamp, hashable; None when there is no content to compare (empty lists).
@@ -43,7 +76,7 @@ def payload_digest(frame: SensorFrame) -> tuple[object, ...] | None:
         if isinstance(value, np.ndarray):
             if value.size == 0:
                 return None
-            parts.append(hash(value.tobytes()))
+            parts.append(ArrayBytes(value))
         else:
             parts.append(value)
     return tuple(parts)

@@ -9,7 +9,8 @@ solid here is a vertical prism, a column's rays share one line in the plane, so 
 2. per pair, one 2D intersection gives the horizontal entry and exit distances;
 3. per pair, the channels whose ray meets the prism's side (or descends onto its top) form a
    contiguous interval of the elevation-sorted channels, found by another binary search;
-4. the nearest hit per (column, channel) wins (``np.minimum.at`` over the flat cell index).
+4. the nearest hit per (column, channel) wins (as ``np.minimum.at`` over the flat cell index would
+   pick it; steps 3's expansion and 4 are one compiled pass, :func:`lidar_kernel.nearest_hits`).
 
 All arrays are NumPy; cost scales with the number of (column, channel) cells that actually meet
 something, not with rays x primitives.
@@ -18,10 +19,12 @@ something, not with rays x primitives.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
+from lastmile.sim import lidar_kernel
 from lastmile.sim.lidar_scene import Boxes, Cylinders, Segments
 
 TWO_PI = 2.0 * math.pi
@@ -230,6 +233,11 @@ def box_pairs(cols: Columns, box: Boxes) -> tuple[np.ndarray, ...]:
     return prim[ok], col[ok], r_in[ok], r_out[ok], cos2d[ok]
 
 
+def _contiguous(dtype: type) -> Callable[[np.ndarray], np.ndarray]:
+    """A converter to a C-contiguous array of ``dtype`` (the array itself when it already is one)."""
+    return lambda a: np.ascontiguousarray(a, dtype=dtype)
+
+
 def cast(
     cols: Columns,
     tan_el: np.ndarray,
@@ -259,26 +267,12 @@ def cast(
     tan_hi = np.where(z_hi >= oz, (z_hi - oz) / r_in, (z_hi - oz) / r_out)
     k0 = np.searchsorted(tan_el, tan_lo, side="left")
     k1 = np.searchsorted(tan_el, tan_hi, side="right")
-    pair, k = _expand(k0, k1, np.arange(len(prim)))
-    tk = tan_el[k]
-    rin = r_in[pair]
-    top = oz + tk * rin > z_hi[pair]
-    with np.errstate(divide="ignore"):
-        r_hit = np.where(top, (z_hi[pair] - oz) / np.where(tk == 0.0, -1e-12, tk), rin)
-    flat = col[pair] * n_ch + k
-    best = np.full(n_col * n_ch, np.inf)
-    np.minimum.at(best, flat, r_hit)
-    winner = np.full(n_col * n_ch, -1, dtype=np.int64)
-    won = np.flatnonzero(r_hit == best[flat])
-    winner[flat[won]] = won
-    hit = winner >= 0
-    prim_out = np.full(n_col * n_ch, -1, dtype=np.int64)
-    cos_out = np.ones(n_col * n_ch)
-    w = winner[hit]
-    prim_out[hit] = prim[pair[w]]
-    cos_el = 1.0 / np.sqrt(1.0 + tk[w] ** 2)
-    sin_el = np.abs(tk[w]) * cos_el
-    cos_out[hit] = np.where(top[w], sin_el, cos2d[pair[w]] * cos_el)
+    # Steps 3 and 4 in one compiled pass over the (pair, channel) cells, without expanding them
+    # (one dtype per argument: the compiled signature the warm-up caches).
+    f8, i8 = _contiguous(np.float64), _contiguous(np.int64)
+    best, prim_out, cos_out = lidar_kernel.nearest_hits(
+        n_col, n_ch, f8(tan_el), float(oz), i8(col), i8(k0), i8(k1), f8(r_in), f8(z_hi), f8(cos2d), i8(prim)
+    )
     return Hits(
         range_h_m=best.reshape(n_col, n_ch),
         prim=prim_out.reshape(n_col, n_ch),
