@@ -92,11 +92,11 @@ def test_ground_ranges_match_the_numpy_ground_bit_for_bit(campus_sim: LidarSimul
     assert (label == PointLabel.SIDEWALK).sum() > 100 and (label == PointLabel.ROAD).sum() > 100
 
 
-def test_the_warm_up_compiles_every_simulator_kernel_for_the_types_a_run_brings(
+def test_the_warm_up_and_the_preload_compile_every_kernel_for_the_types_a_run_brings(
     campus_sim: LidarSimulator,
 ) -> None:
     report = warm_up()
-    assert report.not_compiled == () and report.kernels == len(entry_kernels()) == 5
+    assert report.not_compiled == () and report.kernels == len(entry_kernels()) == 9
     before = {name: len(fn.signatures) for name, fn in entry_kernels().items()}  # type: ignore[attr-defined]
     # The campus rig in clear air and in snow (the snow path's ground stays in NumPy), road users in
     # view: no new compilation.
@@ -108,4 +108,81 @@ def test_the_warm_up_compiles_every_simulator_kernel_for_the_types_a_run_brings(
     for sim in (campus_sim, snow):
         for sensor_id in sim.specs:
             sim.sweep_with_truth(sensor_id, Stamp(0), ego, objects, 100_000)
-    assert {name: len(fn.signatures) for name, fn in entry_kernels().items()} == before  # type: ignore[attr-defined]
+    after = {name: len(fn.signatures) for name, fn in entry_kernels().items()}  # type: ignore[attr-defined]
+    assert after == before
+    # One signature each: the one a simulator loads when it is built (``lidar_kernel.preload``).
+    assert set(after.values()) == {1}
+
+
+def _box_pairs_numpy(cols, box, starts, stops, ids):  # type: ignore[no-untyped-def]
+    """The NumPy slab test the box kernel replaced, over the same column ranges."""
+    counts = np.maximum(stops - starts, 0)
+    prim = np.repeat(ids, counts)
+    col = np.repeat(starts, counts) + np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+    c, s = np.cos(box.yaw_rad), np.sin(box.yaw_rad)
+    hl, hw = box.half_length_m, box.half_width_m
+    t_s = cols.t_s[col]
+    cx = box.centre[prim, 0] + box.velocity[prim, 0] * t_s
+    cy = box.centre[prim, 1] + box.velocity[prim, 1] * t_s
+    px, py = cols.origin[col, 0], cols.origin[col, 1]
+    dx, dy = cols.direction[col, 0], cols.direction[col, 1]
+    cp, sp = c[prim], s[prim]
+    ox, oy = px - cx, py - cy
+    lox, loy = cp * ox + sp * oy, -sp * ox + cp * oy
+    ldx, ldy = cp * dx + sp * dy, -sp * dx + cp * dy
+    with np.errstate(divide="ignore", invalid="ignore"):
+        tx1, tx2 = (-hl[prim] - lox) / ldx, (hl[prim] - lox) / ldx
+        ty1, ty2 = (-hw[prim] - loy) / ldy, (hw[prim] - loy) / ldy
+    in_x, in_y = np.abs(lox) <= hl[prim], np.abs(loy) <= hw[prim]
+    tx_lo = np.where(ldx == 0.0, np.where(in_x, -np.inf, np.inf), np.minimum(tx1, tx2))
+    tx_hi = np.where(ldx == 0.0, np.where(in_x, np.inf, -np.inf), np.maximum(tx1, tx2))
+    ty_lo = np.where(ldy == 0.0, np.where(in_y, -np.inf, np.inf), np.minimum(ty1, ty2))
+    ty_hi = np.where(ldy == 0.0, np.where(in_y, np.inf, -np.inf), np.maximum(ty1, ty2))
+    r_in, r_out = np.maximum(tx_lo, ty_lo), np.minimum(tx_hi, ty_hi)
+    ok = (r_out >= r_in) & (r_out > 0.0)
+    cos2d = np.where(tx_lo > ty_lo, np.abs(ldx), np.abs(ldy))
+    return prim[ok], col[ok], r_in[ok], r_out[ok], cos2d[ok]
+
+
+def test_box_pairs_match_the_numpy_slab_test_bit_for_bit_parallel_rays_included(
+    campus_sim: LidarSimulator,
+) -> None:
+    from lastmile.sim.lidar_raycast import box_pairs, column_ranges
+
+    sim = campus_sim
+    spec = sim.specs["front"]
+    ego = EgoTrack.constant(0, 250.0, -1.75, 0.0, speed_mps=5.0)
+    cols, _ = sim.columns(spec, 0, ego, 100_000)
+    objects = DynamicObjects.empty()
+    rng = np.random.default_rng(5)
+    for k in range(12):
+        # Axis-aligned boxes (yaw 0 or pi/2) meet rays parallel to a slab along the straight.
+        objects = objects.with_box(
+            x_m=250.0 + rng.uniform(-25.0, 25.0),
+            y_m=rng.uniform(-8.0, 6.0),
+            yaw_rad=float(rng.choice([0.0, np.pi / 2, rng.uniform(-3.0, 3.0)])),
+            length_m=rng.uniform(0.5, 5.0),
+            width_m=rng.uniform(0.5, 2.0),
+            height_m=1.5,
+            object_id=k,
+            vx_mps=rng.uniform(-5.0, 5.0),
+        )
+    box = objects.boxes
+    got = box_pairs(cols, box)
+    want = _box_pairs_numpy(cols, box, *column_ranges(cols, *_box_corners(cols, box)))
+    assert len(got[0]) > 1000
+    for a, b in zip(got, want, strict=True):
+        assert a.tobytes() == b.tobytes()
+
+
+def _box_corners(cols, box):  # type: ignore[no-untyped-def]
+    c, s = np.cos(box.yaw_rad), np.sin(box.yaw_rad)
+    local = np.array([[1.0, 1.0], [-1.0, 1.0], [-1.0, -1.0], [1.0, -1.0]])
+    lx = local[None, :, 0] * box.half_length_m[:, None]
+    ly = local[None, :, 1] * box.half_width_m[:, None]
+    corners = np.stack([c[:, None] * lx - s[:, None] * ly, s[:, None] * lx + c[:, None] * ly], axis=-1)
+    t0, t1 = cols.t_s[0], cols.t_s[-1]
+    return (
+        corners + (box.centre + box.velocity * t0)[:, None, :],
+        corners + (box.centre + box.velocity * t1)[:, None, :],
+    )

@@ -11,10 +11,23 @@ from lastmile.core.errors import MessageError
 def frozen_array(values: npt.ArrayLike, dtype: npt.DTypeLike, columns: int | None, what: str) -> np.ndarray:
     """A read-only copy of ``values`` as ``dtype`` with shape (N, columns) (or (N,) when None).
 
+    An array of ``dtype`` that owns its data and is already read-only is taken as it is, not copied:
+    its producer has handed it over (a simulated LiDAR sweep's megabyte of points), and a copy would
+    be just as read-only.
+
     Raises:
         MessageError: naming ``what`` if the shape is wrong or a value is NaN or infinite.
     """
-    arr = np.array(values, dtype=dtype, copy=True)
+    arr: np.ndarray
+    if (
+        isinstance(values, np.ndarray)
+        and values.base is None
+        and not values.flags.writeable
+        and values.dtype == np.dtype(dtype)
+    ):
+        arr = values  # handed over
+    else:
+        arr = np.array(values, dtype=dtype, copy=True)
     if columns is None:
         if arr.ndim != 1:
             raise MessageError(f"{what}: expected a 1-D array, got shape {arr.shape}")

@@ -22,6 +22,16 @@ from lastmile.core.sensor_frames import (
     WheelOdometryFrame,
 )
 
+_FIELD_NAMES: dict[type, tuple[str, ...]] = {}
+
+
+def _field_names(kind: type) -> tuple[str, ...]:
+    """The dataclass fields of a frame type, in order (looked up once per type, not per frame)."""
+    names = _FIELD_NAMES.get(kind)
+    if names is None:
+        names = _FIELD_NAMES[kind] = tuple(f.name for f in fields(kind))
+    return names
+
 
 def sensor_key(frame: SensorFrame) -> str | None:
     """The stream a frame belongs to (None for event-driven frames such as stop calls)."""
@@ -69,10 +79,10 @@ def payload_digest(frame: SensorFrame) -> tuple[object, ...] | None:
     frame differ, register their own digest below.
     """
     parts: list[object] = []
-    for f in fields(frame):
-        if f.name == "stamp":
+    for name in _field_names(type(frame)):
+        if name == "stamp":
             continue
-        value = getattr(frame, f.name)
+        value = getattr(frame, name)
         if isinstance(value, np.ndarray):
             if value.size == 0:
                 return None
@@ -132,10 +142,10 @@ def garbage_reason(frame: SensorFrame) -> str:
         frame.validate()
     except MessageError as exc:
         return str(exc)
-    for f in fields(frame):
-        value = getattr(frame, f.name)
+    for name in _field_names(type(frame)):
+        value = getattr(frame, name)
         if isinstance(value, float) and not math.isfinite(value):
-            return f"{type(frame).__name__}.{f.name} is {value}"
+            return f"{type(frame).__name__}.{name} is {value}"
     return _implausible(frame)
 
 

@@ -95,6 +95,7 @@ class LidarSimulator:
             raise ConfigError(f"LidarSimulator.specs: expected distinct sensor ids, got {ids}")
         if weather.snow_on_road and scene.ground is None:
             raise ConfigError("LidarSimulator: snow on the road needs a scene with a ground raster, got none")
+        lidar_kernel.preload()
         self.scene = scene
         self.specs = {s.sensor_id: s for s in specs}
         self.weather = weather
@@ -233,9 +234,11 @@ class LidarSimulator:
             obj_id = np.concatenate([obj_id, np.full(len(new), NO_OBJECT)])[sort]
             obj_cls = np.concatenate([obj_cls, np.zeros(len(new), np.int8)])[sort]
 
-        points = lidar_kernel.sweep_points(
-            idx, n_ch, n_col, spec.period_us, noisy, intensity, cos_el, sin_el, np.cos(az), np.sin(az)
+        points = np.empty((len(idx), 6), dtype=np.float32)
+        lidar_kernel.sweep_points(
+            idx, n_ch, n_col, spec.period_us, noisy, intensity, cos_el, sin_el, np.cos(az), np.sin(az), points
         )
+        points.setflags(write=False)  # handed over to the sweep (no copy of it)
         sweep = LidarSweep(stamp=stamp, sensor_id=sensor_id, points=points)
         if not with_truth:
             return sweep, None

@@ -27,7 +27,7 @@ if not os.environ.get("NUMBA_CACHE_DIR"):
     numba.config.CACHE_DIR = str(kernel_cache_dir())
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _nan_max(a: float, b: float) -> float:
     """``np.maximum`` of two scalars: NaN when either is NaN, ``b`` when they compare equal."""
     if a != a or b != b:
@@ -35,7 +35,7 @@ def _nan_max(a: float, b: float) -> float:
     return a if a > b else b
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def nearest_hits(
     n_col: int,
     n_ch: int,
@@ -103,7 +103,260 @@ def nearest_hits(
     return best, prim_out, cos_out
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
+def spin_ranges(
+    ang: np.ndarray,
+    dist: np.ndarray,
+    near_m: float,
+    theta0_rad: float,
+    counter_clockwise: bool,
+    pad_rad: float,
+    spin: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The column ranges that can see each primitive: (start, stop, primitive), (3P,) each.
+
+    Args:
+        ang: (P, M) map-frame azimuths of each primitive's bounding points from the sensor.
+        dist: (P,) each primitive's nearest bounding point (m); nearer than ``near_m`` (or spanning
+            more than 0.9 pi) it is seen from every column.
+        theta0_rad: the first column's azimuth; counter_clockwise: the spin direction.
+        pad_rad: slack added on both sides.
+        spin: (C,) the columns' non-decreasing spin angles from the first.
+
+    Returns:
+        Three blocks of P ranges (the interval one turn back, as is, one turn on), block after block.
+    """
+    n_prim, n_pts = ang.shape
+    n_col = spin.shape[0]
+    two_pi = 2.0 * math.pi
+    starts = np.empty(3 * n_prim, dtype=np.int64)
+    stops = np.empty(3 * n_prim, dtype=np.int64)
+    ids = np.empty(3 * n_prim, dtype=np.int64)
+    for p in range(n_prim):
+        ref = ang[p, 0]
+        d_min = np.inf
+        d_max = -np.inf
+        for m in range(n_pts):
+            d = (ang[p, m] - ref + math.pi) % two_pi - math.pi
+            d_min = min(d_min, d)
+            d_max = max(d_max, d)
+        lo, hi = ref + d_min, ref + d_max
+        near = dist[p] < near_m or hi - lo > 0.9 * math.pi
+        if counter_clockwise:
+            a, b = lo - theta0_rad, hi - theta0_rad
+        else:
+            a, b = theta0_rad - hi, theta0_rad - lo
+        a, b = a - pad_rad, b + pad_rad
+        shift = np.floor(a / two_pi) * two_pi
+        a, b = a - shift, b - shift
+        for j in range(3):
+            k = j - 1.0
+            s = np.searchsorted(spin, a + k * two_pi, side="left")
+            e = np.searchsorted(spin, b + k * two_pi, side="right")
+            if j == 1:
+                if near:
+                    s, e = 0, n_col
+            elif near:
+                e = s
+            starts[j * n_prim + p] = s
+            stops[j * n_prim + p] = e
+            ids[j * n_prim + p] = p
+    return starts, stops, ids
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def wall_pairs(
+    starts: np.ndarray,
+    stops: np.ndarray,
+    ids: np.ndarray,
+    ox: np.ndarray,
+    oy: np.ndarray,
+    dx: np.ndarray,
+    dy: np.ndarray,
+    p0x: np.ndarray,
+    p0y: np.ndarray,
+    ex_w: np.ndarray,
+    ey_w: np.ndarray,
+    len_w: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The (wall, column) pairs whose ray crosses the wall ahead, in range order.
+
+    Args:
+        starts, stops, ids: (R,) column ranges [start, stop) of wall ``ids`` (``column_ranges``).
+        ox, oy, dx, dy: (C,) the columns' origins and horizontal unit directions.
+        p0x, p0y, ex_w, ey_w, len_w: (S,) each wall's first end, its vector to the other, its length.
+
+    Returns:
+        (Q,) wall, column, horizontal range to the crossing (m) and the 2-D incidence cosine.
+    """
+    total = 0
+    for j in range(starts.shape[0]):
+        if stops[j] > starts[j]:
+            total += stops[j] - starts[j]
+    prim_out = np.empty(total, dtype=np.int64)
+    col_out = np.empty(total, dtype=np.int64)
+    r_out = np.empty(total)
+    cos_out = np.empty(total)
+    m = 0
+    for j in range(starts.shape[0]):
+        w = ids[j]
+        ex, ey = ex_w[w], ey_w[w]
+        for c in range(starts[j], stops[j]):
+            wx, wy = p0x[w] - ox[c], p0y[w] - oy[c]
+            denom = dx[c] * ey - dy[c] * ex
+            ok = np.abs(denom) > 1e-12
+            safe = denom if ok else 1.0
+            r = (wx * ey - wy * ex) / safe
+            u = (wx * dy[c] - wy * dx[c]) / safe
+            if ok and u >= 0.0 and u <= 1.0 and r > 0.0:
+                prim_out[m] = w
+                col_out[m] = c
+                r_out[m] = r
+                cos_out[m] = np.abs(denom) / len_w[w]
+                m += 1
+    return prim_out[:m], col_out[:m], r_out[:m], cos_out[:m]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _np_min(a: float, b: float) -> float:
+    """``np.minimum`` of two numbers that are not NaN: the second when they compare equal."""
+    return a if a < b else b
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _np_max(a: float, b: float) -> float:
+    """``np.maximum`` of two numbers that are not NaN: the second when they compare equal."""
+    return a if a > b else b
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _range_total(starts: np.ndarray, stops: np.ndarray) -> int:
+    total = 0
+    for j in range(starts.shape[0]):
+        if stops[j] > starts[j]:
+            total += stops[j] - starts[j]
+    return total
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def cylinder_pairs(
+    starts: np.ndarray,
+    stops: np.ndarray,
+    ids: np.ndarray,
+    ox: np.ndarray,
+    oy: np.ndarray,
+    dx: np.ndarray,
+    dy: np.ndarray,
+    t_s: np.ndarray,
+    cx0: np.ndarray,
+    cy0: np.ndarray,
+    vx: np.ndarray,
+    vy: np.ndarray,
+    radius: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The (cylinder, column) pairs whose ray meets the (moving) cylinder ahead, in range order:
+    cylinder, column, entry and exit distances (m), 2-D incidence cosine.
+
+    Args:
+        starts, stops, ids: (R,) column ranges of each cylinder (``column_ranges``).
+        ox, oy, dx, dy, t_s: (C,) the columns' origins, directions and firing times (s).
+        cx0, cy0, vx, vy, radius: (N,) each cylinder's centre at time 0, velocity and radius.
+    """
+    total = _range_total(starts, stops)
+    prim_out = np.empty(total, dtype=np.int64)
+    col_out = np.empty(total, dtype=np.int64)
+    rin_out = np.empty(total)
+    rout_out = np.empty(total)
+    cos_out = np.empty(total)
+    m = 0
+    for j in range(starts.shape[0]):
+        q = ids[j]
+        rad = radius[q]
+        for c in range(starts[j], stops[j]):
+            rx = ox[c] - (cx0[q] + vx[q] * t_s[c])
+            ry = oy[c] - (cy0[q] + vy[q] * t_s[c])
+            b = rx * dx[c] + ry * dy[c]
+            disc = b * b - (rx * rx + ry * ry - rad * rad)
+            if not disc >= 0.0:
+                continue
+            sq = np.sqrt(disc)
+            r_out = -b + sq
+            if not r_out > 0.0:
+                continue
+            prim_out[m] = q
+            col_out[m] = c
+            rin_out[m] = -b - sq
+            rout_out[m] = r_out
+            cos_out[m] = sq / rad
+            m += 1
+    return prim_out[:m], col_out[:m], rin_out[:m], rout_out[:m], cos_out[:m]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def box_pairs(
+    starts: np.ndarray,
+    stops: np.ndarray,
+    ids: np.ndarray,
+    ox: np.ndarray,
+    oy: np.ndarray,
+    dx: np.ndarray,
+    dy: np.ndarray,
+    t_s: np.ndarray,
+    cx0: np.ndarray,
+    cy0: np.ndarray,
+    vx: np.ndarray,
+    vy: np.ndarray,
+    cos_yaw: np.ndarray,
+    sin_yaw: np.ndarray,
+    half_length: np.ndarray,
+    half_width: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The (box, column) pairs whose ray meets the (moving, oriented) box ahead, by the slab test in
+    the box frame, in range order: box, column, entry and exit distances (m), 2-D incidence cosine.
+
+    A ray parallel to a slab is inside it (both bounds infinite) or outside it (it never enters).
+    """
+    total = _range_total(starts, stops)
+    prim_out = np.empty(total, dtype=np.int64)
+    col_out = np.empty(total, dtype=np.int64)
+    rin_out = np.empty(total)
+    rout_out = np.empty(total)
+    cos_out = np.empty(total)
+    m = 0
+    for j in range(starts.shape[0]):
+        q = ids[j]
+        cp, sp, hl, hw = cos_yaw[q], sin_yaw[q], half_length[q], half_width[q]
+        for c in range(starts[j], stops[j]):
+            px = ox[c] - (cx0[q] + vx[q] * t_s[c])
+            py = oy[c] - (cy0[q] + vy[q] * t_s[c])
+            lox, loy = cp * px + sp * py, -sp * px + cp * py
+            ldx, ldy = cp * dx[c] + sp * dy[c], -sp * dx[c] + cp * dy[c]
+            if ldx == 0.0:
+                inside = np.abs(lox) <= hl
+                tx_lo, tx_hi = (-np.inf, np.inf) if inside else (np.inf, -np.inf)
+            else:
+                tx1, tx2 = (-hl - lox) / ldx, (hl - lox) / ldx
+                tx_lo, tx_hi = _np_min(tx1, tx2), _np_max(tx1, tx2)
+            if ldy == 0.0:
+                inside = np.abs(loy) <= hw
+                ty_lo, ty_hi = (-np.inf, np.inf) if inside else (np.inf, -np.inf)
+            else:
+                ty1, ty2 = (-hw - loy) / ldy, (hw - loy) / ldy
+                ty_lo, ty_hi = _np_min(ty1, ty2), _np_max(ty1, ty2)
+            r_in = _np_max(tx_lo, ty_lo)
+            r_out = _np_min(tx_hi, ty_hi)
+            if not (r_out >= r_in and r_out > 0.0):
+                continue
+            prim_out[m] = q
+            col_out[m] = c
+            rin_out[m] = r_in
+            rout_out[m] = r_out
+            cos_out[m] = np.abs(ldx) if tx_lo > ty_lo else np.abs(ldy)
+            m += 1
+    return prim_out[:m], col_out[:m], rin_out[:m], rout_out[:m], cos_out[:m]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
 def _on_road(
     road: np.ndarray, x0: float, y0: float, width: int, height: int, res: float, x: float, y: float
 ) -> bool:
@@ -115,7 +368,7 @@ def _on_road(
     return road[r * width + c]
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def ground_ranges(
     cand: np.ndarray,
     n_ch: int,
@@ -169,7 +422,7 @@ def ground_ranges(
     return r, label
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def returns(
     cand: np.ndarray,
     n_ch: int,
@@ -252,7 +505,7 @@ def returns(
     return idx[:m], rng_out[:m], cos_out[:m], refl_out[:m], retro_out[:m], label_out[:m], prim_out[:m]
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def intensity(
     range_m: np.ndarray,
     cos_inc: np.ndarray,
@@ -278,7 +531,7 @@ def intensity(
     return out
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def sweep_points(
     idx: np.ndarray,
     n_ch: int,
@@ -290,11 +543,12 @@ def sweep_points(
     sin_el: np.ndarray,
     cos_az: np.ndarray,
     sin_az: np.ndarray,
-) -> np.ndarray:
-    """(N, 6) float32 points of the sweep: x, y, z in the sensor frame, intensity rounded (half to
-    even) and clipped to 0..255, ring (channel by ascending elevation), time offset in us."""
+    points: np.ndarray,
+) -> None:
+    """Fills ``points`` (N, 6) float32 with the sweep: x, y, z in the sensor frame, intensity rounded
+    (half to even) and clipped to 0..255, ring (channel by ascending elevation), time offset in us.
+    (The caller allocates it, so that the array it hands to the sweep owns its data.)"""
     n = idx.shape[0]
-    points = np.empty((n, 6), dtype=np.float32)
     for i in range(n):
         col = idx[i] // n_ch
         ch = idx[i] % n_ch
@@ -312,4 +566,22 @@ def sweep_points(
         points[i, 3] = v
         points[i, 4] = ch
         points[i, 5] = (col * period_us) // n_col
-    return points
+
+
+def preload() -> None:
+    """Load (or compile) every kernel for the argument types the simulator passes, on empty inputs:
+    called when a :class:`lastmile.sim.lidar.LidarSimulator` is built, so a run's first sweep does not
+    pay for it (with a warm cache, about 0.3 s of CPU)."""
+    f8, i8, b1 = np.zeros(0), np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.bool_)
+    i1 = np.zeros(0, dtype=np.int8)
+    tan = np.zeros(1)
+    spin_ranges(np.zeros((0, 2)), f8, 1.0, 0.0, False, 0.01, tan)
+    wall_pairs(i8, i8, i8, f8, f8, f8, f8, f8, f8, f8, f8, f8)
+    cylinder_pairs(i8, i8, i8, f8, f8, f8, f8, f8, f8, f8, f8, f8, f8)
+    box_pairs(i8, i8, i8, f8, f8, f8, f8, f8, f8, f8, f8, f8, f8, f8, f8, f8)
+    nearest_hits(0, 1, tan, 1.0, i8, i8, i8, f8, f8, f8, i8)
+    road = np.zeros(1, dtype=np.bool_)
+    ground_ranges(i8, 1, tan, f8, f8, f8, f8, 1.0, 0.15, 100.0, road, 0.0, 0.0, 1, 1, 0.1, 0, 1)
+    returns(i8, 1, f8, i1, f8, i8, f8, tan, tan, i1, f8, b1, f8, f8, 1e-5, 0.5, 100.0)
+    intensity(f8, f8, f8, b1, f8, f8)
+    sweep_points(i8, 1, 1, 100_000, f8, f8, tan, tan, f8, f8, np.zeros((0, 6), dtype=np.float32))
