@@ -15,11 +15,13 @@ if [ ! -f "$stamp" ]; then
   [ -x "$venv/bin/python" ] || "$py" -m venv "$venv"
   "$venv/bin/python" -m pip install --quiet --upgrade pip
   "$venv/bin/python" -m pip install --quiet -e "$root${extras:+[$extras]}"
-  # Compile the perception kernels into the user's cache now, once per install, so the first LiDAR
+  # Compile the perception and simulator kernels into the user's cache now, once per install, so the first LiDAR
   # frame of the first run takes well under a second instead of the compilation's 10-20 s. A kernel
   # it could not reach is compiled at its first call instead: said, not fatal to the install.
   OPENBLAS_NUM_THREADS=1 "$venv/bin/python" -m lastmile.perception.warmup \
     || echo "bootstrap: the perception warm-up did not compile every kernel (see above)" >&2
+  OPENBLAS_NUM_THREADS=1 "$venv/bin/python" -m lastmile.sim.lidar_warmup \
+    || echo "bootstrap: the simulator warm-up did not compile every kernel (see above)" >&2
   touch "$stamp"
 fi
 export PATH="$venv/bin:$PATH"

@@ -933,10 +933,12 @@ def _map_recording(path: Path | None, run_config: RunConfig) -> tuple[LoopCallba
 
 @app.command()
 def warmup() -> None:
-    """Compile the perception kernels into the user's cache, once per install: the first frame is fast."""
+    """Compile the perception and simulator kernels into the user's cache, once per install: the first
+    frame is fast."""
     from lastmile.perception.warmup import main as warm
+    from lastmile.sim.lidar_warmup import main as warm_sim
 
-    code = warm()
+    code = max(warm(), warm_sim())
     if code:
         raise typer.Exit(code)
 

@@ -6,10 +6,10 @@ from __future__ import annotations
 import numpy as np
 
 from lastmile.core.safety_messages import FailSafeLevel, MalfunctionKind
-from lastmile.core.sensor_frames import GnssInsFrame, RadarFrame, WheelOdometryFrame
+from lastmile.core.sensor_frames import GnssInsFrame, LidarSweep, RadarFrame, WheelOdometryFrame
 from lastmile.core.stamp import Stamp
 from lastmile.localization.ekf import PoseEkf
-from lastmile.safety.reliability_config import ReliabilityConfig, default_sensor_specs
+from lastmile.safety.reliability_config import ReliabilityConfig, SensorSpec, default_sensor_specs
 from lastmile.safety.reliability_monitor import ReliabilityMonitor
 
 K, L = MalfunctionKind, FailSafeLevel
@@ -97,3 +97,29 @@ def test_one_gnss_fix_20_sigma_off_is_a_localization_fault_at_once_while_one_mar
     assert ekf.rejected_fixes >= 1 and ekf.gross_rejections == 1
     found = [s for s in mon.evaluate(t) if s.kind == K.LOCALIZATION_GATE_REJECTIONS]
     assert len(found) == 1 and found[0].level == L.SPEED_LIMIT
+
+
+def _lidar_monitor() -> ReliabilityMonitor:
+    return ReliabilityMonitor(
+        ReliabilityConfig(sensors=(SensorSpec(key="lidar_top", rate_hz=10.0, frozen_after=3),))
+    )
+
+
+def test_a_lidar_repeating_its_sweep_byte_for_byte_is_frozen_but_one_differing_in_its_last_byte_is_not() -> (
+    None
+):
+    pts = np.random.default_rng(0).normal(size=(5000, 6)).astype(np.float32)
+    last = pts.copy()
+    last[-1, -1] = np.nextafter(last[-1, -1], np.float32(np.inf))
+
+    def frozen(second: np.ndarray) -> bool:
+        mon = _lidar_monitor()
+        for k in range(6):
+            cloud = pts if k % 2 == 0 else second  # a new sweep (its own copy of the points) every frame
+            mon.observe_frame(
+                k * 100_000, LidarSweep(stamp=Stamp(k * 100_000 - 50_000), sensor_id="top", points=cloud)
+            )
+        return any(s.kind == K.SENSOR_FROZEN for s in mon.evaluate(5 * 100_000))
+
+    assert frozen(pts.copy())
+    assert not frozen(last)

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from lastmile.core.arrays import frozen_array
+from lastmile.core.arrays import check_frozen_array, frozen_array
 from lastmile.core.errors import MessageError
 from lastmile.core.gnss_messages import GnssQuality
 from lastmile.core.safety_messages import OperatorInput
@@ -134,7 +134,7 @@ class RadarFrame:
         )
 
     def validate(self) -> None:
-        frozen_array(self.objects, np.float64, len(RADAR_COLUMNS), "RadarFrame.objects")
+        check_frozen_array(self.objects, np.float64, len(RADAR_COLUMNS), "RadarFrame.objects")
         if not isinstance(self.cycle, int) or self.cycle < -1:
             raise MessageError(f"RadarFrame.cycle: expected an int >= -1, got {self.cycle!r}")
         if not isinstance(self.raw_detections, int) or self.raw_detections < -1:
@@ -233,7 +233,7 @@ class LidarSweep:
         )
 
     def validate(self) -> None:
-        frozen_array(self.points, np.float32, len(LIDAR_COLUMNS), "LidarSweep.points")
+        check_frozen_array(self.points, np.float32, len(LIDAR_COLUMNS), "LidarSweep.points")
 
 
 CAMERA_BOX_COLUMNS = ("u_min_px", "v_min_px", "u_max_px", "v_max_px", "class_id", "score")
@@ -259,7 +259,7 @@ class CameraDetections:
         )
 
     def validate(self) -> None:
-        frozen_array(self.boxes, np.float32, len(CAMERA_BOX_COLUMNS), "CameraDetections.boxes")
+        check_frozen_array(self.boxes, np.float32, len(CAMERA_BOX_COLUMNS), "CameraDetections.boxes")
 
 
 SensorFrame = (

@@ -18,3 +18,13 @@ def user_cache_dir(app: str = "lastmile") -> Path:
     xdg = os.environ.get("XDG_CACHE_HOME")
     # The XDG spec says a relative path is invalid and to be ignored.
     return (Path(xdg) if xdg and os.path.isabs(xdg) else Path.home() / ".cache") / app
+
+
+def kernel_cache_dir() -> Path:
+    """Where compiled (Numba) kernels are cached: ``NUMBA_CACHE_DIR`` when the user sets it (Numba's
+    own setting, respected as is), else ``LASTMILE_CACHE_DIR``/numba, else the platform's user cache
+    folder's ``numba`` (:func:`user_cache_dir`)."""
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        return Path(os.environ["NUMBA_CACHE_DIR"])
+    own = os.environ.get("LASTMILE_CACHE_DIR")
+    return (Path(own) if own else user_cache_dir()) / "numba"

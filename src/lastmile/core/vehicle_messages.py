@@ -298,7 +298,8 @@ class VehicleReport:
     Attributes:
         modules: compute time per module: ``p50_ms``, ``p95_ms``, ``max_ms`` and ``calls`` of the
             steady state (None before a second call), ``cpu_p50_ms`` and ``cpu_p95_ms`` (the thread's
-            CPU time, steady state), ``warmup_ms`` (the first call, apart),
+            CPU time, steady state), ``warmup_ms`` and ``warmup_cpu_ms`` (the first call, apart: wall
+            and CPU time),
             ``budget_ms`` and ``over_budget`` (its cycle budget and the calls over it), and
             ``histogram`` (steady calls per bin of :data:`LATENCY_HISTOGRAM_EDGES_MS`).
         counters: named totals (frames rejected, V2I reports received, perception frame counts...).

@@ -23,22 +23,13 @@ fills the folder ahead of the first run.
 from __future__ import annotations
 
 import os
-from pathlib import Path
 
 import numba
 from numba import njit
 
-from lastmile.core.user_cache import user_cache_dir
+from lastmile.core.user_cache import kernel_cache_dir
 
 __all__ = ["kernel_cache_dir", "njit"]
-
-
-def kernel_cache_dir() -> Path:
-    """The folder the compiled kernels are cached in (see the module docstring for the order)."""
-    if os.environ.get("NUMBA_CACHE_DIR"):
-        return Path(os.environ["NUMBA_CACHE_DIR"])
-    own = os.environ.get("LASTMILE_CACHE_DIR")
-    return (Path(own) if own else user_cache_dir()) / "numba"
 
 
 # Set on Numba's config module, not in the environment: child processes and other libraries keep

@@ -22,10 +22,53 @@ from lastmile.core.sensor_frames import (
     WheelOdometryFrame,
 )
 
+_FIELD_NAMES: dict[type, tuple[str, ...]] = {}
+
+
+def _field_names(kind: type) -> tuple[str, ...]:
+    """The dataclass fields of a frame type, in order (looked up once per type, not per frame)."""
+    names = _FIELD_NAMES.get(kind)
+    if names is None:
+        names = _FIELD_NAMES[kind] = tuple(f.name for f in fields(kind))
+    return names
+
 
 def sensor_key(frame: SensorFrame) -> str | None:
     """The stream a frame belongs to (None for event-driven frames such as stop calls)."""
     return frame_kinds.stream_key(frame)
+
+
+class ArrayBytes:
+    """An array's exact content as a digest part: equal when dtype, shape and every byte are (as
+    ``hash(a.tobytes())`` compares them, without copying a LiDAR sweep's megabyte each frame).
+
+    The comparison looks at the first bytes before the rest: a healthy sensor's noise makes
+    consecutive frames differ there, so only a frozen stream pays for the whole comparison. A
+    message's arrays are read-only; a writable one is copied, so that a later change cannot make it
+    equal to its successor.
+    """
+
+    __slots__ = ("_array",)
+    _HEAD = 256  # elements compared first
+
+    def __init__(self, array: np.ndarray) -> None:
+        self._array = array if not array.flags.writeable else array.copy()
+
+    def _bytes_view(self) -> np.ndarray:
+        return np.ascontiguousarray(self._array).reshape(-1).view(np.uint8)
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, ArrayBytes):
+            return NotImplemented
+        a, b = self._array, other._array
+        if a.dtype != b.dtype or a.shape != b.shape:
+            return False
+        va, vb = self._bytes_view(), other._bytes_view()
+        head = self._HEAD * a.dtype.itemsize
+        return bool(np.array_equal(va[:head], vb[:head]) and np.array_equal(va[head:], vb[head:]))
+
+    def __hash__(self) -> int:
+        return hash((self._array.dtype.str, self._array.shape, self._array.tobytes()))
 
 
 @singledispatch
@@ -36,14 +79,14 @@ def payload_digest(frame: SensorFrame) -> tuple[object, ...] | None:
     frame differ, register their own digest below.
     """
     parts: list[object] = []
-    for f in fields(frame):
-        if f.name == "stamp":
+    for name in _field_names(type(frame)):
+        if name == "stamp":
             continue
-        value = getattr(frame, f.name)
+        value = getattr(frame, name)
         if isinstance(value, np.ndarray):
             if value.size == 0:
                 return None
-            parts.append(hash(value.tobytes()))
+            parts.append(ArrayBytes(value))
         else:
             parts.append(value)
     return tuple(parts)
@@ -99,10 +142,10 @@ def garbage_reason(frame: SensorFrame) -> str:
         frame.validate()
     except MessageError as exc:
         return str(exc)
-    for f in fields(frame):
-        value = getattr(frame, f.name)
+    for name in _field_names(type(frame)):
+        value = getattr(frame, name)
         if isinstance(value, float) and not math.isfinite(value):
-            return f"{type(frame).__name__}.{f.name} is {value}"
+            return f"{type(frame).__name__}.{name} is {value}"
     return _implausible(frame)
 
 

@@ -42,13 +42,20 @@ class _Stream:
         "last_stamp_us",
         "latency_min_us",
         "out_of_order",
+        "period_us",
         "points_low",
         "repeats",
+        "source",
         "spec",
+        "timeout_us",
     )
 
-    def __init__(self, spec: SensorSpec) -> None:
+    def __init__(self, spec: SensorSpec, config: ReliabilityConfig) -> None:
         self.spec = spec
+        # Fixed per stream: worked out once, not on every check.
+        self.source = f"sensor:{spec.key}"
+        self.period_us = spec.period_us
+        self.timeout_us = config.silent_factor * self.period_us + config.silent_margin_us
         self.arrivals: deque[int] = deque()
         self.last_arrival_us = -1
         self.last_stamp_us = -1
@@ -134,7 +141,7 @@ class ReliabilityMonitor:
         if hdmap is not None:
             # The map builds its drivable raster on first use (about a second): do it now, not mid-drive.
             hdmap.is_drivable(np.zeros((1, 2)))
-        self._streams = {s.key: _Stream(s) for s in self.config.sensors}
+        self._streams = {s.key: _Stream(s, self.config) for s in self.config.sensors}
         self._unknown_garbage: dict[str, tuple[int, str]] = {}
         self._started_us: int | None = None
         self._pose: LocalizationEstimate | None = None
@@ -252,9 +259,8 @@ class ReliabilityMonitor:
     def _sensors(self, now_us: int, out: list[MalfunctionSignal]) -> None:
         c = self.config
         assert self._started_us is not None
-        for key, st in self._streams.items():
-            src, spec = f"sensor:{key}", st.spec
-            timeout = c.silent_factor * spec.period_us + c.silent_margin_us
+        for st in self._streams.values():
+            src, spec, timeout = st.source, st.spec, st.timeout_us
             if st.last_arrival_us < 0:
                 if now_us - self._started_us > max(timeout, c.startup_grace_us):
                     self._emit(out, now_us, src, K.SENSOR_SILENT, "no frame received yet", spec.silent_level)
@@ -273,7 +279,7 @@ class ReliabilityMonitor:
             if st.latency_min_us is not None and K.SENSOR_LATENCY not in st.events:
                 # The next frame is due one period after the last stamp, plus the stream's own latency:
                 # a frame that late is a latency fault well before the stream counts as silent.
-                due_us = st.last_stamp_us + spec.period_us + st.latency_min_us + c.overdue_margin_us
+                due_us = st.last_stamp_us + st.period_us + st.latency_min_us + c.overdue_margin_us
                 if now_us > due_us:
                     self._emit(
                         out,
@@ -311,7 +317,7 @@ class ReliabilityMonitor:
                     K.SENSOR_BLOCKAGE,
                     f"fewer than {spec.min_points} points (LiDAR) or raw reflections (radar) per cycle",
                 )
-            for kind, (at_us, reason) in list(st.events.items()):
+            for kind, (at_us, reason) in list(st.events.items()) if st.events else ():
                 if now_us - at_us >= c.event_hold_us:
                     del st.events[kind]
                     continue

@@ -22,7 +22,8 @@ from lastmile.core.rng import component_rng
 from lastmile.core.sensor_frames import LidarSweep
 from lastmile.core.stamp import Stamp
 from lastmile.core.vehicle import VehicleGeometry
-from lastmile.sim.lidar_ground import bank_height_m
+from lastmile.sim import lidar_kernel
+from lastmile.sim.lidar_ground import RESOLUTION_M, bank_height_m
 from lastmile.sim.lidar_raycast import (
     Columns,
     Hits,
@@ -94,6 +95,7 @@ class LidarSimulator:
             raise ConfigError(f"LidarSimulator.specs: expected distinct sensor ids, got {ids}")
         if weather.snow_on_road and scene.ground is None:
             raise ConfigError("LidarSimulator: snow on the road needs a scene with a ground raster, got none")
+        lidar_kernel.preload()
         self.scene = scene
         self.specs = {s.sensor_id: s for s in specs}
         self.weather = weather
@@ -104,6 +106,7 @@ class LidarSimulator:
         self._seg_mid = 0.5 * (seg.p0 + seg.p1)
         self._seg_half = 0.5 * np.hypot(*(seg.p1 - seg.p0).T)
         self._threshold = {s.sensor_id: REFERENCE_REFLECTIVITY / s.max_range_m**2 for s in specs}
+        self._ground_refl = _ground_reflectivity(weather.wet_surface_factor)
         # Per sensor, fixed: beam trigonometry by ascending elevation and the rays that may hit ground.
         self._beams: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
         self._ground_rays: dict[str, np.ndarray] = {}
@@ -153,35 +156,40 @@ class LidarSimulator:
         blocked = self._self_block[sensor_id].reshape(-1)
         hit_r = hits.range_h_m.reshape(-1)
         cand = np.flatnonzero(self._ground_rays[sensor_id] | (np.isfinite(hit_r) & ~blocked))
-        c_col, c_ch = cand // n_ch, cand % n_ch
-        ground_r, ground_label = self._ground(spec, cols, tan_el, c_col, c_ch)
-        use_ground = ground_r < hit_r[cand]
-        r_h = np.where(use_ground, ground_r, hit_r[cand])
-        prim = np.where(use_ground, -1, hits.prim.reshape(-1)[cand])
-        label = np.where(use_ground, ground_label, table["label"][prim])
-        cos_inc = np.where(use_ground, np.abs(sin_el)[c_ch], hits.cos_incidence.reshape(-1)[cand])
-        rng_m = r_h / cos_el[c_ch]
-        ground_refl = _ground_reflectivity(ground_label, weather.wet_surface_factor)
-        refl = np.where(use_ground, ground_refl, table["refl"][prim])
-        retro = ~use_ground & table["retro"][prim]
+        ground_r, ground_label = self._ground(spec, cols, tan_el, cand, n_ch)
         alpha = weather.extinction_per_m
-        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-            power = np.where(retro, refl, refl * np.sqrt(np.maximum(cos_inc, 0.02)))
-            power = power * _two_way_loss(alpha, rng_m) / np.maximum(rng_m, 1e-3) ** 2
-        keep = (
-            (power >= self._threshold[sensor_id]) & (rng_m >= spec.min_range_m) & (rng_m <= spec.max_range_m)
+        loss = np.zeros(0)  # clear air: no loss (exactly 1)
+        if alpha != 0.0:
+            r_h = np.where(ground_r < hit_r[cand], ground_r, hit_r[cand])
+            loss = np.asarray(_two_way_loss(alpha, r_h / cos_el[cand % n_ch]), dtype=np.float64)
+        idx, true_range, cos_inc, refl, retro, label_i, prim_i = lidar_kernel.returns(
+            cand,
+            n_ch,
+            ground_r,
+            ground_label,
+            hit_r,
+            hits.prim.reshape(-1),
+            hits.cos_incidence.reshape(-1),
+            cos_el,
+            sin_el,
+            table["label"],
+            table["refl"],
+            table["retro"],
+            self._ground_refl,
+            loss,
+            float(self._threshold[sensor_id]),
+            float(spec.min_range_m),
+            float(spec.max_range_m),
         )
         if weather.dropout_prob > 0.0:
-            keep[keep] = rng.random(int(keep.sum())) >= weather.dropout_prob
-        idx = cand[keep]
-        true_range = rng_m[keep]
+            kept = rng.random(len(idx)) >= weather.dropout_prob
+            idx, true_range, cos_inc, refl, retro, label_i, prim_i = (
+                a[kept] for a in (idx, true_range, cos_inc, refl, retro, label_i, prim_i)
+            )
         noisy = true_range + rng.normal(0.0, spec.range_noise_std_m * weather.range_noise_factor, len(idx))
-        intensity = _intensity(true_range, cos_inc[keep], refl[keep], retro[keep], alpha, rng)
-        label_i = label[keep].astype(np.int8)
-        prim_i = prim[keep]
+        intensity = _intensity(true_range, cos_inc, refl, retro, alpha, rng)
         obj_id = table["obj_id"][prim_i]
         obj_cls = table["cls"][prim_i]
-        col_i, ch_i = idx // n_ch, idx % n_ch
 
         # Precipitation echoes: single points near the window; a drop in front hides what is behind.
         if weather.echoes_per_kray > 0.0:
@@ -225,20 +233,17 @@ class LidarSimulator:
             label_i = np.concatenate([label_i, np.full(len(new), PointLabel.WEATHER_NOISE, np.int8)])[sort]
             obj_id = np.concatenate([obj_id, np.full(len(new), NO_OBJECT)])[sort]
             obj_cls = np.concatenate([obj_cls, np.zeros(len(new), np.int8)])[sort]
-            col_i, ch_i = idx // n_ch, idx % n_ch
 
-        ce, se = cos_el[ch_i], sin_el[ch_i]
-        t_off = (col_i * spec.period_us) // n_col
         points = np.empty((len(idx), 6), dtype=np.float32)
-        points[:, 0] = noisy * ce * np.cos(az)[col_i]
-        points[:, 1] = noisy * ce * np.sin(az)[col_i]
-        points[:, 2] = noisy * se
-        points[:, 3] = np.clip(np.round(intensity), 0.0, 255.0)
-        points[:, 4] = ch_i
-        points[:, 5] = t_off
+        lidar_kernel.sweep_points(
+            idx, n_ch, n_col, spec.period_us, noisy, intensity, cos_el, sin_el, np.cos(az), np.sin(az), points
+        )
+        points.setflags(write=False)  # handed over to the sweep (no copy of it)
         sweep = LidarSweep(stamp=stamp, sensor_id=sensor_id, points=points)
         if not with_truth:
             return sweep, None
+        col_i, ch_i = idx // n_ch, idx % n_ch
+        ce, se = cos_el[ch_i], sin_el[ch_i]
         horiz = (true_range * ce)[:, None]
         xyz = np.column_stack(
             [cols.origin[col_i] + horiz * cols.direction[col_i], cols.z_m + true_range * se]
@@ -319,9 +324,41 @@ class LidarSimulator:
         return table, pairs
 
     def _ground(
+        self, spec: LidarSpec, cols: Columns, tan_el: np.ndarray, cand: np.ndarray, n_ch: int
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Horizontal distance to the ground and its label for the rays ``cand`` (flat column * K +
+        channel; inf: not downward). Without snow on a ground raster, one compiled pass
+        (:func:`lidar_kernel.ground_ranges`); otherwise :meth:`_ground_arrays`."""
+        ground = self.scene.ground
+        if ground is None or self.weather.snow_on_road:
+            return self._ground_arrays(spec, cols, tan_el, cand // n_ch, cand % n_ch)
+        f8 = np.ascontiguousarray
+        return lidar_kernel.ground_ranges(
+            cand,
+            n_ch,
+            tan_el,
+            f8(cols.origin[:, 0]),
+            f8(cols.origin[:, 1]),
+            f8(cols.direction[:, 0]),
+            f8(cols.direction[:, 1]),
+            float(cols.z_m),
+            float(self.scene.curb_height_m),
+            float(spec.max_range_m),
+            ground.road.reshape(-1),
+            ground.x0_m,
+            ground.y0_m,
+            ground.width,
+            ground.height,
+            RESOLUTION_M,
+            int(PointLabel.ROAD),
+            int(PointLabel.SIDEWALK),
+        )
+
+    def _ground_arrays(
         self, spec: LidarSpec, cols: Columns, tan_el: np.ndarray, col: np.ndarray, ch: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Horizontal distance to the ground and its label for the rays (col, ch) (inf: not downward)."""
+        """As :meth:`_ground`, for the rays (col, ch), in NumPy: with the snow banks, or without a
+        ground raster (the road plane everywhere)."""
         n = len(col)
         r = np.full(n, np.inf)
         label = np.full(n, PointLabel.ROAD, dtype=np.int8)
@@ -373,14 +410,14 @@ class LidarSimulator:
         return r, label
 
 
-def _ground_reflectivity(label: np.ndarray, wet_factor: float) -> np.ndarray:
-    """Diffuse reflectivity of ground hits; a wet road and sidewalk mirror the beam away."""
+def _ground_reflectivity(wet_factor: float) -> np.ndarray:
+    """Diffuse reflectivity of ground hits by label; a wet road and sidewalk mirror the beam away."""
     table = np.zeros(int(max(PointLabel)) + 1)
     for lab, value in REFLECTIVITY.items():
         table[int(lab)] = value
     table[int(PointLabel.ROAD)] *= wet_factor
     table[int(PointLabel.SIDEWALK)] *= wet_factor
-    return table[label]
+    return table
 
 
 def _two_way_loss(alpha: float, range_m: np.ndarray) -> np.ndarray | float:
@@ -403,11 +440,13 @@ def _intensity(
     """0..255 intensity: reflectivity x incidence x atmospheric loss x a mild range fall-off, with noise.
 
     Retro-reflective sheeting returns most of the beam whatever the incidence (~200-250); diffuse
-    surfaces follow Lambert (with a floor: real surfaces are not perfectly diffuse).
+    surfaces follow Lambert (with a floor: real surfaces are not perfectly diffuse). The noise is one
+    standard normal draw per return, scaled by ``1.5 + 3 %`` of the value
+    (:func:`lidar_kernel.intensity`).
     """
-    shape = np.where(retro, 0.85 + 0.1 * cos_inc, 0.3 + 0.7 * cos_inc)
-    value = 255.0 * refl * shape * _two_way_loss(alpha, range_m) / (1.0 + (range_m / 150.0) ** 2)
-    return value + rng.normal(0.0, 1.0, len(value)) * (1.5 + 0.03 * value)
+    loss = np.zeros(0) if alpha == 0.0 else np.asarray(_two_way_loss(alpha, range_m), dtype=np.float64)
+    noise = rng.normal(0.0, 1.0, len(range_m))
+    return lidar_kernel.intensity(range_m, cos_inc, refl, retro, loss, noise)
 
 
 def _concat_cylinders(a: Cylinders, b: Cylinders) -> Cylinders:

@@ -95,6 +95,7 @@ class RawSensorRig:
         self._history.append((now, s.x_m, s.y_m, s.yaw_rad))
         out: list[tuple[SensorFrame, int]] = []
         objects: DynamicObjects | None = None
+        tracks: dict[int, EgoTrack] = {}  # by sweep start: units of one period share their track
         for spec in self.lidar_specs:
             # A sweep ends now and started one period ago; the first one needs a full period of poses.
             if tick % (spec.period_us // self.tick_us) or now < spec.period_us:
@@ -102,10 +103,12 @@ class RawSensorRig:
             if objects is None:
                 objects = DynamicObjects.from_agents(self.world.agents)
             start = now - spec.period_us
-            hist = np.array([h for h in self._history if h[0] >= start - self.tick_us], dtype=np.float64)
-            track = EgoTrack(
-                t_us=hist[:, 0].astype(np.int64), x_m=hist[:, 1], y_m=hist[:, 2], yaw_rad=hist[:, 3]
-            )
+            track = tracks.get(start)
+            if track is None:
+                hist = np.array([h for h in self._history if h[0] >= start - self.tick_us], dtype=np.float64)
+                track = tracks[start] = EgoTrack(
+                    t_us=hist[:, 0].astype(np.int64), x_m=hist[:, 1], y_m=hist[:, 2], yaw_rad=hist[:, 3]
+                )
             if self.keep_truth:
                 sweep, truth = self.lidar.sweep_with_truth(spec.sensor_id, Stamp(start), track, objects, now)
                 self.lidar_truth[spec.sensor_id] = truth

@@ -230,7 +230,8 @@ class TrafficLightDetectorModel:
         ok = (pc[:, 2] > 1.0) & (dist <= cfg.max_range_m * self.effects.range_factor)
         ok &= cos_view >= math.cos(cfg.max_view_angle_rad)
         out = []
-        blockers = self._blockers(map_from_base, scene)
+        # The road users are projected only once a head is in the picture (most frames have none).
+        blockers: list[tuple[float, float, float, float, float]] | None = None
         for i in np.flatnonzero(ok).tolist():
             z = pc[i, 2]
             ((u, v),) = cam.pixels_from_camera(pc[i : i + 1])
@@ -244,6 +245,8 @@ class TrafficLightDetectorModel:
                 or 2 * hh < cfg.min_height_px
             ):
                 continue
+            if blockers is None:
+                blockers = self._blockers(map_from_base, scene)
             if any(b[4] < z and b[0] <= u <= b[2] and b[1] <= v <= b[3] for b in blockers):
                 continue
             out.append((i, box, 2 * hh))

@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import time
 from collections import defaultdict
-from collections.abc import Iterator, Mapping
-from contextlib import contextmanager
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -60,30 +59,30 @@ class ModuleProfiler:
         self.budgets_ms = dict(budgets_ms or {})
         """Each module's cycle budget (its period): calls over it are counted as overruns."""
 
-    @contextmanager
-    def measure(self, module: str) -> Iterator[None]:
-        start, compiled_before = time.perf_counter(), COMPILE_CLOCK.total_s
-        cpu_start = time.thread_time()
-        try:
-            yield
-        finally:
-            self._samples[module].append(time.perf_counter() - start)
-            # This thread's CPU time too: on a shared machine wall time counts the other processes' turns.
-            self._cpu_samples[module].append(time.thread_time() - cpu_start)
-            first = len(self._warmup[module]) == 0
-            self._warmup[module].append(first or COMPILE_CLOCK.total_s > compiled_before)
+    def measure(self, module: str) -> _Measurement:
+        """A context that records the wall and CPU time of its body as one call of ``module``."""
+        return _Measurement(self, module)
+
+    def _record(self, module: str, wall_s: float, cpu_s: float, compiled: bool) -> None:
+        self._samples[module].append(wall_s)
+        # This thread's CPU time too: on a shared machine wall time counts the other processes' turns.
+        self._cpu_samples[module].append(cpu_s)
+        warmup = self._warmup[module]
+        warmup.append(not warmup or compiled)
 
     def summary(self) -> dict[str, dict[str, Any]]:
         """Per module: ``p50_ms``, ``p95_ms``, ``max_ms``, ``calls`` (steady state), ``cpu_p50_ms`` and
-        ``cpu_p95_ms`` (the calling thread's CPU time, steady state), ``warmup_ms`` and
-        ``warmup_calls``, ``budget_ms`` and ``over_budget`` (steady calls longer than the budget; None
-        without one), and ``histogram`` (steady calls per bin of :data:`HISTOGRAM_EDGES_MS`)."""
+        ``cpu_p95_ms`` (the calling thread's CPU time, steady state), ``warmup_ms``, ``warmup_cpu_ms``
+        (the warm-up calls' CPU time) and ``warmup_calls``, ``budget_ms`` and ``over_budget`` (steady
+        calls longer than the budget; None without one), and ``histogram`` (steady calls per bin of
+        :data:`HISTOGRAM_EDGES_MS`)."""
         out: dict[str, dict[str, Any]] = {}
         for name, values in sorted(self._samples.items()):
             arr = np.asarray(values) * 1e3
             warm = np.asarray(self._warmup[name], dtype=bool)
             steady = arr[~warm]
-            cpu = (np.asarray(self._cpu_samples[name]) * 1e3)[~warm]
+            cpu_all = np.asarray(self._cpu_samples[name]) * 1e3
+            cpu = cpu_all[~warm]
             budget = self.budgets_ms.get(name)
             edges = HISTOGRAM_EDGES_MS
             counts, _ = np.histogram(np.clip(steady, edges[0], edges[-1]), edges)
@@ -95,6 +94,7 @@ class ModuleProfiler:
                 "cpu_p95_ms": float(np.percentile(cpu, 95)) if cpu.size else None,
                 "calls": len(steady),
                 "warmup_ms": float(arr[warm].sum()),
+                "warmup_cpu_ms": float(cpu_all[warm].sum()),
                 "warmup_calls": int(warm.sum()),
                 "budget_ms": budget,
                 "over_budget": int(np.sum(steady > budget)) if budget is not None else None,
@@ -114,3 +114,24 @@ class ModuleProfiler:
         for name, values in self._samples.items():
             total += sum(t for t, warm in zip(values, self._warmup[name], strict=True) if warm)
         return total
+
+
+class _Measurement:
+    """One timed call (a plain context manager: entered on every module call of every tick, where a
+    generator-based one costs several times more)."""
+
+    __slots__ = ("_compiled_before", "_cpu_start", "_module", "_profiler", "_start")
+
+    def __init__(self, profiler: ModuleProfiler, module: str) -> None:
+        self._profiler = profiler
+        self._module = module
+
+    def __enter__(self) -> None:
+        self._compiled_before = COMPILE_CLOCK.total_s
+        self._start = time.perf_counter()
+        self._cpu_start = time.thread_time()
+
+    def __exit__(self, *exc: object) -> None:
+        wall_s = time.perf_counter() - self._start
+        cpu_s = time.thread_time() - self._cpu_start
+        self._profiler._record(self._module, wall_s, cpu_s, COMPILE_CLOCK.total_s > self._compiled_before)
