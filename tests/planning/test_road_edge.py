@@ -105,7 +105,7 @@ def test_the_front_corner_swings_out_beyond_the_rear_axle_line_on_a_bend():
     assert not rear_steers(route, np.array([10.0]), G.wheelbase_m, BODY.ahead_m, max_curvature_per_m(G))[0]
 
 
-def test_the_merge_lifts_off_a_kerb_that_comes_in_and_the_pullover_ignores_what_lies_past_its_spot():
+def test_the_merge_lifts_off_a_kerb_that_comes_in_and_the_pullover_is_left_to_its_stop():
     """Held at the kerb (d -1.2) while traffic passes (the merge restarts where it stands, s 95), the
     merge's body would run its right side along -2.2 into the road narrowing to -1.6 from s 100 (the
     BITS loop's CP: the shuttle crept out along the kerb and its corner left the road): the planned
@@ -117,7 +117,7 @@ def test_the_merge_lifts_off_a_kerb_that_comes_in_and_the_pullover_ignores_what_
     plain = LocalPathPlanner(
         STRAIGHT, G.width_m / 2.0, LocalPathConfig(keep_on_road=False), None, BODY.behind_m, BODY.ahead_m
     )
-    spot = SE2(95.0, -1.2, 0.0)
+    spot = SE2(80.0, -1.2, 0.0)  # where it stood; the merge restarted 15 m on
     merging = _decision(BehaviourState.MERGING, spot=spot, merge_from=95.0)
     s = np.arange(70.0, 150.0, 2.0)
     lifted = planner.offsets_m(s, merging, [], -1.2)
@@ -132,9 +132,9 @@ def test_the_merge_lifts_off_a_kerb_that_comes_in_and_the_pullover_ignores_what_
     # The lift begins no further back than its slope and rounding need (held 4 m + rounded 4 m +
     # rising at 1:5 to the ~0.6 m overhang at the front's s 100 - 3.75 m): 20 m back it is nil.
     assert lifted[0] == pytest.approx(before[0])
-    # A pull-over to a spot before the narrowing is not lifted for the road past the spot.
-    pulling = _decision(BehaviourState.PULLOVER, spot=SE2(94.0, -1.2, 0.0))  # its front at 97.75
-    s2 = np.arange(40.0, 100.0, 2.0)
+    # The pull-over is not lifted (its stop's placement governs the spot; see _on_the_road).
+    pulling = _decision(BehaviourState.PULLOVER, spot=SE2(99.0, -1.2, 0.0))
+    s2 = np.arange(40.0, 110.0, 2.0)
     assert planner.offsets_m(s2, pulling, [], 0.0) == pytest.approx(plain.offsets_m(s2, pulling, [], 0.0))
     xy, _ = path_xy(STRAIGHT, grid, np.interp(grid, s, lifted))
     assert np.all(np.isfinite(xy))

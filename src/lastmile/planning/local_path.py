@@ -52,13 +52,11 @@ class LocalPathConfig:
             curb). Over 8 m that turn asks about 0.05 /m (0.6 m/s^2 at the 3.5 m/s pull-over
             speed). Longer rounding ends the curve later: with 10 m the bay test's shuttle stood
             0.022 rad off parallel (tests/stack: at most 0.02).
-        keep_on_road: keep the whole body of the pull-over, the merge and the safety module's
-            pull-over on the map's drivable area (``curb_clearance_m`` inside its edge), with the
-            body placed exactly along the path through bends (:mod:`lastmile.planning.road_edge`):
-            where it would not be, the path is lifted away from the edge. A kerbside stop's curb is
-            a straight line at the narrowest edge of its approach; through a bend before it the
-            body's corners swing out further than the route offsets show (BITS loop, E Block: the
-            move ran through a hairpin and the front-right corner left the road).
+        keep_on_road: keep the merge's whole body on the map's drivable area (``curb_clearance_m``
+            inside its unkerbed edge), with the body placed exactly along the path
+            (:mod:`lastmile.planning.road_edge`): where it would not be, the path is lifted away from
+            the edge (BITS loop, CP: held by rear traffic, the merge restarted where the shuttle stood
+            and it crept out along the kerb into a kerb coming in; its corner left the road).
         edge_lift_slope: how steeply that lift rises and falls along the route (1:5): rounded over
             ``floor_rounding_m`` it asks at most 2 x 0.2 / 8 m = 0.05 /m of curvature, what the
             rounded curb floor above asks.
@@ -138,8 +136,7 @@ class LocalPathPlanner:
             # End the curve a few metres before the spot so the last stretch is straight and parallel to
             # the curb: a lookahead controller needs that run to settle its lateral error before stopping.
             s1 = _unwrap_near(spot_rear_s, float(s_m[0]), self.route) - c.settle_m
-            d = self._off_the_curb(s_m, self._pullover_offsets_m(s_m, s1 - c.pullover_m, s1, spot_d))
-            return self._on_the_road(s_m, d, until_s_m=s1 + c.settle_m)
+            return self._off_the_curb(s_m, self._pullover_offsets_m(s_m, s1 - c.pullover_m, s1, spot_d))
         if decision.stop_reason == StopReason.MINIMAL_RISK_MANOEUVRE and spot_d is not None:
             # The safety module's pull-over: the same move to the curb as into a bay, to its spot.
             assert decision.pullover_spot is not None
@@ -147,13 +144,17 @@ class LocalPathPlanner:
                 decision.pullover_spot.x_m, decision.pullover_spot.y_m, hint_s_m=float(s_m[0]), window_m=80.0
             ).s_m
             s1 = _unwrap_near(spot_rear_s, float(s_m[0]), self.route) - c.settle_m
-            d = self._off_the_curb(s_m, self._pullover_offsets_m(s_m, s1 - c.pullover_m, s1, spot_d))
-            return self._on_the_road(s_m, d, until_s_m=s1 + c.settle_m)
+            return self._off_the_curb(s_m, self._pullover_offsets_m(s_m, s1 - c.pullover_m, s1, spot_d))
         if decision.state == BehaviourState.MERGING and decision.merge_from_s_m is not None:
             start_d = spot_d if spot_d is not None else ego_d_m
             s0 = _unwrap_near(decision.merge_from_s_m, float(s_m[0]), self.route)
             d = self._off_the_curb(s_m, lateral_transition_m(s_m, s0, s0 + c.merge_m, start_d, 0.0))
-            return self._on_the_road(s_m, d)
+            stood_s = s0
+            if decision.pullover_spot is not None:
+                spot = decision.pullover_spot
+                at = self.route.project(spot.x_m, spot.y_m, hint_s_m=s0, window_m=40.0).s_m
+                stood_s = _unwrap_near(at, float(s_m[0]), self.route)
+            return self._on_the_road(s_m, d, from_s_m=stood_s + float(np.ptp(self._body_offsets)))
         if decision.state == BehaviourState.EMERGENCY_STOP and abs(ego_d_m) > 0.5:
             return np.full_like(s_m, ego_d_m)
         return nudge_offsets_m(
@@ -258,15 +259,20 @@ class LocalPathPlanner:
             rear = lfilter([alpha], [1.0, alpha - 1.0], front + lift)
         return rear
 
-    def _on_the_road(self, s_m: FloatArray, d_m: FloatArray, until_s_m: float = math.inf) -> FloatArray:
-        """``d_m`` lifted (leftwards) wherever the body placed along the path, with its rear axle up to
-        ``until_s_m`` (a pull-over's spot: the path beyond it is never driven), would come within
-        ``curb_clearance_m`` of the road's right edge.
+    def _on_the_road(self, s_m: FloatArray, d_m: FloatArray, from_s_m: float = -math.inf) -> FloatArray:
+        """The merge's ``d_m`` lifted (leftwards) wherever the body placed along the path, with its rear
+        axle from ``from_s_m`` on (where the body has left the place it stood at the stop), would come
+        within ``curb_clearance_m`` of the road's right edge.
 
-        Each pass measures the worst overhang of the body at every station, spreads it into a tent
-        rising and falling at ``edge_lift_slope`` (raised by a quarter of what the rounding takes off
-        its peak) and averages that over ``floor_rounding_m``: a lift at least the overhang everywhere,
-        with bounded curvature. The lift changes the body's heading, so it is measured again.
+        Only the merge: at the spot the stop's own placement governs (``hdmap.service_route``: the
+        straight body at rest keeps the door gap along the whole kerb), and on the pull-over's
+        approach through a bend a body placed on the rear axle's tangent is not how the lookahead
+        laws drive it (they cut the bend's inside): at the Lanelet2 example's Roundabout West it
+        asked a 0.45 m lift the shuttle never needed and left the door 0.54 m from the kerb.
+
+        Each pass measures the worst overhang of the body at every station and lifts by
+        ``_tent_lift_m`` (at least the overhang everywhere, bounded slope and curvature); the lift
+        changes the body's heading, so it is measured again.
         """
         c = self.config
         if self._edges is None or self.body is None or not c.keep_on_road:
@@ -276,7 +282,7 @@ class LocalPathPlanner:
         lift = np.zeros_like(d)
         for _ in range(ROAD_PASSES):
             (over,) = body_overhang_m(self.route, self._edges, self.body, grid, d + lift, c.curb_clearance_m)
-            need = np.where(grid <= until_s_m, np.maximum(over, 0.0), 0.0)
+            need = np.where(grid >= from_s_m, np.maximum(over, 0.0), 0.0)
             if not np.any(need > ROAD_TOLERANCE_M):
                 break
             lift = lift + _tent_lift_m(need, STATION_M, c.edge_lift_slope, c.floor_rounding_m)
