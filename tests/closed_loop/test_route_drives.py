@@ -94,6 +94,22 @@ def test_bits_loop_serves_k_block_after_the_s_bend(monkeypatch: pytest.MonkeyPat
     _serve_first_rider(route, "K-Block", minutes=1.25, start_route_s_m=930.0)
 
 
+@pytest.mark.skipif(
+    not (SHARED_MAPS / "campus_shuttle_bits" / "lanelet2_map.osm").is_file(),
+    reason="../shared/data/maps/campus_shuttle_bits is absent (real data lives beside the repository)",
+)
+def test_bits_loop_pulls_over_for_e_block_through_the_hairpin_on_the_road(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """E Block: the pull-over's move to the kerb runs through the loop's hairpin (0.27 /m at s 561,
+    the road's right edge 2.35 m from the route). Laid in route offsets, with the rear wheels straight,
+    the front-right corner swung off the road at s 559 (a takeover in every controller); the body is
+    now kept on the road through the bend and the rear wheels steer where the front alone cannot."""
+    monkeypatch.chdir(ROOT)
+    route = "examples/routes/bits_campus_loop.toml"
+    _serve_first_rider(route, "E Block", minutes=0.75, start_route_s_m=510.0)
+
+
 def test_town_stops_at_an_all_way_stop_only_its_rule_lists_then_serves_west_ave(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:

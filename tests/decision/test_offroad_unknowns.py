@@ -8,9 +8,13 @@ import pytest
 from lastmile.core.errors import ConfigError
 from lastmile.core.object_class import ObjectClass
 from lastmile.core.objects import TrackedObjects
+from lastmile.core.polyline import Polyline
+from lastmile.core.route_obstacles import RouteObstacle
 from lastmile.core.stamp import Stamp
+from lastmile.core.vehicle import VehicleGeometry
 from lastmile.decision.decision_config import DecisionConfig
-from lastmile.decision.offroad_unknowns import on_road_surface, yieldable_tracks
+from lastmile.decision.offroad_unknowns import kerbside_unknown_ids, on_road_surface, yieldable_tracks
+from lastmile.decision.stop_constraints import in_path_constraints
 
 # The straight test road: lane y in [-1.75, 1.75] along x 0..400, a crosswalk lanelet x 98..102 on
 # it (the crosswalk's marking reaches y = 5.25 over the left sidewalk).
@@ -51,3 +55,41 @@ def test_an_unknown_object_reaching_the_road_only_after_the_horizon_is_not_yield
 def test_the_horizon_is_validated():
     with pytest.raises(ConfigError, match="offroad_unknown_horizon_s"):
         DecisionConfig(offroad_unknown_horizon_s=-1.0)
+
+
+def test_a_standing_unknown_centred_beyond_the_road_edge_is_kerbside(straight_map):
+    tracks = _tracks(
+        (60.0, -1.78, 0.0, 0.0, ObjectClass.UNKNOWN),  # a blob on the lane's right edge, centre off it
+        (60.0, -1.78, 0.5, 0.3, ObjectClass.UNKNOWN),  # its velocity estimate wandering: still standing
+        (60.0, -1.78, 1.3, 0.0, ObjectClass.UNKNOWN),  # walking pace: not
+        (60.0, -1.6, 0.0, 0.0, ObjectClass.UNKNOWN),  # centred on the lane: not
+        (60.0, -1.78, 0.0, 0.0, ObjectClass.PEDESTRIAN),  # classified: not
+    )
+    assert kerbside_unknown_ids(tracks, straight_map, standing_mps=1.0) == frozenset({0, 1})
+
+
+def test_at_the_kerb_a_standing_unknown_beyond_the_edge_is_judged_against_the_body():
+    """Pulled over 0.6 m right of the route (the body's side at -1.6), a 0.1 m blob centred on the
+    lane's edge at -2.02 is 0.37 m clear of the body: in the lane's 0.5 m corridor margin, it held the
+    shuttle 60 s short of the Lanelet2 example's Roundabout West in snow; judged at the kerbside margin
+    it is not in the path. Something the body would touch still is."""
+    config = DecisionConfig()
+    g = VehicleGeometry()
+    path = Polyline(np.array([[0.0, -0.6], [200.0, -0.6]]))
+    front = 50.0 + g.front_from_rear_axle_m
+
+    def blob(d_m: float) -> RouteObstacle:
+        s = front + 4.0
+        return RouteObstacle(567, ObjectClass.UNKNOWN, s, d_m, s, 4.0, d_m, 0.0, 0.0, 0.1, 0.1)
+
+    kerb = frozenset({567})
+    assert in_path_constraints([blob(-2.02)], 0.0, path, g, config, front)  # the lane's margin
+    assert in_path_constraints([blob(-2.02)], 0.0, path, g, config, front, kerb) == []
+    assert in_path_constraints([blob(-1.70)], 0.0, path, g, config, front, kerb)  # within 0.1 m of the body
+
+
+def test_the_kerbside_margin_is_validated():
+    with pytest.raises(ConfigError, match="kerbside_margin_m"):
+        DecisionConfig(kerbside_margin_m=0.6)
+    with pytest.raises(ConfigError, match="kerbside_standing_mps"):
+        DecisionConfig(kerbside_standing_mps=-1.0)

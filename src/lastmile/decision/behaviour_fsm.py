@@ -32,7 +32,7 @@ from lastmile.decision.drop_off import (
 )
 from lastmile.decision.intersection_handling import AllWayStops, handle_intersection, next_all_way_stop_line
 from lastmile.decision.mission import MissionManager
-from lastmile.decision.offroad_unknowns import yieldable_tracks
+from lastmile.decision.offroad_unknowns import kerbside_unknown_ids, yieldable_tracks
 from lastmile.decision.pass_rule import PassInput, PassRule
 from lastmile.decision.stop_constraints import (
     StopConstraint,
@@ -52,6 +52,8 @@ from lastmile.hdmap.curb_fit import spot_offset_m
 from lastmile.hdmap.layers import SLayerDatabase
 
 SPOT_CACHE_SIZE = 64
+_AT_THE_KERB = frozenset({BehaviourState.PULLOVER, BehaviourState.ONBOARDING, BehaviourState.MERGING})
+"""States in which the body is brought to (or leaves) the kerb on purpose."""
 """Rest offsets remembered (a committed spot is asked for every cycle; the search projects ~40 points)."""
 
 
@@ -148,7 +150,15 @@ class BehaviourStateMachine:
         speed_cap = min(c.cruise_speed_mps, self.layers.speed_limit_at(front_s))
         # The planned path, once per cycle: the corridor both obstacle checks sweep.
         path = Polyline(inp.trajectory.points[:, :2]) if inp.trajectory is not None else None
-        constraints = in_path_constraints(obstacles, inp.speed_mps, path, g, c, front_s)
+        # At the kerb a pull-over approaches on purpose, a standing unknown beyond the road's edge is
+        # judged against the body itself (Lanelet2 example, snow: 0.1 m blobs on the lane's edge, 0.45 m
+        # right of the body at the spot, held the shuttle 60 s short of Roundabout West).
+        kerbside = (
+            kerbside_unknown_ids(inp.tracks, self.layers.hdmap, c.kerbside_standing_mps)
+            if self.memory.state in _AT_THE_KERB
+            else frozenset()
+        )
+        constraints = in_path_constraints(obstacles, inp.speed_mps, path, g, c, front_s, kerbside)
         constraints += cut_in_constraints(
             obstacles, inp.predictions, ctx.route, path, front_s, inp.speed_mps, g, c
         )

@@ -32,6 +32,13 @@ class DecisionConfig:
         pullover_speed_mps: cap while entering the bay.
         min_gap_m: Delta s_min of eq. (2), the gap kept to a stopped obstacle.
         corridor_margin_m: lateral clearance added to half widths for the in-path test.
+        kerbside_margin_m: the same for a standing unclassified object centred off the road surface
+            while the shuttle pulls over to, stands at or leaves a stop: the pull-over brings the
+            body to ``curb_gap_target_m`` (0.2 m) of the kerb on purpose, so the lane's 0.5 m margin
+            stopped it for anything lying at the kerb (snow on the lane's edge). Half the gap target:
+            what stands beyond the edge is yielded to if the body would come within 0.1 m of it.
+        kerbside_standing_mps: such an object counts as standing below this speed (a 0.1 m LiDAR blob's
+            velocity estimate wanders up to 0.6 m/s; a walking person moves at 1.2-1.4 m/s).
         emergency_decel_mps2: if stopping for an obstacle needs more than this, emergency stop.
         stop_approach_m: distance before a requested stop's platform at which pull-over begins.
         intersection_approach_m: distance before an all-way stop line at which intersection handling begins.
@@ -138,6 +145,8 @@ class DecisionConfig:
     pullover_speed_mps: float = 3.5
     min_gap_m: float = 3.0
     corridor_margin_m: float = 0.5
+    kerbside_margin_m: float = CURB_GAP_TARGET_M / 2.0
+    kerbside_standing_mps: float = 1.0
     emergency_decel_mps2: float = 3.5
     stop_approach_m: float = 45.0
     intersection_approach_m: float = 35.0
@@ -207,6 +216,15 @@ class DecisionConfig:
             value = getattr(self, name)
             if not value > 0:
                 raise ConfigError(f"DecisionConfig.{name}: expected a positive number, got {value!r}")
+        for name in ("kerbside_margin_m", "kerbside_standing_mps"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0.0):
+                raise ConfigError(f"DecisionConfig.{name}: expected a finite value >= 0, got {value!r}")
+        if self.kerbside_margin_m > self.corridor_margin_m:
+            raise ConfigError(
+                "DecisionConfig.kerbside_margin_m: expected at most corridor_margin_m "
+                f"({self.corridor_margin_m} m), got {self.kerbside_margin_m} m"
+            )
         h = self.offroad_unknown_horizon_s
         if not (math.isfinite(h) and h >= 0.0):
             raise ConfigError(

@@ -77,3 +77,22 @@ def yieldable_tracks(tracks: TrackedObjects, hdmap: HDMap, horizon_s: float) -> 
     if not drop.any():
         return tracks
     return TrackedObjects(stamp=tracks.stamp, ids=tracks.ids[~drop], table=t[~drop])
+
+
+def kerbside_unknown_ids(tracks: TrackedObjects, hdmap: HDMap, standing_mps: float) -> frozenset[int]:
+    """Ids of the unclassified tracks standing (speed below ``standing_mps``) with their centre off the
+    road surface: at or beyond the road's edge, where a kerbside stop brings the body on purpose.
+
+    Such a track may still overlap the road by part of its footprint (a 0.1 m LiDAR blob centred on
+    the lane's edge), so ``yieldable_tracks`` keeps it; the in-path test then judges it against the
+    body itself with a small margin rather than the lane's corridor margin
+    (``stop_constraints.in_path_constraints``).
+    """
+    t = tracks.table
+    unknown = np.flatnonzero(t[:, _CLS].astype(np.int64) == int(ObjectClass.UNKNOWN))
+    if len(unknown) == 0:
+        return frozenset()
+    u = t[unknown]
+    standing = np.hypot(u[:, _VX], u[:, _VY]) < standing_mps
+    off = ~on_road_surface(hdmap, u[:, [_X, _Y]])
+    return frozenset(int(i) for i in tracks.ids[unknown[standing & off]].tolist())

@@ -53,8 +53,13 @@ def in_path_constraints(
     geometry: VehicleGeometry,
     config: DecisionConfig,
     front_s_m: float,
+    kerbside_ids: frozenset[int] = frozenset(),
 ) -> list[StopConstraint]:
     """Obstacles in (or about to enter) the corridor swept along the planned path ``path``.
+
+    The corridor is the body's half width, the obstacle's, and ``corridor_margin_m``; for the tracks
+    in ``kerbside_ids`` (standing unclassified objects centred off the road, at the kerb a pull-over
+    approaches) ``kerbside_margin_m`` instead.
 
     Stop points are in the front's lap (``front_s_m`` plus the obstacle's distance ahead), never the
     obstacle's own route s: on a loop, an obstacle just past the loop's start, seen from just before
@@ -66,7 +71,8 @@ def in_path_constraints(
     for o in obstacles:
         if o.ds_m < -g.length_m or o.ds_m > c.in_path_lookahead_m:
             continue
-        half = g.width_m / 2.0 + o.width_m / 2.0 + c.corridor_margin_m
+        margin = c.kerbside_margin_m if o.track_id in kerbside_ids else c.corridor_margin_m
+        half = g.width_m / 2.0 + o.width_m / 2.0 + margin
         # Constant-velocity prediction over the time the shuttle needs to get there (Snow Lion).
         horizon = (
             min(c.vulnerable_horizon_s, max(o.ds_m, 0.0) / max(speed_mps, c.vulnerable_reach_min_speed_mps))

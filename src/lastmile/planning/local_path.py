@@ -18,6 +18,7 @@ from lastmile.planning.behaviour_config import BehaviourConfig
 from lastmile.planning.bezier import lateral_transition_m, smooth_through
 from lastmile.planning.pass_path_config import PassPathConfig
 from lastmile.planning.potential_field import PotentialFieldConfig, nudge_offsets_m
+from lastmile.planning.road_edge import STATION_M, BodyPlacement, DrivableLookup, RoadEdges, body_overhang_m
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -52,6 +53,14 @@ class LocalPathConfig:
             curb). Over 8 m that turn asks about 0.05 /m (0.6 m/s^2 at the 3.5 m/s pull-over
             speed). Longer rounding ends the curve later: with 10 m the bay test's shuttle stood
             0.022 rad off parallel (tests/stack: at most 0.02).
+        keep_on_road: keep the merge's whole body on the map's drivable area (``curb_clearance_m``
+            inside its unkerbed edge), with the body placed exactly along the path
+            (:mod:`lastmile.planning.road_edge`): where it would not be, the path is lifted away from
+            the edge (BITS loop, CP: held by rear traffic, the merge restarted where the shuttle stood
+            and it crept out along the kerb into a kerb coming in; its corner left the road).
+        edge_lift_slope: how steeply that lift rises and falls along the route (1:5): rounded over
+            ``floor_rounding_m`` it asks at most 2 x 0.2 / 8 m = 0.05 /m of curvature, what the
+            rounded curb floor above asks.
         field: the potential field's parameters.
         passing: the offset-pass planner's (``planner = "offset_pass"``; :mod:`lastmile.planning.pass_path`).
         behaviour: Snow Lion's behaviour planner's (``planner = "snow_lion_behaviour"``;
@@ -71,6 +80,8 @@ class LocalPathConfig:
     rear_axle_on_spot: bool = False
     exact_body_clearance: bool = False
     floor_rounding_m: float = 8.0
+    keep_on_road: bool = True
+    edge_lift_slope: float = 0.2
     # Before ``field``: that attribute's name hides dataclasses.field further down the class body.
     passing: PassPathConfig = field(default_factory=PassPathConfig)
     behaviour: BehaviourConfig | None = None
@@ -97,11 +108,18 @@ class LocalPathPlanner:
         curb_right_d_m: CurbLookup | None = None,
         body_behind_m: float = 0.0,
         body_ahead_m: float = 0.0,
+        drivable: DrivableLookup | None = None,
+        body: BodyPlacement | None = None,
     ) -> None:
         self.route = route
         self.half_width_m = half_width_m
         self.config = config or LocalPathConfig()
         self.curb_right_d_m = curb_right_d_m
+        self.drivable = drivable
+        self.body = body
+        self._edges = (
+            RoadEdges(route, drivable, curb_right_d_m) if drivable is not None and body is not None else None
+        )
         self._body_offsets = np.linspace(
             -body_behind_m, body_ahead_m, max(2, round(body_ahead_m + body_behind_m) * 2 + 1)
         )
@@ -135,7 +153,13 @@ class LocalPathPlanner:
         if decision.state == BehaviourState.MERGING and decision.merge_from_s_m is not None:
             start_d = spot_d if spot_d is not None else ego_d_m
             s0 = _unwrap_near(decision.merge_from_s_m, float(s_m[0]), self.route)
-            return self._off_the_curb(s_m, lateral_transition_m(s_m, s0, s0 + c.merge_m, start_d, 0.0))
+            d = self._off_the_curb(s_m, lateral_transition_m(s_m, s0, s0 + c.merge_m, start_d, 0.0))
+            stood_s = s0
+            if decision.pullover_spot is not None:
+                spot = decision.pullover_spot
+                at = self.route.project(spot.x_m, spot.y_m, hint_s_m=s0, window_m=40.0).s_m
+                stood_s = _unwrap_near(at, float(s_m[0]), self.route)
+            return self._on_the_road(s_m, d, from_s_m=stood_s + float(np.ptp(self._body_offsets)))
         if decision.state == BehaviourState.EMERGENCY_STOP and abs(ego_d_m) > 0.5:
             return np.full_like(s_m, ego_d_m)
         return nudge_offsets_m(
@@ -240,6 +264,37 @@ class LocalPathPlanner:
             rear = lfilter([alpha], [1.0, alpha - 1.0], front + lift)
         return rear
 
+    def _on_the_road(self, s_m: FloatArray, d_m: FloatArray, from_s_m: float = -math.inf) -> FloatArray:
+        """The merge's ``d_m`` lifted (leftwards) wherever the body placed along the path, with its rear
+        axle from ``from_s_m`` on (where the body has left the place it stood at the stop), would come
+        within ``curb_clearance_m`` of the road's right edge.
+
+        Only the merge: at the spot the stop's own placement governs (``hdmap.service_route``: the
+        straight body at rest keeps the door gap along the whole kerb), and on the pull-over's
+        approach through a bend a body placed on the rear axle's tangent is not how the lookahead
+        laws drive it (they cut the bend's inside): at the Lanelet2 example's Roundabout West it
+        asked a 0.45 m lift the shuttle never needed and left the door 0.54 m from the kerb.
+
+        Each pass measures the worst overhang of the body at every station and lifts by
+        ``_tent_lift_m`` (at least the overhang everywhere, bounded slope and curvature); the lift
+        changes the body's heading, so it is measured again.
+        """
+        c = self.config
+        if self._edges is None or self.body is None or not c.keep_on_road:
+            return d_m
+        grid = np.arange(float(s_m[0]), float(s_m[-1]) + 1e-9, STATION_M)
+        d = np.interp(grid, s_m, d_m)
+        lift = np.zeros_like(d)
+        for _ in range(ROAD_PASSES):
+            (over,) = body_overhang_m(self.route, self._edges, self.body, grid, d + lift, c.curb_clearance_m)
+            need = np.where(grid >= from_s_m, np.maximum(over, 0.0), 0.0)
+            if not np.any(need > ROAD_TOLERANCE_M):
+                break
+            lift = lift + _tent_lift_m(need, STATION_M, c.edge_lift_slope, c.floor_rounding_m)
+        if not np.any(lift > 0.0):
+            return d_m
+        return d_m + np.interp(s_m, grid, lift)
+
     def _off_the_curb(self, s_m: FloatArray, d_m: FloatArray) -> FloatArray:
         if self.curb_right_d_m is None:
             return d_m
@@ -268,6 +323,30 @@ def _lag_residual_m(
     residual = float(np.interp(spot_s_m, grid, rear)) - spot_d_m
     t = np.clip((grid - s1_m) / max(spot_s_m - s1_m, 1e-6), 0.0, 1.0)
     return residual * t * t * (3.0 - 2.0 * t)
+
+
+ROAD_PASSES = 4
+"""Lift-and-measure passes of ``_on_the_road`` (each lift only moves the body away from the edge)."""
+ROAD_TOLERANCE_M = 0.005
+"""An overhang below this is measurement noise (the edge is probed to 0.016 m)."""
+
+
+def _tent_lift_m(need_m: FloatArray, step_m: float, slope: float, length_m: float) -> FloatArray:
+    """A smooth lift covering ``need_m`` (sampled every ``step_m``): each need held flat over
+    ``length_m`` centred on it, the sides of the result sloped at ``slope``, then averaged over
+    ``length_m``. The window about a station lies wholly under its held need, so the mean covers it
+    (no more: a wide need is lifted by itself, not more); the result's slope is at most ``slope`` and
+    its curvature at most 2 slope / length."""
+    if not np.any(need_m > 0.0):
+        return np.zeros_like(need_m)
+    half = max(round(0.5 * length_m / step_m), 0)
+    window = 2 * half + 1
+    held = np.lib.stride_tricks.sliding_window_view(np.pad(need_m, half), window).max(axis=1)
+    x = np.arange(len(need_m)) * step_m
+    hit = np.flatnonzero(held > 0.0)
+    tent = np.max(held[hit][None, :] - slope * np.abs(x[:, None] - x[hit][None, :]), axis=1)
+    tent = np.maximum(tent, 0.0)
+    return np.lib.stride_tricks.sliding_window_view(np.pad(tent, half), window).mean(axis=1)
 
 
 def rounded_floor_m(floor_m: FloatArray, step_m: float, length_m: float) -> FloatArray:

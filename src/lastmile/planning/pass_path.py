@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -35,9 +34,7 @@ from lastmile.core.route_obstacles import RouteObstacle
 from lastmile.core.vehicle_messages import BehaviourDecision, BehaviourState, PassRequest
 from lastmile.planning.local_path import CurbLookup, LocalPathConfig, LocalPathPlanner
 from lastmile.planning.pass_path_config import PassPathConfig
-
-DrivableLookup = Callable[[FloatArray], np.ndarray]
-"""(N, 2) map points -> (N,) bool: on the drivable road surface."""
+from lastmile.planning.road_edge import BodyPlacement, DrivableLookup
 
 QUINTIC_PEAK = 10.0 / math.sqrt(3.0)
 """max |d²σ/du²| of the quintic smoothstep σ(u) = 10u³ - 15u⁴ + 6u⁵ on [0, 1]."""
@@ -71,9 +68,11 @@ class OffsetPassPlanner(LocalPathPlanner):
         body_ahead_m: float = 0.0,
         drivable: DrivableLookup | None = None,
         max_curvature_1pm: float = 0.2,
+        body: BodyPlacement | None = None,
     ) -> None:
-        super().__init__(route, half_width_m, config, curb_right_d_m, body_behind_m, body_ahead_m)
-        self.drivable = drivable
+        super().__init__(
+            route, half_width_m, config, curb_right_d_m, body_behind_m, body_ahead_m, drivable, body
+        )
         self.max_curvature_1pm = max_curvature_1pm
         self.pass_config: PassPathConfig = self.config.passing
         self.body_behind_m, self.body_ahead_m = body_behind_m, body_ahead_m

@@ -18,7 +18,8 @@ from lastmile.core.stamp import Stamp
 from lastmile.core.vehicle_messages import BehaviourDecision, Trajectory
 from lastmile.hdmap.layers import SLayerDatabase
 from lastmile.planning.local_path import CurbLookup, LocalPathConfig, LocalPathPlanner
-from lastmile.planning.pass_path import DrivableLookup, OffsetPassPlanner
+from lastmile.planning.pass_path import OffsetPassPlanner
+from lastmile.planning.road_edge import BodyPlacement, DrivableLookup
 from lastmile.planning.snow_lion_behaviour import SnowLionBehaviourPlanner
 
 
@@ -51,9 +52,13 @@ class PlannerInputs:
         half_width_m: half the vehicle's width.
         curb_right_d_m: route s -> signed curb offset (NaN where there is none).
         body_behind_m, body_ahead_m: the body's extent behind and ahead of the path point.
-        drivable: the map's drivable-area test ((N, 2) points -> (N,) bool), for passes.
+        drivable: the map's drivable-area test ((N, 2) points -> (N,) bool), for passes and to keep
+            the pull-over's body on the road.
         max_curvature_1pm: the tightest curvature the vehicle steers.
         layers: the route's s-layer records (scenario tags and lane widths for the behaviour planner).
+        wheelbase_m: rear to front axle (0: the body is not checked against the road's edge).
+        rear_steer_above_1pm: where the route bends more than this the rear wheels steer too (None:
+            a front-steered vehicle); see ``road_edge.rear_steers``.
     """
 
     route: Polyline
@@ -64,6 +69,20 @@ class PlannerInputs:
     drivable: DrivableLookup | None = None
     max_curvature_1pm: float = 0.2
     layers: SLayerDatabase | None = None
+    wheelbase_m: float = 0.0
+    rear_steer_above_1pm: float | None = None
+
+    def body(self) -> BodyPlacement | None:
+        """How the body lies along a path, or None when it is not known well enough to check."""
+        if self.wheelbase_m <= 0.0 or self.body_ahead_m <= 0.0:
+            return None
+        return BodyPlacement(
+            behind_m=self.body_behind_m,
+            ahead_m=self.body_ahead_m,
+            half_width_m=self.half_width_m,
+            wheelbase_m=self.wheelbase_m,
+            rear_steer_above_1pm=self.rear_steer_above_1pm,
+        )
 
 
 class PathPlanner(Protocol):
@@ -87,6 +106,8 @@ def _potential_field_bezier(inputs: PlannerInputs, config: LocalPathConfig) -> P
         curb_right_d_m=inputs.curb_right_d_m,
         body_behind_m=inputs.body_behind_m,
         body_ahead_m=inputs.body_ahead_m,
+        drivable=inputs.drivable,
+        body=inputs.body(),
     )
 
 
@@ -100,6 +121,7 @@ def _offset_pass(inputs: PlannerInputs, config: LocalPathConfig) -> PathPlanner:
         body_ahead_m=inputs.body_ahead_m,
         drivable=inputs.drivable,
         max_curvature_1pm=inputs.max_curvature_1pm,
+        body=inputs.body(),
     )
 
 
@@ -114,6 +136,7 @@ def _snow_lion_behaviour(inputs: PlannerInputs, config: LocalPathConfig) -> Path
         drivable=inputs.drivable,
         max_curvature_1pm=inputs.max_curvature_1pm,
         layers=inputs.layers,
+        body=inputs.body(),
     )
 
 

@@ -43,7 +43,8 @@ from lastmile.core.vehicle_messages import BehaviourDecision, BehaviourState, Tr
 from lastmile.hdmap.layers import SLayerDatabase
 from lastmile.planning.behaviour_config import BehaviourConfig, ScenarioProfile
 from lastmile.planning.local_path import CurbLookup, LocalPathConfig
-from lastmile.planning.pass_path import DrivableLookup, OffsetPassPlanner, _smoothstep5
+from lastmile.planning.pass_path import OffsetPassPlanner, _smoothstep5
+from lastmile.planning.road_edge import BodyPlacement, DrivableLookup
 from lastmile.planning.scenario_tags import ScenarioTag, TaggedStretch, route_scenario_tags, stretches
 
 STATIC_SPEED_MPS = 0.5
@@ -102,6 +103,7 @@ class SnowLionBehaviourPlanner(OffsetPassPlanner):
         drivable: DrivableLookup | None = None,
         max_curvature_1pm: float = 0.2,
         layers: SLayerDatabase | None = None,
+        body: BodyPlacement | None = None,
     ) -> None:
         super().__init__(
             route,
@@ -112,6 +114,7 @@ class SnowLionBehaviourPlanner(OffsetPassPlanner):
             body_ahead_m,
             drivable,
             max_curvature_1pm,
+            body,
         )
         self.behaviour: BehaviourConfig = self.config.behaviour or BehaviourConfig()
         self.layers = layers

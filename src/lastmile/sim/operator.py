@@ -71,7 +71,13 @@ class OperatorModel:
             self._stopped_since = None
 
     def _cause_to_stand(self) -> bool:
-        """Something within 20 m ahead (or a waiting queue at an all-way stop) explains standing."""
+        """Something within 20 m ahead, or a queue at an all-way stop, explains standing.
+
+        A queue explains it only while its vehicles arrived less than ``stall_s`` ago: turns at an
+        all-way stop take seconds each, so a vehicle that has waited that long is in a deadlock with
+        the shuttle (each judging the other first: 300 s at the example town's T in snow, no
+        takeover), which a safety driver resolves like any other stall.
+        """
         w = self.judge.world
 
         fx, fy = w.ego_front()
@@ -84,4 +90,4 @@ class OperatorModel:
             along = dx * c + dy * si
             if -2.0 < along < 20.0 and abs(-dx * si + dy * c) < 12.0:
                 return True
-        return w.anyone_waiting_at_all_way_stops()
+        return w.anyone_waiting_at_all_way_stops(arrived_after_s=w.t_s - self.config.stall_s)

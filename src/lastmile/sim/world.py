@@ -170,8 +170,12 @@ class World:
         """The arbiter of the all-way stop whose stop line ``stop_line_id`` is."""
         return self._arbiter_of_line[stop_line_id]
 
-    def anyone_waiting_at_all_way_stops(self) -> bool:
-        return any(arbiter.queue for arbiter in self.arbiters.values())
+    def anyone_waiting_at_all_way_stops(self, arrived_after_s: float = -math.inf) -> bool:
+        """Whether a vehicle waits at any all-way stop, counting only those that arrived after
+        ``arrived_after_s`` (a turn that has not come for that long is a deadlock, not a queue)."""
+        return any(
+            t > arrived_after_s for arbiter in self.arbiters.values() for t, _ in arbiter.queue.values()
+        )
 
     def update_intersections(self) -> None:
         vehicles = self.vehicles()

@@ -67,6 +67,7 @@ from lastmile.core.vehicle_messages import (
 from lastmile.decision.behaviour_fsm import BehaviourStateMachine
 from lastmile.decision.decision_config import DecisionConfig, DecisionInput
 from lastmile.decision.mission import MissionManager
+from lastmile.hdmap.corner_rounding import max_curvature_per_m
 from lastmile.hdmap.layers import SLayerDatabase
 from lastmile.localization.amcl_localization import AmclSettings
 from lastmile.localization.ekf import PoseEkf
@@ -77,6 +78,7 @@ from lastmile.localization.scan_match_localization import ScanMatchingSettings
 from lastmile.perception.late_fusion import radar_detections
 from lastmile.planning.local_path import LocalPathConfig
 from lastmile.planning.planners import PASSING_PLANNERS, PlannerInputs, PlannerName, make_path_planner
+from lastmile.planning.road_edge import rear_steers
 from lastmile.planning.speed_planning import (
     SpeedInput,
     SpeedPlannerName,
@@ -246,6 +248,9 @@ class ShuttleStack:
         self.geometry = geometry
         self.config = config
         self.route: Polyline = layers.centerline
+        # Beyond the curvature the route may ask of the front wheels alone (a mapped corner too tight
+        # to round within the road), the rear wheels steer too, also at a kerb (road_edge.rear_steers).
+        self._rear_steer_above_1pm = max_curvature_per_m(geometry) if geometry.all_wheel_steer else None
         self.profiler = ModuleProfiler(self._budgets_ms(config))
         # The EKF's zero-slip point is where the body has no sideways velocity: mid-wheelbase when the
         # rear wheels steer opposite to the front, the rear axle otherwise. A property of the vehicle.
@@ -316,6 +321,8 @@ class ShuttleStack:
                 drivable=layers.hdmap.is_drivable,
                 max_curvature_1pm=math.tan(geometry.max_steer_rad) / geometry.wheelbase_m,
                 layers=layers,
+                wheelbase_m=geometry.wheelbase_m,
+                rear_steer_above_1pm=self._rear_steer_above_1pm,
             ),
             _path_config(config),
         )
@@ -730,9 +737,10 @@ class ShuttleStack:
         emergency = d.state == BehaviourState.EMERGENCY_STOP and est.speed_mps > 0.05
         # In a bay the rear wheels stay straight: counter-steering them would swing the tail into the
         # curb as the shuttle turns out of (or straightens into) the bay.
-        at_curb = d.state in (BehaviourState.PULLOVER, BehaviourState.ONBOARDING, BehaviourState.MERGING) or (
-            d.stop_reason == StopReason.MINIMAL_RISK_MANOEUVRE and d.pullover_spot is not None
-        )
+        at_curb = (
+            d.state in (BehaviourState.PULLOVER, BehaviourState.ONBOARDING, BehaviourState.MERGING)
+            or (d.stop_reason == StopReason.MINIMAL_RISK_MANOEUVRE and d.pullover_spot is not None)
+        ) and not self._bend_needs_rear_steer(fp.s_m)
         steer_f, steer_r = self.lateral.step(
             dt, pose, est.speed_mps, self._path_for_law(path, not at_curb), rear_steer=not at_curb
         )
@@ -753,6 +761,21 @@ class ShuttleStack:
             return gap_m
         planned = self.route.ds_m(front_s_m, stop)
         return planned if gap_m is None else min(gap_m, planned)
+
+    def _bend_needs_rear_steer(self, rear_s_m: float) -> bool:
+        """A bend under or just ahead of the body that the front wheels alone cannot follow (the
+        planner places the body for the same answer)."""
+        if self._rear_steer_above_1pm is None:
+            return False
+        g = self.geometry
+        steers = rear_steers(
+            self.route,
+            np.array([rear_s_m]),
+            g.wheelbase_m,
+            g.length_m - g.rear_overhang_m,
+            self._rear_steer_above_1pm,
+        )
+        return bool(steers[0])
 
     def _path_for_law(self, path: Polyline, rear_steer: bool) -> Polyline:
         """The path of the lateral law's own point: the planned one (laid for the rear axle, or the centre
