@@ -18,11 +18,11 @@ from __future__ import annotations
 import math
 import sys
 import time
-from dataclasses import dataclass
 from types import ModuleType
 
 import numpy as np
 
+from lastmile.core.kernel_warmup import WarmupReport, print_report, warmup_report
 from lastmile.core.sensor_frames import LidarSweep
 from lastmile.core.stamp import Stamp
 from lastmile.perception import (
@@ -34,7 +34,6 @@ from lastmile.perception import (
     ground_kernel,
     himmelsbach_kernel,
 )
-from lastmile.perception.jit_cache import kernel_cache_dir
 from lastmile.perception.motion_compensation import PoseTrajectory
 from lastmile.perception.pipeline import LidarPipeline, LidarPipelineConfig
 
@@ -54,23 +53,6 @@ _SIDEWALK_M = 0.15
 _LOWER_STREET = (22.0, 6.0, -1.7)  # x beyond, |y| beyond, height: a street below a retaining wall
 # (centre x, centre y, length, width, height) in the base frame
 _BOXES = ((10.0, -1.5, 4.5, 1.8, 1.5), (15.0, 2.0, 0.5, 0.5, 1.75), (8.0, 4.2, 0.6, 0.3, 0.4))
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class WarmupReport:
-    """What :func:`warm_up` did.
-
-    Attributes:
-        cache_dir: where the compiled kernels are cached.
-        seconds: wall time of the warm-up (compilation, or loading from the cache).
-        kernels: kernel functions found.
-        not_compiled: names of kernel functions that hold no compiled signature afterwards.
-    """
-
-    cache_dir: str
-    seconds: float
-    kernels: int
-    not_compiled: tuple[str, ...]
 
 
 def _sweep(
@@ -176,25 +158,11 @@ def warm_up() -> WarmupReport:
     grid.process(sweeps, extrinsics)
     LidarPipeline(LidarPipelineConfig(ground="himmelsbach")).process(sweeps, extrinsics, traj, road, curb)
     kernels = entry_kernels()
-    missing = tuple(sorted(name for name, fn in kernels.items() if not fn.signatures))  # type: ignore[attr-defined]
-    return WarmupReport(
-        cache_dir=str(kernel_cache_dir()),
-        seconds=time.perf_counter() - t0,
-        kernels=len(kernels),
-        not_compiled=missing,
-    )
+    return warmup_report(kernels, t0)
 
 
 def main() -> int:
-    report = warm_up()
-    print(
-        f"perception kernels: {report.kernels - len(report.not_compiled)} of {report.kernels} compiled "
-        f"in {report.seconds:.1f} s, cached in {report.cache_dir}"
-    )
-    if report.not_compiled:
-        print(f"not compiled (compiled at their first call instead): {', '.join(report.not_compiled)}")
-        return 1
-    return 0
+    return print_report("perception", warm_up())
 
 
 if __name__ == "__main__":

@@ -12,13 +12,12 @@ from __future__ import annotations
 
 import sys
 import time
-from dataclasses import dataclass
 
 import numpy as np
 
+from lastmile.core.kernel_warmup import WarmupReport, print_report, warmup_report
 from lastmile.core.object_class import ObjectClass
 from lastmile.core.stamp import Stamp
-from lastmile.core.user_cache import kernel_cache_dir
 from lastmile.core.vehicle import VehicleGeometry
 from lastmile.sim import lidar_kernel
 from lastmile.sim.agents import Agent
@@ -28,23 +27,6 @@ from lastmile.sim.lidar_rig import BLIND_SPOT_ELEVATIONS_DEG, EgoTrack, LidarSpe
 from lastmile.sim.lidar_scene import DynamicObjects, PointLabel, Segments, StaticLidarScene
 from lastmile.sim.lidar_weather import lidar_weather
 from lastmile.sim.weather import Weather
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class SimWarmupReport:
-    """What :func:`warm_up` did.
-
-    Attributes:
-        cache_dir: where the compiled kernels are cached.
-        seconds: wall time of the warm-up (compilation, or loading from the cache).
-        kernels: kernel functions found.
-        not_compiled: names of kernel functions that hold no compiled signature afterwards.
-    """
-
-    cache_dir: str
-    seconds: float
-    kernels: int
-    not_compiled: tuple[str, ...]
 
 
 def entry_kernels() -> dict[str, object]:
@@ -84,7 +66,7 @@ def _scene() -> StaticLidarScene:
     )
 
 
-def warm_up() -> SimWarmupReport:
+def warm_up() -> WarmupReport:
     """Cast a small sweep in clear air and in rain so that each kernel is compiled (or loaded)."""
     t0 = time.perf_counter()
     spec = LidarSpec(
@@ -109,25 +91,11 @@ def warm_up() -> SimWarmupReport:
         sim = LidarSimulator(_scene(), (spec,), lidar_weather(weather), 0, VehicleGeometry())
         sim.sweep(spec.sensor_id, Stamp(0), ego, objects, 100_000)
     kernels = entry_kernels()
-    missing = tuple(sorted(name for name, fn in kernels.items() if not fn.signatures))  # type: ignore[attr-defined]
-    return SimWarmupReport(
-        cache_dir=str(kernel_cache_dir()),
-        seconds=time.perf_counter() - t0,
-        kernels=len(kernels),
-        not_compiled=missing,
-    )
+    return warmup_report(kernels, t0)
 
 
 def main() -> int:
-    report = warm_up()
-    print(
-        f"simulator kernels: {report.kernels - len(report.not_compiled)} of {report.kernels} compiled "
-        f"in {report.seconds:.1f} s, cached in {report.cache_dir}"
-    )
-    if report.not_compiled:
-        print(f"not compiled (compiled at their first call instead): {', '.join(report.not_compiled)}")
-        return 1
-    return 0
+    return print_report("simulator", warm_up())
 
 
 if __name__ == "__main__":
