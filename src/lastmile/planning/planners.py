@@ -9,7 +9,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 from enum import StrEnum
-from typing import Protocol
+from typing import Any, Protocol
 
 from lastmile.core.errors import ConfigError
 from lastmile.core.polyline import Polyline
@@ -98,17 +98,19 @@ class PathPlanner(Protocol):
     ) -> Trajectory: ...
 
 
+def _shared(inputs: PlannerInputs) -> dict[str, Any]:
+    """The keyword arguments every planner takes from the inputs."""
+    return {
+        "curb_right_d_m": inputs.curb_right_d_m,
+        "body_behind_m": inputs.body_behind_m,
+        "body_ahead_m": inputs.body_ahead_m,
+        "drivable": inputs.drivable,
+        "body": inputs.body(),
+    }
+
+
 def _potential_field_bezier(inputs: PlannerInputs, config: LocalPathConfig) -> PathPlanner:
-    return LocalPathPlanner(
-        inputs.route,
-        inputs.half_width_m,
-        config,
-        curb_right_d_m=inputs.curb_right_d_m,
-        body_behind_m=inputs.body_behind_m,
-        body_ahead_m=inputs.body_ahead_m,
-        drivable=inputs.drivable,
-        body=inputs.body(),
-    )
+    return LocalPathPlanner(inputs.route, inputs.half_width_m, config, **_shared(inputs))
 
 
 def _offset_pass(inputs: PlannerInputs, config: LocalPathConfig) -> PathPlanner:
@@ -116,12 +118,8 @@ def _offset_pass(inputs: PlannerInputs, config: LocalPathConfig) -> PathPlanner:
         inputs.route,
         inputs.half_width_m,
         config,
-        curb_right_d_m=inputs.curb_right_d_m,
-        body_behind_m=inputs.body_behind_m,
-        body_ahead_m=inputs.body_ahead_m,
-        drivable=inputs.drivable,
         max_curvature_1pm=inputs.max_curvature_1pm,
-        body=inputs.body(),
+        **_shared(inputs),
     )
 
 
@@ -130,13 +128,9 @@ def _snow_lion_behaviour(inputs: PlannerInputs, config: LocalPathConfig) -> Path
         inputs.route,
         inputs.half_width_m,
         config,
-        curb_right_d_m=inputs.curb_right_d_m,
-        body_behind_m=inputs.body_behind_m,
-        body_ahead_m=inputs.body_ahead_m,
-        drivable=inputs.drivable,
         max_curvature_1pm=inputs.max_curvature_1pm,
         layers=inputs.layers,
-        body=inputs.body(),
+        **_shared(inputs),
     )
 
 
