@@ -344,6 +344,7 @@ class ShuttleStack:
         self._now = Stamp(0)
         self._speed_mps = 0.0
         self._wheel_angles_rad = (0.0, 0.0)  # front, rear: the last odometry frame's
+        self._emergency_before = False  # decision's state at the last control step
         self._yaw_rate_radps = 0.0
         self._door_open = False
         self._person_in_doorway = False
@@ -728,6 +729,13 @@ class ShuttleStack:
         )
         if self.occupancy_stop is not None:  # GEM's obstacle stop lowers it further
             cap = self.occupancy_stop.cap_mps(cap)
+        emergency_now = d.state == BehaviourState.EMERGENCY_STOP
+        if self._emergency_before and not emergency_now:
+            # Released from an emergency stop, the shuttle stands wherever it stopped: the target ahead
+            # is a new stop, not one it came to rest short of (whose restart the law holds back within
+            # restart_gap_m). Without this a pull-over interrupted 1 m short of its spot stood for ever.
+            self.longitudinal.reset(est.speed_mps)
+        self._emergency_before = emergency_now
         v_ref = self.longitudinal.reference_speed_mps(self._trajectory, path_s, cap)
         if self.speed is not None:
             v_plan, gap = self.speed.reference(int(now) / 1e6, front_s, gap, est.speed_mps)
