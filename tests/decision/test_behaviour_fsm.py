@@ -13,7 +13,7 @@ from lastmile.core.stamp import Stamp
 from lastmile.core.vehicle import VehicleGeometry
 from lastmile.core.vehicle_messages import BehaviourState, StopReason
 from lastmile.decision.behaviour_fsm import BehaviourStateMachine
-from lastmile.decision.decision_config import DecisionInput
+from lastmile.decision.decision_config import DecisionConfig, DecisionInput
 from lastmile.decision.mission import MissionManager
 from lastmile.tracking.prediction import MapAwarePredictor, PredictionConfig
 
@@ -159,6 +159,31 @@ def test_obstacle_too_close_to_stop_comfortably_triggers_emergency_stop(straight
     fsm.step(_inp(2.0, 51.0, v=0.0, tracks=empty))
     d = fsm.step(_inp(3.5, 51.0, v=0.0, tracks=empty))
     assert d.state == BehaviourState.NORMAL_DRIVING
+
+
+def test_an_emergency_stop_holds_for_what_moves_close_and_hands_a_standing_obstacle_back(straight_layers):
+    """Standing, the shuttle leaves the emergency stop with only a standing obstacle close: the restored
+    state stops for it (the point stays behind the front, so the shuttle stays put). Held for it, a
+    shuttle whose merge a snow phantom interrupted stood for good behind the car parked in the bay."""
+    clear_s = DecisionConfig().emergency_clear_s
+    # A goose 3 m ahead brings the emergency stop, then stands there.
+    standing = _tracks([(4, 57.0, 0.0, 0.0, 0.0, ObjectClass.ANIMAL)])
+    fsm = _fsm(straight_layers)
+    assert fsm.step(_inp(0.0, 50.0, v=5.5, tracks=standing)).state == BehaviourState.EMERGENCY_STOP
+    fsm.step(_inp(1.0, 51.0, v=0.0, tracks=standing))
+    assert fsm.step(_inp(1.0 + clear_s + 0.1, 51.0, v=0.0, tracks=standing)).state == (
+        BehaviourState.NORMAL_DRIVING
+    )  # released; this cycle still holds still, the next plans from the restored state
+    d = fsm.step(_inp(1.2 + clear_s, 51.0, v=0.0, tracks=standing))
+    assert d.state == BehaviourState.NORMAL_DRIVING and d.risk_track_id == 4
+    assert d.stop_reason is StopReason.OBSTACLE and d.stop_at_s_m <= 51.0 + G.front_from_rear_axle_m
+    # The same goose walking about 3 m ahead (0.6 m/s across the lane) keeps it.
+    walking = _tracks([(4, 57.0, 0.0, 0.0, 0.6, ObjectClass.ANIMAL)])
+    fsm = _fsm(straight_layers)
+    assert fsm.step(_inp(0.0, 50.0, v=5.5, tracks=walking)).state == BehaviourState.EMERGENCY_STOP
+    for t_s in (1.0, 1.0 + clear_s + 0.1, 2.0 + 2.0 * clear_s):
+        d = fsm.step(_inp(t_s, 51.0, v=0.0, tracks=walking))
+        assert d.state == BehaviourState.EMERGENCY_STOP and d.risk_track_id == 4
 
 
 def test_distant_goose_in_lane_is_a_normal_stop_not_an_emergency(straight_layers):

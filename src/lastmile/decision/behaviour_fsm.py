@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from lastmile.core.geometry import SE2
+from lastmile.core.objects import TrackedObjects
 from lastmile.core.polyline import Polyline
 from lastmile.core.route_obstacles import route_obstacles
 from lastmile.core.safety_messages import FailSafeLevel, MrmKind
@@ -316,13 +317,16 @@ class BehaviourStateMachine:
         return handle_merging(self.context, self.memory, cy)
 
     def _emergency(self, cy: Cycle) -> Outcome:
-        """Stand still; back to the state before once stopped ``emergency_clear_s`` with nothing close.
-        An e-stop the safety module ordered holds until the fail-safe releases it (operator reset)."""
+        """Stand still; back to the state before once stopped ``emergency_clear_s`` with nothing moving
+        close (a standing obstacle is the restored state's to stop for). An e-stop the safety module
+        ordered holds until the fail-safe releases it (operator reset)."""
         c, mem, inp = self.config, self.memory, cy.inp
         reach = c.min_gap_m + c.emergency_close_m
         close = [k for k in cy.constraints if k.emergency_ok and k.stop_front_s_m - cy.front_s_m < reach]
+        moving = _moving_track_ids(inp.tracks, c.emergency_hold_moving_mps)
+        holding = any(k.track_id in moving for k in close)
         ordered = inp.safety is not None and inp.safety.emergency_stop
-        if inp.speed_mps < c.standstill_mps and not close and not ordered:
+        if inp.speed_mps < c.standstill_mps and not holding and not ordered:
             if mem.emergency_clear_since_s is None:
                 mem.emergency_clear_since_s = cy.t_s
             elif cy.t_s - mem.emergency_clear_since_s > c.emergency_clear_s:
@@ -375,3 +379,9 @@ _HANDLERS: dict[BehaviourState, Callable[[BehaviourStateMachine, Cycle], Outcome
     BehaviourState.EMERGENCY_STOP: BehaviourStateMachine._emergency,
 }
 """One handler per state: it may change the state, add stop points and set the cap, reason and door."""
+
+
+def _moving_track_ids(tracks: TrackedObjects, faster_than_mps: float) -> frozenset[int]:
+    """Ids of the tracks moving faster than ``faster_than_mps`` (ground speed)."""
+    speed = np.hypot(tracks.table[:, 2], tracks.table[:, 3])
+    return frozenset(int(i) for i in tracks.ids[speed > faster_than_mps])

@@ -101,6 +101,12 @@ class DecisionConfig:
         emergency_close_m: an emergency stop holds while a constraint that may trigger one is within
             min_gap_m plus this of the front.
         emergency_clear_s: and is released after the shuttle has stood this long with none such.
+        emergency_hold_moving_mps: only a constraint whose track moves faster than this holds an
+            emergency stop; a standing obstacle is left to the restored state's own stop point, which
+            keeps min_gap_m to it or holds the shuttle where it stands. Held for one, a shuttle whose
+            merge out of S1's bay a snow phantom interrupted stood 468 s behind the car parked in the
+            bay: standing, its path ran straight into the car (default service, snow, raw). 0.5 m/s:
+            below the slowest walking speeds, above the jitter of a parked car's track (~0.2 m/s).
         crosswalk_clear_s: a shuttle standing for a crosswalk yield stays until the crosswalk has
             been clear this long (as ``emergency_clear_s``): a person making for the crossing right
             behind the one it yielded to is a confirmed radar track about 1.5 s later (seed 2: 1.5 s),
@@ -176,6 +182,7 @@ class DecisionConfig:
     emergency_min_speed_mps: float = 0.5
     emergency_close_m: float = 2.0
     emergency_clear_s: float = 1.0
+    emergency_hold_moving_mps: float = 0.5
     crosswalk_clear_s: float = 2.0
     standstill_mps: float = 0.05
     entry_heading_back_m: float = 0.1
@@ -216,7 +223,7 @@ class DecisionConfig:
             value = getattr(self, name)
             if not value > 0:
                 raise ConfigError(f"DecisionConfig.{name}: expected a positive number, got {value!r}")
-        for name in ("kerbside_margin_m", "kerbside_standing_mps"):
+        for name in ("kerbside_margin_m", "kerbside_standing_mps", "emergency_hold_moving_mps"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
                 raise ConfigError(f"DecisionConfig.{name}: expected a finite value >= 0, got {value!r}")
