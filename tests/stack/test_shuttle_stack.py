@@ -178,3 +178,47 @@ def test_a_drop_off_button_makes_the_stack_stop_at_the_kerb_and_open_the_door(st
     gap = (y - G.width_m / 2) - (-1.75)
     assert 0.05 < gap <= 0.3 and abs(yaw) < 0.02
     assert rig.car.state.x_m + G.front_from_rear_axle_m < 93.0, "stopped before the crosswalk's keep-out"
+
+
+class _InterruptedPullOverRig(_StraightRoadRig):
+    """The stop call's rig, with an emergency stop ordered once during the pull-over, when the front is
+    ``short_m`` from the spot and braking for it (a snow phantom in the bay did this in the GNSS-outage
+    scenario, raw, in snow)."""
+
+    def __init__(self, short_m: float) -> None:
+        super().__init__(call="S1", door_open_after=0.0)
+        self.short_m = short_m
+        self.stack: ShuttleStack | None = None
+        self.interrupted_at_gap_m: float | None = None
+
+    def referee(self, takeover_request, reported_state=None):
+        super().referee(takeover_request, reported_state)
+        stack, d = self.stack, self.stack._decision if self.stack is not None else None
+        if stack is None or d is None or d.state != BehaviourState.PULLOVER or d.stop_at_s_m is None:
+            return
+        front_s = self.car.state.x_m + G.front_from_rear_axle_m
+        gap = d.stop_at_s_m - front_s
+        if self.interrupted_at_gap_m is None and gap < self.short_m and self.car.state.speed_mps > 0.3:
+            self.interrupted_at_gap_m = gap
+            stack.fsm.request_emergency(self._tick * 0.01, "test: interrupted pull-over")
+
+
+def test_a_pull_over_an_emergency_stop_interrupts_short_of_its_spot_still_reaches_it(straight_layers):
+    """Released from the emergency stop, the longitudinal law starts afresh: at rest 1-2 m short of the
+    spot it used to hold the brake for good (its rest hysteresis: a stop point it came to rest short of
+    restarts only once it moved off by ``restart_gap_m``), and the shuttle stood 480 s in the bay."""
+    # Standing, the rig's noiseless GNSS repeats itself: not a frozen receiver here.
+    sensors = tuple(
+        SensorSpec(key="gnss", rate_hz=10.0, frozen_after=None) if s.key == "gnss" else s for s in RIG_SENSORS
+    )
+    config = StackConfig(radar_mounts={"front": FRONT}, reliability=ReliabilityConfig(sensors=sensors))
+    stack = ShuttleStack(straight_layers, G, config)
+    rig = _InterruptedPullOverRig(short_m=1.5)
+    rig.stack = stack
+    ClosedLoop(rig, stack, build_safety(straight_layers, config.reliability), 10_000).run(6000)
+    assert rig.interrupted_at_gap_m is not None, "the pull-over was never interrupted"
+    states = rig.states
+    stopped = states.index(BehaviourState.EMERGENCY_STOP)
+    assert BehaviourState.ONBOARDING in states[stopped:], "it never reached the spot after the stop"
+    y, yaw = rig.onboard_y[-1]
+    assert 0.0 < (y - G.width_m / 2) - (-4.75) <= 0.3 and abs(yaw) < 0.02
