@@ -50,11 +50,17 @@ def _first_bay(name: LateralControllerName, weather: str) -> list[tuple[float, s
     return events
 
 
-@pytest.mark.parametrize("name", CONTROLLERS)
+@pytest.mark.parametrize(
+    ("name", "weather"),
+    [(name, "clear") for name in CONTROLLERS]
+    # In snow the plan's own front corner met S1's kerb (planning/local_path.py, the spot correction
+    # taking back the clearance; MPS and Stanley left the road there): one law stands for all.
+    + [(LateralControllerName.STANLEY, "snow")],
+)
 def test_each_lateral_controller_pulls_into_the_bay_within_0_3_m_of_the_curb(
-    name: LateralControllerName,
+    name: LateralControllerName, weather: str
 ) -> None:
-    events = _first_bay(name, "clear")
+    events = _first_bay(name, weather)
     bad = [e for e in events if e[1] in ("takeover", "rule_violation", "collision")]
     assert not bad, bad
     served = [e[2] for e in events if e[1] == "stop_served"]
