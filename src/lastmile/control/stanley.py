@@ -23,7 +23,7 @@ from lastmile.control.path_errors import (
     point_ahead,
 )
 from lastmile.control.speed_reference import NoSpeedLaw, SteersFromPathAlone
-from lastmile.control.steer_lag import LagPredictor, SteeringLagModel
+from lastmile.control.steer_lag import SHUTTLE_STEER_LAG_S, LagPredictor, SteeringLagModel
 from lastmile.core.errors import ConfigError
 from lastmile.core.geometry import SE2, wrap_angle_rad
 from lastmile.core.polyline import Polyline
@@ -43,13 +43,20 @@ class StanleyConfig:
         steer_lowpass_tau_s: time constant of the command's low-pass filter (7.2.5).
         actuator_lag_s: the steer-by-wire's first-order time constant (s) that plain Stanley compensates
             (``steer_lag.LagPredictor``: the law is evaluated at the pose predicted over this lag plus the
-            low-pass filter's); 0 evaluates it at the present pose. MPS has its own preview and ignores it.
+            low-pass filter's); 0 evaluates it at the present pose. None: the shuttle's drive-by-wire,
+            ``steer_lag.SHUTTLE_STEER_LAG_S`` (0.15 s; None keeps the run's configuration echo as it was
+            before the compensation existed). MPS has its own preview and ignores it.
     """
 
     gain_per_s: float = 2.5
     softening_mps: float = 1.0
     steer_lowpass_tau_s: float = 0.05
-    actuator_lag_s: float = 0.15
+    actuator_lag_s: float | None = None
+
+    @property
+    def steer_lag_s(self) -> float:
+        """The compensated lag (s): ``actuator_lag_s``, or the shuttle's when None."""
+        return SHUTTLE_STEER_LAG_S if self.actuator_lag_s is None else self.actuator_lag_s
 
     def __post_init__(self) -> None:
         if not (self.gain_per_s > 0.0 and self.softening_mps > 0.0):
@@ -57,7 +64,7 @@ class StanleyConfig:
                 f"StanleyConfig: expected gain_per_s > 0 and softening_mps > 0, "
                 f"got {self.gain_per_s} and {self.softening_mps}"
             )
-        if not (math.isfinite(self.actuator_lag_s) and self.actuator_lag_s >= 0.0):
+        if not (math.isfinite(self.steer_lag_s) and self.steer_lag_s >= 0.0):
             raise ConfigError(
                 f"StanleyConfig.actuator_lag_s: expected a finite number >= 0 s, got {self.actuator_lag_s}"
             )
@@ -142,8 +149,8 @@ class StanleyController(SteersFromPathAlone, NoSpeedLaw):
         )
         self._front = PathTracker()
         c = self.config
-        lag = SteeringLagModel(lag_s=c.actuator_lag_s, max_rate_radps=geometry.max_steer_rate_radps)
-        horizon = c.actuator_lag_s + c.steer_lowpass_tau_s if c.actuator_lag_s > 0.0 else 0.0
+        lag = SteeringLagModel(lag_s=c.steer_lag_s, max_rate_radps=geometry.max_steer_rate_radps)
+        horizon = c.steer_lag_s + c.steer_lowpass_tau_s if c.steer_lag_s > 0.0 else 0.0
         self._lag = LagPredictor(lag, geometry.wheelbase_m, horizon)
 
     def path_lead_m(self, rear_steer: bool = True) -> float:

@@ -18,15 +18,18 @@ from dataclasses import dataclass
 from lastmile.core.errors import ConfigError
 from lastmile.core.geometry import SE2, wrap_angle_rad
 
+SHUTTLE_STEER_LAG_S = 0.15
+"""First-order time constant of the shuttle's steer-by-wire (s): the drive-by-wire the simulator models
+(``sim.vehicle_model.ActuatorDynamics.steer_lag_s``), a typical electric power-steering servo."""
+
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class SteeringLagModel:
     """The steer-by-wire as the controller models it.
 
     Attributes:
-        lag_s: first-order time constant of the wheel angle's answer to the command (s). The default is
-            that of the shuttle's drive-by-wire (``sim.vehicle_model.ActuatorDynamics.steer_lag_s``,
-            0.15 s, a typical electric power-steering servo); 0 turns the compensation off.
+        lag_s: first-order time constant of the wheel angle's answer to the command (s); 0 turns the
+            compensation off.
         max_rate_radps: the actuator's steering rate limit (rad/s).
         substep_s: integration step of the prediction (s).
     """
