@@ -7,12 +7,13 @@ Each pair is selected in the run configuration (``[stack] lateral_controller`` a
 ``longitudinal_controller``) and run on the loop engine, vehicle safety included; everything else is
 the default stack with radar-tracking perception. Reported per run: the referee's takeovers, rule
 violations and collisions, stops served (and missed) with their curb gaps, all-way-stop entries out
-of arrival order, the peak cross-track error against the stack's planned path (10 Hz, at the point the path is laid for, boarding excluded), route
-progress, and the comfort figures as the evaluation measures them (the shuttle's acceleration averaged
-over 0.1 s windows; jerk from adjacent windows) against Snow Lion's measured envelope (-1.83..1.12 m/s^2,
-|jerk| <= 1.84 m/s^3), outside emergencies as the evaluation counts them (the emergency-stop state or
-brake and the 3 s after, with their count). The reference is the default pair
-(``heading_pid:watonobus``) in the same run: progress as a ratio.
+of arrival order, the peak cross-track error against the stack's planned path (10 Hz, at the point
+the path is laid for, boarding excluded), route progress, and the comfort figures as the evaluation
+measures them (the shuttle's acceleration averaged over 0.1 s windows; jerk from adjacent windows)
+against Snow Lion's measured envelope (-1.83..1.12 m/s^2, |jerk| <= 1.84 m/s^3), outside emergencies
+as the evaluation counts them (the emergency-stop state or brake and the 3 s after, with their
+count). The reference is the default pair (``heading_pid:watonobus``) in the same run: progress as a
+ratio.
 One core, BLAS one thread.
 """
 
