@@ -6,13 +6,14 @@ Run: python benchmarks/controller_service.py [--minutes 4] [--seeds 0] [--weathe
 Each pair is selected in the run configuration (``[stack] lateral_controller`` and
 ``longitudinal_controller``) and run on the loop engine, vehicle safety included; everything else is
 the default stack with radar-tracking perception. Reported per run: the referee's takeovers, rule
-violations and collisions, stops served (and missed) with their curb gaps, the peak cross-track error
-against the stack's planned path (10 Hz, at the point the path is laid for, boarding excluded), route
-progress, and the comfort figures as the evaluation measures them (the shuttle's acceleration averaged
-over 0.1 s windows; jerk from adjacent windows) against Snow Lion's measured envelope (-1.83..1.12 m/s^2,
-|jerk| <= 1.84 m/s^3), outside emergencies as the evaluation counts them (the emergency-stop state or
-brake and the 3 s after, with their count). The reference is the default pair
-(``heading_pid:watonobus``) in the same run: progress as a ratio.
+violations and collisions, stops served (and missed) with their curb gaps, all-way-stop entries out
+of arrival order, the peak cross-track error against the stack's planned path (10 Hz, at the point
+the path is laid for, boarding excluded), route progress, and the comfort figures as the evaluation
+measures them (the shuttle's acceleration averaged over 0.1 s windows; jerk from adjacent windows)
+against Snow Lion's measured envelope (-1.83..1.12 m/s^2, |jerk| <= 1.84 m/s^3), outside emergencies
+as the evaluation counts them (the emergency-stop state or brake and the 3 s after, with their
+count). The reference is the default pair (``heading_pid:watonobus``) in the same run: progress as a
+ratio.
 One core, BLAS one thread.
 """
 
@@ -112,6 +113,10 @@ def run(pair: str, seed: int, minutes: float, weather: str) -> dict[str, object]
         "collisions": kinds.get("collision", 0),
         "stops_served": len(gaps),
         "stops_missed": kinds.get("stop_missed", 0),
+        # The arrival order at all-way stops (the evaluation's intersection_entries_out_of_order).
+        "out_of_order": sum(
+            1 for _, k, d in events if k == EventKind.INTERSECTION_ENTRY and not d["order_ok"]
+        ),
         "curb_gap_max_m": max(gaps) if gaps else None,
         "xte_peak_m": max(xte) if xte else None,
         "progress_m": float(sim.route_progress_m),
@@ -153,7 +158,7 @@ def main() -> None:
     base = {(r["seed"], r["weather"]): r["progress_m"] for r in rows if r["pair"] == "heading_pid:watonobus"}
     table = Table(title=f"default service, {args.minutes} min per run, radar-tracking perception")
     columns = ("pair", "weather", "seed", "takeovers", "violations", "collisions", "emergencies", "stops")
-    columns += ("missed",)
+    columns += ("missed", "out of order")
     columns += ("max curb gap m", "peak xte m")
     columns += ("progress m", "vs default", "accel min..max", "jerk min..max", "comfort", "CPU s")
     for col in columns:
@@ -164,7 +169,7 @@ def main() -> None:
         table.add_row(
             str(r["pair"]), str(r["weather"]), str(r["seed"]), str(r["takeovers"]), str(r["rule_violations"]),
             str(r["collisions"]), str(r["emergency_episodes"]), str(r["stops_served"]),
-            str(r["stops_missed"]),
+            str(r["stops_missed"]), str(r["out_of_order"]),
             "-" if gap is None else f"{gap:.2f}",
             "-" if r["xte_peak_m"] is None else f"{r['xte_peak_m']:.2f}",
             f"{r['progress_m']:.0f}", "-" if ref is None else f"{float(r['progress_m']) / ref:.3f}x",

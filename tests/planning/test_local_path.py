@@ -196,3 +196,33 @@ def test_the_curb_floor_is_rounded_where_a_taper_meets_its_platform_and_never_lo
     assert rounded[corner] == pytest.approx(floor[corner] + 0.4 * 10.0 / 8.0, abs=0.02)  # lifted, by 0.5 m
     assert np.all(np.isneginf(rounded[s < 5.0 - 5.0]))
     assert rounded_floor_m(floor, step, 0.0) is floor
+
+
+def test_bringing_the_rear_axle_onto_the_spot_keeps_the_bodys_curb_clearance(monkeypatch):
+    """The settling run's correction onto the spot line turns the body toward the curb while its front
+    corner is still angled at the platform (S1's kerb in snow, and on the second lap in clear, for
+    every law that tracks the path closely); the planner gives back as much of it as the clearance
+    needs, no more."""
+
+    def curb(s):
+        return -1.75 - 3.0 * np.clip((np.asarray(s, dtype=float) - 34.0) / 6.0, 0.0, 1.0)
+
+    spot = SE2(46.0, -3.6, 0.0)
+    decision = _decision(BehaviourState.PULLOVER, spot=spot)
+
+    def plan(**flags):
+        config = LocalPathConfig(route_anchored_waypoints=True, exact_body_clearance=True, **flags)
+        planner = LocalPathPlanner(
+            ROUTE, half_width_m=1.0, config=config, curb_right_d_m=curb, body_behind_m=0.85, body_ahead_m=3.75
+        )
+        traj = planner.plan(Stamp(0), 20.0, 0.0, decision, [])
+        return _body_side_clearance_m(traj, curb), _y_at(traj, spot.x_m) - spot.y_m
+
+    lagged_gap, lagged_short = plan()
+    gap, short = plan(rear_axle_on_spot=True)
+    assert gap >= lagged_gap - 0.002 and gap >= 0.05, (gap, lagged_gap)
+    assert short < lagged_short - 0.01  # still brought toward the line where the clearance allows
+    # Unchecked, the correction puts the body's side over the curb.
+    monkeypatch.setattr(LocalPathPlanner, "_spot_kept_clear", lambda self, grid, rear, lagged: rear)
+    unchecked_gap, unchecked_short = plan(rear_axle_on_spot=True)
+    assert unchecked_gap < 0.0 and abs(unchecked_short) < 0.01

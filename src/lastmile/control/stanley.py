@@ -23,6 +23,7 @@ from lastmile.control.path_errors import (
     point_ahead,
 )
 from lastmile.control.speed_reference import NoSpeedLaw, SteersFromPathAlone
+from lastmile.control.steer_lag import SHUTTLE_STEER_LAG_S, LagPredictor, SteeringLagModel
 from lastmile.core.errors import ConfigError
 from lastmile.core.geometry import SE2, wrap_angle_rad
 from lastmile.core.polyline import Polyline
@@ -40,17 +41,32 @@ class StanleyConfig:
         gain_per_s: k, how hard the cross-track error is closed (1/s).
         softening_mps: k_s, keeps the law finite at low speed.
         steer_lowpass_tau_s: time constant of the command's low-pass filter (7.2.5).
+        actuator_lag_s: the steer-by-wire's first-order time constant (s) that plain Stanley compensates
+            (``steer_lag.LagPredictor``: the law is evaluated at the pose predicted over this lag plus the
+            low-pass filter's); 0 evaluates it at the present pose. None: the shuttle's drive-by-wire,
+            ``steer_lag.SHUTTLE_STEER_LAG_S`` (0.15 s; None keeps the run's configuration echo as it was
+            before the compensation existed). MPS has its own preview and ignores it.
     """
 
     gain_per_s: float = 2.5
     softening_mps: float = 1.0
     steer_lowpass_tau_s: float = 0.05
+    actuator_lag_s: float | None = None
+
+    @property
+    def steer_lag_s(self) -> float:
+        """The compensated lag (s): ``actuator_lag_s``, or the shuttle's when None."""
+        return SHUTTLE_STEER_LAG_S if self.actuator_lag_s is None else self.actuator_lag_s
 
     def __post_init__(self) -> None:
         if not (self.gain_per_s > 0.0 and self.softening_mps > 0.0):
             raise ConfigError(
                 f"StanleyConfig: expected gain_per_s > 0 and softening_mps > 0, "
                 f"got {self.gain_per_s} and {self.softening_mps}"
+            )
+        if not (math.isfinite(self.steer_lag_s) and self.steer_lag_s >= 0.0):
+            raise ConfigError(
+                f"StanleyConfig.actuator_lag_s: expected a finite number >= 0 s, got {self.actuator_lag_s}"
             )
 
 
@@ -132,6 +148,10 @@ class StanleyController(SteersFromPathAlone, NoSpeedLaw):
             geometry.max_steer_rad, geometry.max_steer_rate_radps, self.config.steer_lowpass_tau_s
         )
         self._front = PathTracker()
+        c = self.config
+        lag = SteeringLagModel(lag_s=c.steer_lag_s, max_rate_radps=geometry.max_steer_rate_radps)
+        horizon = c.steer_lag_s + c.steer_lowpass_tau_s if c.steer_lag_s > 0.0 else 0.0
+        self._lag = LagPredictor(lag, geometry.wheelbase_m, horizon)
 
     def path_lead_m(self, rear_steer: bool = True) -> float:
         """The front axle, where the law is measured, ahead of the planned point (the rear axle; the
@@ -142,16 +162,22 @@ class StanleyController(SteersFromPathAlone, NoSpeedLaw):
     def step(
         self, dt_s: float, map_from_base: SE2, speed_mps: float, path: Polyline, rear_steer: bool = True
     ) -> tuple[float, float]:
-        """``rear_steer=False`` keeps the rear wheels straight (at a curb, so the tail cannot swing in)."""
+        """``rear_steer=False`` keeps the rear wheels straight (at a curb, so the tail cannot swing in).
+
+        The law is evaluated at the pose the body will have when the wheels answer (``actuator_lag_s``).
+        """
         check_speed("StanleyController.step", speed_mps)
         g = self.geometry
         all_wheel = g.all_wheel_steer and rear_steer
-        front = point_ahead(map_from_base, g.wheelbase_m)
+        self._lag.advance(dt_s)
+        pose = self._lag.predict(map_from_base, speed_mps, all_wheel)
+        front = point_ahead(pose, g.wheelbase_m)
         e = self._front.errors(path, front)
         psi = -e.heading_error_rad
         c = self.config
         raw = psi + math.atan2(c.gain_per_s * -e.lateral_m, c.softening_mps + abs(speed_mps))
         delta = self._output.step(dt_s, raw)
+        self._lag.sent(delta)
         return delta, (-delta if all_wheel else 0.0)
 
 

@@ -223,9 +223,12 @@ class LocalPathPlanner:
         if self.config.exact_body_clearance and self.curb_right_d_m is not None:
             rear = self._clear_of_the_curb(grid, front, rear, alpha)
         if self.config.rear_axle_on_spot:
+            lagged = rear
             toward = rear - _lag_residual_m(grid, rear, s1_m, s1_m + self.config.settle_m, spot_d_m)
             side = math.copysign(1.0, -spot_d_m)  # the side of the spot line the path comes from
             rear = spot_d_m + side * np.maximum(side * (toward - spot_d_m), 0.0)  # never past the line
+            if self.config.exact_body_clearance and self.curb_right_d_m is not None:
+                rear = self._spot_kept_clear(grid, rear, lagged)
         return np.where(s_m < grid[0], 0.0, np.interp(s_m, grid, rear))
 
     def _clear_of_the_curb(
@@ -240,19 +243,10 @@ class LocalPathPlanner:
         raises the front by the worst shortfall of the body side over the next ``ahead`` metres and
         lags the rear anew; a few passes converge (the lift only moves the path away from the curb).
         """
-        assert self.curb_right_d_m is not None
-        c = self.config
-        along = self._body_offsets  # rear overhang .. front, on the body axis
-        half = self.half_width_m
-        span = max(1, round(float(along[-1]) / (grid[1] - grid[0])))
+        span = max(1, round(float(self._body_offsets[-1]) / (grid[1] - grid[0])))
         lift = np.zeros_like(front)
         for _ in range(6):
-            psi = np.arctan(np.gradient(rear, grid))
-            cos, sin = np.cos(psi)[:, None], np.sin(psi)[:, None]
-            side_s = grid[:, None] + along[None, :] * cos + half * sin
-            side_d = rear[:, None] + along[None, :] * sin - half * cos
-            curb = self.curb_right_d_m(side_s.ravel()).reshape(side_s.shape)
-            short = np.where(np.isnan(curb), -np.inf, curb + c.curb_clearance_m - side_d).max(axis=1)
+            short = self._curb_shortfall_m(grid, rear)
             if not np.any(short > 1e-3):
                 break
             # The front at grid i leads the rear by ``ahead``: lift it over the stretch whose body
@@ -263,6 +257,43 @@ class LocalPathPlanner:
             lift = lift + ahead_need
             rear = lfilter([alpha], [1.0, alpha - 1.0], front + lift)
         return rear
+
+    def _curb_shortfall_m(self, grid: FloatArray, rear: FloatArray) -> FloatArray:
+        """At each station, how far the right side of the body placed exactly (rear axle at ``rear``,
+        body along the path's tangent) comes inside ``curb_clearance_m`` of the curb (-inf: no curb)."""
+        assert self.curb_right_d_m is not None
+        along = self._body_offsets  # rear overhang .. front, on the body axis
+        half = self.half_width_m
+        psi = np.arctan(np.gradient(rear, grid))
+        cos, sin = np.cos(psi)[:, None], np.sin(psi)[:, None]
+        side_s = grid[:, None] + along[None, :] * cos + half * sin
+        side_d = rear[:, None] + along[None, :] * sin - half * cos
+        curb = self.curb_right_d_m(side_s.ravel()).reshape(side_s.shape)
+        return np.where(np.isnan(curb), -np.inf, curb + self.config.curb_clearance_m - side_d).max(axis=1)
+
+    def _spot_kept_clear(self, grid: FloatArray, rear: FloatArray, lagged: FloatArray) -> FloatArray:
+        """The rear-axle offsets brought onto the spot's line, lifted again wherever that took the body
+        inside the curb clearance.
+
+        Bringing the rear axle onto the line over the settling run also turns the body toward the curb
+        while its front corner is still angled at the platform: at S1 that ate the whole clearance the
+        lift above had made (the plan's front corner on the kerb in the first-bay scenario in snow, and
+        on the second lap in clear, for every law that tracks the path closely). Each pass lifts by a
+        tent over the shortfall (as ``_on_the_road``), never beyond ``lagged`` (the offsets before the
+        correction, which kept the clearance): the lift gives back part of the correction, no more.
+        """
+        c = self.config
+        step = float(grid[1] - grid[0])
+        ceiling = np.maximum(lagged, rear)
+        lift = np.zeros_like(rear)
+        kept = rear
+        for _ in range(ROAD_PASSES):
+            need = np.maximum(self._curb_shortfall_m(grid, kept), 0.0)
+            if not np.any(need > ROAD_TOLERANCE_M):
+                break
+            lift = lift + _tent_lift_m(need, step, c.edge_lift_slope, c.floor_rounding_m)
+            kept = np.minimum(rear + lift, ceiling)
+        return kept
 
     def _on_the_road(self, s_m: FloatArray, d_m: FloatArray, from_s_m: float = -math.inf) -> FloatArray:
         """The merge's ``d_m`` lifted (leftwards) wherever the body placed along the path, with its rear
