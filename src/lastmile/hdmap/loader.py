@@ -45,6 +45,9 @@ from lastmile.hdmap.projection import MapProjection, ProjectionKind
 
 CAMPUS_OSM = Path(__file__).with_name("data") / "campus.osm"
 BUS_STOP_TAG = "lastmile:bus_stop"
+# Stop-sign types of a ``traffic_sign`` rule: the German VZ 206 (Lanelet2's own ``de206``), the US MUTCD
+# R1-1 (``us:R1-1`` / ``usR1-1``), and Autoware's and plain spellings.
+STOP_SIGN_TYPES = frozenset({"de206", "us:r1-1", "usr1-1", "r1-1", "stop_sign", "stop"})
 DEFAULT_HEAD_HEIGHT_M = 1.0  # a three-bulb head, for maps whose traffic_light line strings carry no height
 
 
@@ -515,15 +518,22 @@ def _regulatory(
     stops = []
 
     def add(line: Any, lanelet_id: int, rule: Any) -> None:
-        if line is None or line.id in lines:
+        if line is None:
             return
-        lines[line.id] = StopLine(
+        new = StopLine(
             id=line.id,
             line=_xy(line)[[0, -1]],
             lanelet_id=lanelet_id,
             all_way_stop_id=rule.id if isinstance(rule, ll2.AllWayStop) else None,
             signal_id=rule.id if isinstance(rule, ll2.TrafficLight) else None,
+            stop_sign_id=rule.id if is_stop_sign_rule(rule) else None,
         )
+        old = lines.get(line.id)
+        if old is None:
+            lines[line.id] = new
+        elif old.stop_sign_id is None and new.stop_sign_id is not None:
+            # An all-way stop's or a signal's line that a stop sign's rule also names: both hold.
+            lines[line.id] = dataclasses.replace(old, stop_sign_id=new.stop_sign_id)
 
     for lanelet in sorted(lmap.laneletLayer, key=lambda ll: ll.id):
         if lanelet.id not in lanelets:
@@ -636,6 +646,13 @@ def _signals(lmap: Any, stop_lines: tuple[StopLine, ...]) -> tuple[TrafficSignal
     return tuple(out)
 
 
+def is_stop_sign_rule(rule: Any) -> bool:
+    """A Lanelet2 ``traffic_sign`` rule whose sign is a stop sign (``STOP_SIGN_TYPES``)."""
+    if not isinstance(rule, ll2.TrafficSign) or isinstance(rule, ll2.SpeedLimit):
+        return False
+    return str(rule.type()).strip().lower() in STOP_SIGN_TYPES
+
+
 def _stop_line_of(rule: Any, lanelet: Any) -> Any | None:
     if isinstance(rule, ll2.AllWayStop):
         for ll, line in zip(rule.lanelets(), rule.stopLines(), strict=False):
@@ -644,6 +661,11 @@ def _stop_line_of(rule: Any, lanelet: Any) -> Any | None:
         return None
     if isinstance(rule, ll2.TrafficLight):
         return rule.stopLine
+    if is_stop_sign_rule(rule):
+        # A two-way stop: the sign's ref_line is where the shuttle must stand (the sign itself when
+        # the map draws no line is not guessed at: the map check lists such a sign as controlling none).
+        ref_lines = rule.refLines()
+        return ref_lines[0] if len(ref_lines) > 0 else None
     if isinstance(rule, ll2.RightOfWay):
         # The line is where the yielding lanelets stop; the lanelets with right of way drive through.
         yielding = any(ll.id == lanelet.id for ll in rule.yieldLanelets())

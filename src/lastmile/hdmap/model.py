@@ -96,7 +96,9 @@ class Crosswalk:
 class StopLine:
     """A stop line at the end of ``lanelet_id``; ``line`` is (2, 2).
 
-    ``signal_id`` is the traffic signal that controls it (None: not signalised).
+    ``signal_id`` is the traffic signal that controls it (None: not signalised); ``stop_sign_id`` the
+    Lanelet2 ``traffic_sign`` rule of a stop sign (``STOP_SIGN_TYPES``) whose ``ref_line`` it is (None:
+    no stop sign): a full stop is owed there.
     """
 
     id: int
@@ -104,6 +106,7 @@ class StopLine:
     lanelet_id: int
     all_way_stop_id: int | None = None
     signal_id: int | None = None
+    stop_sign_id: int | None = None
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
