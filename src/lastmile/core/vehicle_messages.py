@@ -86,7 +86,7 @@ class StopReason(Enum):
     """A pedestrian on, or about to step onto, a crosswalk ahead."""
     TRAFFIC_LIGHT = "traffic_light"
     STOP_LINE = "stop_line"
-    """An all-way stop's line (arrival order)."""
+    """An all-way stop's line (arrival order), or a stop sign's (a full stop, then on)."""
     BUS_STOP = "bus_stop"
     """The pull-over spot of a stop to serve."""
     ONBOARDING = "onboarding"
