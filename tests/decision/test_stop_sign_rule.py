@@ -7,6 +7,14 @@ import dataclasses
 import numpy as np
 import pytest
 
+from lastmile.core.geometry import SE2
+from lastmile.core.objects import empty_tracks
+from lastmile.core.stamp import Stamp
+from lastmile.core.vehicle import VehicleGeometry
+from lastmile.core.vehicle_messages import StopReason
+from lastmile.decision.behaviour_fsm import BehaviourStateMachine
+from lastmile.decision.decision_config import DecisionInput
+from lastmile.decision.mission import MissionManager
 from lastmile.decision.stop_sign_rule import StopSignRule
 from lastmile.decision.traffic_light_rule import TrafficLightRuleConfig
 from lastmile.hdmap.layers import RouteStopLine, SLayerDatabase
@@ -14,6 +22,7 @@ from lastmile.hdmap.model import StopLine
 
 LINE_S = 100.0
 CONFIG = TrafficLightRuleConfig()
+G = VehicleGeometry()
 STOP_AT = LINE_S - CONFIG.stop_before_line_m
 
 
@@ -63,3 +72,34 @@ def test_only_a_two_way_stop_signs_line_is_taken(
     rule = StopSignRule(_layers(straight_layers, **ids))
     assert rule.lines == ()
     assert rule.step(0.0, 80.0, 5.0, _ahead) == (None, "")
+
+
+def test_the_decision_stops_at_the_line_for_the_full_stop_then_drives_on(
+    straight_layers: SLayerDatabase,
+) -> None:
+    fsm = BehaviourStateMachine(
+        layers=_layers(straight_layers, stop_sign_id=5),
+        geometry=G,
+        mission=MissionManager(stop_order=("S1", "S2")),
+    )
+    rear_at = STOP_AT - 0.2 - G.front_from_rear_axle_m  # the front 0.2 m short of the stop point
+
+    def step(t_s: float, rear_s_m: float, v: float) -> tuple[float | None, StopReason]:
+        d = fsm.step(
+            DecisionInput(
+                stamp=Stamp(int(t_s * 1e6)),
+                map_from_base=SE2(rear_s_m, 0.0, 0.0),
+                speed_mps=v,
+                route_s_m=rear_s_m,
+                route_d_m=0.0,
+                tracks=empty_tracks(Stamp(0)),
+                door_open=False,
+                person_in_doorway=False,
+                trajectory=None,
+            )
+        )
+        return d.stop_at_s_m, d.stop_reason
+
+    assert step(0.0, 60.0, 5.0) == (pytest.approx(STOP_AT), StopReason.STOP_LINE)
+    assert step(5.0, rear_at, 0.0) == (pytest.approx(STOP_AT), StopReason.STOP_LINE)
+    assert step(5.0 + CONFIG.full_stop_s, rear_at, 0.0) == (None, StopReason.NONE)
