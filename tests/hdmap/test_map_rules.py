@@ -17,7 +17,7 @@ from lastmile.hdmap import layers as codes
 from lastmile.hdmap.layers import SLayerDatabase
 from lastmile.hdmap.loader import load_map
 from lastmile.hdmap.routing import route
-from tests.hdmap.osm_builder import ORIGIN_LAT_DEG, ORIGIN_LON_DEG, OsmBuilder, straight_lane
+from tests.hdmap.osm_builder import ORIGIN_LAT_DEG, ORIGIN_LON_DEG, OsmBuilder, straight_lane, two_way_stop
 
 
 def _load(b: OsmBuilder, tmp_path: Path, name: str = "m.osm"):
@@ -225,27 +225,10 @@ def test_a_crossing_is_typed_by_its_control(tmp_path: Path, control: str) -> Non
     assert set(db.road_type[~on_mid].tolist()) == {codes.NORMAL}
 
 
-def _two_way_stop(b: OsmBuilder, sign_type: str, with_line: bool = True) -> dict[str, int]:
-    """An eastbound road whose first lanelet ends at a stop sign's line (x = 40)."""
-    rule = b.reserve()
-    ids = {
-        "in": straight_lane(b, 0, 0, 40, 0, rules=(rule,), speed_limit="30"),
-        "out": straight_lane(b, 40, 0, 80, 0, speed_limit="30"),
-        "sign": b.way([(38, -3.0), (38, -3.6)], type="traffic_sign", subtype=sign_type),
-        "rule": rule,
-    }
-    members = [("way", "refers", ids["sign"])]
-    if with_line:
-        ids["line"] = b.way([(40, -1.75), (40, 1.75)], type="stop_line")
-        members.append(("way", "ref_line", ids["line"]))
-    b.relation_with_id(rule, members, type="regulatory_element", subtype="traffic_sign")
-    return ids
-
-
 @pytest.mark.parametrize("sign_type", ["de206", "us:R1-1", "stop_sign"])
 def test_a_stop_signs_ref_line_is_a_stop_line_owing_a_full_stop(tmp_path: Path, sign_type: str) -> None:
     b = OsmBuilder()
-    ids = _two_way_stop(b, sign_type)
+    ids = two_way_stop(b, sign_type)
     hdmap = _load(b, tmp_path)
     (line,) = hdmap.stop_lines
     assert (line.id, line.lanelet_id, line.stop_sign_id) == (ids["line"], ids["in"], ids["rule"])
@@ -256,10 +239,10 @@ def test_a_stop_signs_ref_line_is_a_stop_line_owing_a_full_stop(tmp_path: Path, 
 
 def test_other_signs_and_a_stop_sign_without_a_line_make_no_stop_line(tmp_path: Path) -> None:
     b = OsmBuilder()
-    _two_way_stop(b, "de205")  # give way: no full stop owed
+    two_way_stop(b, "de205")  # give way: no full stop owed
     assert _load(b, tmp_path).stop_lines == ()
     b = OsmBuilder()
-    _two_way_stop(b, "de206", with_line=False)
+    two_way_stop(b, "de206", with_line=False)
     assert _load(b, tmp_path, "n.osm").stop_lines == ()
 
 

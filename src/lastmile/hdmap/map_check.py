@@ -6,6 +6,7 @@ service path (the s-layer database); a missing layer names the feature that will
 
 from __future__ import annotations
 
+import collections
 import enum
 import math
 import sys
@@ -120,6 +121,7 @@ def check(map_path: Path | None, projector: str | None, route_path: Path | None)
     items += [
         _speed(hdmap, route, db),
         _rules(hdmap, db),
+        _signs(hdmap, db),
         _curbs(hdmap, db),
         _landmarks(hdmap, db),
         _stops(hdmap),
@@ -314,6 +316,33 @@ def _rules(hdmap: HDMap, db: SLayerDatabase | None) -> CheckItem:
         detail=counts,
         off="all-way-stop, traffic-light and crosswalk behaviour and their referee checks (nothing mapped "
         "to obey: unmapped junctions and crossings are not known to the stack)",
+    )
+
+
+def _signs(hdmap: HDMap, db: SLayerDatabase | None) -> CheckItem:
+    """The traffic signs drawn (by type) and the stop lines a stop sign's rule controls."""
+    kinds = collections.Counter(lm.subtype or "untyped" for lm in hdmap.landmarks if lm.kind == "sign")
+    drawn = ", ".join(f"{k} x{n}" for k, n in sorted(kinds.items())) or "none"
+    controlled = [
+        f"rule {sl.stop_sign_id}: line {sl.id} at the end of lanelet {sl.lanelet_id} "
+        + ("(all-way stop)" if sl.all_way_stop_id is not None else "(two-way stop: full stop, then on)")
+        for sl in hdmap.stop_lines
+        if sl.stop_sign_id is not None
+    ]
+    detail = f"{sum(kinds.values())} drawn ({drawn}); {len(controlled)} stop-sign stop lines"
+    if controlled:
+        detail += ": " + "; ".join(controlled)
+    if db is not None:
+        along = sum(1 for rl in db.stop_lines if rl.stop_line.stop_sign_id is not None)
+        detail += f"; along the route {along} stop-sign lines"
+    if controlled:
+        return CheckItem(layer="traffic signs", status=Status.OK, detail=detail)
+    return CheckItem(
+        layer="traffic signs",
+        status=Status.MISSING,
+        detail=detail,
+        off="stop signs as virtual stop lines (a traffic_sign rule of a de206 / us:R1-1 sign with a "
+        "ref_line) and their referee check; speed-limit signs act through speed_limit rules (see above)",
     )
 
 
