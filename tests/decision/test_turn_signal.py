@@ -194,3 +194,17 @@ def test_a_closed_route_signals_a_manoeuvre_just_past_its_seam() -> None:
 def test_bad_configs_are_one_clear_line(kwargs: dict[str, float], field: str) -> None:
     with pytest.raises(ConfigError, match=field):
         TurnSignalConfig(**kwargs)
+
+
+def test_each_switch_on_is_counted_once() -> None:
+    rule = _lane_change_rule(left=True)
+    states = [BehaviourState.NORMAL_DRIVING, BehaviourState.PULLOVER, BehaviourState.PULLOVER]
+    states += [BehaviourState.ONBOARDING, BehaviourState.MERGING, BehaviourState.MERGING]
+    states += [BehaviourState.EMERGENCY_STOP, BehaviourState.PULLOVER]
+    for state in states:
+        rule.signal(_decision(state), 0.0)
+    assert rule.counters() == {
+        "turn_signal_left_on": 1,
+        "turn_signal_right_on": 2,
+        "turn_signal_hazard_on": 1,
+    }

@@ -157,11 +157,25 @@ class TurnSignalRule:
         self.route = layers.centerline
         self.body_length_m = body_length_m
         self.manoeuvres = route_manoeuvres(layers, self.config.untagged_turn_min_rad)
+        self._last = TurnSignal.OFF
+        self._switched_on = dict.fromkeys((TurnSignal.LEFT, TurnSignal.RIGHT, TurnSignal.HAZARD), 0)
+
+    def counters(self) -> dict[str, int]:
+        """How often each indicator state was switched on (the stack's report)."""
+        return {f"turn_signal_{k.value}_on": n for k, n in self._switched_on.items()}
 
     def signal(
         self, decision: BehaviourDecision, front_s_m: float, emergency_brake: bool = False
     ) -> TurnSignal:
-        """The indicator state for this step; ``front_s_m`` is the front bumper's route s."""
+        """The indicator state for this step (counted when it changes); ``front_s_m`` is the front
+        bumper's route s."""
+        out = self._signal(decision, front_s_m, emergency_brake)
+        if out is not self._last and out is not TurnSignal.OFF:
+            self._switched_on[out] += 1
+        self._last = out
+        return out
+
+    def _signal(self, decision: BehaviourDecision, front_s_m: float, emergency_brake: bool) -> TurnSignal:
         if (
             emergency_brake
             or decision.state is BehaviourState.EMERGENCY_STOP

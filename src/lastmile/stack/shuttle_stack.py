@@ -470,6 +470,7 @@ class ShuttleStack:
     def report(self) -> VehicleReport:
         """Compute time per module, the stack's counters and the raw perception's summary."""
         counters = {"rejected_frames": self.rejected_frames, "v2i_reports_received": self.v2i.received}
+        counters.update(self.turn_signals.counters())
         perception: dict[str, float | int | None] = {}
         if self.raw is not None:
             st = self.raw.stats
