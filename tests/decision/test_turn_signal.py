@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -26,6 +27,7 @@ from lastmile.decision.turn_signal import (
 )
 from lastmile.hdmap.layers import INTERSECTION, SLayerDatabase
 from lastmile.hdmap.model import HDMap, LaneletInfo
+from lastmile.hdmap.service_route import load_route
 
 BODY_M = 4.5
 
@@ -208,3 +210,44 @@ def test_each_switch_on_is_counted_once() -> None:
         "turn_signal_right_on": 2,
         "turn_signal_hazard_on": 1,
     }
+
+
+def _line_lanelet(lid: int, x0: float, x1: float, y: float) -> LaneletInfo:
+    line = Polyline(np.array([[x0, y], [x1, y]]))
+    return LaneletInfo(id=lid, centerline=line, left=line, right=line, speed_limit_mps=5.0)
+
+
+@pytest.mark.parametrize(
+    ("after_y", "expected"), [(3.5, TurnSignal.LEFT), (-3.5, TurnSignal.RIGHT), (0.5, None)]
+)
+def test_lanes_side_by_side_without_a_shared_bound_are_told_by_where_the_new_one_lies(
+    after_y: float, expected: TurnSignal | None
+) -> None:
+    """Maps that draw each lane's bounds apart (the Lanelet2 example's roundabout): the new lane
+    starting half a lane or more beside the old one is a lane over; nearer, no lane change."""
+    ids = np.where(np.arange(150) < 100, 1, 2)
+    lanes = [_line_lanelet(1, 0.0, 100.0, 0.0), _line_lanelet(2, 50.0, 150.0, after_y)]
+    rule = TurnSignalRule(_layers(lanes, ids), BODY_M)
+    assert [m.signal for m in rule.manoeuvres] == ([expected] if expected is not None else [])
+
+
+EXAMPLE_MAP = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "maps" / "lanelet2_example"
+
+
+@pytest.mark.skipif(
+    not (EXAMPLE_MAP / "mapping_example.osm").is_file(),
+    reason="../shared/data/maps/lanelet2_example is absent (real data lives beside the repository)",
+)
+def test_every_lane_change_of_the_lanelet2_example_route_gets_a_side(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The roundabout route changes lanes 7 times (as ``map check`` counts them: route lanelets that are
+    not successors); each one is signalled, the tagged left turn too."""
+    monkeypatch.chdir(Path(__file__).resolve().parents[2])
+    service = load_route("examples/routes/lanelet2_example_roundabout.toml")
+    rule = TurnSignalRule(service.layers(), BODY_M)
+    ids = service.lanelet_ids
+    changes = sum(
+        1 for a, b in zip(ids, (*ids[1:], ids[0]), strict=True) if b not in service.hdmap.successors(a)
+    )
+    kinds = [m.kind for m in rule.manoeuvres]
+    assert changes == 7 and kinds.count(ManoeuvreKind.LANE_CHANGE) == changes
+    assert [m.signal for m in rule.manoeuvres if m.kind is ManoeuvreKind.TURN] == [TurnSignal.LEFT]

@@ -35,6 +35,9 @@ from lastmile.hdmap.layers import DRIVEWAY, INTERSECTION, SLayerDatabase
 from lastmile.hdmap.model import LaneletInfo
 
 UVC_SIGNAL_DISTANCE_M = 30.48  # 100 ft, UVC 11-604(b) / CVC 22108
+MIN_LANE_OFFSET_M = 1.75
+"""A route lanelet that starts at least this far beside the last one (half a 3.5 m lane; our choice,
+not from a source) is a lane over, for maps whose neighbouring lanes do not share a bound."""
 
 
 class ManoeuvreKind(Enum):
@@ -93,7 +96,7 @@ def route_manoeuvres(layers: SLayerDatabase, untagged_turn_min_rad: float) -> tu
                 )
             )
         if k > 0:
-            side = _side_by_side(lanelets.get(runs[k - 1][0]), info)
+            side = _lane_change_side(layers, runs[k - 1][0], lid)
             if side is not TurnSignal.OFF:
                 out.append(
                     RouteManoeuvre(
@@ -134,6 +137,30 @@ def _turn_of(layers: SLayerDatabase, info: LaneletInfo, i0: int, i1: int, min_ra
     if abs(change) < min_rad:
         return TurnSignal.OFF
     return TurnSignal.LEFT if change > 0.0 else TurnSignal.RIGHT
+
+
+def _lane_change_side(layers: SLayerDatabase, before_id: int, after_id: int) -> TurnSignal:
+    """The side of a lane change from ``before_id`` to ``after_id`` (not its successor): by the bound
+    they share, else by where the new lane lies beside the old one."""
+    hdmap = layers.hdmap
+    before, after = hdmap.lanelets.get(before_id), hdmap.lanelets.get(after_id)
+    if before is None or after is None or after_id in hdmap.successors(before_id):
+        return TurnSignal.OFF
+    side = _side_by_side(before, after)
+    if side is not TurnSignal.OFF:
+        return side
+    # Bounds drawn twice: where the new lane starts beside the old one (or, when it starts beyond the
+    # old one's end, where the old one ends beside the new one).
+    x0, y0 = (float(v) for v in after.centerline.xy_m[0])
+    p = before.centerline.project(x0, y0)
+    if 0.0 < p.s_m < before.centerline.length_m:
+        offset = p.d_m
+    else:
+        x1, y1 = (float(v) for v in before.centerline.xy_m[-1])
+        offset = -after.centerline.project(x1, y1).d_m
+    if abs(offset) < MIN_LANE_OFFSET_M:
+        return TurnSignal.OFF
+    return TurnSignal.LEFT if offset > 0.0 else TurnSignal.RIGHT
 
 
 def _side_by_side(before: LaneletInfo | None, after: LaneletInfo | None) -> TurnSignal:
