@@ -36,6 +36,7 @@ from lastmile.hdmap.model import (
     Landmark,
     LaneletInfo,
     MapArea,
+    SignRule,
     StopLine,
     TaggedStop,
     TrafficSignal,
@@ -278,6 +279,7 @@ def _convert(lmap: Any, name: str) -> HDMap:
         signals=_signals(lmap, stop_lines),
         tagged_stops=_tagged_stops(lmap),
         priority_lanelet_ids=_priority_lanelet_ids(lmap, lanelets),
+        sign_rules=_sign_rules(lmap, lanelets),
         areas=_areas(lmap),
     )
 
@@ -356,6 +358,27 @@ def _priority_lanelet_ids(lmap: Any, lanelets: dict[int, LaneletInfo]) -> frozen
         if isinstance(rule, ll2.RightOfWay)
         for ll in (*rule.rightOfWayLanelets(), *rule.yieldLanelets())
         if (lid := _directed_id(ll)) in lanelets
+    )
+
+
+def _sign_rules(lmap: Any, lanelets: dict[int, LaneletInfo]) -> tuple[SignRule, ...]:
+    """Every ``traffic_sign`` / ``speed_limit`` rule with the kept lanelets that reference it."""
+    refs: dict[int, list[int]] = {}
+    for lanelet in lmap.laneletLayer:
+        for rule in lanelet.regulatoryElements:
+            if isinstance(rule, ll2.TrafficSign):
+                refs.setdefault(rule.id, []).extend(
+                    lid for lid in (int(lanelet.id), -int(lanelet.id)) if lid in lanelets
+                )
+    return tuple(
+        SignRule(
+            id=rule.id,
+            sign_type=str(rule.type()),
+            speed_limit=isinstance(rule, ll2.SpeedLimit),
+            lanelet_ids=tuple(sorted(set(refs.get(rule.id, ())))),
+        )
+        for rule in sorted(lmap.regulatoryElementLayer, key=lambda r: r.id)
+        if isinstance(rule, ll2.TrafficSign)
     )
 
 

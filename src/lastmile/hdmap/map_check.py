@@ -18,7 +18,7 @@ import numpy as np
 from lastmile.core.errors import ConfigError, LastmileError
 from lastmile.hdmap.layers import SLayerDatabase
 from lastmile.hdmap.loader import load_projected_map
-from lastmile.hdmap.model import DRIVABLE_SUBTYPES, HDMap
+from lastmile.hdmap.model import DRIVABLE_SUBTYPES, HDMap, SignRule
 from lastmile.hdmap.projection import PROJECTOR_INFO_FILE, MapProjection, parse_projector, read_projector_info
 from lastmile.hdmap.route_file import MAX_SNAP_M, read_route_file
 from lastmile.hdmap.service_route import ServiceRoute, build_service, find_gaps
@@ -332,6 +332,9 @@ def _signs(hdmap: HDMap, db: SLayerDatabase | None) -> CheckItem:
     detail = f"{sum(kinds.values())} drawn ({drawn}); {len(controlled)} stop-sign stop lines"
     if controlled:
         detail += ": " + "; ".join(controlled)
+    limits = [_speed_rule(hdmap, r) for r in hdmap.sign_rules if r.speed_limit]
+    if limits:
+        detail += f"; {len(limits)} speed-limit rules: " + "; ".join(limits)
     if db is not None:
         along = sum(1 for rl in db.stop_lines if rl.stop_line.stop_sign_id is not None)
         detail += f"; along the route {along} stop-sign lines"
@@ -344,6 +347,15 @@ def _signs(hdmap: HDMap, db: SLayerDatabase | None) -> CheckItem:
         off="stop signs as virtual stop lines (a traffic_sign rule of a de206 / us:R1-1 sign with a "
         "ref_line) and their referee check; speed-limit signs act through speed_limit rules (see above)",
     )
+
+
+def _speed_rule(hdmap: HDMap, rule: SignRule) -> str:
+    """One speed-limit rule: its sign and the lanelets it limits (or that it limits none)."""
+    if not rule.lanelet_ids:
+        return f"rule {rule.id} ({rule.sign_type}) controls no lanelet (none references it)"
+    kph = sorted({round(hdmap.lanelets[k].speed_limit_mps * 3.6, 1) for k in rule.lanelet_ids})
+    shown = ", ".join(str(k) for k in rule.lanelet_ids[:5]) + (" ..." if len(rule.lanelet_ids) > 5 else "")
+    return f"rule {rule.id} ({rule.sign_type}) sets {kph} km/h on {len(rule.lanelet_ids)} lanelets ({shown})"
 
 
 def _curbs(hdmap: HDMap, db: SLayerDatabase | None) -> CheckItem:

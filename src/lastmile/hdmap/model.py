@@ -110,6 +110,17 @@ class StopLine:
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
+class SignRule:
+    """A Lanelet2 ``traffic_sign`` or ``speed_limit`` rule: its sign type (``de206``, ``de274-20``...),
+    whether it is a speed limit, and the lanelets that reference it (what it controls)."""
+
+    id: int
+    sign_type: str
+    speed_limit: bool
+    lanelet_ids: tuple[int, ...]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
 class TrafficSignal:
     """A Lanelet2 ``traffic_light`` regulatory element: its heads, its stop line, the lanelet it controls.
 
@@ -198,6 +209,8 @@ class HDMap:
     conflict_ids: Mapping[int, tuple[int, ...]] = field(default_factory=dict)
     """Drivable lanelets whose area overlaps each lanelet's (Lanelet2's ``conflicting``): paths that
     cross or merge inside a junction."""
+    sign_rules: tuple[SignRule, ...] = ()
+    """The map's sign rules (stop signs, speed limits...) and the lanelets each controls (map check)."""
     unread_rules: tuple[tuple[str, int], ...] = ()
     """Regulatory elements Lanelet2 has no class for (Autoware extensions), by subtype and count: left out."""
     neighbour_ids: Mapping[int, tuple[int, ...]] = field(default_factory=dict)
