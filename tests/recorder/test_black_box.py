@@ -328,3 +328,11 @@ def test_camera_boxes_become_image_annotations_with_class_and_score() -> None:
     back = DecoderFactory().decoder_for("protobuf", record)(views[0][1].encode())  # type: ignore[misc]
     assert [(p.x, p.y) for p in back.points[0].points] == [(100, 50), (180, 50), (180, 200), (100, 200)]
     assert back.texts[0].text == "pedestrian 0.90"
+
+
+def test_a_rendered_frames_title_names_the_indicators_when_on() -> None:
+    from lastmile.recorder.replay_render import _title
+
+    left = dataclasses.replace(_cmd(0), turn_signal=TurnSignal.LEFT)
+    assert _title(None, left, 1_000_000) == "t = 1.00 s  indicators left"
+    assert _title(None, _cmd(0), 1_000_000) == "t = 1.00 s"
