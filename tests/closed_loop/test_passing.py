@@ -11,6 +11,7 @@ import dataclasses
 import pytest
 
 from lastmile.core.geometry import rectangle_corners_m
+from lastmile.core.vehicle_messages import TurnSignal
 from lastmile.planning.planners import PlannerName
 from lastmile.runner.run_config import RunConfig
 from lastmile.sim.passengers import PassengerConfig
@@ -48,6 +49,8 @@ class Sample:
     gap_to_car_m: float | None
     oncoming_gaps_m: tuple[float, ...]
     """Oncoming cars not yet past the shuttle's rear: their distance ahead of its front."""
+    turn_signal: TurnSignal
+    """The indicators the vehicle was commanded."""
 
 
 def _sample(step: Step) -> Sample:
@@ -64,7 +67,9 @@ def _sample(step: Step) -> Sample:
                 gap = float(ego[:, 1].min() - box[:, 1].max())
         elif a.y_m > 0.0 and a.x_m > rear_x:
             oncoming.append(a.x_m - front_x)
-    return Sample(step.t_s, float(ego[:, 1].max()), gap, tuple(oncoming))
+    command = step.verdict.command
+    signal = command.turn_signal if command is not None else TurnSignal.OFF
+    return Sample(step.t_s, float(ego[:, 1].max()), gap, tuple(oncoming), signal)
 
 
 def _run_until_back_in_lane(scenario: Scenario, config: RunConfig = PASSING) -> tuple[Step, list[Sample]]:
@@ -99,6 +104,11 @@ def test_passes_a_parked_car_when_the_opposite_lane_is_clear(config: RunConfig) 
     assert not _events(last, "collision") and not _events(last, "rule_violation"), last.sim.judge.events  # type: ignore[attr-defined]
     assert not _events(last, "takeover")
     assert abs(last.sim.judge._route_d) < 0.2  # type: ignore[attr-defined]  # back in its lane
+    # Left as the body crosses the centre line out, right as it comes back over it.
+    out = next(i for i, s in enumerate(seen) if s.left_y_m > 0.0)
+    back = next(i for i in range(len(seen) - 1, -1, -1) if seen[i].left_y_m > 0.0)
+    assert seen[out].turn_signal is TurnSignal.LEFT, seen[out]
+    assert seen[back].turn_signal is TurnSignal.RIGHT, seen[back]
 
 
 @PLANNERS

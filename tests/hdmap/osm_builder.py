@@ -118,3 +118,20 @@ def straight_lane(
     left = b.way([(x0 + lx, y0 + ly), (mid[0] + lx, mid[1] + ly), (x1 + lx, y1 + ly)], type=left_type)
     right = b.way([(x0 - lx, y0 - ly), (mid[0] - lx, mid[1] - ly), (x1 - lx, y1 - ly)], type=right_type)
     return b.lanelet(left, right, rules=rules, **tags)
+
+
+def two_way_stop(b: OsmBuilder, sign_type: str, with_line: bool = True) -> dict[str, int]:
+    """An eastbound road whose first lanelet ends at a stop sign's line (x = 40)."""
+    rule = b.reserve()
+    ids = {
+        "in": straight_lane(b, 0, 0, 40, 0, rules=(rule,), speed_limit="30"),
+        "out": straight_lane(b, 40, 0, 80, 0, speed_limit="30"),
+        "sign": b.way([(38, -3.0), (38, -3.6)], type="traffic_sign", subtype=sign_type),
+        "rule": rule,
+    }
+    members = [("way", "refers", ids["sign"])]
+    if with_line:
+        ids["line"] = b.way([(40, -1.75), (40, 1.75)], type="stop_line")
+        members.append(("way", "ref_line", ids["line"]))
+    b.relation_with_id(rule, members, type="regulatory_element", subtype="traffic_sign")
+    return ids

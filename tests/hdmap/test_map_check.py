@@ -8,7 +8,7 @@ from typer.testing import CliRunner
 
 from lastmile.cli import app
 from lastmile.hdmap.map_check import Status, check
-from tests.hdmap.osm_builder import OsmBuilder, straight_lane
+from tests.hdmap.osm_builder import OsmBuilder, straight_lane, two_way_stop
 from tests.hdmap.test_service_route import _stop, _write, stadium
 
 
@@ -56,3 +56,34 @@ def test_a_map_without_speed_tags_and_no_route_limit_is_reported_not_defaulted(t
     report = check(tmp_path / "map.osm", "utm:49,8.4", None)
     speed = next(i for i in report.items if i.layer == "speed limits")
     assert speed.status is Status.MISSING and "unmapped_speed_limit_kph" in speed.off
+
+
+def test_check_lists_the_signs_and_the_stop_lines_a_stop_sign_controls(tmp_path: Path) -> None:
+    b = OsmBuilder()
+    ids = two_way_stop(b, "de206")
+    # A 20 km/h sign whose rule the road beyond the stop references, and one nothing references.
+    limit = b.reserve()
+    beyond = straight_lane(b, 80, 0, 120, 0, rules=(limit,))
+    sign = b.way([(82, -3.0), (82, -3.6)], type="traffic_sign", subtype="de274-20")
+    b.relation_with_id(limit, [("way", "refers", sign)], type="regulatory_element", subtype="speed_limit")
+    stray = b.way([(10, -3.0), (10, -3.6)], type="traffic_sign", subtype="de274-30")
+    stray_rule = b.relation([("way", "refers", stray)], type="regulatory_element", subtype="speed_limit")
+    b.write(tmp_path / "map.osm")
+    signs = next(
+        i for i in check(tmp_path / "map.osm", "utm:49,8.4", None).items if i.layer == "traffic signs"
+    )
+    assert signs.status is Status.OK
+    assert "de206 x1, de274-20 x1, de274-30 x1" in signs.detail
+    assert f"rule {limit} (de274-20) sets [20.0] km/h on 1 lanelets ({beyond})" in signs.detail
+    assert f"rule {stray_rule} (de274-30) controls no lanelet" in signs.detail
+    assert (
+        f"rule {ids['rule']}: line {ids['line']} at the end of lanelet {ids['in']} (two-way stop"
+        in signs.detail
+    )
+    b = OsmBuilder()
+    straight_lane(b, 0, 0, 50, 0, speed_limit="30")
+    b.write(tmp_path / "plain.osm")
+    plain = next(
+        i for i in check(tmp_path / "plain.osm", "utm:49,8.4", None).items if i.layer == "traffic signs"
+    )
+    assert plain.status is Status.MISSING and "0 drawn (none)" in plain.detail and "de206" in plain.off

@@ -17,7 +17,7 @@ from lastmile.hdmap import layers as codes
 from lastmile.hdmap.layers import SLayerDatabase
 from lastmile.hdmap.loader import load_map
 from lastmile.hdmap.routing import route
-from tests.hdmap.osm_builder import ORIGIN_LAT_DEG, ORIGIN_LON_DEG, OsmBuilder, straight_lane
+from tests.hdmap.osm_builder import ORIGIN_LAT_DEG, ORIGIN_LON_DEG, OsmBuilder, straight_lane, two_way_stop
 
 
 def _load(b: OsmBuilder, tmp_path: Path, name: str = "m.osm"):
@@ -223,3 +223,38 @@ def test_a_crossing_is_typed_by_its_control(tmp_path: Path, control: str) -> Non
         {expected[1]},
     )
     assert set(db.road_type[~on_mid].tolist()) == {codes.NORMAL}
+
+
+@pytest.mark.parametrize("sign_type", ["de206", "us:R1-1", "stop_sign"])
+def test_a_stop_signs_ref_line_is_a_stop_line_owing_a_full_stop(tmp_path: Path, sign_type: str) -> None:
+    b = OsmBuilder()
+    ids = two_way_stop(b, sign_type)
+    hdmap = _load(b, tmp_path)
+    (line,) = hdmap.stop_lines
+    assert (line.id, line.lanelet_id, line.stop_sign_id) == (ids["line"], ids["in"], ids["rule"])
+    assert line.all_way_stop_id is None and line.signal_id is None
+    (rsl,) = SLayerDatabase.build(hdmap, (ids["in"], ids["out"])).stop_lines
+    assert rsl.stop_line.stop_sign_id == ids["rule"] and rsl.s_m == pytest.approx(40.0, abs=0.05)
+
+
+def test_other_signs_and_a_stop_sign_without_a_line_make_no_stop_line(tmp_path: Path) -> None:
+    b = OsmBuilder()
+    two_way_stop(b, "de205")  # give way: no full stop owed
+    assert _load(b, tmp_path).stop_lines == ()
+    b = OsmBuilder()
+    two_way_stop(b, "de206", with_line=False)
+    assert _load(b, tmp_path, "n.osm").stop_lines == ()
+
+
+def test_a_speed_limit_rule_sets_the_limit_of_the_lanelets_that_reference_it(tmp_path: Path) -> None:
+    b = OsmBuilder()
+    rule = b.reserve()
+    a = straight_lane(b, 0, 0, 40, 0, rules=(rule,))  # no speed_limit tag: the rule alone states it
+    c = straight_lane(b, 40, 0, 80, 0, speed_limit="30")
+    sign = b.way([(1, -3.0), (1, -3.6)], type="traffic_sign", subtype="de274-20")
+    b.relation_with_id(rule, [("way", "refers", sign)], type="regulatory_element", subtype="speed_limit")
+    hdmap = _load(b, tmp_path)
+    assert hdmap.lanelets[a].speed_limit_mps == pytest.approx(20 / 3.6)
+    db = SLayerDatabase.build(hdmap, (a, c))
+    assert db.speed_limit_at(20.0) == pytest.approx(20 / 3.6)
+    assert db.speed_limit_at(60.0) == pytest.approx(30 / 3.6)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import json
 from collections import deque
@@ -22,7 +23,7 @@ from lastmile.core.object_class import ObjectClass
 from lastmile.core.objects import TrackedObjects
 from lastmile.core.sensor_frames import CameraDetections, LidarSweep
 from lastmile.core.stamp import Stamp
-from lastmile.core.vehicle_messages import ActuatorCommand, LocalizationEstimate
+from lastmile.core.vehicle_messages import ActuatorCommand, LocalizationEstimate, TurnSignal
 from lastmile.recorder import record_schemas
 from lastmile.recorder.black_box import BlackBox, BlackBoxConfig
 from lastmile.recorder.foxglove_views import ViewBuilder, planar_matrix
@@ -84,6 +85,17 @@ def dumped(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, BlackBox, li
     path = future.result(timeout=60)
     bb.close()
     return path, bb, snapshot
+
+
+def test_the_command_channel_carries_the_indicator_lights(tmp_path: Path) -> None:
+    bb = BlackBox(BlackBoxConfig(out_dir=tmp_path, merge_us=0))
+    signals = list(TurnSignal)
+    for k, signal in enumerate(signals):
+        bb.record(k * TICK_US, "/stack/command", dataclasses.replace(_cmd(k * TICK_US), turn_signal=signal))
+    path = bb.trigger("takeover", (len(signals) - 1) * TICK_US, "test").result(timeout=60)
+    bb.close()
+    rec = read_recording(path)
+    assert [m.message.turn_signal for m in rec.messages if m.topic == "/stack/command"] == signals
 
 
 def test_trigger_writes_the_window_with_foxglove_schemas(dumped: tuple[Path, BlackBox, list]) -> None:
@@ -316,3 +328,11 @@ def test_camera_boxes_become_image_annotations_with_class_and_score() -> None:
     back = DecoderFactory().decoder_for("protobuf", record)(views[0][1].encode())  # type: ignore[misc]
     assert [(p.x, p.y) for p in back.points[0].points] == [(100, 50), (180, 50), (180, 200), (100, 200)]
     assert back.texts[0].text == "pedestrian 0.90"
+
+
+def test_a_rendered_frames_title_names_the_indicators_when_on() -> None:
+    from lastmile.recorder.replay_render import _title
+
+    left = dataclasses.replace(_cmd(0), turn_signal=TurnSignal.LEFT)
+    assert _title(None, left, 1_000_000) == "t = 1.00 s  indicators left"
+    assert _title(None, _cmd(0), 1_000_000) == "t = 1.00 s"

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import pytest
 
 from lastmile.core.safety_messages import FailSafeLevel, MalfunctionKind, MalfunctionSignal, MrmKind
 from lastmile.core.stamp import Stamp
-from lastmile.core.vehicle_messages import ActuatorCommand
+from lastmile.core.vehicle_messages import ActuatorCommand, TurnSignal
 from lastmile.hdmap.layers import SLayerDatabase
 from lastmile.safety.failsafe import FailSafeArbiter, FailSafeConfig, apply_safety_gate
 from lastmile.safety.hardware_watchdog import HardwareWatchdog, HardwareWatchdogConfig
@@ -112,6 +114,20 @@ def test_gate_enforces_each_level_on_the_command() -> None:
     assert out.emergency_brake and out.accel_mps2 == -5.0 and out.steer_front_rad == 0.1
 
 
+def test_gate_puts_the_hazard_lights_on_from_a_minimal_risk_manoeuvre_up() -> None:
+    cmd = dataclasses.replace(_cmd(0, accel=-3.0), turn_signal=TurnSignal.LEFT)
+    capped = FailSafeArbiter().update(0, [_sig(L.SPEED_LIMIT, cap=5.0)], speed_mps=3.0)
+    assert apply_safety_gate(cmd, capped, 3.0).turn_signal is TurnSignal.LEFT
+    for level, kind in ((L.MINIMAL_RISK_MANOEUVRE, K.SENSOR_SILENT), (L.EMERGENCY_STOP, K.OFF_MAP)):
+        directive = FailSafeArbiter().update(0, [_sig(level, kind)], speed_mps=3.0)
+        # The stack's harder brake is kept under an MRM: only the lights change.
+        assert apply_safety_gate(cmd, directive, 3.0).turn_signal is TurnSignal.HAZARD, level
+    wd = HardwareWatchdog(HardwareWatchdogConfig(timeout_us=100_000))
+    wd.observe(0, cmd)
+    tripped = wd.observe(200_000, None)
+    assert tripped is not None and tripped.turn_signal is TurnSignal.HAZARD
+
+
 def test_hardware_watchdog_brakes_when_the_command_stream_stops() -> None:
     wd = HardwareWatchdog(HardwareWatchdogConfig(timeout_us=100_000))
     for tick in range(100):
@@ -145,7 +161,9 @@ def test_mrm_gate_enforces_the_stop_point_rather_than_a_fixed_deceleration() -> 
     cruise = _cmd(0, accel=0.0)
     # Far from the point: the stack's own gentler braking (or coasting) stands, no fixed 1 m/s^2.
     assert apply_safety_gate(_cmd(0, accel=-0.4), mrm, 3.0, mrm_gap_m=30.0).accel_mps2 == -0.4
-    assert apply_safety_gate(cruise, mrm, 3.0, mrm_gap_m=30.0) is cruise
+    # Nothing of the motion is changed; only the hazard lights go on.
+    hazard = dataclasses.replace(cruise, turn_signal=TurnSignal.HAZARD)
+    assert apply_safety_gate(cruise, mrm, 3.0, mrm_gap_m=30.0) == hazard
     # Too fast for the point: at least the braking that still stops there (v^2 / 2 gap).
     assert apply_safety_gate(cruise, mrm, 5.0, mrm_gap_m=5.0).accel_mps2 == pytest.approx(-2.5)
     # Stopped short of the point: it may creep on toward it; at the point the brake is held.

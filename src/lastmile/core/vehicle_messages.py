@@ -63,6 +63,17 @@ class BehaviourState(Enum):
     EMERGENCY_STOP = "emergency_stop"
 
 
+class TurnSignal(Enum):
+    """The direction indicators the actuator command switches (issue #20; aUToronto 7.1.1: the
+    behaviour layer toggles the indicator lights during lane changes and turns)."""
+
+    OFF = "off"
+    LEFT = "left"
+    RIGHT = "right"
+    HAZARD = "hazard"
+    """All four: an emergency stop or a minimal-risk manoeuvre."""
+
+
 class StopReason(Enum):
     """Why decision asks for a stop point, for consumers that act on the cause (fleet, HMI, reports)."""
 
@@ -75,7 +86,7 @@ class StopReason(Enum):
     """A pedestrian on, or about to step onto, a crosswalk ahead."""
     TRAFFIC_LIGHT = "traffic_light"
     STOP_LINE = "stop_line"
-    """An all-way stop's line (arrival order)."""
+    """An all-way stop's line (arrival order), or a stop sign's (a full stop, then on)."""
     BUS_STOP = "bus_stop"
     """The pull-over spot of a stop to serve."""
     ONBOARDING = "onboarding"
@@ -189,7 +200,8 @@ class ActuatorCommand:
     """Command to the drive-by-wire: longitudinal acceleration and wheel angles.
 
     ``accel_mps2`` > 0 drives, < 0 brakes. ``steer_rear_rad`` is used only with all-wheel steer
-    (WATonoBus: rear = -front). ``emergency_brake`` asks for maximum deceleration.
+    (WATonoBus: rear = -front). ``emergency_brake`` asks for maximum deceleration. ``turn_signal``
+    is the indicator lights' state (``decision.turn_signal``).
     """
 
     stamp: Stamp
@@ -198,6 +210,7 @@ class ActuatorCommand:
     steer_rear_rad: float
     door_open: bool = False
     emergency_brake: bool = False
+    turn_signal: TurnSignal = TurnSignal.OFF
 
     def __post_init__(self) -> None:
         for name in ("accel_mps2", "steer_front_rad", "steer_rear_rad"):

@@ -48,6 +48,7 @@ from lastmile.decision.stop_service import (
     handle_pullover,
     next_requested_stop,
 )
+from lastmile.decision.stop_sign_rule import StopSignRule
 from lastmile.decision.traffic_light_rule import TrafficLightRule
 from lastmile.hdmap.curb_fit import spot_offset_m
 from lastmile.hdmap.layers import SLayerDatabase
@@ -80,6 +81,7 @@ class BehaviourStateMachine:
         )
         self.junctions = AllWayStops.from_layers(self.layers, self.config.entry_heading_back_m)
         self.lights = TrafficLightRule(self.layers, self.config.traffic_lights)
+        self.stop_signs = StopSignRule(self.layers, self.config.traffic_lights)
         self.passing = PassRule(self.layers, self.geometry, self.config.passing, self.can_pass)
         self.drop_offs = DropOffPlaces(self.layers, self.config.drop_off)
         self._spot_d_cache: dict[tuple[float, float], float] = {}
@@ -175,6 +177,11 @@ class BehaviourStateMachine:
             # Never an emergency stop for a light: a late red is braked for as hard as allowed, no harder.
             constraints.append(
                 StopConstraint(light_stop, light_why, emergency_ok=False, reason=StopReason.TRAFFIC_LIGHT)
+            )
+        sign_stop, sign_why = self.stop_signs.step(t_s, front_s, inp.speed_mps, ctx.ahead_m)
+        if sign_stop is not None:  # a two-way stop's line: a full stop, then on (stop_sign_rule)
+            constraints.append(
+                StopConstraint(sign_stop, sign_why, emergency_ok=False, reason=StopReason.STOP_LINE)
             )
         sd = inp.safety
         if sd is not None and sd.level != FailSafeLevel.NONE and sd.emergency_stop:

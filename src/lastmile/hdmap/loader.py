@@ -36,6 +36,7 @@ from lastmile.hdmap.model import (
     Landmark,
     LaneletInfo,
     MapArea,
+    SignRule,
     StopLine,
     TaggedStop,
     TrafficSignal,
@@ -45,6 +46,9 @@ from lastmile.hdmap.projection import MapProjection, ProjectionKind
 
 CAMPUS_OSM = Path(__file__).with_name("data") / "campus.osm"
 BUS_STOP_TAG = "lastmile:bus_stop"
+# Stop-sign types of a ``traffic_sign`` rule: the German VZ 206 (Lanelet2's own ``de206``), the US MUTCD
+# R1-1 (``us:R1-1`` / ``usR1-1``), and Autoware's and plain spellings.
+STOP_SIGN_TYPES = frozenset({"de206", "us:r1-1", "usr1-1", "r1-1", "stop_sign", "stop"})
 DEFAULT_HEAD_HEIGHT_M = 1.0  # a three-bulb head, for maps whose traffic_light line strings carry no height
 
 
@@ -275,6 +279,7 @@ def _convert(lmap: Any, name: str) -> HDMap:
         signals=_signals(lmap, stop_lines),
         tagged_stops=_tagged_stops(lmap),
         priority_lanelet_ids=_priority_lanelet_ids(lmap, lanelets),
+        sign_rules=_sign_rules(lmap, lanelets),
         areas=_areas(lmap),
     )
 
@@ -353,6 +358,27 @@ def _priority_lanelet_ids(lmap: Any, lanelets: dict[int, LaneletInfo]) -> frozen
         if isinstance(rule, ll2.RightOfWay)
         for ll in (*rule.rightOfWayLanelets(), *rule.yieldLanelets())
         if (lid := _directed_id(ll)) in lanelets
+    )
+
+
+def _sign_rules(lmap: Any, lanelets: dict[int, LaneletInfo]) -> tuple[SignRule, ...]:
+    """Every ``traffic_sign`` / ``speed_limit`` rule with the kept lanelets that reference it."""
+    refs: dict[int, list[int]] = {}
+    for lanelet in lmap.laneletLayer:
+        for rule in lanelet.regulatoryElements:
+            if isinstance(rule, ll2.TrafficSign):
+                refs.setdefault(rule.id, []).extend(
+                    lid for lid in (int(lanelet.id), -int(lanelet.id)) if lid in lanelets
+                )
+    return tuple(
+        SignRule(
+            id=rule.id,
+            sign_type=str(rule.type()),
+            speed_limit=isinstance(rule, ll2.SpeedLimit),
+            lanelet_ids=tuple(sorted(set(refs.get(rule.id, ())))),
+        )
+        for rule in sorted(lmap.regulatoryElementLayer, key=lambda r: r.id)
+        if isinstance(rule, ll2.TrafficSign)
     )
 
 
@@ -515,15 +541,22 @@ def _regulatory(
     stops = []
 
     def add(line: Any, lanelet_id: int, rule: Any) -> None:
-        if line is None or line.id in lines:
+        if line is None:
             return
-        lines[line.id] = StopLine(
+        new = StopLine(
             id=line.id,
             line=_xy(line)[[0, -1]],
             lanelet_id=lanelet_id,
             all_way_stop_id=rule.id if isinstance(rule, ll2.AllWayStop) else None,
             signal_id=rule.id if isinstance(rule, ll2.TrafficLight) else None,
+            stop_sign_id=rule.id if is_stop_sign_rule(rule) else None,
         )
+        old = lines.get(line.id)
+        if old is None:
+            lines[line.id] = new
+        elif old.stop_sign_id is None and new.stop_sign_id is not None:
+            # An all-way stop's or a signal's line that a stop sign's rule also names: both hold.
+            lines[line.id] = dataclasses.replace(old, stop_sign_id=new.stop_sign_id)
 
     for lanelet in sorted(lmap.laneletLayer, key=lambda ll: ll.id):
         if lanelet.id not in lanelets:
@@ -636,6 +669,13 @@ def _signals(lmap: Any, stop_lines: tuple[StopLine, ...]) -> tuple[TrafficSignal
     return tuple(out)
 
 
+def is_stop_sign_rule(rule: Any) -> bool:
+    """A Lanelet2 ``traffic_sign`` rule whose sign is a stop sign (``STOP_SIGN_TYPES``)."""
+    if not isinstance(rule, ll2.TrafficSign) or isinstance(rule, ll2.SpeedLimit):
+        return False
+    return str(rule.type()).strip().lower() in STOP_SIGN_TYPES
+
+
 def _stop_line_of(rule: Any, lanelet: Any) -> Any | None:
     if isinstance(rule, ll2.AllWayStop):
         for ll, line in zip(rule.lanelets(), rule.stopLines(), strict=False):
@@ -644,6 +684,11 @@ def _stop_line_of(rule: Any, lanelet: Any) -> Any | None:
         return None
     if isinstance(rule, ll2.TrafficLight):
         return rule.stopLine
+    if is_stop_sign_rule(rule):
+        # A two-way stop: the sign's ref_line is where the shuttle must stand (the sign itself when
+        # the map draws no line is not guessed at: the map check lists such a sign as controlling none).
+        ref_lines = rule.refLines()
+        return ref_lines[0] if len(ref_lines) > 0 else None
     if isinstance(rule, ll2.RightOfWay):
         # The line is where the yielding lanelets stop; the lanelets with right of way drive through.
         yielding = any(ll.id == lanelet.id for ll in rule.yieldLanelets())

@@ -6,6 +6,7 @@ service path (the s-layer database); a missing layer names the feature that will
 
 from __future__ import annotations
 
+import collections
 import enum
 import math
 import sys
@@ -17,7 +18,7 @@ import numpy as np
 from lastmile.core.errors import ConfigError, LastmileError
 from lastmile.hdmap.layers import SLayerDatabase
 from lastmile.hdmap.loader import load_projected_map
-from lastmile.hdmap.model import DRIVABLE_SUBTYPES, HDMap
+from lastmile.hdmap.model import DRIVABLE_SUBTYPES, HDMap, SignRule
 from lastmile.hdmap.projection import PROJECTOR_INFO_FILE, MapProjection, parse_projector, read_projector_info
 from lastmile.hdmap.route_file import MAX_SNAP_M, read_route_file
 from lastmile.hdmap.service_route import ServiceRoute, build_service, find_gaps
@@ -120,6 +121,7 @@ def check(map_path: Path | None, projector: str | None, route_path: Path | None)
     items += [
         _speed(hdmap, route, db),
         _rules(hdmap, db),
+        _signs(hdmap, db),
         _curbs(hdmap, db),
         _landmarks(hdmap, db),
         _stops(hdmap),
@@ -315,6 +317,45 @@ def _rules(hdmap: HDMap, db: SLayerDatabase | None) -> CheckItem:
         off="all-way-stop, traffic-light and crosswalk behaviour and their referee checks (nothing mapped "
         "to obey: unmapped junctions and crossings are not known to the stack)",
     )
+
+
+def _signs(hdmap: HDMap, db: SLayerDatabase | None) -> CheckItem:
+    """The traffic signs drawn (by type) and the stop lines a stop sign's rule controls."""
+    kinds = collections.Counter(lm.subtype or "untyped" for lm in hdmap.landmarks if lm.kind == "sign")
+    drawn = ", ".join(f"{k} x{n}" for k, n in sorted(kinds.items())) or "none"
+    controlled = [
+        f"rule {sl.stop_sign_id}: line {sl.id} at the end of lanelet {sl.lanelet_id} "
+        + ("(all-way stop)" if sl.all_way_stop_id is not None else "(two-way stop: full stop, then on)")
+        for sl in hdmap.stop_lines
+        if sl.stop_sign_id is not None
+    ]
+    detail = f"{sum(kinds.values())} drawn ({drawn}); {len(controlled)} stop-sign stop lines"
+    if controlled:
+        detail += ": " + "; ".join(controlled)
+    limits = [_speed_rule(hdmap, r) for r in hdmap.sign_rules if r.speed_limit]
+    if limits:
+        detail += f"; {len(limits)} speed-limit rules: " + "; ".join(limits)
+    if db is not None:
+        along = sum(1 for rl in db.stop_lines if rl.stop_line.stop_sign_id is not None)
+        detail += f"; along the route {along} stop-sign lines"
+    if controlled:
+        return CheckItem(layer="traffic signs", status=Status.OK, detail=detail)
+    return CheckItem(
+        layer="traffic signs",
+        status=Status.MISSING,
+        detail=detail,
+        off="stop signs as virtual stop lines (a traffic_sign rule of a de206 / us:R1-1 sign with a "
+        "ref_line) and their referee check; speed-limit signs act through speed_limit rules (see above)",
+    )
+
+
+def _speed_rule(hdmap: HDMap, rule: SignRule) -> str:
+    """One speed-limit rule: its sign and the lanelets it limits (or that it limits none)."""
+    if not rule.lanelet_ids:
+        return f"rule {rule.id} ({rule.sign_type}) controls no lanelet (none references it)"
+    kph = sorted({round(hdmap.lanelets[k].speed_limit_mps * 3.6, 1) for k in rule.lanelet_ids})
+    shown = ", ".join(str(k) for k in rule.lanelet_ids[:5]) + (" ..." if len(rule.lanelet_ids) > 5 else "")
+    return f"rule {rule.id} ({rule.sign_type}) sets {kph} km/h on {len(rule.lanelet_ids)} lanelets ({shown})"
 
 
 def _curbs(hdmap: HDMap, db: SLayerDatabase | None) -> CheckItem:

@@ -96,7 +96,9 @@ class Crosswalk:
 class StopLine:
     """A stop line at the end of ``lanelet_id``; ``line`` is (2, 2).
 
-    ``signal_id`` is the traffic signal that controls it (None: not signalised).
+    ``signal_id`` is the traffic signal that controls it (None: not signalised); ``stop_sign_id`` the
+    Lanelet2 ``traffic_sign`` rule of a stop sign (``STOP_SIGN_TYPES``) whose ``ref_line`` it is (None:
+    no stop sign): a full stop is owed there.
     """
 
     id: int
@@ -104,6 +106,18 @@ class StopLine:
     lanelet_id: int
     all_way_stop_id: int | None = None
     signal_id: int | None = None
+    stop_sign_id: int | None = None
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SignRule:
+    """A Lanelet2 ``traffic_sign`` or ``speed_limit`` rule: its sign type (``de206``, ``de274-20``...),
+    whether it is a speed limit, and the lanelets that reference it (what it controls)."""
+
+    id: int
+    sign_type: str
+    speed_limit: bool
+    lanelet_ids: tuple[int, ...]
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -195,6 +209,8 @@ class HDMap:
     conflict_ids: Mapping[int, tuple[int, ...]] = field(default_factory=dict)
     """Drivable lanelets whose area overlaps each lanelet's (Lanelet2's ``conflicting``): paths that
     cross or merge inside a junction."""
+    sign_rules: tuple[SignRule, ...] = ()
+    """The map's sign rules (stop signs, speed limits...) and the lanelets each controls (map check)."""
     unread_rules: tuple[tuple[str, int], ...] = ()
     """Regulatory elements Lanelet2 has no class for (Autoware extensions), by subtype and count: left out."""
     neighbour_ids: Mapping[int, tuple[int, ...]] = field(default_factory=dict)

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from lastmile.core.vehicle_messages import ActuatorCommand, BehaviourDecision
+from lastmile.core.vehicle_messages import ActuatorCommand, BehaviourDecision, TurnSignal
 from lastmile.recorder.foxglove_views import BASE_FRAME, MAP_FRAME
 from lastmile.recorder.mcap_codec import RecordingError
 from lastmile.recorder.replay import Recording, ViewMessage
@@ -235,6 +235,8 @@ def _title(decision: BehaviourDecision | None, cmd: ActuatorCommand | None, t_us
         title += f"  {decision.state.value}"
     if cmd is not None and cmd.emergency_brake:
         title += "  E-BRAKE"
+    if cmd is not None and cmd.turn_signal is not TurnSignal.OFF:
+        title += f"  indicators {cmd.turn_signal.value}"
     return title
 
 

@@ -356,6 +356,7 @@ class TimingCallback(LoopCallback):
             "stack_wall_s": self.software_s,
             "stack_tick_mean_ms": 1e3 * self.software_s / max(ticks_run, 1),
             "modules": report.modules,
+            "stack_counters": dict(report.counters),
         }
         if report.perception:
             self.timing["raw_perception"] = dict(report.perception)

@@ -18,7 +18,7 @@ from lastmile.core.safety_messages import (
     SafetyDirective,
 )
 from lastmile.core.stamp import Stamp
-from lastmile.core.vehicle_messages import ActuatorCommand
+from lastmile.core.vehicle_messages import ActuatorCommand, TurnSignal
 from lastmile.hdmap.layers import SLayerDatabase
 
 # Causes that take away what a pull-over needs (a trusted pose near the curb, a view of the curb side,
@@ -374,9 +374,17 @@ def apply_safety_gate(
     accel = command.accel_mps2
     door = command.door_open
     moving = abs(speed_mps) >= c.standstill_mps
+    # An emergency stop or a minimal-risk manoeuvre puts the hazard lights on, whatever the stack asked.
+    signal = (
+        TurnSignal.HAZARD if directive.level >= FailSafeLevel.MINIMAL_RISK_MANOEUVRE else command.turn_signal
+    )
     if directive.level == FailSafeLevel.EMERGENCY_STOP:
         return dataclasses.replace(
-            command, accel_mps2=-c.max_decel_mps2, emergency_brake=True, door_open=door and not moving
+            command,
+            accel_mps2=-c.max_decel_mps2,
+            emergency_brake=True,
+            door_open=door and not moving,
+            turn_signal=signal,
         )
     if directive.level >= FailSafeLevel.MINIMAL_RISK_MANOEUVRE:
         accel = min(accel, _mrm_limit_mps2(directive, speed_mps, moving, mrm_gap_m, c))
@@ -384,9 +392,13 @@ def apply_safety_gate(
     if directive.speed_cap_mps is not None:
         limit = max(c.speed_gain_1ps * (directive.speed_cap_mps - speed_mps), -c.mrm_decel_mps2)
         accel = min(accel, limit)
-    if math.isclose(accel, command.accel_mps2, abs_tol=0.0) and door == command.door_open:
+    if (
+        math.isclose(accel, command.accel_mps2, abs_tol=0.0)
+        and door == command.door_open
+        and signal is command.turn_signal
+    ):
         return command
-    return dataclasses.replace(command, accel_mps2=accel, door_open=door)
+    return dataclasses.replace(command, accel_mps2=accel, door_open=door, turn_signal=signal)
 
 
 def _mrm_limit_mps2(

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 from lastmile.core.errors import ConfigError
 from lastmile.core.stamp import Stamp
-from lastmile.core.vehicle_messages import ActuatorCommand
+from lastmile.core.vehicle_messages import ActuatorCommand, TurnSignal
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -88,4 +88,5 @@ class HardwareWatchdog:
             steer_rear_rad=last.steer_rear_rad if last is not None else 0.0,
             door_open=False,
             emergency_brake=True,
+            turn_signal=TurnSignal.HAZARD,
         )

@@ -22,7 +22,7 @@ from lastmile.core.safety_messages import (
 )
 from lastmile.core.sensor_frames import SensorFrame, WheelOdometryFrame
 from lastmile.core.stamp import Stamp
-from lastmile.core.vehicle_messages import ActuatorCommand, SafetyVerdict, StackOutput
+from lastmile.core.vehicle_messages import ActuatorCommand, SafetyVerdict, StackOutput, TurnSignal
 from lastmile.safety.failsafe import apply_safety_gate
 from lastmile.safety.hardware_watchdog import HardwareWatchdog
 from lastmile.safety.supervisor import SafetySupervisor
@@ -130,4 +130,5 @@ class VehicleSafety:
             steer_front_rad=last.steer_front_rad if last is not None else 0.0,
             steer_rear_rad=last.steer_rear_rad if last is not None else 0.0,
             emergency_brake=emergency,
+            turn_signal=TurnSignal.HAZARD,  # the vehicle's own brake: the software has failed
         )

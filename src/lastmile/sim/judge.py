@@ -116,6 +116,7 @@ class Judge:
     def step(self) -> None:
         self._collisions()
         self._stop_lines()
+        self._stop_signs()
         self._signal_lines()
         self._crosswalks()
         self._speed()
@@ -234,6 +235,28 @@ class Judge:
                         detail=f"entered with {len(owed)} earlier arrivals waiting, {len(inside)} inside",
                     )
                 arbiter.enter(EGO_ID)
+                st.stopped = False
+
+    def _stop_signs(self) -> None:
+        """A two-way stop's line (a stop sign outside an all-way stop or a signal) crossed without a
+        full stop within 4 m of it (``_line_passages``) is a violation: StVO Zeichen 206, UVC 11-703."""
+        w = self.world
+        signalled = {sl.id for sl in w.hdmap.stop_lines if sl.signal_id is not None}
+        two_way = [
+            line
+            for line in w.stop_lines
+            if line.stop_sign_id is not None and line.all_way_stop_id is None and line.id not in signalled
+        ]
+        for line, st, standing, crossed in self._line_passages(two_way):
+            if standing:
+                st.stopped = True
+            if crossed:
+                if not st.stopped:
+                    self.emit(
+                        EventKind.RULE_VIOLATION,
+                        rule="stop_sign",
+                        detail=f"rolled through stop sign line {line.id}",
+                    )
                 st.stopped = False
 
     def _crosswalks(self) -> None:

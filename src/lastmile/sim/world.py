@@ -31,6 +31,7 @@ class StopLineTruth:
     mid_y_m: float
     heading_rad: float
     all_way_stop_id: int | None
+    stop_sign_id: int | None = None
 
 
 class World:
@@ -208,4 +209,5 @@ def _stop_line_truth(hdmap: HDMap, stop_line: StopLine) -> StopLineTruth:
         mid_y_m=float(mid[1]),
         heading_rad=heading,
         all_way_stop_id=stop_line.all_way_stop_id,
+        stop_sign_id=stop_line.stop_sign_id,
     )

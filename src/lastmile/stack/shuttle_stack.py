@@ -67,6 +67,7 @@ from lastmile.core.vehicle_messages import (
 from lastmile.decision.behaviour_fsm import BehaviourStateMachine
 from lastmile.decision.decision_config import DecisionConfig, DecisionInput
 from lastmile.decision.mission import MissionManager
+from lastmile.decision.turn_signal import TurnSignalRule
 from lastmile.hdmap.corner_rounding import max_curvature_per_m
 from lastmile.hdmap.layers import SLayerDatabase
 from lastmile.localization.amcl_localization import AmclSettings
@@ -361,6 +362,7 @@ class ShuttleStack:
             stamp=Stamp(0), accel_mps2=-1.0, steer_front_rad=0.0, steer_rear_rad=0.0
         )
         self.hmi = HmiComposer()
+        self.turn_signals = TurnSignalRule(layers, geometry.length_m)
         self.v2i = CrossingAnticipation(layers.crosswalks, self.route.length_m, self.route.closed, config.v2i)
         # The vehicle's safety watches from outside: each module call is contained and pulses a
         # heartbeat; the directive it sends back is obeyed by decision and enforced by its own gate.
@@ -469,6 +471,7 @@ class ShuttleStack:
     def report(self) -> VehicleReport:
         """Compute time per module, the stack's counters and the raw perception's summary."""
         counters = {"rejected_frames": self.rejected_frames, "v2i_reports_received": self.v2i.received}
+        counters.update(self.turn_signals.counters())
         perception: dict[str, float | int | None] = {}
         if self.raw is not None:
             st = self.raw.stats
@@ -759,6 +762,7 @@ class ShuttleStack:
             steer_rear_rad=steer_r,
             door_open=d.door_open,
             emergency_brake=emergency,
+            turn_signal=self.turn_signals.signal(d, front_s, emergency),
         )
 
     def _planner_stop_gap_m(self, gap_m: float | None, front_s_m: float) -> float | None:
