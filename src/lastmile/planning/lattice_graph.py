@@ -34,7 +34,11 @@ from lastmile.planning.lattice_config import LatticeConfig
 from lastmile.planning.road_edge import DrivableLookup
 
 SAMPLE_M = 1.0
-"""Along-route spacing of the samples an edge is checked at."""
+"""Along-route spacing of the samples an edge is checked at against tracks."""
+ROAD_SAMPLE_M = 2.0
+"""... and against the road surface when the lattice is built (the body is 4-5 m long, so its corners
+sweep every part of the road it covers at this spacing; the exact edge test of the map costs ~10 us a
+point, and the campus lattice has ~1,000 edges that leave the route lane)."""
 
 
 class LaneKind(IntEnum):
@@ -94,13 +98,16 @@ class Hermite5:
     def state(self, s_m: FloatArray, order: int = 0) -> FloatArray:
         """d (order 0), d' (1) or d'' (2) at route s (clamped to the edge)."""
         u = np.clip((np.asarray(s_m, dtype=float) - self.s0_m) / self.length_m, 0.0, 1.0)
-        c = np.polynomial.polynomial.Polynomial(self.coef)
+        c = list(self.coef)
         for _ in range(order):
-            c = c.deriv()
-        return np.asarray(c(u), dtype=float) / self.length_m**order
+            c = [i * c[i] for i in range(1, len(c))]
+        out = np.full(u.shape, c[-1])
+        for coefficient in reversed(c[:-1]):  # Horner
+            out = out * u + coefficient
+        return np.asarray(out / self.length_m**order, dtype=float)
 
-    def samples_m(self) -> FloatArray:
-        n = max(2, math.ceil(self.length_m / SAMPLE_M) + 1)
+    def samples_m(self, step_m: float = SAMPLE_M) -> FloatArray:
+        n = max(2, math.ceil(self.length_m / step_m) + 1)
         return np.linspace(self.s0_m, self.s0_m + self.length_m, n)
 
     def peak_curvature_1pm(self) -> float:
@@ -265,7 +272,7 @@ class LatticeGraph:
         for i, (curve, own) in enumerate(curves):
             if own:
                 continue
-            s = curve.samples_m()
+            s = curve.samples_m(ROAD_SAMPLE_M)
             corners = body_corners_sd(
                 s, curve.state(s), curve.state(s, 1), b.behind_m, b.ahead_m, b.half_width_m
             )

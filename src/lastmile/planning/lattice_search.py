@@ -31,6 +31,7 @@ import numpy as np
 
 from lastmile.core.geometry import FloatArray
 from lastmile.planning.lattice_graph import (
+    ROAD_SAMPLE_M,
     Hermite5,
     LaneKind,
     LatticeEdge,
@@ -160,11 +161,12 @@ class LatticeSearch:
         first = self._start_edges(req, k0, k_goal)
         depth = self._bfs_depth([n for n, _ in first], req)
         start_kind = LaneKind.OWN if abs(req.start[0]) < LANE_CHANGE_D_M else LaneKind.OPPOSITE
+        begun = start_kind != LaneKind.OWN  # out of the lane: the first edges continue a begun move
         best: dict[Node, float] = {}
         came: dict[Node, tuple[Node | None, Hermite5]] = {}
         heap: list[tuple[float, float, Node, bool]] = []
         for node, curve in first:
-            cost = self._edge_cost(req, curve, start_kind, g.node(*node).kind, True, result, first=True)
+            cost = self._edge_cost(req, curve, start_kind, g.node(*node).kind, True, result, first=begun)
             if math.isfinite(cost) and cost < best.get(node, math.inf):
                 best[node] = cost
                 came[node] = (None, curve)
@@ -232,7 +234,7 @@ class LatticeSearch:
         if self.drivable is None:
             return True
         b = self.graph.body
-        s = curve.samples_m()
+        s = curve.samples_m(ROAD_SAMPLE_M)
         corners = body_corners_sd(s, curve.state(s), curve.state(s, 1), b.behind_m, b.ahead_m, b.half_width_m)
         return bool(np.all(self.drivable(route_sd_to_xy(self.graph.route, corners.reshape(-1, 2)))))
 
@@ -301,8 +303,9 @@ class LatticeSearch:
     ) -> float | None:
         """The least gap from the body along the edge to the tracks beside it (None: pruned).
 
-        A new move keeps ``clearance_m`` from standing tracks (what decision's pass rule checked); the
-        first edge, which continues the move being driven, is pruned only inside ``min_clearance_m``:
+        A new move keeps ``clearance_m`` from standing tracks (what decision's pass rule checked); once
+        the shuttle is out of its lane, the first edge, which continues the move being driven, is
+        pruned only inside ``min_clearance_m``:
         a radar track of a car being passed creeps 0.2-0.3 m towards the shuttle as it sees the car's
         side, and re-planning must not turn a begun pass into a blockage beside the car."""
         b = self.graph.body
