@@ -255,12 +255,21 @@ class LatticeGraph:
                             continue
                         edge = LatticeEdge(to_slot, span, curve.path_length_m(), kappa)
                         proposals.append((k, slot, edge, curve))
-        keep = self._on_road([(c, node_pair_own(self, k, slot, e)) for k, slot, e, c in proposals], drivable)
+        keep = self._on_road(
+            [(c, self.keeps_route_lane(k, slot, e)) for k, slot, e, c in proposals], drivable
+        )
         table: list[list[list[LatticeEdge]]] = [[[] for _ in st] for st in self.nodes]
         for (k, slot, edge, _), ok in zip(proposals, keep, strict=True):
             if ok:
                 table[k][slot].append(edge)
         return [tuple(tuple(es) for es in st) for st in table]
+
+    def keeps_route_lane(self, k: int, slot: int, edge: LatticeEdge) -> bool:
+        """Whether an edge keeps to the route lane at both ends."""
+        return (
+            self.node(k, slot).kind == LaneKind.OWN
+            and self.node(k + edge.span, edge.to_slot).kind == LaneKind.OWN
+        )
 
     def _on_road(self, curves: list[tuple[Hermite5, bool]], drivable: DrivableLookup | None) -> list[bool]:
         """Which edges keep every body corner on the drivable area (route-lane keeps: the route's own
@@ -284,11 +293,3 @@ class LatticeGraph:
             bad = np.unique(np.concatenate(owners)[~np.asarray(inside, dtype=bool)])
             ok[bad] = False
         return ok.tolist()
-
-
-def node_pair_own(graph: LatticeGraph, k: int, slot: int, edge: LatticeEdge) -> bool:
-    """Whether an edge keeps to the route lane at both ends."""
-    return (
-        graph.node(k, slot).kind == LaneKind.OWN
-        and graph.node(k + edge.span, edge.to_slot).kind == LaneKind.OWN
-    )
