@@ -186,4 +186,5 @@ class LatticePlanner(OffsetPassPlanner):
             min_clearance_m=c.min_clearance_m,
             in_lane_clearance_m=self.config.field.clearance_m,
             lane_half_width_m=self.config.lane_half_width_m,
+            return_gap_m=c.return_gap_m,
         )

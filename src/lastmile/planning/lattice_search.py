@@ -48,6 +48,9 @@ MOVING_MPS = 0.5
 LANE_CHANGE_D_M = 1.0
 """Two lateral states further apart than this lie in different lanes."""
 
+SHAPE_CACHE = 4096
+"""Body envelopes of lattice edges kept (a few hundred distinct shapes on a map: lane widths and spans)."""
+
 Node = tuple[int, int]
 """(unwrapped station index, slot)."""
 
@@ -85,6 +88,8 @@ class SearchRequest:
         clearance_m, min_clearance_m: the body's gap to a standing track / a moving one.
         in_lane_clearance_m: the potential field's clearance, for the route lane's keeps.
         lane_half_width_m: the route lane's half width.
+        return_gap_m: the body's rear clears a standing track's front (and its front the track's
+            rear) by this before the clearance beside it no longer applies.
     """
 
     ego_s_m: float
@@ -96,6 +101,38 @@ class SearchRequest:
     min_clearance_m: float
     in_lane_clearance_m: float
     lane_half_width_m: float
+    return_gap_m: float = 1.0
+
+
+@dataclass(frozen=True, slots=True)
+class TrackArrays:
+    """A cycle's tracks as arrays (one NumPy pass per edge checks them all).
+
+    Standing tracks are kept clear lengthwise too: their half length carries ``return_gap_m`` (the
+    body comes back only that far past them, the offset-pass planner's rule), and their velocity is
+    taken as zero.
+    """
+
+    s_m: FloatArray
+    d_m: FloatArray
+    half_length_m: FloatArray
+    half_width_m: FloatArray
+    v_s_mps: FloatArray
+    v_d_mps: FloatArray
+    moving: np.ndarray
+    rear_s_m: FloatArray
+
+    @classmethod
+    def of(cls, req: SearchRequest) -> TrackArrays:
+        obs = req.obstacles
+        moving = np.array([o.moving for o in obs], dtype=bool)
+        col = np.array(
+            [(o.s_m, o.d_m, o.length_m / 2.0, o.width_m / 2.0, o.v_s_mps, o.v_d_mps) for o in obs],
+            dtype=float,
+        ).reshape(-1, 6)
+        v_s, v_d = np.where(moving, col[:, 4], 0.0), np.where(moving, col[:, 5], 0.0)
+        half_l = col[:, 2] + np.where(moving, 0.0, req.return_gap_m)
+        return cls(col[:, 0], col[:, 1], half_l, col[:, 3], v_s, v_d, moving, col[:, 0] - col[:, 2])
 
 
 @dataclass(frozen=True, slots=True)
@@ -148,6 +185,8 @@ class LatticeSearch:
     def __init__(self, graph: LatticeGraph, drivable: DrivableLookup | None = None) -> None:
         self.graph = graph
         self.drivable = drivable
+        self._tracks: TrackArrays | None = None
+        self._shapes: dict[tuple[float, ...], tuple[FloatArray, FloatArray, FloatArray, FloatArray]] = {}
 
     def search(self, req: SearchRequest) -> SearchResult:
         g, c = self.graph, self.graph.config
@@ -156,6 +195,7 @@ class LatticeSearch:
         if not g.route.closed:
             k_goal = min(k_goal, g.n_stations - 1)
         result = SearchResult(path=None)
+        self._tracks = TrackArrays.of(req)
         if k_goal <= k0:
             return result
         first = self._start_edges(req, k0, k_goal)
@@ -274,8 +314,7 @@ class LatticeSearch:
         c = self.graph.config
         length = edge.length_m if edge is not None else curve.path_length_m()
         kappa = edge.peak_curvature_1pm if edge is not None else curve.peak_curvature_1pm()
-        d_ends = curve.state(np.array([curve.s0_m, curve.s0_m + curve.length_m]))
-        change = abs(float(d_ends[1] - d_ends[0])) >= LANE_CHANGE_D_M
+        change = abs(sum(curve.coef) - curve.coef[0]) >= LANE_CHANGE_D_M  # d(end) - d(start)
         off = ((from_kind != LaneKind.OWN) + (to_kind != LaneKind.OWN)) / 2.0
         cost = (
             c.w_length * length
@@ -312,26 +351,52 @@ class LatticeSearch:
         s = curve.samples_m()
         if route_lane_keep:
             return self._in_lane_clearance_m(req, float(s[0]) - b.behind_m, float(s[-1]) + b.ahead_m, result)
-        corners = body_corners_sd(s, curve.state(s), curve.state(s, 1), b.behind_m, b.ahead_m, b.half_width_m)
-        lo_s, hi_s = corners[..., 0].min(axis=1), corners[..., 0].max(axis=1)
-        lo_d, hi_d = corners[..., 1].min(axis=1), corners[..., 1].max(axis=1)
+        lo_s, hi_s, lo_d, hi_d = self._envelope(curve, s)
         t_s = np.maximum(s - req.ego_s_m, 0.0) / max(req.speed_mps, 0.5)
-        least = math.inf
-        for o in req.obstacles:
-            centre_s = o.s_m + (o.v_s_mps * t_s if o.moving else 0.0)
-            centre_d = o.d_m + (o.v_d_mps * t_s if o.moving else 0.0)
-            gap_s = np.maximum(centre_s - o.length_m / 2.0 - hi_s, lo_s - centre_s - o.length_m / 2.0)
-            beside = gap_s < 0.0
-            if not np.any(beside):
-                continue
-            gap_d = np.maximum(centre_d - o.width_m / 2.0 - hi_d, lo_d - centre_d - o.width_m / 2.0)
-            gap = float(gap_d[beside].min())
-            need = req.min_clearance_m if o.moving or first else req.clearance_m
-            if gap < need - 0.05:
-                result.hits.append(o.rear_s_m)
-                return None
-            least = min(least, gap)
-        return least
+        tracks = self._tracks
+        if tracks is None or not len(tracks.s_m):
+            return math.inf
+        # (tracks, samples): each track where it will be when the shuttle is at each sample.
+        centre_s = tracks.s_m[:, None] + tracks.v_s_mps[:, None] * t_s[None, :]
+        centre_d = tracks.d_m[:, None] + tracks.v_d_mps[:, None] * t_s[None, :]
+        half_l, half_w = tracks.half_length_m[:, None], tracks.half_width_m[:, None]
+        gap_s = np.maximum(centre_s - half_l - hi_s[None, :], lo_s[None, :] - centre_s - half_l)
+        gap_d = np.maximum(centre_d - half_w - hi_d[None, :], lo_d[None, :] - centre_d - half_w)
+        gap = np.where(gap_s < 0.0, gap_d, np.inf).min(axis=1)
+        need = np.where(tracks.moving | first, req.min_clearance_m, req.clearance_m)
+        too_close = np.flatnonzero(gap < need - 0.05)
+        if len(too_close):
+            result.hits.append(float(tracks.rear_s_m[too_close].min()))
+            return None
+        return float(gap.min())
+
+    def _envelope(
+        self, curve: Hermite5, s_m: FloatArray
+    ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+        """The body's extent (s from, s to, d from, d to) at each sample; lattice edges repeat every
+        cycle (a lap apart on a loop), so their shape is kept, keyed by lateral ends and length."""
+        key = (
+            round(curve.coef[0], 6),
+            round(sum(curve.coef), 6),
+            round(curve.length_m, 6),
+            curve.coef[1],
+            curve.coef[2],
+        )
+        shape = self._shapes.get(key)
+        if shape is None:
+            b = self.graph.body
+            corners = body_corners_sd(
+                s_m - curve.s0_m, curve.state(s_m), curve.state(s_m, 1), b.behind_m, b.ahead_m, b.half_width_m
+            )
+            shape = (
+                corners[..., 0].min(axis=1),
+                corners[..., 0].max(axis=1),
+                corners[..., 1].min(axis=1),
+                corners[..., 1].max(axis=1),
+            )
+            if curve.coef[1] == 0.0 and curve.coef[2] == 0.0 and len(self._shapes) < SHAPE_CACHE:
+                self._shapes[key] = shape
+        return shape[0] + curve.s0_m, shape[1] + curve.s0_m, shape[2], shape[3]
 
     def _in_lane_clearance_m(
         self, req: SearchRequest, lo_s_m: float, hi_s_m: float, result: SearchResult
