@@ -313,3 +313,21 @@ def test_the_planner_passes_by_the_opposite_lane_once_decision_approves():
     assert not passing.truncated and passing.stop_at_route_s_m is None
     beside = np.abs(passing.points[:, 0] - 100.0) < 3.0
     assert PASSED_D_M - 0.05 <= passing.points[beside, 1].min() <= LANE_W + 0.05
+
+
+def test_blocked_out_of_its_lane_the_planner_holds_the_path_being_driven_and_stops():
+    """Beside the parked car in the opposite lane, a car standing ahead there blocks both lanes: the
+    path is not swung back towards the blocked lane; the shuttle stops 3 m before the first obstacle
+    that blocked an edge."""
+    planner = _planner()
+    first = planner.plan(Stamp(0), 50.0, 0.0, _decision(_request_pass(True)), [_car()])
+    assert not first.truncated
+    ahead = dataclasses.replace(_car(s_m=112.0, d_m=LANE_W), track_id=2)
+    committed = dataclasses.replace(_request_pass(True), committed=True)
+    # the rear axle at 96 m, where the last path has it out in the opposite lane
+    at = float(planner.last_path.d_at(np.array([96.0]))[0]) if planner.last_path else 0.0
+    assert at > 2.0
+    held = planner.plan(Stamp(100_000), 96.0, at, _decision(committed), [_car(), ahead])
+    assert held.truncated and held.stop_at_route_s_m is not None
+    near = np.abs(held.points[:, 0] - 100.0) < 2.0
+    assert held.points[near, 1].min() > 2.0, "the path stays out beside the parked car"
