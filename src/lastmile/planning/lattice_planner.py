@@ -128,32 +128,35 @@ class LatticePlanner(OffsetPassPlanner):
         if result.path is None:
             if result.blocked_at_s_m is not None:
                 self._stop_front_s = result.blocked_at_s_m - self.lattice_config.stop_gap_m
-            if kept is not None and self._covers(kept):
+            lap = None if kept is None else self._lap_on(kept)
+            if (
+                kept is not None
+                and lap is not None
+                and abs(kept.d_at(np.array([self._ego_s + lap]))[0]) >= 1.0
+            ):
                 # Blocked out of the lane: hold the path being driven (swerving back towards a lane
                 # that is blocked would not help) and stop on it.
                 self.last_path = kept
-                return kept.d_at(s_m)
+                return kept.d_at(np.asarray(s_m) + lap)
             return base
         if not result.path.leaves_route_lane and abs(result.path.d_at(np.array([self._ego_s]))[0]) < 1.0:
             return base
         return result.path.d_at(s_m)
 
-    def _covers(self, path: LatticePath) -> bool:
-        """The path reaches the rear axle and lies out of the route lane there."""
-        state = self._state_on(path)
-        return state is not None and abs(state[0]) >= 1.0
-
-    def _state_on(self, path: LatticePath) -> tuple[float, float, float] | None:
+    def _lap_on(self, path: LatticePath) -> float | None:
+        """What brings the rear axle's s into the path's s (a lap on a loop), or None when the path
+        does not reach it."""
         laps = (0.0, self.route.length_m, -self.route.length_m) if self.route.closed else (0.0,)
         for lap in laps:
-            state = path.state_at(self._ego_s + lap)
-            if state is not None:
-                return state
+            if path.state_at(self._ego_s + lap) is not None:
+                return lap
         return None
 
     def _planned_state(self, ego_d_m: float) -> tuple[float, float, float]:
         """The lateral state the last path planned at the rear axle (the measured offset without one)."""
-        state = None if self.last_path is None else self._state_on(self.last_path)
+        path = self.last_path
+        lap = None if path is None else self._lap_on(path)
+        state = None if path is None or lap is None else path.state_at(self._ego_s + lap)
         return (ego_d_m, 0.0, 0.0) if state is None else state
 
     def _request(
