@@ -138,8 +138,12 @@ class LatticePlanner(OffsetPassPlanner):
                 # that is blocked would not help) and stop on it.
                 self.last_path = kept
                 return kept.d_at(np.asarray(s_m) + lap)
+            self.last_path = None
             return base
         if not result.path.leaves_route_lane and abs(result.path.d_at(np.array([self._ego_s]))[0]) < 1.0:
+            # The in-lane path is driven, not the search's: the next search starts from the measured
+            # offset (starting from the unused lattice path put its state 1 m from the shuttle's).
+            self.last_path = None
             return base
         return result.path.d_at(s_m)
 

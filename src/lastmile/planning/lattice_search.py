@@ -401,7 +401,13 @@ class LatticeSearch:
     def _in_lane_clearance_m(
         self, req: SearchRequest, lo_s_m: float, hi_s_m: float, result: SearchResult
     ) -> float | None:
-        """A route-lane keep: pruned only when a standing obstacle leaves the body no room in the lane."""
+        """A route-lane keep: pruned only when a standing obstacle leaves the body no room in the lane.
+
+        The lane is driven by the potential field: it moves the body clear of an obstacle by its
+        clearance when the lane has room for that, and otherwise keeps the centre, where decision's
+        in-path test lets the shuttle by an obstacle ``min_clearance_m`` from its body. The keep is
+        pruned only when neither holds (the rule the default planner and decision apply together).
+        """
         b, c = self.graph.body, self.graph.config
         edge_l = req.lane_half_width_m - c.lane_margin_m
         least = math.inf
@@ -411,11 +417,12 @@ class LatticeSearch:
             o_lo, o_hi = o.d_m - o.width_m / 2.0, o.d_m + o.width_m / 2.0
             room_left = edge_l - (o_hi + req.in_lane_clearance_m)
             room_right = (o_lo - req.in_lane_clearance_m) + edge_l
-            if max(room_left, room_right) < 2.0 * b.half_width_m:
+            nudged = max(room_left, room_right) >= 2.0 * b.half_width_m
+            centred = max(o_lo - b.half_width_m, -b.half_width_m - o_hi)
+            if not nudged and centred < req.min_clearance_m - 0.05:
                 result.hits.append(o.rear_s_m)
                 return None
-            centred = max(o_lo - b.half_width_m, -b.half_width_m - o_hi)
-            least = min(least, max(centred, req.in_lane_clearance_m))
+            least = min(least, max(centred, req.in_lane_clearance_m) if nudged else centred)
         return least
 
     def _path(self, node: Node, came: dict[Node, tuple[Node | None, Hermite5]], cost: float) -> LatticePath:
