@@ -331,3 +331,24 @@ def test_blocked_out_of_its_lane_the_planner_holds_the_path_being_driven_and_sto
     assert held.truncated and held.stop_at_route_s_m is not None
     near = np.abs(held.points[:, 0] - 100.0) < 2.0
     assert held.points[near, 1].min() > 2.0, "the path stays out beside the parked car"
+
+
+def test_on_the_campus_map_the_opposite_lane_is_found_beside_the_route_and_bays_are_left_out():
+    """The campus loop (Lanelet2 file): the oncoming lane's centre 3.5 m left of the route at every
+    station of the bottom straight (route s 350-542), and no sibling node at S1's bay (s 500)."""
+    from lastmile.hdmap.loader import load_campus_map
+    from lastmile.hdmap.routing import campus_shuttle_loop
+
+    hdmap = load_campus_map()
+    layers = SLayerDatabase.build(hdmap, campus_shuttle_loop(hdmap), step_m=1.0, closed=True)
+    graph = LatticeGraph(layers, layers.centerline, BODY, LatticeConfig())
+    assert graph.route.closed and 10.0 <= graph.spacing_m <= 15.0
+    assert graph.n_stations * graph.spacing_m == pytest.approx(layers.centerline.length_m)
+    straight = [k for k in range(graph.n_stations) if 350.0 <= graph.station_s_m(k) <= 542.0]
+    for k in straight:
+        kinds = [n.kind for n in graph.nodes[k]]
+        assert kinds == [LaneKind.OWN, LaneKind.OPPOSITE], (graph.station_s_m(k), kinds)
+        assert graph.nodes[k][1].d_m == pytest.approx(3.5, abs=0.05)
+    bay = layers.hdmap.neighbours(int(layers.lanelet_id[layers.record_index(500.0)]))
+    assert bay, "S1's bay is a Lanelet2 neighbour of the route lane there"
+    assert all(n.lanelet_id not in bay for k in straight for n in graph.nodes[k])
