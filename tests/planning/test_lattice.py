@@ -15,7 +15,9 @@ from lastmile.core.route_obstacles import RouteObstacle
 from lastmile.core.stamp import Stamp
 from lastmile.core.vehicle_messages import BehaviourDecision, BehaviourState, PassRequest
 from lastmile.hdmap.layers import SLayerDatabase
+from lastmile.hdmap.loader import load_campus_map
 from lastmile.hdmap.model import HDMap, LaneletInfo
+from lastmile.hdmap.routing import campus_shuttle_loop
 from lastmile.planning.lattice_config import LatticeConfig
 from lastmile.planning.lattice_graph import Hermite5, LaneKind, LatticeGraph, VehicleBody
 from lastmile.planning.lattice_planner import LatticePlanner
@@ -336,9 +338,6 @@ def test_blocked_out_of_its_lane_the_planner_holds_the_path_being_driven_and_sto
 def test_on_the_campus_map_the_opposite_lane_is_found_beside_the_route_and_bays_are_left_out():
     """The campus loop (Lanelet2 file): the oncoming lane's centre 3.5 m left of the route at every
     station of the bottom straight (route s 350-542), and no sibling node at S1's bay (s 500)."""
-    from lastmile.hdmap.loader import load_campus_map
-    from lastmile.hdmap.routing import campus_shuttle_loop
-
     hdmap = load_campus_map()
     layers = SLayerDatabase.build(hdmap, campus_shuttle_loop(hdmap), step_m=1.0, closed=True)
     graph = LatticeGraph(layers, layers.centerline, BODY, LatticeConfig())
