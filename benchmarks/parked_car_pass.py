@@ -1,6 +1,6 @@
 """Passing a parked car (issue #20): the offset-pass planner against waiting behind it, closed loop.
 
-Run: python benchmarks/parked_car_pass.py [--seeds 0 1 2] [--json out.json]
+Run: python benchmarks/parked_car_pass.py [--seeds 0 1 2] [--planners offset_pass lattice] [--json out.json]
 
 A car parked in the shuttle's lane on the campus's bottom straight (broken centre line; route s 430),
 the shuttle starting 70 m before it (radar tracking), and oncoming traffic on the ring's other lane:
@@ -122,7 +122,15 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     ap.add_argument("--json", type=Path, default=Path(__file__).with_name("results") / "parked_car_pass.json")
+    ap.add_argument(
+        "--planners",
+        nargs="+",
+        default=[PlannerName.OFFSET_PASS.value],
+        choices=[p.value for p in PlannerName if p is not PlannerName.POTENTIAL_FIELD_BEZIER],
+        help="passing planners compared (potential_field_bezier, the waiting one, always runs)",
+    )
     args = ap.parse_args()
+    planners = [PlannerName(p) for p in args.planners]
     load_before = os.getloadavg()
     route = campus_service().polyline
     ref = []
@@ -133,7 +141,7 @@ def main() -> None:
     ref_us = statistics.median(ref) / 1e3
     rows: dict[str, dict[str, Any]] = {}
     for traffic_name, traffic in TRAFFIC.items():
-        for planner in (PlannerName.OFFSET_PASS, PlannerName.POTENTIAL_FIELD_BEZIER):
+        for planner in (*planners, PlannerName.POTENTIAL_FIELD_BEZIER):
             runs = [run(planner, traffic, seed) for seed in args.seeds]
             past = [r["past_s"] for r in runs if r["past_s"] is not None]
             rows[f"{traffic_name} | {planner.value}"] = {
@@ -153,9 +161,10 @@ def main() -> None:
                 "planning_p95_ms": max(r["planning_p95_ms"] for r in runs),
             }
     for traffic_name in TRAFFIC:
-        passing = rows[f"{traffic_name} | {PlannerName.OFFSET_PASS.value}"]
         waiting = rows[f"{traffic_name} | {PlannerName.POTENTIAL_FIELD_BEZIER.value}"]
-        passing["planning_p50_over_waiting"] = passing["planning_p50_ms"] / waiting["planning_p50_ms"]
+        for planner in planners:
+            passing = rows[f"{traffic_name} | {planner.value}"]
+            passing["planning_p50_over_waiting"] = passing["planning_p50_ms"] / waiting["planning_p50_ms"]
     table = Table(
         title=f"parked car in the lane, seeds {args.seeds}, {WINDOW_S:.0f} s window; "
         f"reference: one route projection {ref_us:.1f} us"

@@ -25,7 +25,11 @@ SNOW_LION = dataclasses.replace(
     RADAR, stack=dataclasses.replace(RADAR.stack, planner=PlannerName.SNOW_LION_BEHAVIOUR)
 )
 """Snow Lion's behaviour planner passes through the same lattice when decision orders a pass."""
-PLANNERS = pytest.mark.parametrize("config", [PASSING, SNOW_LION], ids=["offset_pass", "snow_lion_behaviour"])
+LATTICE = dataclasses.replace(RADAR, stack=dataclasses.replace(RADAR.stack, planner=PlannerName.LATTICE))
+"""aUToronto's lattice planner: A* over the lattice of the shuttle's and the opposite lane."""
+PLANNERS = pytest.mark.parametrize(
+    "config", [PASSING, SNOW_LION, LATTICE], ids=["offset_pass", "snow_lion_behaviour", "lattice"]
+)
 CAR_S_M = 430.0
 """The parked car's centre (route s), in the middle of the shuttle's lane."""
 PARKED = StaticObstacle(route_s_m=CAR_S_M, kind="car", length_m=4.5, width_m=1.8)

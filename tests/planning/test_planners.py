@@ -7,6 +7,7 @@ import pytest
 
 from lastmile.core.errors import ConfigError
 from lastmile.core.polyline import Polyline
+from lastmile.planning.lattice_planner import LatticePlanner
 from lastmile.planning.local_path import LocalPathPlanner
 from lastmile.planning.pass_path import OffsetPassPlanner
 from lastmile.planning.planners import PlannerInputs, PlannerName, make_path_planner
@@ -23,12 +24,13 @@ def test_every_registered_name_builds_its_planner() -> None:
     assert isinstance(make_path_planner("potential_field_bezier", _inputs()), LocalPathPlanner)
     assert isinstance(make_path_planner("offset_pass", _inputs()), OffsetPassPlanner)
     assert isinstance(make_path_planner("snow_lion_behaviour", _inputs()), SnowLionBehaviourPlanner)
+    assert isinstance(make_path_planner("lattice", _inputs()), LatticePlanner)
 
 
 def test_an_unknown_planner_is_named_with_the_known_ones() -> None:
     expected = (
-        r"planner: expected one of \['potential_field_bezier', 'offset_pass', 'snow_lion_behaviour'\], "
-        r"got 'lattice'"
+        r"planner: expected one of \['potential_field_bezier', 'offset_pass', 'snow_lion_behaviour', "
+        r"'lattice'\], got 'free_space'"
     )
     with pytest.raises(ConfigError, match=expected):
-        make_path_planner("lattice", _inputs())
+        make_path_planner("free_space", _inputs())

@@ -16,6 +16,7 @@ from lastmile.core.stamp import Stamp
 from lastmile.core.vehicle_messages import BehaviourDecision, BehaviourState, StopReason, Trajectory
 from lastmile.planning.behaviour_config import BehaviourConfig
 from lastmile.planning.bezier import lateral_transition_m, smooth_through
+from lastmile.planning.lattice_config import LatticeConfig
 from lastmile.planning.pass_path_config import PassPathConfig
 from lastmile.planning.potential_field import PotentialFieldConfig, nudge_offsets_m
 from lastmile.planning.road_edge import STATION_M, BodyPlacement, DrivableLookup, RoadEdges, body_overhang_m
@@ -66,6 +67,8 @@ class LocalPathConfig:
         behaviour: Snow Lion's behaviour planner's (``planner = "snow_lion_behaviour"``;
             :mod:`lastmile.planning.snow_lion_behaviour`; None: its defaults, and the run's
             configuration echo stays as it was before the planner existed).
+        lattice: aUToronto's lattice planner's (``planner = "lattice"``;
+            :mod:`lastmile.planning.lattice_planner`; None: its defaults, the echo unchanged).
     """
 
     behind_m: float = 5.0
@@ -85,6 +88,7 @@ class LocalPathConfig:
     # Before ``field``: that attribute's name hides dataclasses.field further down the class body.
     passing: PassPathConfig = field(default_factory=PassPathConfig)
     behaviour: BehaviourConfig | None = None
+    lattice: LatticeConfig | None = None
     field: PotentialFieldConfig = field(default_factory=PotentialFieldConfig)
 
 

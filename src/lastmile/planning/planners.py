@@ -17,6 +17,7 @@ from lastmile.core.route_obstacles import RouteObstacle
 from lastmile.core.stamp import Stamp
 from lastmile.core.vehicle_messages import BehaviourDecision, Trajectory
 from lastmile.hdmap.layers import SLayerDatabase
+from lastmile.planning.lattice_planner import LatticePlanner
 from lastmile.planning.local_path import CurbLookup, LocalPathConfig, LocalPathPlanner
 from lastmile.planning.pass_path import OffsetPassPlanner
 from lastmile.planning.road_edge import BodyPlacement, DrivableLookup
@@ -37,9 +38,14 @@ class PlannerName(StrEnum):
     obstacle inflation and reference speed; d_t = argmin(J_s + J_d + J_o + J_dyn) with the 1/f_p
     guard, the truncation flag and observation areas at unprotected intersections; passes, pull-overs
     and merges as ``offset_pass`` (:mod:`lastmile.planning.snow_lion_behaviour`)."""
+    LATTICE = "lattice"
+    """aUToronto's local planner: A* over a lattice of quintic edges on the route lane and its sibling
+    lanelets (the opposite lane while decision allows a pass), BFS-limited obstacle pruning, a stop
+    before a full blockage; pull-overs and merges as ``offset_pass``
+    (:mod:`lastmile.planning.lattice_planner`)."""
 
 
-PASSING_PLANNERS = frozenset({PlannerName.OFFSET_PASS, PlannerName.SNOW_LION_BEHAVIOUR})
+PASSING_PLANNERS = frozenset({PlannerName.OFFSET_PASS, PlannerName.SNOW_LION_BEHAVIOUR, PlannerName.LATTICE})
 """Planners that can plan a pass: with one of these, decision orders passes (``decision.pass_rule``)."""
 
 
@@ -134,10 +140,22 @@ def _snow_lion_behaviour(inputs: PlannerInputs, config: LocalPathConfig) -> Path
     )
 
 
+def _lattice(inputs: PlannerInputs, config: LocalPathConfig) -> PathPlanner:
+    return LatticePlanner(
+        inputs.route,
+        inputs.half_width_m,
+        config,
+        max_curvature_1pm=inputs.max_curvature_1pm,
+        layers=inputs.layers,
+        **_shared(inputs),
+    )
+
+
 PATH_PLANNERS: dict[PlannerName, Callable[[PlannerInputs, LocalPathConfig], PathPlanner]] = {
     PlannerName.POTENTIAL_FIELD_BEZIER: _potential_field_bezier,
     PlannerName.OFFSET_PASS: _offset_pass,
     PlannerName.SNOW_LION_BEHAVIOUR: _snow_lion_behaviour,
+    PlannerName.LATTICE: _lattice,
 }
 
 

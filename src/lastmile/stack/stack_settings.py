@@ -114,7 +114,8 @@ class StackSettings:
         planner: offset_pass (default: WATonoBus's potential field and Bezier curves, and passes of
             a stationary obstacle blocking the lane by the adjacent lane; ``decision.pass_rule``) or
             potential_field_bezier (the same without passing: the shuttle waits behind it) or
-            snow_lion_behaviour (Snow Lion's behaviour planner; passes as offset_pass does).
+            snow_lion_behaviour (Snow Lion's behaviour planner; passes as offset_pass does) or
+            lattice (aUToronto's A* over a lattice of the route lane and its sibling lanelets).
         speed_planner: None or controller (the default: the longitudinal law alone) or st_qp (Snow
             Lion's s-t search + OSQP QP over predicted road users, eqs. 1-2 and the terminal stop,
             replanned on events; :mod:`lastmile.planning.speed_planning`).
