@@ -12,6 +12,8 @@ from typing import Protocol
 import numpy as np
 
 from lastmile.control.cascaded_pi import CascadedPiConfig, CascadedPiSpeedController
+from lastmile.control.gem_twist_longitudinal import GemTwistLongitudinalController
+from lastmile.control.twist_controller import TwistControllerConfig
 from lastmile.core.errors import ConfigError
 from lastmile.core.vehicle_messages import Trajectory
 
@@ -48,6 +50,8 @@ class LongitudinalConfig:
         overshoot_speed_mps: reaching the stop point faster than this is an overshoot, braked for at
             the urgent rate; slower, the speed loop sheds the rest in proportion to the speed.
         cascaded_pi: parameters of aUToronto's cascaded PI controller (registry name ``cascaded_pi``).
+        gem_twist: parameters of GEM's twist controller (registry name ``gem_twist``; its reference is
+            this law's V_des). None: its defaults (and the run's configuration echo stays as it was).
     """
 
     nominal_accel_mps2: float = 0.8
@@ -66,6 +70,7 @@ class LongitudinalConfig:
     restart_gap_m: float = 3.0
     arrive_m: float = 0.3
     cascaded_pi: CascadedPiConfig = field(default_factory=CascadedPiConfig)
+    gem_twist: TwistControllerConfig | None = None
 
     def __post_init__(self) -> None:
         for name in (
@@ -259,6 +264,7 @@ class LongitudinalControllerName(StrEnum):
 
     WATONOBUS = "watonobus"  # eqs. (1)-(3), the default
     CASCADED_PI = "cascaded_pi"  # aUToronto: trapezoidal profile + cascaded PI with feed-forward
+    GEM_TWIST = "gem_twist"  # GEM: speed P-loop, IMU low-pass, PI throttle, open-loop brake (pedals)
 
 
 LONGITUDINAL_CONTROLLERS: dict[
@@ -266,6 +272,9 @@ LONGITUDINAL_CONTROLLERS: dict[
 ] = {
     LongitudinalControllerName.WATONOBUS: WatonobusLongitudinalController,
     LongitudinalControllerName.CASCADED_PI: lambda c: CascadedPiSpeedController(c.cascaded_pi),
+    LongitudinalControllerName.GEM_TWIST: lambda c: GemTwistLongitudinalController(
+        WatonobusLongitudinalController(c), c.gem_twist
+    ),
 }
 
 

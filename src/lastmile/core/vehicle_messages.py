@@ -202,6 +202,11 @@ class ActuatorCommand:
     ``accel_mps2`` > 0 drives, < 0 brakes. ``steer_rear_rad`` is used only with all-wheel steer
     (WATonoBus: rear = -front). ``emergency_brake`` asks for maximum deceleration. ``turn_signal``
     is the indicator lights' state (``decision.turn_signal``).
+
+    ``throttle`` and ``brake`` are pedal positions in [0, 1] for a throttle/brake vehicle (GEM's twist
+    controller, ``control.gem_twist_longitudinal``); both None (the default) on an acceleration
+    interface. When they are set they drive the vehicle and ``accel_mps2`` is the acceleration they are
+    meant to realise (for the log and the safety gate, which rewrites the pedals when it intervenes).
     """
 
     stamp: Stamp
@@ -211,12 +216,30 @@ class ActuatorCommand:
     door_open: bool = False
     emergency_brake: bool = False
     turn_signal: TurnSignal = TurnSignal.OFF
+    throttle: float | None = None
+    brake: float | None = None
 
     def __post_init__(self) -> None:
         for name in ("accel_mps2", "steer_front_rad", "steer_rear_rad"):
             value = getattr(self, name)
             if not np.isfinite(value):
                 raise MessageError(f"ActuatorCommand.{name}: expected a finite number, got {value}")
+        if (self.throttle is None) != (self.brake is None):
+            raise MessageError(
+                f"ActuatorCommand: expected throttle and brake both set or both None, "
+                f"got throttle={self.throttle}, brake={self.brake}"
+            )
+        for name in ("throttle", "brake"):
+            value = getattr(self, name)
+            if value is not None and not (np.isfinite(value) and 0.0 <= value <= 1.0):
+                raise MessageError(
+                    f"ActuatorCommand.{name}: expected a pedal position in [0, 1], got {value}"
+                )
+
+    @property
+    def has_pedals(self) -> bool:
+        """The command drives a throttle/brake vehicle (pedal positions set)."""
+        return self.throttle is not None
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from lastmile.core.errors import ConfigError
+from lastmile.core.pedal_map import gem_brake_pedal
 from lastmile.core.safety_messages import (
     FailSafeLevel,
     MalfunctionKind,
@@ -385,6 +386,8 @@ def apply_safety_gate(
             emergency_brake=True,
             door_open=door and not moving,
             turn_signal=signal,
+            throttle=0.0 if command.has_pedals else None,
+            brake=1.0 if command.has_pedals else None,
         )
     if directive.level >= FailSafeLevel.MINIMAL_RISK_MANOEUVRE:
         accel = min(accel, _mrm_limit_mps2(directive, speed_mps, moving, mrm_gap_m, c))
@@ -398,7 +401,23 @@ def apply_safety_gate(
         and signal is command.turn_signal
     ):
         return command
-    return dataclasses.replace(command, accel_mps2=accel, door_open=door, turn_signal=signal)
+    throttle, brake = gated_pedals(command, accel)
+    return dataclasses.replace(
+        command, accel_mps2=accel, door_open=door, turn_signal=signal, throttle=throttle, brake=brake
+    )
+
+
+def gated_pedals(command: ActuatorCommand, accel_mps2: float) -> tuple[float | None, float | None]:
+    """Throttle and brake for a command whose acceleration the gate set to ``accel_mps2``.
+
+    The stack's pedals are kept when the acceleration was not lowered (and None stays None: an
+    acceleration interface). Lowered, the throttle is released (a positive limit then coasts: slower
+    than the cap is on the safe side) and the brake is at least what GEM's map gives for the enforced
+    deceleration.
+    """
+    if command.throttle is None or command.brake is None or accel_mps2 >= command.accel_mps2:
+        return command.throttle, command.brake
+    return 0.0, max(command.brake, gem_brake_pedal(-accel_mps2))
 
 
 def _mrm_limit_mps2(

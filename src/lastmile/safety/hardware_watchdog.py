@@ -81,6 +81,7 @@ class HardwareWatchdog:
         if not self.tripped:
             return None
         last = self._last_command
+        pedals = last is not None and last.has_pedals
         return ActuatorCommand(
             stamp=Stamp(int(now_us)),
             accel_mps2=-self.config.brake_decel_mps2,
@@ -89,4 +90,7 @@ class HardwareWatchdog:
             door_open=False,
             emergency_brake=True,
             turn_signal=TurnSignal.HAZARD,
+            # A pedal vehicle's relay presses the brake pedal fully as well.
+            throttle=0.0 if pedals else None,
+            brake=1.0 if pedals else None,
         )

@@ -12,6 +12,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 from lastmile.core.errors import MessageError
+from lastmile.core.pedal_map import gem_brake_pedal
 from lastmile.core.safety_messages import (
     FailSafeLevel,
     MalfunctionKind,
@@ -124,11 +125,16 @@ class VehicleSafety:
         c = self.supervisor.arbiter.config
         last = self._last_command
         emergency = directive.level >= FailSafeLevel.EMERGENCY_STOP
+        decel = c.max_decel_mps2 if emergency else c.mrm_decel_mps2
+        # A pedal vehicle (the last command carried pedals) brakes by its pedal too.
+        pedal_vehicle = last is not None and last.has_pedals
         return ActuatorCommand(
             stamp=now,
-            accel_mps2=-c.max_decel_mps2 if emergency else -c.mrm_decel_mps2,
+            accel_mps2=-decel,
             steer_front_rad=last.steer_front_rad if last is not None else 0.0,
             steer_rear_rad=last.steer_rear_rad if last is not None else 0.0,
             emergency_brake=emergency,
             turn_signal=TurnSignal.HAZARD,  # the vehicle's own brake: the software has failed
+            throttle=0.0 if pedal_vehicle else None,
+            brake=(1.0 if emergency else gem_brake_pedal(decel)) if pedal_vehicle else None,
         )

@@ -37,6 +37,7 @@ from lastmile.sim.passengers import PassengerModel
 from lastmile.sim.raw_sensors import RawSensorRig
 from lastmile.sim.scenario import Scenario
 from lastmile.sim.sensors import RCS_DBSM, SensorSuite
+from lastmile.sim.throttle_brake import ThrottleBrakeDynamics, ThrottleBrakeVehicle
 from lastmile.sim.traffic_light_camera import TrafficLightCameraRig
 from lastmile.sim.traffic_signals import SignalController, signal_phases
 from lastmile.sim.vehicle_model import ActuatorDynamics, KinematicBicycle, VehicleState
@@ -67,6 +68,8 @@ class Simulation:
         self.service_route = service_route
         x, y, yaw = service_route.point_at(scenario.start_route_s_m)
         ego = KinematicBicycle(geometry, ActuatorDynamics(), VehicleState(x, y, yaw))
+        # A command with pedal positions drives the same vehicle state through the pedal plant.
+        self.pedal_plant = ThrottleBrakeVehicle(geometry, ThrottleBrakeDynamics(), ego.state)
         agents = _build_agents(scenario, hdmap, service_route)
         self.world = World(
             hdmap, ego, agents, parse_weather(scenario.weather), component_rng(scenario.seed, "agents")
@@ -215,7 +218,12 @@ class Simulation:
         return frames
 
     def apply_command(self, command: ActuatorCommand | None) -> None:
-        """Safety gate then vehicle dynamics: the operator's brake overrides the stack while in control."""
+        """Safety gate then vehicle dynamics: the operator's brake overrides the stack while in control.
+
+        A command carrying pedal positions (a throttle/brake vehicle) moves the shuttle through the
+        pedal plant (``sim.throttle_brake``); one carrying only an acceleration through the acceleration
+        model. Both integrate the same state, so the operator's brake takes over either.
+        """
         s = self.world.ego.state
         if self.operator.in_control:
             self.world.ego.step(self.dt_s, -3.0, s.steer_front_rad, s.steer_rear_rad, False)
@@ -223,6 +231,16 @@ class Simulation:
         elif command is None:
             self.world.ego.step(self.dt_s, -1.5, s.steer_front_rad, s.steer_rear_rad, False)
             door_cmd = False
+        elif command.throttle is not None and command.brake is not None:
+            self.pedal_plant.step(
+                self.dt_s,
+                command.throttle,
+                command.brake,
+                command.steer_front_rad,
+                command.steer_rear_rad,
+                command.emergency_brake,
+            )
+            door_cmd = command.door_open
         else:
             self.world.ego.step(
                 self.dt_s,

@@ -8,7 +8,10 @@ open-loop brake is exact here up to the lag, rolling resistance and drag, which 
 with its speed loop. Rolling resistance and aerodynamic drag act on top. Steering and the pose come from
 the kinematic bicycle of ``sim.vehicle_model``.
 
-Not wired into ``sim.simulation`` yet: the command message carries an acceleration today.
+Wired: ``sim.simulation`` moves the ego vehicle with this plant on every command that carries pedal
+positions (``ActuatorCommand.throttle`` / ``brake``, which ``longitudinal_controller = "gem_twist"``
+sends); commands without pedals (the operator's brake, the safety's own brake when the software is
+silent) use the acceleration model on the same vehicle state.
 """
 
 from __future__ import annotations
@@ -17,8 +20,11 @@ import math
 from dataclasses import dataclass, field
 
 from lastmile.core.errors import ConfigError, MessageError
+from lastmile.core.pedal_map import brake_decel_mps2
 from lastmile.core.vehicle import VehicleGeometry
 from lastmile.sim.vehicle_model import ActuatorDynamics, KinematicBicycle, VehicleState
+
+__all__ = ["ThrottleBrakeDynamics", "ThrottleBrakeVehicle", "brake_decel_mps2"]
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -52,13 +58,6 @@ class ThrottleBrakeDynamics:
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0.0):
                 raise ConfigError(f"ThrottleBrakeDynamics.{name}: expected a positive number, got {value}")
-
-
-def brake_decel_mps2(brake: float, gain: float = 0.28, offset: float = 0.90) -> float:
-    """Deceleration (positive, m/s^2) of a brake pedal position in [0, 1] (GEM's map inverted)."""
-    if brake <= 0.0:
-        return 0.0
-    return math.exp((min(brake, 1.0) - offset) / gain)
 
 
 class ThrottleBrakeVehicle:

@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from lastmile.control.gem_twist_longitudinal import GemTwistLongitudinalController
 from lastmile.control.lateral import LateralConfig, LateralControllerName, make_lateral_controller
 from lastmile.control.longitudinal import LongitudinalConfig, make_longitudinal_controller, stopping_gap_m
 from lastmile.control.path_errors import path_ahead_of
@@ -31,6 +32,7 @@ from lastmile.core.camera_model import PinholeCamera
 from lastmile.core.errors import ConfigError, MessageError
 from lastmile.core.geometry import SE2, FloatArray
 from lastmile.core.objects import DetectedObjects, TrackedObjects, empty_tracks
+from lastmile.core.pedal_map import gem_brake_pedal
 from lastmile.core.perception_mode import PerceptionMode
 from lastmile.core.polyline import Polyline
 from lastmile.core.predictions import PredictedPaths
@@ -341,6 +343,8 @@ class ShuttleStack:
         )
         self.longitudinal = make_longitudinal_controller(config.longitudinal_controller, config.longitudinal)
         self.lateral = make_lateral_controller(config.lateral_controller, geometry, config.lateral)
+        # GEM's twist controller drives a throttle/brake vehicle: every command then carries pedals.
+        self._pedal_vehicle = isinstance(self.longitudinal, GemTwistLongitudinalController)
         self._tick = 0
         self._now = Stamp(0)
         self._speed_mps = 0.0
@@ -575,8 +579,14 @@ class ShuttleStack:
             self._speed_mps = frame.speed_mps
             self._wheel_angles_rad = (frame.steer_front_rad, frame.steer_rear_rad)
 
+        pedal_law = (
+            self.longitudinal if isinstance(self.longitudinal, GemTwistLongitudinalController) else None
+        )
+
         def imu(frame: ImuFrame) -> None:
             self._yaw_rate_radps = frame.yaw_rate_radps
+            if pedal_law is not None:  # GEM's throttle loop closes on the IMU's acceleration
+                pedal_law.observe_imu(frame.accel_x_mps2)
 
         if isinstance(ekf, PoseEkf):
 
@@ -707,8 +717,14 @@ class ShuttleStack:
         dt = self.config.control_period_ticks * self.config.tick_us / 1e6
         if d is None or path is None or not est.valid or self._route_s is None:
             # No pose or plan yet: hold the brakes.
+            pedal = self._pedal_vehicle
             self._command = ActuatorCommand(
-                stamp=now, accel_mps2=-1.5, steer_front_rad=0.0, steer_rear_rad=0.0
+                stamp=now,
+                accel_mps2=-1.5,
+                steer_front_rad=0.0,
+                steer_rear_rad=0.0,
+                throttle=0.0 if pedal else None,
+                brake=gem_brake_pedal(1.5) if pedal else None,
             )
             self.longitudinal.reset(est.speed_mps if est.valid else 0.0)
             return
@@ -755,6 +771,9 @@ class ShuttleStack:
         steer_f, steer_r = self.lateral.step(
             dt, pose, est.speed_mps, self._path_for_law(path, not at_curb), rear_steer=not at_curb
         )
+        # A throttle/brake vehicle's command carries the twist controller's pedals.
+        law = self.longitudinal
+        pedals = law.pedals if isinstance(law, GemTwistLongitudinalController) else None
         self._command = ActuatorCommand(
             stamp=now,
             accel_mps2=accel,
@@ -763,6 +782,8 @@ class ShuttleStack:
             door_open=d.door_open,
             emergency_brake=emergency,
             turn_signal=self.turn_signals.signal(d, front_s, emergency),
+            throttle=pedals.throttle if pedals is not None else None,
+            brake=pedals.brake if pedals is not None else None,
         )
 
     def _planner_stop_gap_m(self, gap_m: float | None, front_s_m: float) -> float | None:

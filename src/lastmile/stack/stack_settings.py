@@ -110,7 +110,8 @@ class StackSettings:
             model_predictive_stanley, snow_lion_mpc (its speed reference is the longitudinal one),
             gem_waypoint (:class:`lastmile.control.lateral.LateralControllerName`).
         longitudinal_controller: watonobus (default) or cascaded_pi (aUToronto's trapezoidal profile
-            and cascaded PI).
+            and cascaded PI) or gem_twist (GEM's twist controller: the command carries throttle and
+            brake pedals, and the simulator moves the shuttle with its pedal plant).
         planner: offset_pass (default: WATonoBus's potential field and Bezier curves, and passes of
             a stationary obstacle blocking the lane by the adjacent lane; ``decision.pass_rule``) or
             potential_field_bezier (the same without passing: the shuttle waits behind it) or
