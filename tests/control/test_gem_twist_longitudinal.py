@@ -2,12 +2,20 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 from lastmile.control.gem_twist_longitudinal import GemTwistLongitudinalController
-from lastmile.control.longitudinal import LongitudinalConfig, make_longitudinal_controller
+from lastmile.control.longitudinal import (
+    LongitudinalConfig,
+    LongitudinalControllerName,
+    make_longitudinal_controller,
+)
 from lastmile.control.twist_controller import TwistControllerConfig
 from lastmile.core.errors import MessageError
+from lastmile.core.pedal_map import brake_decel_mps2
+from lastmile.runner.run_config import load_run_config
 
 DT = 0.02
 
@@ -51,3 +59,13 @@ def test_without_an_imu_frame_it_says_so() -> None:
     law = _law()
     with pytest.raises(MessageError, match="expected an IMU frame first"):
         law.step(DT, 0.0, 5.0, None)
+
+
+def test_the_example_configuration_selects_it_with_the_pedal_brakes_reach() -> None:
+    config = load_run_config(Path(__file__).parents[2] / "examples/configs/gem_twist.toml")
+    stack = config.stack
+    assert stack.longitudinal_controller is LongitudinalControllerName.GEM_TWIST
+    assert stack.longitudinal.gem_twist == TwistControllerConfig()  # GEM's published constants, spelled out
+    full_pedal_mps2 = brake_decel_mps2(1.0)
+    assert stack.longitudinal.comfort_decel_mps2 <= full_pedal_mps2
+    assert stack.decision.traffic_lights.comfort_decel_mps2 <= full_pedal_mps2
