@@ -5,12 +5,14 @@ point fell; the cap near full on an empty road, lowered in front of a box and by
 from __future__ import annotations
 
 import math
+from pathlib import Path
 from types import SimpleNamespace
 from typing import cast
 
 import numpy as np
 import pytest
 
+from lastmile.control.lateral import LateralControllerName
 from lastmile.core.errors import ConfigError
 from lastmile.core.geometry import SE2
 from lastmile.core.perception_mode import PerceptionMode
@@ -18,6 +20,7 @@ from lastmile.core.stamp import Stamp
 from lastmile.core.vehicle import VehicleGeometry
 from lastmile.core.vehicle_messages import LocalizationEstimate
 from lastmile.perception.pipeline import LidarPipelineResult
+from lastmile.runner.run_config import load_run_config
 from lastmile.stack.nus_speed_cap import (
     NusCostMapSettings,
     NusSpeedCap,
@@ -145,3 +148,13 @@ def test_it_needs_the_lidars_and_positive_constants() -> None:
         NusSpeedSettings(lookahead_m=0.0)
     with pytest.raises(ConfigError, match=r"stack.nus_speed.cost_map.cell_m: expected a positive number"):
         NusCostMapSettings(cell_m=-0.2)
+
+
+def test_the_example_configuration_selects_nus_pure_pursuit_and_the_rule(tmp_path: Path) -> None:
+    config = load_run_config(Path(__file__).parents[2] / "examples" / "configs" / "nus_golf_car.toml")
+    assert config.stack.lateral_controller is LateralControllerName.NUS_PURE_PURSUIT
+    assert config.stack.nus_speed == NusSpeedSettings()  # the file spells out the defaults
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[stack.nus_speed.cost_map]\ncell_size = 0.2\n")
+    with pytest.raises(ConfigError, match="cell_size"):
+        load_run_config(bad)
