@@ -215,7 +215,7 @@ class NusSpeedStats:
     frames_unplaced: int = 0
     """Frames left out for want of a valid pose estimate at their stamp."""
     steps: int = 0
-    steps_capped: int = 0
+    steps_cost_bound: int = 0
     """Control steps where the cost map's speed was below the stack's own cap and the steering speed."""
     max_mean_cost: float = 0.0
 
@@ -272,7 +272,7 @@ class NusSpeedCap:
         v_steer = steering_safe_speed_mps(steer_rad, rule)
         v_cost = cost_safe_speed_mps(self.mean_cost, rule)
         if v_cost < v_steer:
-            self.stats.steps_capped += 1
+            self.stats.steps_cost_bound += 1
         return min(v_steer, v_cost, cap_mps)
 
     def counters(self) -> dict[str, int]:
@@ -282,5 +282,5 @@ class NusSpeedCap:
             "nus_speed_frames": st.frames,
             "nus_speed_frames_unplaced": st.frames_unplaced,
             "nus_speed_steps": st.steps,
-            "nus_speed_steps_cost_bound": st.steps_capped,
+            "nus_speed_steps_cost_bound": st.steps_cost_bound,
         }
