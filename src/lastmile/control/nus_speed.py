@@ -5,7 +5,8 @@ golf car. Then, from the normalized average cost along the projection of the gol
 distance, another safe speed is obtained. Between these 2 values, the minimum one is chosen." The cost
 map is NUS's rolling grid (0.2 m cells, one byte each: 254 an obstacle, costs falling off exponentially
 around it, 255 unknown). NUS publishes the rule's form, not its constants; the defaults are ours and
-named below.
+named below. The stack runs it as ``[stack.nus_speed]`` (:mod:`lastmile.stack.nus_speed_cap`, which
+builds the cost map from the LiDAR frames).
 """
 
 from __future__ import annotations

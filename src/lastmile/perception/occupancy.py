@@ -60,12 +60,15 @@ class HeightMap:
     """Attributes:
     occupied: (G, G) bool, indexed [ix, iy]; cell centre x = -half + (ix + 0.5) * cell.
     spread_m: (G, G) float64 max - min height (0 where empty).
+    observed: (G, G) bool, cells holding at least one point (None: not given). A cell without one is
+        unknown, not free: NUS's cost map marks it so.
     """
 
     occupied: np.ndarray
     spread_m: np.ndarray
     cell_m: float
     half_extent_m: float
+    observed: np.ndarray | None = None
 
     def cell_centres(self, ix: np.ndarray, iy: np.ndarray) -> np.ndarray:
         return np.stack(
@@ -92,6 +95,7 @@ def height_map(xyz_m: npt.ArrayLike, config: HeightMapConfig | None = None) -> H
         spread_m=spread,
         cell_m=cfg.cell_m,
         half_extent_m=cfg.half_extent_m,
+        observed=np.isfinite(hi).reshape(g, g),
     )
 
 

@@ -94,6 +94,7 @@ from lastmile.stack.amcl_fusion import AmclFusion
 from lastmile.stack.hmi import HmiComposer
 from lastmile.stack.landmark_fusion import LandmarkFusion
 from lastmile.stack.module_guard import ModuleGuard
+from lastmile.stack.nus_speed_cap import NusSpeedCap, NusSpeedSettings
 from lastmile.stack.occupancy_stop import OccupancyStop, OccupancyStopSettings
 from lastmile.stack.profiler import ModuleProfiler
 from lastmile.stack.raw_perception import RawPerception, RawPerceptionConfig
@@ -130,6 +131,7 @@ class StackConfig:
             crosswalks), handed to decision; its horizon must cover the decision's crosswalk and
             vehicle look-aheads.
         occupancy_stop: GEM's height-map obstacle stop (raw perception; None: off).
+        nus_speed: NUS's speed rule over its cost map (raw perception; None: off).
     """
 
     tick_us: int = 10_000
@@ -163,6 +165,7 @@ class StackConfig:
     traffic_lights: TrafficLightTrackerConfig = field(default_factory=TrafficLightTrackerConfig)
     prediction: PredictionConfig = field(default_factory=lambda: PredictionConfig(horizon_s=6.0))
     occupancy_stop: OccupancyStopSettings | None = None
+    nus_speed: NusSpeedSettings | None = None
 
     def __post_init__(self) -> None:
         # Decision reads the predicted paths this far ahead; shorter paths would silently shorten it.
@@ -294,6 +297,12 @@ class ShuttleStack:
         self.occupancy_stop = (
             OccupancyStop(config.occupancy_stop, geometry)
             if config.occupancy_stop is not None and config.perception_mode.needs_raw_sensors
+            else None
+        )
+        # NUS's speed rule (an option): a cost map from each rig frame, a cap at every control step.
+        self.nus_speed = (
+            NusSpeedCap(config.nus_speed, geometry)
+            if config.nus_speed is not None and config.perception_mode.needs_raw_sensors
             else None
         )
         self.light_tracker = (
@@ -429,6 +438,9 @@ class ShuttleStack:
                 with p.measure("perception"):
                     stop = self.occupancy_stop.update
                     self._guarded("tracking", now, stop, raw.last_result, *self._wheel_angles_rad)
+            if done and self.nus_speed is not None and raw.last_result is not None:
+                with p.measure("perception"):
+                    self._guarded("tracking", now, self.nus_speed.update, raw.last_result, self.ekf.estimate)
         if planning_cycle:
             with p.measure("tracking"):
                 source = raw.tracks if raw is not None else self.tracker.tracks
@@ -508,6 +520,8 @@ class ShuttleStack:
             perception["amcl_update_cpu_p50_ms"] = self.amcl.cpu_p50_ms()
         if self.occupancy_stop is not None:
             counters.update(self.occupancy_stop.counters())
+        if self.nus_speed is not None:
+            counters.update(self.nus_speed.counters())
         return VehicleReport(modules=self.profiler.summary(), counters=counters, perception=perception)
 
     def _guarded(self, module: str, now: Stamp, fn: Callable[..., object], *args: object) -> object:
@@ -748,6 +762,8 @@ class ShuttleStack:
         )
         if self.occupancy_stop is not None:  # GEM's obstacle stop lowers it further
             cap = self.occupancy_stop.cap_mps(cap)
+        if self.nus_speed is not None:  # and NUS's rule: steering angle and cost map
+            cap = self.nus_speed.cap_mps(cap, *self._wheel_angles_rad)
         emergency_now = d.state == BehaviourState.EMERGENCY_STOP
         if self._emergency_before and not emergency_now:
             # Released from an emergency stop, the shuttle stands wherever it stopped: the target ahead

@@ -32,6 +32,7 @@ from lastmile.planning.planners import PlannerName
 from lastmile.planning.speed_planning import SpeedPlannerName, SpeedPlanningConfig
 from lastmile.safety.failsafe import FailSafeConfig
 from lastmile.safety.hardware_watchdog import HardwareWatchdogConfig
+from lastmile.stack.nus_speed_cap import NusSpeedSettings
 from lastmile.stack.occupancy_stop import OccupancyStopSettings
 
 
@@ -142,6 +143,9 @@ class StackSettings:
         occupancy_stop: GEM's height-map obstacle stop (``[stack.occupancy_stop]``,
             :mod:`lastmile.stack.occupancy_stop`): the speed capped at v = d / 5 - 1 for the nearest
             occupied cell on the arc of the wheel angles (raw perception only; off by default).
+        nus_speed: NUS's speed rule (``[stack.nus_speed]``, :mod:`lastmile.stack.nus_speed_cap`): the
+            speed capped at the lower of a steering-angle safe speed and a safe speed from the mean
+            cost ahead in NUS's cost map of each rig frame (raw perception only; off by default).
         pedestrian_verification: NUS's pedestrian verification in the late fusion
             (``[stack.pedestrian_verification]``, :mod:`lastmile.perception.pedestrian_verification`):
             a cluster is a pedestrian only when person-shaped and confirmed by a camera pedestrian
@@ -175,6 +179,7 @@ class StackSettings:
     lidar_detector: LidarDetectorConfig | None = None
     lidar_mounts: str = ""
     occupancy_stop: OccupancyStopSettings | None = None
+    nus_speed: NusSpeedSettings | None = None
     pedestrian_verification: PedestrianVerificationConfig | None = None
     camera_mounts: str = ""
 
@@ -191,6 +196,7 @@ class StackSettings:
             self.calibrated_lidar_mounts()  # a missing or bad file is one line now, not at the build
         for key, why in (
             ("occupancy_stop", "the grid is built from the LiDAR sweeps"),
+            ("nus_speed", "its cost map is built from the LiDAR sweeps"),
             ("pedestrian_verification", "it verifies LiDAR clusters"),
         ):
             if getattr(self, key) is not None and not self.perception.needs_raw_sensors:

@@ -101,6 +101,7 @@ def stack_config(settings: StackSettings, calibration: SensorCalibration, tick_u
             fusion=LateFusionConfig(pedestrian_verification=settings.pedestrian_verification),
         ),
         occupancy_stop=settings.occupancy_stop,
+        nus_speed=settings.nus_speed,
         reliability=ReliabilityConfig(
             sensors=DEFAULT_SENSORS
             + (raw_sensor_specs(tuple(calibration.lidar_mounts), camera_ids) if raw else ())
