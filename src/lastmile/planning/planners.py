@@ -129,33 +129,29 @@ def _offset_pass(inputs: PlannerInputs, config: LocalPathConfig) -> PathPlanner:
     )
 
 
-def _snow_lion_behaviour(inputs: PlannerInputs, config: LocalPathConfig) -> PathPlanner:
-    return SnowLionBehaviourPlanner(
-        inputs.route,
-        inputs.half_width_m,
-        config,
-        max_curvature_1pm=inputs.max_curvature_1pm,
-        layers=inputs.layers,
-        **_shared(inputs),
-    )
+def _on_the_map(
+    planner: type[SnowLionBehaviourPlanner | LatticePlanner],
+) -> Callable[[PlannerInputs, LocalPathConfig], PathPlanner]:
+    """The factory of a planner that reads the route's s-layer records (tags, lanes) besides the path."""
 
+    def make(inputs: PlannerInputs, config: LocalPathConfig) -> PathPlanner:
+        return planner(
+            inputs.route,
+            inputs.half_width_m,
+            config,
+            max_curvature_1pm=inputs.max_curvature_1pm,
+            layers=inputs.layers,
+            **_shared(inputs),
+        )
 
-def _lattice(inputs: PlannerInputs, config: LocalPathConfig) -> PathPlanner:
-    return LatticePlanner(
-        inputs.route,
-        inputs.half_width_m,
-        config,
-        max_curvature_1pm=inputs.max_curvature_1pm,
-        layers=inputs.layers,
-        **_shared(inputs),
-    )
+    return make
 
 
 PATH_PLANNERS: dict[PlannerName, Callable[[PlannerInputs, LocalPathConfig], PathPlanner]] = {
     PlannerName.POTENTIAL_FIELD_BEZIER: _potential_field_bezier,
     PlannerName.OFFSET_PASS: _offset_pass,
-    PlannerName.SNOW_LION_BEHAVIOUR: _snow_lion_behaviour,
-    PlannerName.LATTICE: _lattice,
+    PlannerName.SNOW_LION_BEHAVIOUR: _on_the_map(SnowLionBehaviourPlanner),
+    PlannerName.LATTICE: _on_the_map(LatticePlanner),
 }
 
 
