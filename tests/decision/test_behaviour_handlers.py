@@ -160,6 +160,24 @@ def test_rear_blocker_waits_for_close_or_fast_closing_traffic(straight_layers) -
     assert blocker(C.rear_check_m + 5.0, 20.0) == -1  # beyond the rear check
 
 
+def test_rear_traffic_holds_the_merge_only_near_where_it_began(straight_layers) -> None:
+    """A car following 5 m behind at 1 m/s holds a merge that began (the door closed) at s 210 while
+    the shuttle is within ``merge_hold_m`` of it, and no further: a hold does not move where the merge
+    began (it did, and a car following the shuttle out of a kerbside stop held it at a crawl for 171 s)."""
+    ctx, mem = _ctx(straight_layers), BehaviourMemory(state=BehaviourState.MERGING)
+    mem.stop.stop_index, mem.stop.merge_from_s_m = 0, 210.0
+
+    def merge(t_s: float, rear_s: float) -> str:
+        follower = rear_s - G.rear_overhang_m - 5.0 - 2.25
+        car = _tracks([(7, follower, 0.0, 1.0, 0.0, ObjectClass.CAR)])
+        inp = _inp(t_s, rear_s, d_m=-2.0, v=1.0, tracks=car)
+        return handle_merging(ctx, mem, _cycle(ctx, inp)).reason
+
+    assert merge(0.0, 211.0) == "waiting: traffic from the rear"
+    assert mem.stop.merge_from_s_m == 210.0
+    assert merge(1.0, 210.0 + C.merge_hold_m + 0.5) == "merging"
+
+
 def test_merging_ends_back_on_the_lane_centre(straight_layers) -> None:
     ctx, mem = _ctx(straight_layers), BehaviourMemory(state=BehaviourState.MERGING)
     mem.stop.stop_index, mem.stop.merge_from_s_m = 0, 210.0

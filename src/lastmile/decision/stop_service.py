@@ -137,7 +137,11 @@ def handle_merging(ctx: DecisionContext, mem: BehaviourMemory, cy: Cycle) -> Out
         cy.constraints.append(
             StopConstraint(cy.front_s_m, "rear_traffic", blocker, False, StopReason.REAR_TRAFFIC)
         )
-        visit.merge_from_s_m = inp.route_s_m
+        # The merge began where the door closed, and a hold does not move that point: moved along at
+        # every hold, the window ratcheted with the shuttle, and a car following it out of a kerbside
+        # stop held it at a crawl for 171 s (BITS, snow, raw: stop-and-go at 0.2-1.6 m/s).
+        if visit.merge_from_s_m is None:
+            visit.merge_from_s_m = inp.route_s_m
         return Outcome(cap, "waiting: traffic from the rear")
     return Outcome(cap, "merging")
 
