@@ -203,17 +203,21 @@ class _InterruptedPullOverRig(_StraightRoadRig):
             stack.fsm.request_emergency(self._tick * 0.01, "test: interrupted pull-over")
 
 
-def test_a_pull_over_an_emergency_stop_interrupts_short_of_its_spot_still_reaches_it(straight_layers):
+@pytest.mark.parametrize("short_m", [0.9, 1.5])
+def test_a_pull_over_an_emergency_stop_interrupts_short_of_its_spot_still_reaches_it(
+    straight_layers, short_m
+):
     """Released from the emergency stop, the longitudinal law starts afresh: at rest 1-2 m short of the
     spot it used to hold the brake for good (its rest hysteresis: a stop point it came to rest short of
-    restarts only once it moved off by ``restart_gap_m``), and the shuttle stood 480 s in the bay."""
+    restarts only once it moved off by ``restart_gap_m``), and the shuttle stood 480 s in the bay; within
+    the last metre (beyond the 0.6 m arrival) it braked at once and stood 350 s at the town's West Ave."""
     # Standing, the rig's noiseless GNSS repeats itself: not a frozen receiver here.
     sensors = tuple(
         SensorSpec(key="gnss", rate_hz=10.0, frozen_after=None) if s.key == "gnss" else s for s in RIG_SENSORS
     )
     config = StackConfig(radar_mounts={"front": FRONT}, reliability=ReliabilityConfig(sensors=sensors))
     stack = ShuttleStack(straight_layers, G, config)
-    rig = _InterruptedPullOverRig(short_m=1.5)
+    rig = _InterruptedPullOverRig(short_m=short_m)
     rig.stack = stack
     ClosedLoop(rig, stack, build_safety(straight_layers, config.reliability), 10_000).run(6000)
     assert rig.interrupted_at_gap_m is not None, "the pull-over was never interrupted"

@@ -118,12 +118,16 @@ class WatonobusLongitudinalController:
         self.a_ref_mps2 = 0.0
         self.accel_cmd_mps2 = 0.0
         self._braking = False
+        # Set by a reset: the vehicle has not yet come to rest for the stop point ahead, so the last
+        # metre's braking hold does not apply until it has moved off (see ``_stop_accel``).
+        self._fresh = False
 
     def reset(self, speed_mps: float) -> None:
         self.v_des_mps = speed_mps
         self.a_ref_mps2 = 0.0
         self.accel_cmd_mps2 = 0.0
         self._braking = False
+        self._fresh = True
 
     def reference_speed_mps(
         self, trajectory: Trajectory | None, path_s_m: float, speed_cap_mps: float
@@ -227,7 +231,12 @@ class WatonobusLongitudinalController:
         # once at rest short of it, only one that moved off by ``restart_gap_m`` (no creeping on).
         trigger = c.brake_trigger_mps2 * (0.5 if self._braking else 1.0)
         resting = self._braking and v == 0.0 and gap_m < c.restart_gap_m
-        self._braking = decel >= trigger or gap_m < 1.0 or resting
+        # Within the last metre the stop is braked for at once; but a vehicle reset at rest there (an
+        # emergency stop released 0.6-1 m short of a pull-over spot) has not come to rest for it: it
+        # approaches as from further away, braking once eq. (2) calls for it. Held at once, it stood
+        # 350 s short of the town's West Ave (snow, raw).
+        self._braking = decel >= trigger or (gap_m < 1.0 and not self._fresh) or resting
+        self._fresh = self._fresh and not self._braking
         if not self._braking:
             return None
         if decel > c.comfort_decel_mps2:
