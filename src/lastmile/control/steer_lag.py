@@ -17,10 +17,11 @@ from dataclasses import dataclass
 
 from lastmile.core.errors import ConfigError
 from lastmile.core.geometry import SE2, wrap_angle_rad
+from lastmile.core.vehicle import STEER_LAG_S
 
-SHUTTLE_STEER_LAG_S = 0.15
-"""First-order time constant of the shuttle's steer-by-wire (s): the drive-by-wire the simulator models
-(``sim.vehicle_model.ActuatorDynamics.steer_lag_s``), a typical electric power-steering servo."""
+SHUTTLE_STEER_LAG_S = STEER_LAG_S
+"""The shuttle's steer-by-wire time constant (``core.vehicle.STEER_LAG_S``, which the simulator's
+``ActuatorDynamics.steer_lag_s`` also takes)."""
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

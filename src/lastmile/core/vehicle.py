@@ -12,6 +12,10 @@ from lastmile.core.sensor_frames import SensorFrame
 from lastmile.core.stamp import Stamp
 from lastmile.core.vehicle_messages import StackOutput, VehicleReport
 
+STEER_LAG_S = 0.15
+"""First-order time constant of the shuttle's steer-by-wire (s), a typical electric power-steering servo:
+the simulator's drive-by-wire answers with it, and Stanley's lag compensation predicts with it."""
+
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class VehicleGeometry:

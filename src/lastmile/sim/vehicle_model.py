@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 from lastmile.core.errors import MessageError
 from lastmile.core.geometry import wrap_angle_rad
-from lastmile.core.vehicle import VehicleGeometry
+from lastmile.core.vehicle import STEER_LAG_S, VehicleGeometry
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -15,7 +15,7 @@ class ActuatorDynamics:
     """How the drive-by-wire answers: first-order lags (s) and the emergency brake's deceleration."""
 
     accel_lag_s: float = 0.25
-    steer_lag_s: float = 0.15
+    steer_lag_s: float = STEER_LAG_S
     emergency_decel_mps2: float = 5.0
     # Rolling resistance brings a coasting shuttle to rest; it never rolls backwards on its own.
     rolling_decel_mps2: float = 0.05
