@@ -1,0 +1,152 @@
+"""Give-way lines and gap acceptance at two-way stops (issue #20).
+
+aUToronto's "traffic-rule virtual lines" and Snow Lion's observation of unprotected intersections, with
+the gap a driver would accept (HCM). At a yield line on the route (``hdmap.give_way_zones``: a
+``right_of_way`` rule's give-way line, or a two-way stop's line once its full stop has been stood), the
+shuttle crosses only when no tracked road user on the lanelets with priority would reach the conflict
+zone (where the route's lanelet through the junction overlaps theirs) within the gap it needs: the
+larger of the HCM critical headway of its movement and the time it needs to clear the zone plus a
+margin (``GiveWayConfig``). Otherwise its front stops ``stop_before_line_m`` before the line and waits
+until a gap opens.
+
+A shuttle already moving through a gap it judged acceptable is committed once it could no longer stop
+comfortably before the line (``traffic_light_rule.comfortable_stop_m``): a road user appearing then is
+the in-path and cut-in rules' (a late hard stop at the line would leave it standing half in the
+junction). At a two-way stop the stop-sign rule holds the shuttle for its full stop first; the gap
+check then holds it at the same point.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from lastmile.core.objects import TrackedObjects
+from lastmile.core.vehicle import VehicleGeometry
+from lastmile.decision.gap_acceptance import Arrival, arrival_on, clearance_time_s, curve_speed_mps
+from lastmile.decision.give_way_config import GiveWayConfig
+from lastmile.decision.traffic_light_rule import TrafficLightRuleConfig, comfortable_stop_m
+from lastmile.hdmap.give_way_zones import YieldJunction, YieldKind, yield_junctions
+from lastmile.hdmap.layers import SLayerDatabase
+
+CURVE_SAMPLE_M = 1.0
+"""The route's curvature through a junction is read every this many metres."""
+
+
+@dataclass(frozen=True, slots=True)
+class GiveWayVerdict:
+    """The rule's answer for one cycle.
+
+    Attributes:
+        stop_front_s_m: where the front must stop (None: it may go).
+        why: the reason, naming the rule and what it waits for.
+        track_id: the road user arriving first that it waits for (-1: none).
+        conflicts: how many road users it waits for.
+    """
+
+    stop_front_s_m: float | None
+    why: str
+    track_id: int = -1
+    conflicts: int = 0
+
+
+@dataclass
+class GiveWayRule:
+    """Stop points at the route's yield lines while priority traffic leaves no acceptable gap."""
+
+    layers: SLayerDatabase
+    geometry: VehicleGeometry
+    config: GiveWayConfig = field(default_factory=GiveWayConfig)
+    lines: TrafficLightRuleConfig = field(default_factory=TrafficLightRuleConfig)
+    junctions: tuple[YieldJunction, ...] = ()
+    _top_speed_mps: dict[int, float] = field(default_factory=dict)
+    _committed: int | None = None
+
+    def __post_init__(self) -> None:
+        if not self.config.enabled:
+            return
+        self.junctions = yield_junctions(
+            self.layers.hdmap,
+            self.layers.centerline,
+            [(rl.stop_line, rl.s_m) for rl in self.layers.stop_lines],
+            self.config.lookback_m,
+        )
+        for j in self.junctions:
+            self._top_speed_mps[j.stop_line.id] = self._top_speed(j)
+
+    def _top_speed(self, j: YieldJunction) -> float:
+        """The speed the shuttle may reach through the junction: the route's limit and its curvature."""
+        end = max((z.end_after_line_m for z in j.zones), default=0.0) + self.geometry.length_m
+        s = j.line_s_m + np.arange(0.0, end + CURVE_SAMPLE_M, CURVE_SAMPLE_M)
+        route = self.layers.centerline
+        curvature = np.array([route.curvature_at(float(x)) for x in s])
+        limit = float(np.min(self.layers.speed_limit_mps[self.layers.record_indices(s)]))
+        return min(limit, curve_speed_mps(curvature, self.config.clearance_lateral_accel_mps2))
+
+    def step(
+        self,
+        front_s_m: float,
+        speed_mps: float,
+        cruise_mps: float,
+        tracks: TrackedObjects,
+        ahead: Callable[[float, float], float],
+    ) -> GiveWayVerdict:
+        """The verdict for the nearest yield line ahead.
+
+        Args:
+            cruise_mps: the shuttle's speed cap this cycle (the clearance never assumes more).
+            ahead: route distance from the front to an s (wrapping on a loop), as the FSM measures it.
+        """
+        c, lines = self.config, self.lines
+        best: tuple[float, YieldJunction] | None = None
+        for j in self.junctions:
+            d = ahead(j.line_s_m, front_s_m)
+            if -lines.stop_before_line_m < d < c.approach_m and (best is None or d < best[0]):
+                best = (d, j)
+        if best is None:
+            self._committed = None
+            return GiveWayVerdict(None, "")
+        dist, j = best
+        line_id = j.stop_line.id
+        place = j.name or f"stop line {line_id}"
+        if self._committed == line_id:
+            return GiveWayVerdict(None, f"give way at {place}: committed")
+        self._committed = None
+        gap_to_stop = dist - lines.stop_before_line_m
+        waits, need = self._conflicts(j, dist, speed_mps, cruise_mps, tracks)
+        if not waits:
+            moving = speed_mps > c.moving_mps
+            if moving and max(gap_to_stop, lines.gap_floor_m) < comfortable_stop_m(speed_mps, lines):
+                self._committed = line_id  # going through the gap: no late stop at the line
+            return GiveWayVerdict(None, f"give way at {place}: gap")
+        first = min(waits, key=lambda a: a.time_s)
+        count = len({a.track_id for a in waits})
+        prefix = f"stop sign {line_id}: " if j.kind is YieldKind.STOP_SIGN else ""
+        why = (
+            f"{prefix}give way to {count} road user{'s' if count > 1 else ''} at {place} "
+            f"(first in {first.time_s:.1f} s, gap needed {need:.1f} s)"
+        )
+        return GiveWayVerdict(j.line_s_m - lines.stop_before_line_m, why, first.track_id, count)
+
+    def _conflicts(
+        self, j: YieldJunction, dist_m: float, speed_mps: float, cruise_mps: float, tracks: TrackedObjects
+    ) -> tuple[list[Arrival], float]:
+        """The road users that would reach a conflict zone within the gap the shuttle needs for it,
+        and the longest gap needed (for the reason)."""
+        c, g = self.config, self.geometry
+        top = min(cruise_mps, self._top_speed_mps[j.stop_line.id])
+        # A two-way stop is crossed from rest at the line, whatever the speed now.
+        v0 = 0.0 if j.kind is YieldKind.STOP_SIGN else speed_mps
+        start = max(dist_m - self.lines.stop_before_line_m, 0.0) if j.kind is YieldKind.STOP_SIGN else 0.0
+        waits: list[Arrival] = []
+        need_max = 0.0
+        for zone in j.zones:
+            to_clear = dist_m - start + zone.end_after_line_m + g.length_m
+            clear_s = clearance_time_s(to_clear, v0, c.clearance_accel_mps2, top)
+            need = max(c.critical_gap_s(j.turn), clear_s + c.clearance_margin_s)
+            need_max = max(need_max, need)
+            for approach in zone.approaches:
+                waits += [a for a in arrival_on(tracks, approach, c) if a.time_s < need]
+        return waits, need_max
