@@ -56,7 +56,12 @@ def arrival_on(tracks: TrackedObjects, approach: Approach, config: GiveWayConfig
     """
     out: list[Arrival] = []
     line = approach.centerline
-    for k in range(len(tracks)):
+    # Only tracks within the approach's bounding box (grown by the lane's reach) are projected.
+    reach = approach.half_width_m + config.lateral_margin_m
+    lo, hi = line.xy_m.min(axis=0) - reach, line.xy_m.max(axis=0) + reach
+    xy = tracks.table[:, [_X, _Y]]
+    near = np.flatnonzero(np.all((xy >= lo) & (xy <= hi), axis=1))
+    for k in near.tolist():
         row = tracks.table[k]
         if ObjectClass(int(row[_CLS])) not in _GIVEN_WAY_TO:
             continue
