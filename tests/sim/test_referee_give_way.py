@@ -13,9 +13,11 @@ import numpy as np
 import pytest
 
 from lastmile.core.object_class import ObjectClass
+from lastmile.evaluation.report_tables import yield_lines_table
 from lastmile.hdmap.service_route import ServiceRoute, load_route
 from lastmile.sim.agents import Agent
 from lastmile.sim.give_way_referee import GiveWayReferee, stopping_sight_distance_m
+from tests.evaluation.synthetic import make_log
 
 ROUTE = Path(__file__).resolve().parents[2] / "examples" / "routes" / "town_block_loop.toml"
 SOUTHBOUND_X_M, ZONE_START_Y_M = 198.25, 117.4
@@ -99,3 +101,21 @@ def test_each_passage_of_the_line_says_whether_the_shuttle_stood_before_it(servi
         }
     ]
     assert stood[0]["stopped_before"] is True and stood[0]["stood_s"] == pytest.approx(3.0, abs=0.1)
+
+
+def test_the_report_lists_each_passage_of_a_yield_line() -> None:
+    assert yield_lines_table(make_log(np.full(100, 2.0))) == []
+    events = [
+        (
+            12.0,
+            "give_way_entry",
+            {"stop_line_id": 961, "line_kind": "give_way", "stopped_before": False, "stood_s": 0.0},
+        ),
+        (
+            80.0,
+            "give_way_entry",
+            {"stop_line_id": 961, "line_kind": "stop_sign", "stopped_before": True, "stood_s": 6.3},
+        ),
+    ]
+    rows = [r for r in yield_lines_table(make_log(np.full(100, 2.0), events=events)) if r.startswith("| ")]
+    assert rows[1:] == ["| 12.0 | 961 | give_way | no | 0.0 |", "| 80.0 | 961 | stop_sign | yes | 6.3 |"]
