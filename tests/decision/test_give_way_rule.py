@@ -128,12 +128,25 @@ def test_a_car_standing_in_the_zone_holds_it() -> None:
     assert verdict.stop_front_s_m is not None and "first in 0.0 s" in verdict.why
 
 
-def test_once_going_through_a_gap_within_its_stopping_distance_it_is_committed() -> None:
+def test_a_car_seen_too_late_to_stop_at_the_line_is_given_way_to_short_of_the_zone() -> None:
     rule = GiveWayRule(_town_layers(), G)
-    assert _step(rule, 3.0, 4.0, empty_tracks(Stamp(0))).stop_front_s_m is None  # goes, committed
+    (j,) = rule.junctions
     late = _cars((SOUTHBOUND_X_M, ZONE_START_Y_M + 30.0, -8.0))
-    verdict = _step(rule, 2.0, 4.0, late)
+    # 4 m before the line at 4 m/s: ~7 m to stop comfortably, too far for the line, not for the zone.
+    verdict = _step(rule, 4.0, 4.0, late)
+    hold = j.line_s_m + min(z.start_after_line_m for z in j.zones) - GiveWayConfig().zone_margin_m
+    assert verdict.stop_front_s_m == pytest.approx(hold) and "short of the conflict zone" in verdict.why
+
+
+def test_once_it_cannot_stop_short_of_the_zone_it_is_committed() -> None:
+    rule = GiveWayRule(_town_layers(), G)
+    assert _step(rule, 1.0, 4.0, empty_tracks(Stamp(0))).why.endswith("committed")
+    late = _cars((SOUTHBOUND_X_M, ZONE_START_Y_M + 30.0, -8.0))
+    verdict = _step(rule, 0.5, 4.0, late)
     assert verdict.stop_front_s_m is None and verdict.why.endswith("committed")
+    # Past the junction and back to the line a lap later: judged afresh.
+    assert _step(rule, 200.0, 4.0, late).why == ""
+    assert _step(rule, 20.0, 4.0, late).stop_front_s_m is not None
 
 
 def test_switched_off_the_rule_finds_no_junctions() -> None:

@@ -9,11 +9,12 @@ larger of the HCM critical headway of its movement and the time it needs to clea
 margin (``GiveWayConfig``). Otherwise its front stops ``stop_before_line_m`` before the line and waits
 until a gap opens.
 
-A shuttle already moving through a gap it judged acceptable is committed once it could no longer stop
-comfortably before the line (``traffic_light_rule.comfortable_stop_m``): a road user appearing then is
-the in-path and cut-in rules' (a late hard stop at the line would leave it standing half in the
-junction). At a two-way stop the stop-sign rule holds the shuttle for its full stop first; the gap
-check then holds it at the same point.
+A road user seen late (a radar track confirmed when the shuttle can no longer stop comfortably at the
+line, ``traffic_light_rule.comfortable_stop_m``) is still given way to if the shuttle can stop
+comfortably short of the conflict zone (``zone_margin_m`` before it: over the line, out of the other
+lane's way). Once it cannot do that either, it is committed: a road user appearing then is the in-path
+and cut-in rules' (a late hard stop would leave it standing in the other lane). At a two-way stop the
+stop-sign rule holds the shuttle for its full stop first; the gap check then holds it at the same point.
 """
 
 from __future__ import annotations
@@ -99,11 +100,11 @@ class GiveWayRule:
             cruise_mps: the shuttle's speed cap this cycle (the clearance never assumes more).
             ahead: route distance from the front to an s (wrapping on a loop), as the FSM measures it.
         """
-        c, lines = self.config, self.lines
+        c = self.config
         best: tuple[float, YieldJunction] | None = None
         for j in self.junctions:
             d = ahead(j.line_s_m, front_s_m)
-            if -lines.stop_before_line_m < d < c.approach_m and (best is None or d < best[0]):
+            if -self._hold_after_line_m(j) < d < c.approach_m and (best is None or d < best[0]):
                 best = (d, j)
         if best is None:
             self._committed = None
@@ -113,22 +114,43 @@ class GiveWayRule:
         place = j.name or f"stop line {line_id}"
         if self._committed == line_id:
             return GiveWayVerdict(None, f"give way at {place}: committed")
-        self._committed = None
-        gap_to_stop = dist - lines.stop_before_line_m
         waits, need = self._conflicts(j, dist, speed_mps, cruise_mps, tracks)
+        stop_s = self._stop_point(j, dist, speed_mps)
+        if stop_s is None:
+            # It can no longer stop short of the conflict zone: through it goes, whatever is seen now
+            # (the in-path and cut-in rules still stop it for what enters its path).
+            self._committed = line_id
+            return GiveWayVerdict(None, f"give way at {place}: committed")
         if not waits:
-            moving = speed_mps > c.moving_mps
-            if moving and max(gap_to_stop, lines.gap_floor_m) < comfortable_stop_m(speed_mps, lines):
-                self._committed = line_id  # going through the gap: no late stop at the line
             return GiveWayVerdict(None, f"give way at {place}: gap")
         first = min(waits, key=lambda a: a.time_s)
         count = len({a.track_id for a in waits})
         prefix = f"stop sign {line_id}: " if j.kind is YieldKind.STOP_SIGN else ""
+        where = "" if stop_s <= j.line_s_m else ", short of the conflict zone"
         why = (
-            f"{prefix}give way to {count} road user{'s' if count > 1 else ''} at {place} "
+            f"{prefix}give way to {count} road user{'s' if count > 1 else ''} at {place}{where} "
             f"(first in {first.time_s:.1f} s, gap needed {need:.1f} s)"
         )
-        return GiveWayVerdict(j.line_s_m - lines.stop_before_line_m, why, first.track_id, count)
+        return GiveWayVerdict(stop_s, why, first.track_id, count)
+
+    def _hold_after_line_m(self, j: YieldJunction) -> float:
+        """How far past the line the front may still stand, ``zone_margin_m`` short of the first zone."""
+        first = min((z.start_after_line_m for z in j.zones), default=0.0)
+        return max(first - self.config.zone_margin_m, self.lines.stop_before_line_m)
+
+    def _stop_point(self, j: YieldJunction, dist_m: float, speed_mps: float) -> float | None:
+        """Where the front would stop for priority traffic: ``stop_before_line_m`` before the line when
+        it can still stop there comfortably, else short of the conflict zone when it can stop there,
+        else None (committed)."""
+        lines = self.lines
+        need = comfortable_stop_m(speed_mps, lines) if speed_mps > self.config.moving_mps else 0.0
+        at_line = dist_m - lines.stop_before_line_m
+        if need <= max(at_line, lines.gap_floor_m):
+            return j.line_s_m - lines.stop_before_line_m
+        hold = self._hold_after_line_m(j)
+        if need <= max(dist_m + hold, lines.gap_floor_m):
+            return j.line_s_m + hold
+        return None
 
     def _conflicts(
         self, j: YieldJunction, dist_m: float, speed_mps: float, cruise_mps: float, tracks: TrackedObjects
