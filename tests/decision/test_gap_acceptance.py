@@ -88,9 +88,10 @@ def test_clearance_time_from_rest_within_the_acceleration_phase() -> None:
 def test_clearance_time_reaches_the_top_speed_and_holds_it() -> None:
     # 5 s to reach 4 m/s over 10 m, then 20 m at 4 m/s.
     assert clearance_time_s(30.0, 0.0, 0.8, 4.0) == pytest.approx(10.0)
-    # Already at the top speed: distance over speed; a faster start is held, not braked.
+    # Already at the top speed: distance over speed; a faster start is taken at the top speed (it
+    # slows for the turn), never faster.
     assert clearance_time_s(12.0, 4.0, 0.8, 4.0) == pytest.approx(3.0)
-    assert clearance_time_s(12.0, 6.0, 0.8, 4.0) == pytest.approx(2.0)
+    assert clearance_time_s(12.0, 6.0, 0.8, 4.0) == pytest.approx(3.0)
     assert clearance_time_s(0.0, 0.0, 0.8, 4.0) == 0.0
 
 

@@ -65,10 +65,10 @@ def _line_s(rule: GiveWayRule) -> float:
     return j.line_s_m
 
 
-def _step(rule: GiveWayRule, ahead_m: float, speed_mps: float, tracks: TrackedObjects):  # type: ignore[no-untyped-def]
+def _step(rule: GiveWayRule, ahead_m: float, speed_mps: float, tracks: TrackedObjects, t_s: float = 0.0):  # type: ignore[no-untyped-def]
     route = rule.layers.centerline
     front = _line_s(rule) - ahead_m
-    return rule.step(front, speed_mps, 20.0 / 3.6, tracks, lambda s, f: route.ds_m(f, s))
+    return rule.step(t_s, front, speed_mps, 20.0 / 3.6, tracks, lambda s, f: route.ds_m(f, s))
 
 
 def test_the_map_gives_one_give_way_junction_whose_zone_is_the_southbound_lane() -> None:
@@ -149,13 +149,27 @@ def test_once_it_cannot_stop_short_of_the_zone_it_is_committed() -> None:
     assert _step(rule, 20.0, 4.0, late).stop_front_s_m is not None
 
 
+def test_a_car_that_leaves_the_radars_view_is_still_expected_until_it_has_passed() -> None:
+    rule = GiveWayRule(_town_layers(), G)
+    # 30 m from the zone at 8 m/s: it arrives in 3.75 s and has left the zone (7.4 m + 4.5 m) 1.5 s later.
+    seen = _cars((SOUTHBOUND_X_M, ZONE_START_Y_M + 2.25 + 30.0, -8.0))
+    assert _step(rule, LINES.stop_before_line_m, 0.0, seen, t_s=10.0).stop_front_s_m is not None
+    none = empty_tracks(Stamp(0))
+    held = _step(rule, LINES.stop_before_line_m, 0.0, none, t_s=12.0)
+    assert held.stop_front_s_m is not None and held.track_id == 7
+    assert float(held.why.split("first in ")[1].split(" s")[0]) == pytest.approx(3.75 - 2.0, abs=0.06)
+    assert _step(rule, LINES.stop_before_line_m, 0.0, none, t_s=15.5).stop_front_s_m is None
+
+
 def test_switched_off_the_rule_finds_no_junctions() -> None:
     rule = GiveWayRule(_town_layers(), G, GiveWayConfig(enabled=False))
     assert rule.junctions == ()
     route = rule.layers.centerline
     tracks = _cars((SOUTHBOUND_X_M, ZONE_START_Y_M + 10.0, -8.0))
     line_s = _line_s(GiveWayRule(_town_layers(), G))
-    assert rule.step(line_s - 9.0, 3.0, 5.0, tracks, lambda s, f: route.ds_m(f, s)).stop_front_s_m is None
+    assert (
+        rule.step(0.0, line_s - 9.0, 3.0, 5.0, tracks, lambda s, f: route.ds_m(f, s)).stop_front_s_m is None
+    )
 
 
 def test_a_two_way_stop_yields_to_the_road_without_a_line_from_rest() -> None:

@@ -190,7 +190,7 @@ class BehaviourStateMachine:
                 StopConstraint(sign_stop, sign_why, emergency_ok=False, reason=StopReason.STOP_LINE)
             )
         # Give-way lines, and the gap after a two-way stop's full stop (give_way_rule).
-        given = self.give_way.step(front_s, inp.speed_mps, speed_cap, inp.tracks, ctx.ahead_m)
+        given = self.give_way.step(t_s, front_s, inp.speed_mps, speed_cap, inp.tracks, ctx.ahead_m)
         self._give_way_note = given.why if given.stop_front_s_m is None else ""
         if given.stop_front_s_m is not None:
             constraints.append(

@@ -33,11 +33,14 @@ class Arrival:
 
 def clearance_time_s(distance_m: float, speed_mps: float, accel_mps2: float, max_speed_mps: float) -> float:
     """Time to cover ``distance_m`` from ``speed_mps``, accelerating at ``accel_mps2`` up to
-    ``max_speed_mps`` (a faster start is held, not braked)."""
+    ``max_speed_mps``. A start faster than that is taken at ``max_speed_mps`` all the way (it has to
+    slow down for the turn; the time it gains braking is not counted, on the safe side)."""
     d, v0, a = max(distance_m, 0.0), max(speed_mps, 0.0), accel_mps2
-    top = max(max_speed_mps, v0)
+    top = max_speed_mps
     if top <= 0.0:
         return math.inf
+    if v0 >= top:
+        return d / top
     t_up = (top - v0) / a
     d_up = (v0 + top) / 2.0 * t_up
     if d <= d_up:

@@ -41,6 +41,10 @@ class GiveWayConfig:
             line is on it (the radar's position error; the next lane's centre is a lane width away).
         heading_cos_min: a moving road user is on an approach only while its velocity is within
             acos(this) = 60 degrees of the lane's direction (not crossing it, not oncoming).
+        lost_track_s: a road user seen on an approach whose track is then lost (it leaves the radar's
+            field of view as the shuttle comes up to the line: the front radar's 75 degrees) is still
+            expected, at its last speed, until it would have left the zone, for at most this long (our
+            choice: 10 s, longer than any gap needed on the example town's turns).
         zone_margin_m: a shuttle that can no longer stop comfortably at the line stops its front this far
             short of the conflict zone instead, when it can (our choice: 1 m, several times the
             position error of localization and the stop's overshoot).
@@ -59,6 +63,7 @@ class GiveWayConfig:
     lateral_margin_m: float = 0.5
     heading_cos_min: float = 0.5
     zone_margin_m: float = 1.0
+    lost_track_s: float = 10.0
 
     def __post_init__(self) -> None:
         for name in (
@@ -73,7 +78,7 @@ class GiveWayConfig:
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0.0):
                 raise ConfigError(f"GiveWayConfig.{name}: expected a positive number, got {value!r}")
-        for name in ("clearance_margin_s", "moving_mps", "lateral_margin_m", "zone_margin_m"):
+        for name in ("clearance_margin_s", "moving_mps", "lateral_margin_m", "zone_margin_m", "lost_track_s"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
                 raise ConfigError(f"GiveWayConfig.{name}: expected a finite value >= 0, got {value!r}")

@@ -64,6 +64,8 @@ class GiveWayRule:
     junctions: tuple[YieldJunction, ...] = ()
     _top_speed_mps: dict[int, float] = field(default_factory=dict)
     _committed: int | None = None
+    _seen: dict[tuple[int, int], tuple[float, Arrival]] = field(default_factory=dict)
+    """(zone, track) -> (when, its arrival then) of road users seen on an approach (``lost_track_s``)."""
 
     def __post_init__(self) -> None:
         if not self.config.enabled:
@@ -88,6 +90,7 @@ class GiveWayRule:
 
     def step(
         self,
+        t_s: float,
         front_s_m: float,
         speed_mps: float,
         cruise_mps: float,
@@ -108,13 +111,14 @@ class GiveWayRule:
                 best = (d, j)
         if best is None:
             self._committed = None
+            self._seen.clear()
             return GiveWayVerdict(None, "")
         dist, j = best
         line_id = j.stop_line.id
         place = j.name or f"stop line {line_id}"
         if self._committed == line_id:
             return GiveWayVerdict(None, f"give way at {place}: committed")
-        waits, need = self._conflicts(j, dist, speed_mps, cruise_mps, tracks)
+        waits, need = self._conflicts(t_s, j, dist, speed_mps, cruise_mps, tracks)
         stop_s = self._stop_point(j, dist, speed_mps)
         if stop_s is None:
             # It can no longer stop short of the conflict zone: through it goes, whatever is seen now
@@ -153,7 +157,13 @@ class GiveWayRule:
         return None
 
     def _conflicts(
-        self, j: YieldJunction, dist_m: float, speed_mps: float, cruise_mps: float, tracks: TrackedObjects
+        self,
+        t_s: float,
+        j: YieldJunction,
+        dist_m: float,
+        speed_mps: float,
+        cruise_mps: float,
+        tracks: TrackedObjects,
     ) -> tuple[list[Arrival], float]:
         """The road users that would reach a conflict zone within the gap the shuttle needs for it,
         and the longest gap needed (for the reason)."""
@@ -164,11 +174,32 @@ class GiveWayRule:
         start = max(dist_m - self.lines.stop_before_line_m, 0.0) if j.kind is YieldKind.STOP_SIGN else 0.0
         waits: list[Arrival] = []
         need_max = 0.0
-        for zone in j.zones:
+        present = {int(i) for i in tracks.ids}
+        for k, zone in enumerate(j.zones):
             to_clear = dist_m - start + zone.end_after_line_m + g.length_m
             clear_s = clearance_time_s(to_clear, v0, c.clearance_accel_mps2, top)
             need = max(c.critical_gap_s(j.turn), clear_s + c.clearance_margin_s)
             need_max = max(need_max, need)
-            for approach in zone.approaches:
-                waits += [a for a in arrival_on(tracks, approach, c) if a.time_s < need]
+            arrivals = [a for approach in zone.approaches for a in arrival_on(tracks, approach, c)]
+            arrivals += self._lost(t_s, k, arrivals, present)
+            waits += [a for a in arrivals if a.time_s < need]
         return waits, need_max
+
+    def _lost(self, t_s: float, zone: int, arrivals: list[Arrival], present: set[int]) -> list[Arrival]:
+        """Road users seen on the zone's approaches whose tracks have since been lost (out of the
+        radar's field of view as the shuttle turns towards the line), moved on at their last speed
+        until they would have left the zone, for at most ``lost_track_s``."""
+        for a in arrivals:
+            self._seen[(zone, a.track_id)] = (t_s, a)
+        out = []
+        for (z, tid), (seen_s, a) in list(self._seen.items()):
+            if z != zone or tid in present:
+                if z == zone and all(b.track_id != tid for b in arrivals):
+                    del self._seen[(z, tid)]  # still tracked, no longer on the approach
+                continue
+            gone_s = t_s - seen_s
+            if gone_s > self.config.lost_track_s or a.leave_s - gone_s <= 0.0:
+                del self._seen[(z, tid)]
+                continue
+            out.append(Arrival(tid, max(a.time_s - gone_s, 0.0), a.leave_s - gone_s))
+        return out
