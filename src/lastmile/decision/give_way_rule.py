@@ -107,7 +107,8 @@ class GiveWayRule:
         best: tuple[float, YieldJunction] | None = None
         for j in self.junctions:
             d = ahead(j.line_s_m, front_s_m)
-            if -self._hold_after_line_m(j) < d < c.approach_m and (best is None or d < best[0]):
+            behind = max(self._hold_after_line_m(j), self.lines.stop_before_line_m)
+            if -behind < d < c.approach_m and (best is None or d < best[0]):
                 best = (d, j)
         if best is None:
             self._committed = None
@@ -138,9 +139,10 @@ class GiveWayRule:
         return GiveWayVerdict(stop_s, why, first.track_id, count)
 
     def _hold_after_line_m(self, j: YieldJunction) -> float:
-        """How far past the line the front may still stand, ``zone_margin_m`` short of the first zone."""
+        """How far past the line the front may still stand, ``zone_margin_m`` short of the first zone
+        (negative: the zone begins at the line)."""
         first = min((z.start_after_line_m for z in j.zones), default=0.0)
-        return max(first - self.config.zone_margin_m, self.lines.stop_before_line_m)
+        return first - self.config.zone_margin_m
 
     def _stop_point(self, j: YieldJunction, dist_m: float, speed_mps: float) -> float | None:
         """Where the front would stop for priority traffic: ``stop_before_line_m`` before the line when
@@ -152,7 +154,7 @@ class GiveWayRule:
         if need <= max(at_line, lines.gap_floor_m):
             return j.line_s_m - lines.stop_before_line_m
         hold = self._hold_after_line_m(j)
-        if need <= max(dist_m + hold, lines.gap_floor_m):
+        if hold > -lines.stop_before_line_m and need <= max(dist_m + hold, lines.gap_floor_m):
             return j.line_s_m + hold
         return None
 
