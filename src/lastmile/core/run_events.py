@@ -28,6 +28,8 @@ class EventKind(StrEnum):
     MIN_TTC = "min_ttc"
     INTERSECTION_ENTRY = "intersection_entry"
     SIGNAL_ENTRY = "signal_entry"
+    GIVE_WAY_ENTRY = "give_way_entry"
+    """The shuttle's front crossed a give-way line or a two-way stop's line: whether it stood before it."""
     LOOP_COMPLETED = "loop_completed"
     ROAD_USER = "road_user"
     """Another road user first logged: its id and class (positions go to the agents table)."""

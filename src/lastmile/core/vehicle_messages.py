@@ -87,6 +87,8 @@ class StopReason(Enum):
     TRAFFIC_LIGHT = "traffic_light"
     STOP_LINE = "stop_line"
     """An all-way stop's line (arrival order), or a stop sign's (a full stop, then on)."""
+    GIVE_WAY = "give_way"
+    """A give-way line or a two-way stop's line while traffic with priority leaves no acceptable gap."""
     BUS_STOP = "bus_stop"
     """The pull-over spot of a stop to serve."""
     ONBOARDING = "onboarding"

@@ -31,6 +31,7 @@ from lastmile.decision.drop_off import (
     handle_drop_off_pullover,
     start_drop_off,
 )
+from lastmile.decision.give_way_rule import GiveWayRule
 from lastmile.decision.intersection_handling import AllWayStops, handle_intersection, next_all_way_stop_line
 from lastmile.decision.mission import MissionManager
 from lastmile.decision.offroad_unknowns import kerbside_unknown_ids, yieldable_tracks
@@ -82,10 +83,15 @@ class BehaviourStateMachine:
         self.junctions = AllWayStops.from_layers(self.layers, self.config.entry_heading_back_m)
         self.lights = TrafficLightRule(self.layers, self.config.traffic_lights)
         self.stop_signs = StopSignRule(self.layers, self.config.traffic_lights)
+        self.give_way = GiveWayRule(
+            self.layers, self.geometry, self.config.give_way, self.config.traffic_lights
+        )
         self.passing = PassRule(self.layers, self.geometry, self.config.passing, self.can_pass)
         self.drop_offs = DropOffPlaces(self.layers, self.config.drop_off)
         self._spot_d_cache: dict[tuple[float, float], float] = {}
         self._pass_request: PassRequest | None = None
+        # The give-way rule's verdict when it lets the shuttle go ("gap", "committed"), for the reason.
+        self._give_way_note = ""
 
     @property
     def state(self) -> BehaviourState:
@@ -183,6 +189,19 @@ class BehaviourStateMachine:
             constraints.append(
                 StopConstraint(sign_stop, sign_why, emergency_ok=False, reason=StopReason.STOP_LINE)
             )
+        # Give-way lines, and the gap after a two-way stop's full stop (give_way_rule).
+        given = self.give_way.step(t_s, front_s, inp.speed_mps, speed_cap, inp.tracks, ctx.ahead_m)
+        self._give_way_note = given.why if given.stop_front_s_m is None else ""
+        if given.stop_front_s_m is not None:
+            constraints.append(
+                StopConstraint(
+                    given.stop_front_s_m,
+                    given.why,
+                    given.track_id,
+                    emergency_ok=False,
+                    reason=StopReason.GIVE_WAY,
+                )
+            )
         sd = inp.safety
         if sd is not None and sd.level != FailSafeLevel.NONE and sd.emergency_stop:
             self.request_emergency(t_s, "safety: " + "; ".join(sd.reasons))
@@ -236,6 +255,8 @@ class BehaviourStateMachine:
         reason = outcome.reason
         if binding is not None and binding.kind not in ("spot",):
             reason = f"{reason}; stop for {binding.kind}"
+        if self._give_way_note:
+            reason = f"{reason}; {self._give_way_note}"
         if self._pass_request is not None and self._pass_request.approved:
             reason = f"{reason}; passing track {self._pass_request.track_id}"
         elif self.passing.memory.why:

@@ -14,6 +14,7 @@ from lastmile.core.stamp import Stamp
 from lastmile.core.traffic_light_messages import TrafficLightStates
 from lastmile.core.vehicle_messages import Trajectory
 from lastmile.decision.drop_off_config import DropOffConfig
+from lastmile.decision.give_way_config import GiveWayConfig
 from lastmile.decision.pass_config import PassConfig
 from lastmile.decision.traffic_light_rule import TrafficLightRuleConfig
 from lastmile.hdmap.curb_fit import CURB_GAP_TARGET_M
@@ -144,6 +145,8 @@ class DecisionConfig:
         passing: when a stationary obstacle blocking the lane is passed by the adjacent lane
             (:mod:`lastmile.decision.pass_rule`; off unless the planner can plan the pass).
         drop_off: a passenger's unscheduled drop-off (Snow Lion's button; :mod:`lastmile.decision.drop_off`).
+        give_way: gap acceptance at give-way lines and after a two-way stop's full stop
+            (:mod:`lastmile.decision.give_way_rule`).
     """
 
     cruise_speed_mps: float = 20.0 / 3.6
@@ -206,6 +209,7 @@ class DecisionConfig:
     traffic_lights: TrafficLightRuleConfig = field(default_factory=TrafficLightRuleConfig)
     passing: PassConfig = field(default_factory=PassConfig)
     drop_off: DropOffConfig = field(default_factory=DropOffConfig)
+    give_way: GiveWayConfig = field(default_factory=GiveWayConfig)
 
     def __post_init__(self) -> None:
         steps = self.in_path_prediction_steps

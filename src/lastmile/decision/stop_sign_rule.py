@@ -7,7 +7,8 @@ an all-way stop or a signal, whose own rules handle their lines) become stop poi
 ``stop_before_line_m`` before the line, stands ``full_stop_s`` below ``stopped_mps`` within
 ``at_line_m`` of the point, and is then released until it has passed the line. The obstacle check
 after the stop is decision's own: the in-path, cut-in and crosswalk rules keep running, as on
-aUToronto; there is no gap acceptance for cross traffic with priority (not built).
+aUToronto, and ``give_way_rule`` then holds the shuttle at the same point until the traffic with
+priority (the junction's lanelets whose approach has no line) leaves it an acceptable gap.
 
 The parameters are the traffic-light rule's (``TrafficLightRuleConfig``), whose flashing red is the
 same stop sign: neither the StVO (Zeichen 206: stop, then give way) nor the UVC 11-703 / MUTCD R1-1

@@ -484,6 +484,7 @@ def write_report(
         "",
         *report_tables.stops_table(log),
         *report_tables.drop_offs_table(log),
+        *report_tables.yield_lines_table(log),
         "## Speed and acceleration",
         "",
         f"![speed and acceleration over time with behaviour states]({SPEED_PNG})",

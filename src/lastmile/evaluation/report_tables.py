@@ -226,6 +226,26 @@ def drop_offs_table(log: run_log.RunLog) -> list[str]:
     return [*lines, ""]
 
 
+def yield_lines_table(log: run_log.RunLog) -> list[str]:
+    """Each passage of a give-way line or a two-way stop's line (the referee's ``give_way_entry``): did
+    the shuttle stand before it, and how long. Nothing for a run that crossed none."""
+    entries = log.events_of(EventKind.GIVE_WAY_ENTRY)
+    if not entries:
+        return []
+    lines = [
+        "### Give-way lines and two-way stops",
+        "",
+        "| crossed [s] | line | kind | stood before | standing [s] |",
+        "|---:|---:|---|---|---:|",
+    ]
+    for e in entries:
+        d = e.data
+        stood = "yes" if d["stopped_before"] else "no"
+        kind = md(str(d["line_kind"]))
+        lines.append(f"| {e.t_s:.1f} | {d['stop_line_id']} | {kind} | {stood} | {float(d['stood_s']):.1f} |")
+    return [*lines, ""]
+
+
 def state_timeline(log: run_log.RunLog, max_rows: int) -> list[str]:
     """The behaviour states in the order the stack took them, with how long each lasted."""
     changes = log.events_of(EventKind.STATE_CHANGE)

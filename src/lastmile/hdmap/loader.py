@@ -36,6 +36,7 @@ from lastmile.hdmap.model import (
     Landmark,
     LaneletInfo,
     MapArea,
+    RightOfWayRule,
     SignRule,
     StopLine,
     TaggedStop,
@@ -279,6 +280,7 @@ def _convert(lmap: Any, name: str) -> HDMap:
         signals=_signals(lmap, stop_lines),
         tagged_stops=_tagged_stops(lmap),
         priority_lanelet_ids=_priority_lanelet_ids(lmap, lanelets),
+        right_of_way_rules=_right_of_way_rules(lmap, lanelets),
         sign_rules=_sign_rules(lmap, lanelets),
         areas=_areas(lmap),
     )
@@ -358,6 +360,25 @@ def _priority_lanelet_ids(lmap: Any, lanelets: dict[int, LaneletInfo]) -> frozen
         if isinstance(rule, ll2.RightOfWay)
         for ll in (*rule.rightOfWayLanelets(), *rule.yieldLanelets())
         if (lid := _directed_id(ll)) in lanelets
+    )
+
+
+def _right_of_way_rules(lmap: Any, lanelets: dict[int, LaneletInfo]) -> tuple[RightOfWayRule, ...]:
+    """Every ``right_of_way`` rule with the kept lanelets it gives priority to and makes yield."""
+
+    def kept(lls: Iterable[Any]) -> tuple[int, ...]:
+        return tuple(lid for ll in lls if (lid := _directed_id(ll)) in lanelets)
+
+    return tuple(
+        RightOfWayRule(
+            id=rule.id,
+            name=_attr(rule.attributes, "name", ""),
+            priority_lanelet_ids=kept(rule.rightOfWayLanelets()),
+            yield_lanelet_ids=kept(rule.yieldLanelets()),
+            stop_line_id=rule.stopLine.id if rule.stopLine is not None else None,
+        )
+        for rule in sorted(lmap.regulatoryElementLayer, key=lambda r: r.id)
+        if isinstance(rule, ll2.RightOfWay)
     )
 
 
@@ -550,6 +571,7 @@ def _regulatory(
             all_way_stop_id=rule.id if isinstance(rule, ll2.AllWayStop) else None,
             signal_id=rule.id if isinstance(rule, ll2.TrafficLight) else None,
             stop_sign_id=rule.id if is_stop_sign_rule(rule) else None,
+            right_of_way_id=rule.id if isinstance(rule, ll2.RightOfWay) else None,
         )
         old = lines.get(line.id)
         if old is None:

@@ -107,6 +107,8 @@ class StopLine:
     all_way_stop_id: int | None = None
     signal_id: int | None = None
     stop_sign_id: int | None = None
+    right_of_way_id: int | None = None
+    """The Lanelet2 ``right_of_way`` rule whose yielding lanelets stop here (a give-way line); None: none."""
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -118,6 +120,18 @@ class SignRule:
     sign_type: str
     speed_limit: bool
     lanelet_ids: tuple[int, ...]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class RightOfWayRule:
+    """A Lanelet2 ``right_of_way`` rule: the lanelets that yield (and their stop line, the give-way
+    line), and the lanelets that have right of way over them, as the rule names them."""
+
+    id: int
+    name: str
+    priority_lanelet_ids: tuple[int, ...]
+    yield_lanelet_ids: tuple[int, ...]
+    stop_line_id: int | None
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -205,6 +219,9 @@ class HDMap:
     areas: tuple[MapArea, ...] = ()
     signals: tuple[TrafficSignal, ...] = ()
     priority_lanelet_ids: frozenset[int] = frozenset()
+    """Lanelets a right-of-way rule names (with priority or yielding): entries of a priority junction."""
+    right_of_way_rules: tuple[RightOfWayRule, ...] = ()
+    """The map's right-of-way rules, each with its own priority and yielding lanelets (give-way lines)."""
     tagged_stops: tuple[TaggedStop, ...] = ()
     conflict_ids: Mapping[int, tuple[int, ...]] = field(default_factory=dict)
     """Drivable lanelets whose area overlaps each lanelet's (Lanelet2's ``conflicting``): paths that
@@ -216,7 +233,6 @@ class HDMap:
     neighbour_ids: Mapping[int, tuple[int, ...]] = field(default_factory=dict)
     """Lanelets beside each lanelet, same direction, that a lane change may enter (Lanelet2's
     ``left``/``right``: the line between them permits crossing)."""
-    """Lanelets a right-of-way rule names (with priority or yielding): entries of a priority junction."""
     _polygons: dict[int, tuple[FloatArray, FloatArray, FloatArray]] = field(default_factory=dict, repr=False)
 
     def __post_init__(self) -> None:

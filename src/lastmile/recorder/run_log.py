@@ -129,6 +129,12 @@ EVENT_SCHEMAS: dict[EventKind, dict[str, str]] = {
     EventKind.HMI: {"screen": "str", "text": "str", "sound": "str", "light": "str", "cue": "str"},
     EventKind.MIN_TTC: {"ttc_s": "float", "agent_id": "int"},
     EventKind.INTERSECTION_ENTRY: {"order_ok": "bool"},
+    EventKind.GIVE_WAY_ENTRY: {
+        "stop_line_id": "int",
+        "line_kind": "str",
+        "stopped_before": "bool",
+        "stood_s": "float",
+    },
     EventKind.LOOP_COMPLETED: {"loop": "int"},
     EventKind.ROAD_USER: {"agent_id": "int", "agent_class": "str"},
     EventKind.FAULT_START: {"kind": "str", "target": "str"},

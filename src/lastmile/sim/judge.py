@@ -22,6 +22,7 @@ from lastmile.core.polyline import Polyline
 from lastmile.core.run_events import EventKind
 from lastmile.hdmap.model import DRIVABLE_SUBTYPES
 from lastmile.sim.arbiter import EGO_ID
+from lastmile.sim.give_way_referee import GiveWayReferee
 from lastmile.sim.passengers import PassengerModel, StopVisit
 from lastmile.sim.traffic_signals import SignalController
 from lastmile.sim.world import StopLineTruth, World
@@ -105,6 +106,7 @@ class Judge:
             for st in self.passengers.stops.values()
         }
         self._crosswalk_polys = [(cw.id, PreparedPolygon(cw.polygon)) for cw in self.world.hdmap.crosswalks]
+        self._give_way = GiveWayReferee(self.world.hdmap, self.service_route)
 
     @property
     def route_s_m(self) -> float:
@@ -117,6 +119,7 @@ class Judge:
         self._collisions()
         self._stop_lines()
         self._stop_signs()
+        self._yield_lines()
         self._signal_lines()
         self._crosswalks()
         self._speed()
@@ -258,6 +261,22 @@ class Judge:
                         detail=f"rolled through stop sign line {line.id}",
                     )
                 st.stopped = False
+
+    def _yield_lines(self) -> None:
+        """Give-way lines and two-way stops: each passage, and a failure to yield to priority traffic
+        (``give_way_referee``)."""
+        if not self._give_way.junctions:
+            return
+        w = self.world
+        for kind, data in self._give_way.step(w.t_s, w.ego_front(), w.ego.state.speed_mps, w.agents):
+            if kind == "give_way_entry":
+                self.emit(EventKind.GIVE_WAY_ENTRY, **data)
+            else:
+                self.emit(
+                    EventKind.RULE_VIOLATION,
+                    rule="failure_to_yield",
+                    detail=f"stop line {data['stop_line_id']}: {data['detail']}",
+                )
 
     def _crosswalks(self) -> None:
         w = self.world
