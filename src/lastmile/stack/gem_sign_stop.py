@@ -51,10 +51,12 @@ from lastmile.hdmap.layers import SLayerDatabase
 from lastmile.hdmap.loader import STOP_SIGN_TYPES
 from lastmile.perception.merge import MERGED_COLUMNS
 from lastmile.perception.pipeline import LidarPipelineResult
-from lastmile.perception.signs import SignDetectorConfig, detect_sign
+from lastmile.perception.signs import SignDetectorConfig, detect_sign, stop_deceleration_mps2
 
 _INTENSITY = MERGED_COLUMNS.index("intensity")
 """Column of the intensity in a merged cloud."""
+_NEW_APPROACH_FRAMES = 50
+"""A plate not detected for this many rig frames (5 s at 10 Hz) is approached anew."""
 _SAMPLE_M = 0.25
 """Spacing of the route samples the corridor test measures against."""
 
@@ -182,6 +184,7 @@ class GemSignStop:
         self.signs: list[KnownSign] = []
         self.stats = SignStats()
         self._speed_mps = 0.0
+        self._last_seen: dict[str, int] = {}  # the frame each plate was last detected in
 
     # --------------------------------------------------------------------------------------------
     def update_from(
@@ -208,7 +211,7 @@ class GemSignStop:
         pose = estimate.map_from_base
         rear = self.route.project(pose.x_m, pose.y_m, hint_s_m=rear_s_m, window_m=10.0).s_m
         front_s = rear + self.front_m
-        self._speed_mps = estimate.speed_mps
+        self._speed_mps = max(estimate.speed_mps, 0.0)  # GEM's v_i; a reversing estimate is a standstill
         self._forget_behind(rear)
         pts = np.asarray(xyzi, dtype=np.float64)
         cand = pts[(pts[:, 0] > 0.0) & (pts[:, _INTENSITY] >= self.settings.detector.min_intensity)]
@@ -256,6 +259,10 @@ class GemSignStop:
             mapped_range = float(np.hypot(*(self.mapped_xy[i] - (pose.x_m, pose.y_m))))
             st.record(key, "range_error_m", range_m - mapped_range)
         st.record(key, "range_m", range_m)
+        # The first detection of each approach to a plate (one unseen for 5 s is a new approach).
+        if st.frames - self._last_seen.get(key, -_NEW_APPROACH_FRAMES) >= _NEW_APPROACH_FRAMES:
+            st.record(key, "first_range_m", range_m)
+        self._last_seen[key] = st.frames
         if c.check is SignCheck.MAP_CHECKED and not mapped_ok:
             st.detections_rejected += 1
             return
@@ -264,11 +271,10 @@ class GemSignStop:
         if known is None:
             stop_s = self._stop_s(sign_s)
             gap = max(self.route.ds_m(front_s_m, stop_s), self.stop_rule.gap_floor_m)
-            decel = max(self._speed_mps**2 / (2.0 * gap), c.min_decel_mps2)
+            decel = max(-stop_deceleration_mps2(self._speed_mps, gap), c.min_decel_mps2)
             self.signs.append(
                 KnownSign(key=key, xy_m=xy, route_s_m=sign_s, stop_s_m=stop_s, decel_mps2=decel)
             )
-            st.record(key, "first_range_m", range_m)
             st.record(key, "decel_mps2", decel)
         elif not known.served:
             # A nearer look places the plate better (more points: GEM's ~40 at 10 m).
