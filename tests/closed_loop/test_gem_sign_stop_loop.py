@@ -45,7 +45,7 @@ class Drive:
     perception: dict[str, float | int | None] = field(default_factory=dict)
 
 
-def _drive(monkeypatch: pytest.MonkeyPatch, option: GemSignStopSettings | None) -> tuple[Drive, float]:
+def _drive(monkeypatch: pytest.MonkeyPatch, option: GemSignStopSettings | None) -> tuple[Drive, float, int]:
     monkeypatch.setattr(closed_loop, "load_world_map", _unmarked)
     base = RunConfig()  # raw LiDAR + camera + radar perception
     config = dataclasses.replace(base, stack=dataclasses.replace(base.stack, gem_sign_stop=option))
@@ -55,7 +55,11 @@ def _drive(monkeypatch: pytest.MonkeyPatch, option: GemSignStopSettings | None) 
     assert isinstance(stack, ShuttleStack) and (stack.sign_stop is None) is (option is None)
     route = stack.route
     plates = [lm for lm in stack.layers.hdmap.landmarks if lm.kind == "sign" and lm.subtype == "de206"]
-    sign_s = min(s for s in (route.project(*lm.xy.mean(axis=0)).s_m for lm in plates) if s > START_S_M)
+    sign_s, sign_id = min(
+        (s, lm.id)
+        for s, lm in ((route.project(*lm.xy.mean(axis=0)).s_m, lm) for lm in plates)
+        if s > START_S_M
+    )
     ego = loop.world.world.ego
     drive, standing = Drive(), False
     for record in loop.ticks(round(SECONDS * 1e6 / loop.tick_us)):
@@ -77,13 +81,13 @@ def _drive(monkeypatch: pytest.MonkeyPatch, option: GemSignStopSettings | None) 
             break
     report = stack.report()
     drive.counters, drive.perception = report.counters, report.perception
-    return drive, sign_s
+    return drive, sign_s, sign_id
 
 
 def test_the_detector_stops_the_shuttle_once_before_an_unmarked_stop_sign(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    drive, sign_s = _drive(monkeypatch, GemSignStopSettings())
+    drive, sign_s, sign_id = _drive(monkeypatch, GemSignStopSettings())
     assert drive.crossed, drive
     # One stop, standing at least the full stop, the front before the plate (0.5 m setback, within
     # decision's 3 m at-the-line window).
@@ -95,12 +99,15 @@ def test_the_detector_stops_the_shuttle_once_before_an_unmarked_stop_sign(
     c = drive.counters
     assert c["gem_sign_stops"] == 1 and c["gem_sign_passed_unserved"] == 0, c
     # Seen from well before (GEM: reliable from ~10 m), and placed where the map has it.
-    plate = [k for k in drive.perception if k.endswith("first_range_m_max")]
-    assert len(plate) == 1 and drive.perception[plate[0]] > 20.0, drive.perception  # type: ignore[operator]
-    err = [v for k, v in drive.perception.items() if k.endswith("position_error_m_median")]
-    assert len(err) == 1 and err[0] < 0.5, drive.perception  # type: ignore[operator]
+    p = drive.perception
+    first_range, error = (
+        p.get(f"gem_sign_{sign_id}_first_range_m_max"),
+        p.get(f"gem_sign_{sign_id}_position_error_m_median"),
+    )
+    assert isinstance(first_range, float) and first_range > 20.0, p
+    assert isinstance(error, float) and error < 0.5, p
 
 
 def test_without_the_option_it_drives_through(monkeypatch: pytest.MonkeyPatch) -> None:
-    drive, _ = _drive(monkeypatch, None)
+    drive, _, _ = _drive(monkeypatch, None)
     assert drive.crossed and drive.stops == [], drive
