@@ -196,6 +196,19 @@ def test_a_detection_at_rest_still_lets_the_shuttle_reach_the_sign(straight_laye
     assert stop.cap_mps(10.0, FRONT_M) > 4.0
 
 
+def test_a_plate_first_seen_too_close_to_stop_comfortably_is_not_stopped_for(
+    straight_layers: SLayerDatabase,
+) -> None:
+    # 5.5 m/s with the stop point 4.5 m ahead of the front: GEM's a = 3.4 m/s^2, over the 1.8 allowed.
+    stop = _stop(_layers(straight_layers))
+    stop.update(_cloud([(8.0, -3.2)]), _estimate(speed_mps=5.5), rear_s_m=0.0)
+    assert stop.step(0.0, FRONT_M, 5.5) == (None, "")
+    assert stop.counters()["gem_sign_too_late"] == 1 and stop.signs == []
+    # The same plate seen from 40 m at the same speed (0.42 m/s^2) is stopped for.
+    stop.update(_cloud([(40.0, -3.2)]), _estimate(speed_mps=5.5), rear_s_m=0.0)
+    assert stop.step(0.0, FRONT_M, 5.5)[0] is not None
+
+
 def test_the_option_needs_raw_perception_and_a_known_check() -> None:
     with pytest.raises(ConfigError, match=r"stack.gem_sign_stop: expected perception = 'lidar_camera_radar'"):
         StackSettings(perception=PerceptionMode.RADAR_TRACKING, gem_sign_stop=GemSignStopSettings())
@@ -203,3 +216,5 @@ def test_the_option_needs_raw_perception_and_a_known_check() -> None:
         GemSignStopSettings(check="every")  # type: ignore[arg-type]
     with pytest.raises(ConfigError, match=r"corridor_right_m"):
         GemSignStopSettings(corridor_right_m=0.0)
+    with pytest.raises(ConfigError, match=r"max_decel_mps2: expected at least min_decel_mps2"):
+        GemSignStopSettings(max_decel_mps2=0.3)

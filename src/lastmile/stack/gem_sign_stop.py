@@ -28,9 +28,13 @@ detections give no stop, until it is behind the rear axle (out of GEM's field of
 next lap stops again. Decision's own rules keep running (an all-way stop's arrival order still holds
 the shuttle at the line).
 
-Limits: one sign at a time (GEM's nearest-sign output); the corridor follows the route, not a pass
-or a pull-over's path; the detection is placed with the pose estimate, whose error it inherits; the
-option does nothing in the pull-over, onboarding and merging states. The default stack does not run it.
+A plate first seen so close that GEM's deceleration would exceed ``max_decel_mps2`` (decision's
+comfort deceleration, 1.8 m/s^2) is not stopped for, and is counted (our addition; GEM has no limit).
+
+Limits: one sign at a time (GEM's stages keep one plane); the corridor follows the route, not a pass or
+a pull-over's path; the detection is placed with the pose estimate, whose error it inherits; the
+option does nothing in the pull-over, onboarding and merging states; a real stop sign first seen too
+late (occluded until close) is passed. The default stack does not run it.
 """
 
 from __future__ import annotations
@@ -91,6 +95,11 @@ class GemSignStopSettings:
         min_decel_mps2: GEM's deceleration is at least this (a sign detected at rest or crawling
             would otherwise cap the speed near zero): GEM's own case, 3 m/s detected at 10 m, gives
             9 / 20 = 0.45 m/s^2 (the paper prints 0.15).
+        max_decel_mps2: a plate first seen so close that GEM's deceleration would exceed this is not
+            stopped for (counted as too late): decision's comfort deceleration for an amber light
+            (1.8 m/s^2, inside Snow Lion's -1.83 envelope). Our addition: GEM has no such limit, and
+            in snow its stages find plates in snow returns 4-10 m ahead (measured), which it would
+            brake for at up to 280 m/s^2 of demand; a real plate is seen 28-40 m ahead.
         seed: RANSAC's draws (one seed, one run).
     """
 
@@ -103,6 +112,7 @@ class GemSignStopSettings:
     line_after_sign_m: float = 9.1
     match_radius_m: float = 2.0
     min_decel_mps2: float = 0.45
+    max_decel_mps2: float = TrafficLightRuleConfig().comfort_decel_mps2
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -111,7 +121,13 @@ class GemSignStopSettings:
                 f"stack.gem_sign_stop.check: expected one of {[c.value for c in SignCheck]}, "
                 f"got {self.check!r}"
             )
-        for name in ("corridor_right_m", "corridor_left_m", "match_radius_m", "min_decel_mps2"):
+        for name in (
+            "corridor_right_m",
+            "corridor_left_m",
+            "match_radius_m",
+            "min_decel_mps2",
+            "max_decel_mps2",
+        ):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0.0):
                 raise ConfigError(f"stack.gem_sign_stop.{name}: expected a positive number, got {v}")
@@ -119,6 +135,11 @@ class GemSignStopSettings:
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0.0):
                 raise ConfigError(f"stack.gem_sign_stop.{name}: expected a number >= 0, got {v}")
+        if self.max_decel_mps2 < self.min_decel_mps2:
+            raise ConfigError(
+                "stack.gem_sign_stop.max_decel_mps2: expected at least min_decel_mps2 "
+                f"({self.min_decel_mps2}), got {self.max_decel_mps2}"
+            )
 
 
 @dataclass(slots=True)
@@ -143,6 +164,8 @@ class SignStats:
     detections: int = 0
     detections_rejected: int = 0
     """Detections the map check turned down (no mapped stop sign facing the shuttle near them)."""
+    too_late: int = 0
+    """Plates first seen too close to stop at ``max_decel_mps2``: not stopped for."""
     stops: int = 0
     passed_unserved: int = 0
     """Signs left behind without a full stop (the shuttle was pulling over, say)."""
@@ -272,6 +295,9 @@ class GemSignStop:
             stop_s = self._stop_s(sign_s)
             gap = max(self.route.ds_m(front_s_m, stop_s), self.stop_rule.gap_floor_m)
             decel = max(-stop_deceleration_mps2(self._speed_mps, gap), c.min_decel_mps2)
+            if decel > c.max_decel_mps2:
+                st.too_late += 1
+                return
             self.signs.append(
                 KnownSign(key=key, xy_m=xy, route_s_m=sign_s, stop_s_m=stop_s, decel_mps2=decel)
             )
@@ -355,6 +381,7 @@ class GemSignStop:
             "gem_sign_frames_unplaced": st.frames_unplaced,
             "gem_sign_detections": st.detections,
             "gem_sign_detections_rejected": st.detections_rejected,
+            "gem_sign_too_late": st.too_late,
             "gem_sign_stops": st.stops,
             "gem_sign_passed_unserved": st.passed_unserved,
         }
