@@ -102,6 +102,8 @@ class StopReason(Enum):
     """An emergency stop: held where the front is."""
     INFRASTRUCTURE_CROSSING = "infrastructure_crossing"
     """An infrastructure camera reports pedestrians on a crossing ahead (V2I anticipation)."""
+    DETECTED_SIGN = "detected_sign"
+    """A stop sign GEM's LiDAR detector found ahead (``[stack.gem_sign_stop]``): a full stop, then on."""
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -91,6 +91,7 @@ from lastmile.planning.speed_planning import (
 )
 from lastmile.safety.reliability_config import ReliabilityConfig, default_sensor_specs
 from lastmile.stack.amcl_fusion import AmclFusion
+from lastmile.stack.gem_sign_stop import GemSignStop, GemSignStopSettings
 from lastmile.stack.hmi import HmiComposer
 from lastmile.stack.landmark_fusion import LandmarkFusion
 from lastmile.stack.module_guard import ModuleGuard
@@ -132,6 +133,7 @@ class StackConfig:
             vehicle look-aheads.
         occupancy_stop: GEM's height-map obstacle stop (raw perception; None: off).
         nus_speed: NUS's speed rule over its cost map (raw perception; None: off).
+        gem_sign_stop: GEM's LiDAR sign detector as a stop (raw perception; None: off).
     """
 
     tick_us: int = 10_000
@@ -166,6 +168,7 @@ class StackConfig:
     prediction: PredictionConfig = field(default_factory=lambda: PredictionConfig(horizon_s=6.0))
     occupancy_stop: OccupancyStopSettings | None = None
     nus_speed: NusSpeedSettings | None = None
+    gem_sign_stop: GemSignStopSettings | None = None
 
     def __post_init__(self) -> None:
         # Decision reads the predicted paths this far ahead; shorter paths would silently shorten it.
@@ -305,6 +308,14 @@ class ShuttleStack:
             if config.nus_speed is not None and config.perception_mode.needs_raw_sensors
             else None
         )
+        # GEM's sign detector (an option): a stop sign seen ahead gives a full stop before it.
+        self.sign_stop = (
+            GemSignStop(
+                config.gem_sign_stop, layers, geometry.front_from_rear_axle_m, config.decision.traffic_lights
+            )
+            if config.gem_sign_stop is not None and config.perception_mode.needs_raw_sensors
+            else None
+        )
         self.light_tracker = (
             TrafficLightTracker(layers.hdmap.traffic_lights, config.light_cameras, config.traffic_lights)
             if layers.hdmap.traffic_lights and config.light_cameras
@@ -441,6 +452,11 @@ class ShuttleStack:
             if done and self.nus_speed is not None and raw.last_result is not None:
                 with p.measure("perception"):
                     self._guarded("tracking", now, self.nus_speed.update, raw.last_result, self.ekf.estimate)
+            if done and self.sign_stop is not None and raw.last_result is not None:
+                with p.measure("perception"):
+                    result = raw.last_result
+                    est = self.ekf.estimate(result.cloud.stamp)
+                    self._guarded("tracking", now, self.sign_stop.update_from, result, est, self._route_s)
         if planning_cycle:
             with p.measure("tracking"):
                 source = raw.tracks if raw is not None else self.tracker.tracks
@@ -522,6 +538,9 @@ class ShuttleStack:
             counters.update(self.occupancy_stop.counters())
         if self.nus_speed is not None:
             counters.update(self.nus_speed.counters())
+        if self.sign_stop is not None:
+            counters.update(self.sign_stop.counters())
+            perception.update(self.sign_stop.summary())
         return VehicleReport(modules=self.profiler.summary(), counters=counters, perception=perception)
 
     def _guarded(self, module: str, now: Stamp, fn: Callable[..., object], *args: object) -> object:
@@ -672,7 +691,26 @@ class ShuttleStack:
                 predictions=self._predictions,
             )
         )
+        self._stop_for_signs(now, f.s_m, est.speed_mps)
         self._anticipate(now, f.s_m, est.speed_mps)
+
+    def _stop_for_signs(self, now: Stamp, route_s_m: float, speed_mps: float) -> None:
+        """GEM's detected stop sign ahead: its stop point, unless decision's own is nearer."""
+        d = self._decision
+        if self.sign_stop is None or d is None:
+            return
+        front_s = route_s_m + self.geometry.front_from_rear_axle_m
+        stop, why = self.sign_stop.step(int(now) / 1e6, front_s, speed_mps)
+        # Only while driving on: a pull-over, boarding, merge or emergency stop keeps its own point.
+        if d.state not in (BehaviourState.NORMAL_DRIVING, BehaviourState.INTERSECTION) or not why:
+            return
+        ds = self.route.ds_m
+        if stop is not None and (d.stop_at_s_m is None or ds(front_s, stop) < ds(front_s, d.stop_at_s_m)):
+            self._decision = dataclasses.replace(
+                d, stop_at_s_m=stop, reason=f"{d.reason}; {why}", stop_reason=StopReason.DETECTED_SIGN
+            )
+        else:
+            self._decision = dataclasses.replace(d, reason=f"{d.reason}; {why}")
 
     def _anticipate(self, now: Stamp, route_s_m: float, speed_mps: float) -> None:
         """A crossing the infrastructure reports occupied: stop before it, unless a nearer stop binds."""
@@ -764,6 +802,8 @@ class ShuttleStack:
             cap = self.occupancy_stop.cap_mps(cap)
         if self.nus_speed is not None:  # and NUS's rule: steering angle and cost map
             cap = self.nus_speed.cap_mps(cap, *self._wheel_angles_rad)
+        if self.sign_stop is not None:  # and GEM's constant deceleration to a detected stop sign
+            cap = self.sign_stop.cap_mps(cap, front_s)
         emergency_now = d.state == BehaviourState.EMERGENCY_STOP
         if self._emergency_before and not emergency_now:
             # Released from an emergency stop, the shuttle stands wherever it stopped: the target ahead

@@ -32,6 +32,7 @@ from lastmile.planning.planners import PlannerName
 from lastmile.planning.speed_planning import SpeedPlannerName, SpeedPlanningConfig
 from lastmile.safety.failsafe import FailSafeConfig
 from lastmile.safety.hardware_watchdog import HardwareWatchdogConfig
+from lastmile.stack.gem_sign_stop import GemSignStopSettings
 from lastmile.stack.nus_speed_cap import NusSpeedSettings
 from lastmile.stack.occupancy_stop import OccupancyStopSettings
 
@@ -146,6 +147,10 @@ class StackSettings:
         nus_speed: NUS's speed rule (``[stack.nus_speed]``, :mod:`lastmile.stack.nus_speed_cap`): the
             speed capped at the lower of a steering-angle safe speed and a safe speed from the mean
             cost ahead in NUS's cost map of each rig frame (raw perception only; off by default).
+        gem_sign_stop: GEM's LiDAR sign detector as a stop (``[stack.gem_sign_stop]``,
+            :mod:`lastmile.stack.gem_sign_stop`): a stop sign detected ahead in the route's corridor
+            (by default only where the map has one) gives a full stop before it, approached at GEM's
+            a = -v^2 / (2 d) (raw perception only; off by default).
         pedestrian_verification: NUS's pedestrian verification in the late fusion
             (``[stack.pedestrian_verification]``, :mod:`lastmile.perception.pedestrian_verification`):
             a cluster is a pedestrian only when person-shaped and confirmed by a camera pedestrian
@@ -180,6 +185,7 @@ class StackSettings:
     lidar_mounts: str = ""
     occupancy_stop: OccupancyStopSettings | None = None
     nus_speed: NusSpeedSettings | None = None
+    gem_sign_stop: GemSignStopSettings | None = None
     pedestrian_verification: PedestrianVerificationConfig | None = None
     camera_mounts: str = ""
 
@@ -197,6 +203,7 @@ class StackSettings:
         for key, why in (
             ("occupancy_stop", "the grid is built from the LiDAR sweeps"),
             ("nus_speed", "its cost map is built from the LiDAR sweeps"),
+            ("gem_sign_stop", "the detector reads the LiDAR sweeps' intensities"),
             ("pedestrian_verification", "it verifies LiDAR clusters"),
         ):
             if getattr(self, key) is not None and not self.perception.needs_raw_sensors:

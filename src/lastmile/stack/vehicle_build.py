@@ -102,6 +102,7 @@ def stack_config(settings: StackSettings, calibration: SensorCalibration, tick_u
         ),
         occupancy_stop=settings.occupancy_stop,
         nus_speed=settings.nus_speed,
+        gem_sign_stop=settings.gem_sign_stop,
         reliability=ReliabilityConfig(
             sensors=DEFAULT_SENSORS
             + (raw_sensor_specs(tuple(calibration.lidar_mounts), camera_ids) if raw else ())
