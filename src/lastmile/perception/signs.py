@@ -58,7 +58,8 @@ class SignDetectorConfig:
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class SignDetection:
-    """The nearest sign facing the vehicle.
+    """The sign facing the vehicle: the facing plane with the most RANSAC inliers (GEM keeps one per frame,
+    which is not necessarily the nearest; a caller that wants the lane's own sign narrows the cloud first).
 
     Attributes:
         distance_m: horizontal distance from the base origin to the inliers' centroid.
