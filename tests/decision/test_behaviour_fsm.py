@@ -146,6 +146,30 @@ def test_pedestrian_walking_to_the_crosswalk_is_yielded_to_before_reaching_the_k
         assert d.stop_at_s_m is None
 
 
+def _aged(tracks: TrackedObjects, age_s: float) -> TrackedObjects:
+    table = tracks.table.copy()
+    table[:, TRACK_COLUMNS.index("age_s")] = age_s
+    return TrackedObjects(stamp=tracks.stamp, ids=tracks.ids, table=table)
+
+
+def test_a_crosswalk_yields_to_an_unclassified_track_only_once_it_has_settled(straight_layers):
+    # Snow, raw: a 0.8 m unknown track 0.3-0.9 s old, keeping pace beside the shuttle, made the
+    # crosswalk rule brake at the urgent rate (-2.8 m/s^2) with no road user within 15 m.
+    settle = DecisionConfig().unknown_settle_s
+    # On the crossing's marking over the sidewalk, drifting towards the lane.
+    on_it = _tracks([(3, 100.0, 3.0, 0.0, -0.3, ObjectClass.UNKNOWN)])
+    young = _fsm(straight_layers).step(_inp(0.0, 60.0, v=5.0, tracks=_aged(on_it, 0.5 * settle)))
+    assert young.stop_at_s_m is None
+    settled = _fsm(straight_layers).step(_inp(0.0, 60.0, v=5.0, tracks=_aged(on_it, settle)))
+    assert settled.stop_reason is StopReason.CROSSWALK and settled.risk_track_id == 3
+    # A pedestrian counts from its birth; and a young unknown in the path is still the in-path rule's.
+    ped = _tracks([(3, 100.0, 1.0, 0.0, 1.2, ObjectClass.PEDESTRIAN)])
+    assert _fsm(straight_layers).step(_inp(0.0, 60.0, v=5.0, tracks=ped)).stop_reason is StopReason.CROSSWALK
+    in_lane = _aged(_tracks([(4, 90.0, 0.0, 0.0, 0.0, ObjectClass.UNKNOWN)]), 0.0)
+    d = _fsm(straight_layers).step(_inp(0.0, 60.0, v=5.0, tracks=in_lane))
+    assert d.stop_reason is StopReason.OBSTACLE and d.risk_track_id == 4
+
+
 def test_obstacle_too_close_to_stop_comfortably_triggers_emergency_stop(straight_layers):
     fsm = _fsm(straight_layers)
     # Front bumper at 53.75 m, goose 3 m ahead of it: stopping would need over 6 m/s^2.

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 
@@ -12,7 +13,7 @@ from lastmile.core.object_class import ObjectClass
 from lastmile.core.route_obstacles import route_obstacles
 from lastmile.core.safety_messages import FailSafeLevel, MrmKind, SafetyDirective
 from lastmile.core.stamp import Stamp
-from lastmile.core.vehicle_messages import BehaviourState
+from lastmile.core.vehicle_messages import BehaviourState, StopReason
 from lastmile.decision.behaviour_fsm import _HANDLERS, BehaviourStateMachine
 from lastmile.decision.behaviour_memory import BehaviourMemory, Cycle, DecisionContext
 from lastmile.decision.decision_config import DecisionConfig, DecisionInput
@@ -20,6 +21,7 @@ from lastmile.decision.intersection_handling import AllWayStops, handle_intersec
 from lastmile.decision.mission import MissionManager
 from lastmile.decision.stop_constraints import in_path_constraints, lead_stop_s_m, safety_constraints
 from lastmile.decision.stop_service import handle_merging, handle_onboarding, handle_pullover, rear_blocker
+from lastmile.decision.traffic_light_rule import comfortable_stop_m
 from lastmile.hdmap.layers import SLayerDatabase
 from lastmile.hdmap.loader import load_campus_map
 from lastmile.hdmap.routing import campus_shuttle_loop
@@ -176,6 +178,34 @@ def test_rear_traffic_holds_the_merge_only_near_where_it_began(straight_layers) 
     assert merge(0.0, 211.0) == "waiting: traffic from the rear"
     assert mem.stop.merge_from_s_m == 210.0
     assert merge(1.0, 210.0 + C.merge_hold_m + 0.5) == "merging"
+
+
+def test_a_rear_traffic_hold_stops_where_a_comfortable_stop_ends_and_skips_unsettled_tracks(
+    straight_layers,
+) -> None:
+    """At the merge's speed a stop point at the front itself is braked for at the urgent rate (snow,
+    raw: -2.8 m/s^3 for a snow phantom): the hold stops where a comfortable stop ends, fixed while it
+    lasts; and an unclassified track too new to have settled does not hold the merge."""
+    ctx, mem = _ctx(straight_layers), BehaviourMemory(state=BehaviourState.MERGING)
+    mem.stop.stop_index, mem.stop.merge_from_s_m = 0, 210.0
+
+    def merge(t_s: float, rear_s: float, v: float, cls: ObjectClass, unsettled=frozenset()) -> Cycle:
+        follower = rear_s - G.rear_overhang_m - 5.0 - 2.25
+        cy = _cycle(ctx, _inp(t_s, rear_s, d_m=-2.0, v=v, tracks=_tracks([(7, follower, 0.0, 1.0, 0.0, cls)])))
+        cy = dataclasses.replace(cy, unsettled_ids=frozenset(unsettled))
+        handle_merging(ctx, mem, cy)
+        return cy
+
+    cy = merge(0.0, 210.5, 1.2, ObjectClass.CAR)
+    (hold,) = cy.constraints
+    want = cy.front_s_m + comfortable_stop_m(1.2, C.traffic_lights)
+    assert hold.reason is StopReason.REAR_TRAFFIC and hold.stop_front_s_m == pytest.approx(want)
+    assert hold.stop_front_s_m > cy.front_s_m + 1.2**2 / (2.0 * C.traffic_lights.comfort_decel_mps2)
+    (later,) = merge(0.5, 211.0, 0.6, ObjectClass.CAR).constraints
+    assert later.stop_front_s_m == hold.stop_front_s_m  # fixed for the hold
+    assert merge(1.0, 211.2, 0.3, ObjectClass.UNKNOWN, {7}).constraints == []
+    assert mem.stop.rear_hold_front_s_m is None  # released: the next hold is placed anew
+    assert merge(1.5, 211.2, 0.3, ObjectClass.UNKNOWN).constraints != []
 
 
 def test_merging_ends_back_on_the_lane_centre(straight_layers) -> None:

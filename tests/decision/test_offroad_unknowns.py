@@ -13,7 +13,13 @@ from lastmile.core.route_obstacles import RouteObstacle
 from lastmile.core.stamp import Stamp
 from lastmile.core.vehicle import VehicleGeometry
 from lastmile.decision.decision_config import DecisionConfig
-from lastmile.decision.offroad_unknowns import kerbside_unknown_ids, on_road_surface, yieldable_tracks
+from lastmile.decision.offroad_unknowns import (
+    kerbside_unknown_ids,
+    on_road_surface,
+    unsettled_unknown_ids,
+    without_ids,
+    yieldable_tracks,
+)
 from lastmile.decision.stop_constraints import in_path_constraints
 
 # The straight test road: lane y in [-1.75, 1.75] along x 0..400, a crosswalk lanelet x 98..102 on
@@ -93,3 +99,25 @@ def test_the_kerbside_margin_is_validated():
         DecisionConfig(kerbside_margin_m=0.6)
     with pytest.raises(ConfigError, match="kerbside_standing_mps"):
         DecisionConfig(kerbside_standing_mps=-1.0)
+
+
+def test_unsettled_unknowns_are_the_young_unclassified_tracks_only():
+    table = np.array(
+        [
+            [10.0, 0.0, 0.0, 0.0, 0.3, 0.1, 0.0, int(ObjectClass.UNKNOWN), 0.1, 0.4],
+            [12.0, 0.0, 0.0, 0.0, 0.3, 0.1, 0.0, int(ObjectClass.UNKNOWN), 0.1, 1.0],
+            [14.0, 0.0, 0.0, 0.0, 0.5, 0.5, 0.0, int(ObjectClass.PEDESTRIAN), 0.1, 0.0],
+        ]
+    )
+    tracks = TrackedObjects(stamp=Stamp(0), ids=np.array([5, 6, 7], dtype=np.int64), table=table)
+    young = unsettled_unknown_ids(tracks, 1.0)
+    assert young == frozenset({5})
+    assert without_ids(tracks, young).ids.tolist() == [6, 7]
+    assert without_ids(tracks, frozenset()) is tracks
+    assert unsettled_unknown_ids(tracks, 0.0) == frozenset()
+
+
+def test_unknown_settle_s_must_be_a_finite_non_negative_time():
+    for bad in (-0.1, float("nan"), float("inf")):
+        with pytest.raises(ConfigError, match="unknown_settle_s"):
+            DecisionConfig(unknown_settle_s=bad)

@@ -24,12 +24,15 @@ class StopVisit:
         spot_front_s_m: route s of the front bumper at the chosen pull-over spot.
         spot_committed: the spot no longer moves (it is within ``spot_commit_m``).
         merge_from_s_m: rear-axle route s where the merge (re)started.
+        rear_hold_front_s_m: front-bumper route s the merge stops at while rear traffic holds it
+            (fixed when the hold begins; None: no hold).
     """
 
     stop_index: int | None = None
     spot_front_s_m: float | None = None
     spot_committed: bool = False
     merge_from_s_m: float | None = None
+    rear_hold_front_s_m: float | None = None
 
 
 @dataclass(slots=True)
@@ -127,6 +130,7 @@ class BehaviourMemory:
         self.stop.spot_front_s_m = None
         self.stop.spot_committed = False
         self.stop.merge_from_s_m = None
+        self.stop.rear_hold_front_s_m = None
         self.enter(BehaviourState.NORMAL_DRIVING, t_s, why)
 
 
@@ -156,6 +160,8 @@ class Cycle:
         obstacles: tracks on the route (``core.route_obstacles``).
         constraints: stop points found so far; handlers add their own.
         speed_cap_mps: the speed cap before the state's own (speed limit, cruise, fail-safe).
+        unsettled_ids: unclassified tracks too new for the comfortable rules
+            (``offroad_unknowns.unsettled_unknown_ids``): the merge's rear-traffic hold skips them.
     """
 
     inp: DecisionInput
@@ -164,6 +170,7 @@ class Cycle:
     obstacles: list[RouteObstacle]
     constraints: list[StopConstraint]
     speed_cap_mps: float
+    unsettled_ids: frozenset[int] = frozenset()
 
 
 @dataclass(frozen=True, slots=True)

@@ -1,4 +1,6 @@
-"""Which tracks decision may yield to: not an unclassified object off the road that is not heading onto it.
+"""Which tracks decision may yield to: not an unclassified object off the road that is not heading onto it,
+and, for the rules that brake comfortably for what they see, not an unclassified one that has only just
+appeared.
 
 An object no sensor could classify, standing or moving beside the road and not towards it, is
 scenery or a perception artefact (a kerb edge, a hedge, a return the ground removal missed): every
@@ -20,9 +22,9 @@ from lastmile.core.object_class import ObjectClass
 from lastmile.core.objects import TRACK_COLUMNS, TrackedObjects
 from lastmile.hdmap.model import HDMap
 
-_X, _Y, _VX, _VY, _L, _W, _YAW, _CLS = (
+_X, _Y, _VX, _VY, _L, _W, _YAW, _CLS, _AGE = (
     TRACK_COLUMNS.index(c)
-    for c in ("x_m", "y_m", "vx_mps", "vy_mps", "length_m", "width_m", "yaw_rad", "class_id")
+    for c in ("x_m", "y_m", "vx_mps", "vy_mps", "length_m", "width_m", "yaw_rad", "class_id", "age_s")
 )
 STEP_S = 0.5
 """Sampling of the constant-velocity path (a track at 6 m/s moves 3 m between samples; the road
@@ -96,3 +98,24 @@ def kerbside_unknown_ids(tracks: TrackedObjects, hdmap: HDMap, standing_mps: flo
     standing = np.hypot(u[:, _VX], u[:, _VY]) < standing_mps
     off = ~on_road_surface(hdmap, u[:, [_X, _Y]])
     return frozenset(int(i) for i in tracks.ids[unknown[standing & off]].tolist())
+
+
+def unsettled_unknown_ids(tracks: TrackedObjects, settle_s: float) -> frozenset[int]:
+    """Ids of the unclassified tracks younger than ``settle_s``: too new for a rule that stops for them
+    comfortably (a crosswalk yield, the merge's rear-traffic hold) to act on.
+
+    Precipitation echoes near the window form such tracks for a few sweeps; a stop point that appears
+    for them a few metres ahead and is gone a cycle later is braked for at the urgent rate. Rules that
+    may order an emergency stop (in-path, cut-in) are not given this list: they see every track.
+    """
+    t = tracks.table
+    young = (t[:, _CLS].astype(np.int64) == int(ObjectClass.UNKNOWN)) & (t[:, _AGE] < settle_s)
+    return frozenset(int(i) for i in tracks.ids[young].tolist())
+
+
+def without_ids(tracks: TrackedObjects, ids: frozenset[int]) -> TrackedObjects:
+    """``tracks`` less the tracks whose id is in ``ids``."""
+    if not ids:
+        return tracks
+    keep = ~np.isin(tracks.ids, np.fromiter(ids, dtype=np.int64, count=len(ids)))
+    return TrackedObjects(stamp=tracks.stamp, ids=tracks.ids[keep], table=tracks.table[keep])

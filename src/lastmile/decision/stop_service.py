@@ -10,6 +10,7 @@ from lastmile.decision.behaviour_memory import BehaviourMemory, Boarding, Cycle,
 from lastmile.decision.decision_config import DecisionConfig, DecisionInput
 from lastmile.decision.pullover_spot import SpotRequest, choose_spot
 from lastmile.decision.stop_constraints import StopConstraint
+from lastmile.decision.traffic_light_rule import comfortable_stop_m
 from lastmile.hdmap.layers import RouteStop
 
 
@@ -130,12 +131,22 @@ def handle_merging(ctx: DecisionContext, mem: BehaviourMemory, cy: Cycle) -> Out
         mem.finish_stop(cy.t_s, "merged")
         return Outcome(cy.speed_cap_mps, "merged")
     cap = min(cy.speed_cap_mps, c.merge_speed_mps)
-    blocker = rear_blocker(ctx, cy.obstacles)
+    blocker = rear_blocker(ctx, [o for o in cy.obstacles if o.track_id not in cy.unsettled_ids])
     if blocker >= 0 and (
         visit.merge_from_s_m is None or inp.route_s_m - visit.merge_from_s_m < c.merge_hold_m
     ):
+        # Where a comfortable stop from the speed the hold finds ends, fixed for the hold: at the front
+        # itself, a hold at the merge's 1 m/s was braked for at the urgent rate (-2.8 m/s^3, snow, raw).
+        # The shuttle is still within merge_hold_m of the bay; anything in its path is the in-path
+        # rule's, which may order an emergency stop.
+        if visit.rear_hold_front_s_m is None:
+            visit.rear_hold_front_s_m = cy.front_s_m + comfortable_stop_m(
+                inp.speed_mps, c.traffic_lights
+            )
         cy.constraints.append(
-            StopConstraint(cy.front_s_m, "rear_traffic", blocker, False, StopReason.REAR_TRAFFIC)
+            StopConstraint(
+                visit.rear_hold_front_s_m, "rear_traffic", blocker, False, StopReason.REAR_TRAFFIC
+            )
         )
         # The merge began where the door closed, and a hold does not move that point: moved along at
         # every hold, the window ratcheted with the shuttle, and a car following it out of a kerbside
@@ -143,6 +154,7 @@ def handle_merging(ctx: DecisionContext, mem: BehaviourMemory, cy: Cycle) -> Out
         if visit.merge_from_s_m is None:
             visit.merge_from_s_m = inp.route_s_m
         return Outcome(cap, "waiting: traffic from the rear")
+    visit.rear_hold_front_s_m = None
     return Outcome(cap, "merging")
 
 
