@@ -15,6 +15,7 @@ from lastmile.core.vehicle_messages import BehaviourState, StopReason
 from lastmile.decision.behaviour_fsm import BehaviourStateMachine
 from lastmile.decision.decision_config import DecisionConfig, DecisionInput
 from lastmile.decision.mission import MissionManager
+from lastmile.decision.traffic_light_rule import comfortable_stop_m
 from lastmile.tracking.prediction import MapAwarePredictor, PredictionConfig
 
 G = VehicleGeometry()
@@ -152,21 +153,28 @@ def _aged(tracks: TrackedObjects, age_s: float) -> TrackedObjects:
     return TrackedObjects(stamp=tracks.stamp, ids=tracks.ids, table=table)
 
 
-def test_a_crosswalk_yields_to_an_unclassified_track_only_once_it_has_settled(straight_layers):
+def test_a_crosswalk_brakes_hard_for_an_unclassified_track_only_once_it_has_settled(straight_layers):
     # Snow, raw: a 0.8 m unknown track 0.3-0.9 s old, keeping pace beside the shuttle, made the
     # crosswalk rule brake at the urgent rate (-2.8 m/s^2) with no road user within 15 m.
     settle = DecisionConfig().unknown_settle_s
-    # On the crossing's marking over the sidewalk, drifting towards the lane.
+    # On the crossing's marking over the sidewalk (x 98..102), drifting towards the lane.
     on_it = _tracks([(3, 100.0, 3.0, 0.0, -0.3, ObjectClass.UNKNOWN)])
-    young = _fsm(straight_layers).step(_inp(0.0, 60.0, v=5.0, tracks=_aged(on_it, 0.5 * settle)))
-    assert young.stop_at_s_m is None
-    settled = _fsm(straight_layers).step(_inp(0.0, 60.0, v=5.0, tracks=_aged(on_it, settle)))
-    assert settled.stop_reason is StopReason.CROSSWALK and settled.risk_track_id == 3
-    # A pedestrian counts from its birth; and a young unknown in the path is still the in-path rule's.
-    ped = _tracks([(3, 100.0, 1.0, 0.0, 1.2, ObjectClass.PEDESTRIAN)])
-    assert _fsm(straight_layers).step(_inp(0.0, 60.0, v=5.0, tracks=ped)).stop_reason is StopReason.CROSSWALK
-    in_lane = _aged(_tracks([(4, 90.0, 0.0, 0.0, 0.0, ObjectClass.UNKNOWN)]), 0.0)
-    d = _fsm(straight_layers).step(_inp(0.0, 60.0, v=5.0, tracks=in_lane))
+
+    def decide(rear_s: float, age_s: float, tracks: TrackedObjects = on_it):
+        return _fsm(straight_layers).step(_inp(0.0, rear_s, v=5.0, tracks=_aged(tracks, age_s)))
+
+    # Far enough off to stop comfortably: yielded to at once, new or not.
+    for age in (0.0, 0.5 * settle, settle):
+        assert decide(60.0, age).stop_reason is StopReason.CROSSWALK
+    # Too close for a comfortable stop: not for a new one, yes for one tracked a while.
+    close = 97.0 - G.front_from_rear_axle_m - 0.8 * comfortable_stop_m(5.0, DecisionConfig().traffic_lights)
+    assert decide(close, 0.5 * settle).stop_at_s_m is None
+    assert decide(close, settle).stop_reason is StopReason.CROSSWALK
+    # A pedestrian counts from its birth; and a new unknown in the path is still the in-path rule's.
+    ped = _tracks([(3, 100.0, 3.0, 0.0, -0.3, ObjectClass.PEDESTRIAN)])
+    assert decide(close, 0.0, ped).stop_reason is StopReason.CROSSWALK
+    in_lane = _tracks([(4, 90.0, 0.0, 0.0, 0.0, ObjectClass.UNKNOWN)])
+    d = decide(60.0, 0.0, in_lane)
     assert d.stop_reason is StopReason.OBSTACLE and d.risk_track_id == 4
 
 

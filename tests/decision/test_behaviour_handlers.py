@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import math
 
@@ -180,32 +179,30 @@ def test_rear_traffic_holds_the_merge_only_near_where_it_began(straight_layers) 
     assert merge(1.0, 210.0 + C.merge_hold_m + 0.5) == "merging"
 
 
-def test_a_rear_traffic_hold_stops_where_a_comfortable_stop_ends_and_skips_unsettled_tracks(
-    straight_layers,
-) -> None:
+def test_a_rear_traffic_hold_stops_where_a_comfortable_stop_ends(straight_layers) -> None:
     """At the merge's speed a stop point at the front itself is braked for at the urgent rate (snow,
-    raw: -2.8 m/s^3 for a snow phantom): the hold stops where a comfortable stop ends, fixed while it
-    lasts; and an unclassified track too new to have settled does not hold the merge."""
+    raw: -2.8 m/s^3, held by a snow phantom): the hold stops where a comfortable stop ends, fixed
+    while it lasts, and placed anew for the next hold."""
     ctx, mem = _ctx(straight_layers), BehaviourMemory(state=BehaviourState.MERGING)
     mem.stop.stop_index, mem.stop.merge_from_s_m = 0, 210.0
 
-    def merge(t_s: float, rear_s: float, v: float, cls: ObjectClass, unsettled=frozenset()) -> Cycle:
-        follower = rear_s - G.rear_overhang_m - 5.0 - 2.25
-        cy = _cycle(ctx, _inp(t_s, rear_s, d_m=-2.0, v=v, tracks=_tracks([(7, follower, 0.0, 1.0, 0.0, cls)])))
-        cy = dataclasses.replace(cy, unsettled_ids=frozenset(unsettled))
+    def merge(t_s: float, rear_s: float, v: float, follower: bool = True) -> Cycle:
+        car = _tracks([(7, rear_s - G.rear_overhang_m - 5.0 - 2.25, 0.0, 1.0, 0.0, ObjectClass.CAR)])
+        cy = _cycle(ctx, _inp(t_s, rear_s, d_m=-2.0, v=v, tracks=car if follower else None))
         handle_merging(ctx, mem, cy)
         return cy
 
-    cy = merge(0.0, 210.5, 1.2, ObjectClass.CAR)
+    cy = merge(0.0, 210.5, 1.2)
     (hold,) = cy.constraints
     want = cy.front_s_m + comfortable_stop_m(1.2, C.traffic_lights)
     assert hold.reason is StopReason.REAR_TRAFFIC and hold.stop_front_s_m == pytest.approx(want)
     assert hold.stop_front_s_m > cy.front_s_m + 1.2**2 / (2.0 * C.traffic_lights.comfort_decel_mps2)
-    (later,) = merge(0.5, 211.0, 0.6, ObjectClass.CAR).constraints
+    (later,) = merge(0.5, 211.0, 0.6).constraints
     assert later.stop_front_s_m == hold.stop_front_s_m  # fixed for the hold
-    assert merge(1.0, 211.2, 0.3, ObjectClass.UNKNOWN, {7}).constraints == []
-    assert mem.stop.rear_hold_front_s_m is None  # released: the next hold is placed anew
-    assert merge(1.5, 211.2, 0.3, ObjectClass.UNKNOWN).constraints != []
+    assert merge(1.0, 211.2, 0.3, follower=False).constraints == []
+    assert mem.stop.rear_hold_front_s_m is None  # released
+    (again,) = merge(1.5, 211.2, 0.0).constraints
+    assert again.stop_front_s_m == pytest.approx(211.2 + G.front_from_rear_axle_m)  # at rest: where it stands
 
 
 def test_merging_ends_back_on_the_lane_centre(straight_layers) -> None:

@@ -17,7 +17,6 @@ from lastmile.decision.offroad_unknowns import (
     kerbside_unknown_ids,
     on_road_surface,
     unsettled_unknown_ids,
-    without_ids,
     yieldable_tracks,
 )
 from lastmile.decision.stop_constraints import in_path_constraints
@@ -110,10 +109,7 @@ def test_unsettled_unknowns_are_the_young_unclassified_tracks_only():
         ]
     )
     tracks = TrackedObjects(stamp=Stamp(0), ids=np.array([5, 6, 7], dtype=np.int64), table=table)
-    young = unsettled_unknown_ids(tracks, 1.0)
-    assert young == frozenset({5})
-    assert without_ids(tracks, young).ids.tolist() == [6, 7]
-    assert without_ids(tracks, frozenset()) is tracks
+    assert unsettled_unknown_ids(tracks, 1.0) == frozenset({5})
     assert unsettled_unknown_ids(tracks, 0.0) == frozenset()
 
 

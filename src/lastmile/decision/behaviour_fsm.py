@@ -37,7 +37,6 @@ from lastmile.decision.mission import MissionManager
 from lastmile.decision.offroad_unknowns import (
     kerbside_unknown_ids,
     unsettled_unknown_ids,
-    without_ids,
     yieldable_tracks,
 )
 from lastmile.decision.pass_rule import PassInput, PassRule
@@ -176,14 +175,21 @@ class BehaviourStateMachine:
         constraints += cut_in_constraints(
             obstacles, inp.predictions, ctx.route, path, front_s, inp.speed_mps, g, c
         )
-        # The comfortable rules wait for an unclassified track to settle (offroad_unknowns).
+        # An unclassified track only just tracked brakes the shuttle for a crosswalk only comfortably.
         unsettled = unsettled_unknown_ids(inp.tracks, c.unknown_settle_s)
-        settled = without_ids(inp.tracks, unsettled)
         constraints += self._crosswalk_hold(
             t_s,
             inp.speed_mps,
             crosswalk_constraints(
-                self.layers.crosswalks, ctx.route, settled, front_s, inp.speed_mps, inp.predictions, g, c
+                self.layers.crosswalks,
+                ctx.route,
+                inp.tracks,
+                front_s,
+                inp.speed_mps,
+                inp.predictions,
+                g,
+                c,
+                unsettled,
             ),
         )
         light_stop, light_why = self.lights.step(t_s, front_s, inp.speed_mps, inp.traffic_lights, ctx.ahead_m)
@@ -226,7 +232,7 @@ class BehaviourStateMachine:
         )
         if self._pass_request is not None and self._pass_request.approved:
             speed_cap = min(speed_cap, c.passing.pass_speed_mps)
-        return Cycle(inp, t_s, front_s, obstacles, constraints + mrm + waits, speed_cap, unsettled)
+        return Cycle(inp, t_s, front_s, obstacles, constraints + mrm + waits, speed_cap)
 
     def _crosswalk_hold(
         self, t_s: float, speed_mps: float, yields: list[StopConstraint]

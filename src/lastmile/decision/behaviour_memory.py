@@ -160,8 +160,6 @@ class Cycle:
         obstacles: tracks on the route (``core.route_obstacles``).
         constraints: stop points found so far; handlers add their own.
         speed_cap_mps: the speed cap before the state's own (speed limit, cruise, fail-safe).
-        unsettled_ids: unclassified tracks too new for the comfortable rules
-            (``offroad_unknowns.unsettled_unknown_ids``): the merge's rear-traffic hold skips them.
     """
 
     inp: DecisionInput
@@ -170,7 +168,6 @@ class Cycle:
     obstacles: list[RouteObstacle]
     constraints: list[StopConstraint]
     speed_cap_mps: float
-    unsettled_ids: frozenset[int] = frozenset()
 
 
 @dataclass(frozen=True, slots=True)

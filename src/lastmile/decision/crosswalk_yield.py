@@ -50,12 +50,19 @@ def crosswalk_yields(
     lookahead_s: float,
     gap_m: float,
     comfort_decel_mps2: float,
+    unsettled: frozenset[int] = frozenset(),
+    unsettled_room_m: float = 0.0,
 ) -> list[tuple[float, int]]:
     """(stop point in route s; the first track that makes the shuttle yield) per crosswalk ahead that
     someone is on or about to be on. The stop point is 1 m before the crossing, or ``gap_m`` before
     that track's near end (taken at the crossing's near edge at the latest) when that is nearer the
     shuttle and can still be stopped at with ``comfort_decel_mps2`` (v^2 / 2d; a stop already braking
-    for it keeps it, one already past it, restarting after a yield, falls back to the line)."""
+    for it keeps it, one already past it, restarting after a yield, falls back to the line).
+
+    A track in ``unsettled`` (an unclassified one only just tracked) is yielded to only while the line
+    is at least ``unsettled_room_m`` ahead, a comfortable stop's length: a precipitation echo that the
+    tracker briefly follows must not brake the shuttle at the urgent rate, and a person still that
+    close once tracked for a while (or classified) is yielded to then, or is the in-path rule's."""
     out: list[tuple[float, int]] = []
     to_crossing = _to_crosswalk(predictions)
     for rc in crosswalks:
@@ -74,6 +81,8 @@ def crosswalk_yields(
             path = to_crossing.get(int(tid))
             if path is not None:
                 ahead_xy += [(x, y) for t, x, y in path.tolist() if t <= horizon_s + 1e-9]
+            if int(tid) in unsettled and route.ds_m(front_s_m, rc.s_start_m - 1.0) < unsettled_room_m:
+                continue
             if any(_near_polygon(x, y, poly, margin_m) for x, y in ahead_xy):
                 back_s = _back_off_s_m(route, rc, row, gap_m, margin_m)
                 room_m = route.ds_m(front_s_m, back_s)

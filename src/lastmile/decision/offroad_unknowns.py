@@ -1,6 +1,5 @@
-"""Which tracks decision may yield to: not an unclassified object off the road that is not heading onto it,
-and, for the rules that brake comfortably for what they see, not an unclassified one that has only just
-appeared.
+"""Which tracks decision may yield to: not an unclassified object off the road that is not heading onto it;
+and which unclassified tracks are too new for the crosswalk rule to brake hard for.
 
 An object no sensor could classify, standing or moving beside the road and not towards it, is
 scenery or a perception artefact (a kerb edge, a hedge, a return the ground removal missed): every
@@ -101,8 +100,8 @@ def kerbside_unknown_ids(tracks: TrackedObjects, hdmap: HDMap, standing_mps: flo
 
 
 def unsettled_unknown_ids(tracks: TrackedObjects, settle_s: float) -> frozenset[int]:
-    """Ids of the unclassified tracks younger than ``settle_s``: too new for a rule that stops for them
-    comfortably (a crosswalk yield, the merge's rear-traffic hold) to act on.
+    """Ids of the unclassified tracks younger than ``settle_s``: too new for the crosswalk rule to brake
+    harder than comfortably for them (``crosswalk_yield``).
 
     Precipitation echoes near the window form such tracks for a few sweeps; a stop point that appears
     for them a few metres ahead and is gone a cycle later is braked for at the urgent rate. Rules that
@@ -112,10 +111,3 @@ def unsettled_unknown_ids(tracks: TrackedObjects, settle_s: float) -> frozenset[
     young = (t[:, _CLS].astype(np.int64) == int(ObjectClass.UNKNOWN)) & (t[:, _AGE] < settle_s)
     return frozenset(int(i) for i in tracks.ids[young].tolist())
 
-
-def without_ids(tracks: TrackedObjects, ids: frozenset[int]) -> TrackedObjects:
-    """``tracks`` less the tracks whose id is in ``ids``."""
-    if not ids:
-        return tracks
-    keep = ~np.isin(tracks.ids, np.fromiter(ids, dtype=np.int64, count=len(ids)))
-    return TrackedObjects(stamp=tracks.stamp, ids=tracks.ids[keep], table=tracks.table[keep])

@@ -14,6 +14,7 @@ from lastmile.core.vehicle import VehicleGeometry
 from lastmile.core.vehicle_messages import StopReason
 from lastmile.decision.crosswalk_yield import crosswalk_yields
 from lastmile.decision.decision_config import DecisionConfig
+from lastmile.decision.traffic_light_rule import comfortable_stop_m
 from lastmile.decision.vehicle_cut_in import predicted_cut_ins
 from lastmile.hdmap.layers import RouteCrosswalk
 
@@ -144,8 +145,10 @@ def crosswalk_constraints(
     predictions: PredictedPaths | None,
     geometry: VehicleGeometry,
     config: DecisionConfig,
+    unsettled: frozenset[int] = frozenset(),
 ) -> list[StopConstraint]:
-    """Yield at a crosswalk to the people ``crosswalk_yield`` finds there or about to be."""
+    """Yield at a crosswalk to the people ``crosswalk_yield`` finds there or about to be; to an
+    ``unsettled`` track only while a comfortable stop still fits (``comfortable_stop_m``)."""
     return [
         StopConstraint(stop_s, "crosswalk", tid, emergency_ok=False, reason=StopReason.CROSSWALK)
         for stop_s, tid in crosswalk_yields(
@@ -160,6 +163,8 @@ def crosswalk_constraints(
             lookahead_s=config.crosswalk_lookahead_s,
             gap_m=config.min_gap_m,
             comfort_decel_mps2=config.traffic_lights.comfort_decel_mps2,
+            unsettled=unsettled,
+            unsettled_room_m=comfortable_stop_m(speed_mps, config.traffic_lights),
         )
     ]
 

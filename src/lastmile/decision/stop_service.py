@@ -131,7 +131,7 @@ def handle_merging(ctx: DecisionContext, mem: BehaviourMemory, cy: Cycle) -> Out
         mem.finish_stop(cy.t_s, "merged")
         return Outcome(cy.speed_cap_mps, "merged")
     cap = min(cy.speed_cap_mps, c.merge_speed_mps)
-    blocker = rear_blocker(ctx, [o for o in cy.obstacles if o.track_id not in cy.unsettled_ids])
+    blocker = rear_blocker(ctx, cy.obstacles)
     if blocker >= 0 and (
         visit.merge_from_s_m is None or inp.route_s_m - visit.merge_from_s_m < c.merge_hold_m
     ):
