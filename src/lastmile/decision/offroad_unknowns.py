@@ -110,4 +110,3 @@ def unsettled_unknown_ids(tracks: TrackedObjects, settle_s: float) -> frozenset[
     t = tracks.table
     young = (t[:, _CLS].astype(np.int64) == int(ObjectClass.UNKNOWN)) & (t[:, _AGE] < settle_s)
     return frozenset(int(i) for i in tracks.ids[young].tolist())
-

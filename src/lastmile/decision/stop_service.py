@@ -140,13 +140,9 @@ def handle_merging(ctx: DecisionContext, mem: BehaviourMemory, cy: Cycle) -> Out
         # The shuttle is still within merge_hold_m of the bay; anything in its path is the in-path
         # rule's, which may order an emergency stop.
         if visit.rear_hold_front_s_m is None:
-            visit.rear_hold_front_s_m = cy.front_s_m + comfortable_stop_m(
-                inp.speed_mps, c.traffic_lights
-            )
+            visit.rear_hold_front_s_m = cy.front_s_m + comfortable_stop_m(inp.speed_mps, c.traffic_lights)
         cy.constraints.append(
-            StopConstraint(
-                visit.rear_hold_front_s_m, "rear_traffic", blocker, False, StopReason.REAR_TRAFFIC
-            )
+            StopConstraint(visit.rear_hold_front_s_m, "rear_traffic", blocker, False, StopReason.REAR_TRAFFIC)
         )
         # The merge began where the door closed, and a hold does not move that point: moved along at
         # every hold, the window ratcheted with the shuttle, and a car following it out of a kerbside
