@@ -7,12 +7,11 @@ import math
 import numpy as np
 import pytest
 
-from lastmile.core.errors import ConfigError
 from lastmile.core.object_class import ObjectClass
 from lastmile.core.objects import TRACK_COLUMNS, TrackedObjects
 from lastmile.core.polyline import Polyline
 from lastmile.core.stamp import Stamp
-from lastmile.decision.gap_acceptance import arrival_on, clearance_time_s, curve_speed_mps
+from lastmile.decision.gap_acceptance import arrival_on, clearance_time_s
 from lastmile.decision.give_way_config import GiveWayConfig
 from lastmile.hdmap.give_way_zones import Approach
 
@@ -93,25 +92,3 @@ def test_clearance_time_reaches_the_top_speed_and_holds_it() -> None:
     assert clearance_time_s(12.0, 4.0, 0.8, 4.0) == pytest.approx(3.0)
     assert clearance_time_s(12.0, 6.0, 0.8, 4.0) == pytest.approx(3.0)
     assert clearance_time_s(0.0, 0.0, 0.8, 4.0) == 0.0
-
-
-def test_the_curve_speed_keeps_the_lateral_acceleration() -> None:
-    assert curve_speed_mps(np.array([0.0, 0.1, -0.25]), 1.0) == pytest.approx(2.0)
-    assert curve_speed_mps(np.array([0.0, 0.0]), 1.0) == math.inf
-
-
-def test_the_critical_gap_is_the_hcm_headway_of_the_movement() -> None:
-    cfg = GiveWayConfig()
-    assert (cfg.critical_gap_s("right"), cfg.critical_gap_s("straight"), cfg.critical_gap_s("left")) == (
-        6.2,
-        6.5,
-        7.1,
-    )
-
-
-@pytest.mark.parametrize(
-    ("field", "value"), [("critical_gap_left_s", 0.0), ("clearance_margin_s", -1.0), ("heading_cos_min", 2.0)]
-)
-def test_bad_parameters_are_one_clear_error(field: str, value: float) -> None:
-    with pytest.raises(ConfigError, match=f"GiveWayConfig.{field}"):
-        GiveWayConfig(**{field: value})  # type: ignore[arg-type]

@@ -5,12 +5,12 @@ import math
 import numpy as np
 import pytest
 
+from lastmile.core.curve_speed import curvature_speed_limit_mps
 from lastmile.core.errors import ConfigError, MessageError
 from lastmile.planning.speed_limits import (
     ClearanceSpeedConfig,
     clearance_speed_limit_mps,
     combined_speed_limit_mps,
-    curvature_speed_limit_mps,
     terminal_speed_limit_mps,
 )
 

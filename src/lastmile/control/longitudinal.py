@@ -14,6 +14,7 @@ import numpy as np
 from lastmile.control.cascaded_pi import CascadedPiConfig, CascadedPiSpeedController
 from lastmile.control.gem_twist_longitudinal import GemTwistLongitudinalController
 from lastmile.control.twist_controller import TwistControllerConfig
+from lastmile.core.curve_speed import curvature_speed_limit_mps
 from lastmile.core.errors import ConfigError
 from lastmile.core.vehicle_messages import Trajectory
 
@@ -140,8 +141,7 @@ class WatonobusLongitudinalController:
         mask = (ahead >= 0.0) & (ahead <= 40.0)
         if not np.any(mask):
             return speed_cap_mps
-        kappa = np.abs(pts[mask, 3])
-        v_curve = np.sqrt(self.config.max_lateral_accel_mps2 / np.maximum(kappa, 1e-4))
+        v_curve = curvature_speed_limit_mps(pts[mask, 3], self.config.max_lateral_accel_mps2)
         reachable = np.sqrt(v_curve**2 + 2.0 * self.config.nominal_accel_mps2 * ahead[mask])
         return float(min(speed_cap_mps, reachable.min()))
 

@@ -92,9 +92,3 @@ def arrival_on(tracks: TrackedObjects, approach: Approach, config: GiveWayConfig
         elif moving:
             out.append(Arrival(tid, (approach.zone_start_m - front) / along, leave))
     return out
-
-
-def curve_speed_mps(curvature_1pm: np.ndarray, lateral_accel_mps2: float) -> float:
-    """The highest speed at which the sharpest of the curvatures (1/m) keeps the lateral acceleration."""
-    k = float(np.max(np.abs(curvature_1pm))) if len(curvature_1pm) else 0.0
-    return math.inf if k < 1e-9 else math.sqrt(lateral_accel_mps2 / k)

@@ -19,14 +19,16 @@ stop-sign rule holds the shuttle for its full stop first; the gap check then hol
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from lastmile.core.curve_speed import curvature_speed_limit_mps
 from lastmile.core.objects import TrackedObjects
 from lastmile.core.vehicle import VehicleGeometry
-from lastmile.decision.gap_acceptance import Arrival, arrival_on, clearance_time_s, curve_speed_mps
+from lastmile.decision.gap_acceptance import Arrival, arrival_on, clearance_time_s
 from lastmile.decision.give_way_config import GiveWayConfig
 from lastmile.decision.traffic_light_rule import TrafficLightRuleConfig, comfortable_stop_m
 from lastmile.hdmap.give_way_zones import YieldJunction, YieldKind, yield_junctions
@@ -86,7 +88,8 @@ class GiveWayRule:
         route = self.layers.centerline
         curvature = np.array([route.curvature_at(float(x)) for x in s])
         limit = float(np.min(self.layers.speed_limit_mps[self.layers.record_indices(s)]))
-        return min(limit, curve_speed_mps(curvature, self.config.clearance_lateral_accel_mps2))
+        curve = curvature_speed_limit_mps(curvature, self.config.clearance_lateral_accel_mps2)
+        return min(limit, float(np.min(curve, initial=math.inf)))
 
     def step(
         self,

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from lastmile.core.curve_speed import curvature_speed_limit_mps
 from lastmile.core.errors import ConfigError, MessageError
 
 
@@ -48,15 +49,6 @@ class ClearanceSpeedConfig:
                 f"ClearanceSpeedConfig: expected 0 <= v_min_mps <= v_mdn_mps <= v_max_mps, got "
                 f"{self.v_min_mps}, {self.v_mdn_mps}, {self.v_max_mps}"
             )
-
-
-def curvature_speed_limit_mps(curvature_1pm: np.ndarray, max_lateral_accel_mps2: float) -> np.ndarray:
-    """Eq. (1) at each station: sqrt(a_lat / |kappa|) (infinite on straight road)."""
-    if not max_lateral_accel_mps2 > 0.0:
-        raise ConfigError(f"curvature_speed_limit_mps: expected a_lat > 0, got {max_lateral_accel_mps2}")
-    k = np.abs(np.asarray(curvature_1pm, dtype=np.float64))
-    with np.errstate(divide="ignore"):
-        return np.where(k > 1e-9, np.sqrt(max_lateral_accel_mps2 / np.maximum(k, 1e-300)), np.inf)
 
 
 def clearance_speed_limit_mps(clearance_m: np.ndarray, c: ClearanceSpeedConfig | None = None) -> np.ndarray:
