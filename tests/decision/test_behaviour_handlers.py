@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 
@@ -203,6 +204,18 @@ def test_a_rear_traffic_hold_stops_where_a_comfortable_stop_ends(straight_layers
     assert mem.stop.rear_hold_front_s_m is None  # released
     (again,) = merge(1.5, 211.2, 0.0).constraints
     assert again.stop_front_s_m == pytest.approx(211.2 + G.front_from_rear_axle_m)  # at rest: where it stands
+
+
+def test_an_unclassified_track_holds_a_merge_only_once_it_has_settled(straight_layers) -> None:
+    ctx, mem = _ctx(straight_layers), BehaviourMemory(state=BehaviourState.MERGING)
+    mem.stop.stop_index, mem.stop.merge_from_s_m = 0, 210.0
+    beside = _tracks([(7, 205.0, -1.0, 2.0, 0.0, ObjectClass.UNKNOWN)])
+    young = dataclasses.replace(
+        _cycle(ctx, _inp(0.0, 210.5, d_m=-2.0, v=1.0, tracks=beside)), unsettled_ids={7}
+    )
+    assert handle_merging(ctx, mem, young).reason == "merging"
+    settled = _cycle(ctx, _inp(0.1, 210.6, d_m=-2.0, v=1.0, tracks=beside))
+    assert handle_merging(ctx, mem, settled).reason == "waiting: traffic from the rear"
 
 
 def test_merging_ends_back_on_the_lane_centre(straight_layers) -> None:

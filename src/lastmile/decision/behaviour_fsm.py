@@ -232,7 +232,7 @@ class BehaviourStateMachine:
         )
         if self._pass_request is not None and self._pass_request.approved:
             speed_cap = min(speed_cap, c.passing.pass_speed_mps)
-        return Cycle(inp, t_s, front_s, obstacles, constraints + mrm + waits, speed_cap)
+        return Cycle(inp, t_s, front_s, obstacles, constraints + mrm + waits, speed_cap, unsettled)
 
     def _crosswalk_hold(
         self, t_s: float, speed_mps: float, yields: list[StopConstraint]

@@ -160,6 +160,7 @@ class Cycle:
         obstacles: tracks on the route (``core.route_obstacles``).
         constraints: stop points found so far; handlers add their own.
         speed_cap_mps: the speed cap before the state's own (speed limit, cruise, fail-safe).
+        unsettled_ids: unclassified tracks only just tracked (``offroad_unknowns.unsettled_unknown_ids``).
     """
 
     inp: DecisionInput
@@ -168,6 +169,7 @@ class Cycle:
     obstacles: list[RouteObstacle]
     constraints: list[StopConstraint]
     speed_cap_mps: float
+    unsettled_ids: frozenset[int] = frozenset()
 
 
 @dataclass(frozen=True, slots=True)

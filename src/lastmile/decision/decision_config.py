@@ -64,14 +64,16 @@ class DecisionConfig:
             (``decision.offroad_unknowns``); the crosswalk look-ahead, the longest any yield rule
             looks ahead, so nothing a rule could still yield to is dropped.
         unknown_settle_s: until an unclassified track has been tracked this long, the crosswalk rule
-            yields to it only while a comfortable stop still fits (``crosswalk_yield``). Snow and
-            rain echoes gather near the window (Charron et al. 2018: mostly within 5-10 m) and the
+            yields to it only while a comfortable stop still fits (``crosswalk_yield``), and the
+            merge does not wait for it (rear traffic is judged over rear_tta_s, 7 s). Snow and rain
+            echoes gather near the window (Charron et al. 2018: mostly within 5-10 m) and the
             tracker turns a few into short-lived unknown tracks: in the default service (snow, raw)
             one 0.3-0.9 s old, 0.8 m long, keeping pace 4.8 m beside the shuttle with no road user
-            within 15 m, made the crosswalk rule brake at the urgent rate (-2.8 m/s^2). 1 s is ten
-            LiDAR sweeps. A person first seen far enough off is yielded to at once, as before;
-            classified road users count from birth, and the in-path rule, which may order an
-            emergency stop, sees every track from birth.
+            within 15 m, made the crosswalk rule brake at the urgent rate (-2.8 m/s^2), and 0.1 m
+            ones 0.3-0.6 s old held two merges (-2.8 m/s^3). 1 s is ten LiDAR sweeps. A person first
+            seen far enough off is yielded to at once, as before; classified road users count from
+            birth, and the in-path rule, which may order an emergency stop, sees every track from
+            birth.
         vehicle_prediction_horizon_s: how far ahead a vehicle's lane-following predicted path
             (``DecisionInput.predictions``) is searched for where it enters the corridor (a car
             turning in from a side road); the shuttle then follows it from there

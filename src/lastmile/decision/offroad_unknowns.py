@@ -1,5 +1,5 @@
 """Which tracks decision may yield to: not an unclassified object off the road that is not heading onto it;
-and which unclassified tracks are too new for the crosswalk rule to brake hard for.
+and which unclassified tracks are too new for the crosswalk rule to brake hard for, or a merge to wait for.
 
 An object no sensor could classify, standing or moving beside the road and not towards it, is
 scenery or a perception artefact (a kerb edge, a hedge, a return the ground removal missed): every
@@ -101,7 +101,7 @@ def kerbside_unknown_ids(tracks: TrackedObjects, hdmap: HDMap, standing_mps: flo
 
 def unsettled_unknown_ids(tracks: TrackedObjects, settle_s: float) -> frozenset[int]:
     """Ids of the unclassified tracks younger than ``settle_s``: too new for the crosswalk rule to brake
-    harder than comfortably for them (``crosswalk_yield``).
+    harder than comfortably for them (``crosswalk_yield``), or for a merge to wait for them.
 
     Precipitation echoes near the window form such tracks for a few sweeps; a stop point that appears
     for them a few metres ahead and is gone a cycle later is braked for at the urgent rate. Rules that
