@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from lastmile.core.object_class import ObjectClass
+from lastmile.core.run_events import EventKind
 from lastmile.evaluation.report_tables import yield_lines_table
 from lastmile.hdmap.service_route import ServiceRoute, load_route
 from lastmile.sim.agents import Agent
@@ -74,24 +75,29 @@ def test_entering_the_zone_with_a_car_inside_its_stopping_distance_is_a_failure_
 ) -> None:
     near = _car(ZONE_START_Y_M + 2.25 + 20.0, 8.0)  # 20 m away at 8 m/s: it needs 30.7 m to stop
     events = _drive(service, near)
-    failures = [d for k, d in events if k == "failure_to_yield"]
+    failures = [d for k, d in events if k is EventKind.RULE_VIOLATION and d["rule"] == "failure_to_yield"]
     assert len(failures) == 1 and "car 5 20.0 m from the conflict zone" in str(failures[0]["detail"])
 
 
 def test_a_car_that_can_still_stop_or_stands_away_from_the_zone_is_no_failure(service: ServiceRoute) -> None:
     for car in (_car(ZONE_START_Y_M + 2.25 + 40.0, 8.0), _car(ZONE_START_Y_M + 2.25 + 5.0, 0.0)):
-        assert [k for k, _ in _drive(service, car)].count("failure_to_yield") == 0
+        assert not [d for k, d in _drive(service, car) if k is EventKind.RULE_VIOLATION]
 
 
 def test_a_car_standing_in_the_zone_is_a_failure_to_yield(service: ServiceRoute) -> None:
     events = _drive(service, _car(ZONE_START_Y_M - 3.0, 0.0))
-    assert any(k == "failure_to_yield" and "in the conflict zone" in str(d["detail"]) for k, d in events)
+    assert any(
+        k is EventKind.RULE_VIOLATION
+        and d["rule"] == "failure_to_yield"
+        and "in the conflict zone" in str(d["detail"])
+        for k, d in events
+    )
 
 
 def test_each_passage_of_the_line_says_whether_the_shuttle_stood_before_it(service: ServiceRoute) -> None:
     far = _car(ZONE_START_Y_M + 100.0, 0.0)
-    rolled = [d for k, d in _drive(service, far) if k == "give_way_entry"]
-    stood = [d for k, d in _drive(service, far, stand_s=3.0) if k == "give_way_entry"]
+    rolled = [d for k, d in _drive(service, far) if k is EventKind.GIVE_WAY_ENTRY]
+    stood = [d for k, d in _drive(service, far, stand_s=3.0) if k is EventKind.GIVE_WAY_ENTRY]
     assert rolled == [
         {
             "stop_line_id": rolled[0]["stop_line_id"],

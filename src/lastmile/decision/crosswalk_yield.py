@@ -73,16 +73,17 @@ def crosswalk_yields(
         to_clear_m = ahead + (rc.s_end_m - rc.s_start_m) + shuttle_length_m
         horizon_s = min(lookahead_s, to_clear_m / max(speed_mps, 1.0))
         steps_s = np.arange(0.0, horizon_s + 1e-9, STEP_S)
+        too_close_for_unsettled = route.ds_m(front_s_m, rc.s_start_m - 1.0) < unsettled_room_m
         for tid, row in zip(tracks.ids.tolist(), tracks.table.tolist(), strict=True):
             cls = ObjectClass(int(row[7]))
             if not (cls.vulnerable or cls == ObjectClass.UNKNOWN):
+                continue
+            if too_close_for_unsettled and int(tid) in unsettled:
                 continue
             ahead_xy = [(row[0] + row[2] * t, row[1] + row[3] * t) for t in steps_s]
             path = to_crossing.get(int(tid))
             if path is not None:
                 ahead_xy += [(x, y) for t, x, y in path.tolist() if t <= horizon_s + 1e-9]
-            if int(tid) in unsettled and route.ds_m(front_s_m, rc.s_start_m - 1.0) < unsettled_room_m:
-                continue
             if any(_near_polygon(x, y, poly, margin_m) for x, y in ahead_xy):
                 back_s = _back_off_s_m(route, rc, row, gap_m, margin_m)
                 room_m = route.ds_m(front_s_m, back_s)

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 
 from lastmile.core.object_class import ObjectClass
 from lastmile.core.polyline import Polyline
+from lastmile.core.run_events import EventKind
 from lastmile.hdmap.give_way_zones import Approach, YieldJunction, yield_junctions, yield_kind
 from lastmile.hdmap.model import HDMap, StopLine
 from lastmile.sim.agents import Agent
@@ -77,9 +78,10 @@ class GiveWayReferee:
 
     def step(
         self, t_s: float, front_xy: tuple[float, float], speed_mps: float, agents: list[Agent]
-    ) -> list[tuple[str, dict[str, object]]]:
-        """("give_way_entry" | "failure_to_yield", data) for what happened this tick."""
-        out: list[tuple[str, dict[str, object]]] = []
+    ) -> list[tuple[EventKind, dict[str, object]]]:
+        """(kind, data) of this tick's events: a ``GIVE_WAY_ENTRY``, or a ``RULE_VIOLATION`` whose rule
+        is ``failure_to_yield``, ready for the judge to emit."""
+        out: list[tuple[EventKind, dict[str, object]]] = []
         dt_s = 0.0 if self._last_t_s is None else t_s - self._last_t_s
         self._last_t_s = t_s
         for j in self.junctions:
@@ -95,7 +97,7 @@ class GiveWayReferee:
             if p.last_ahead_m is not None and p.last_ahead_m > 0.0 >= ahead:
                 out.append(
                     (
-                        "give_way_entry",
+                        EventKind.GIVE_WAY_ENTRY,
                         {
                             "stop_line_id": j.stop_line.id,
                             "line_kind": j.kind.value,
@@ -111,7 +113,10 @@ class GiveWayReferee:
                 if p.last_ahead_m > -zone.start_after_line_m >= ahead:
                     p.entered.add(k)
                     out += [
-                        ("failure_to_yield", {"stop_line_id": j.stop_line.id, "detail": why})
+                        (
+                            EventKind.RULE_VIOLATION,
+                            {"rule": "failure_to_yield", "detail": f"stop line {j.stop_line.id}: {why}"},
+                        )
                         for why in _forced(zone.approaches, agents)
                     ]
             if ahead > 0.0:

@@ -269,14 +269,7 @@ class Judge:
             return
         w = self.world
         for kind, data in self._give_way.step(w.t_s, w.ego_front(), w.ego.state.speed_mps, w.agents):
-            if kind == "give_way_entry":
-                self.emit(EventKind.GIVE_WAY_ENTRY, **data)
-            else:
-                self.emit(
-                    EventKind.RULE_VIOLATION,
-                    rule="failure_to_yield",
-                    detail=f"stop line {data['stop_line_id']}: {data['detail']}",
-                )
+            self.emit(kind, **data)
 
     def _crosswalks(self) -> None:
         w = self.world
