@@ -26,10 +26,13 @@ class LongitudinalConfig:
     Attributes:
         nominal_accel_mps2: a_nom of eq. (1), toward the reference speed.
         brake_trigger_mps2: eq. (2) takes over once holding the gap needs at least this deceleration,
-            so braking starts early and stays near-constant rather than late and hard.
+            so braking starts early and stays near-constant rather than late and hard. 0.8 m/s^2 is
+            under half the comfortable deceleration (the ramp to it and the fade-out leave margin);
+            0.6 began every stop further out and cost the service speed (snow seed 4: 4.14 -> 4.23 m/s).
         max_decel_mps2: the deepest braking the law commands (a stop point that appears late).
         comfort_decel_mps2: braking up to this is comfortable (Snow Lion's envelope: -1.83 m/s^2); a
-            stop needing more is urgent, and its braking may ramp in faster than ``max_jerk_mps3``.
+            stop needing more is urgent, and its braking may ramp in faster than ``max_jerk_mps3``: the
+            more it needs, the faster (1x the limit just past this, 2x at ``max_decel_mps2``).
         max_accel_mps2: the largest acceleration commanded (Snow Lion's envelope: 1.12 m/s^2).
         max_lateral_accel_mps2: comfort bound giving the curvature speed limit v = sqrt(a_lat / kappa).
         speed_gain_per_s: proportional gain from speed error to acceleration (the low-level loop).
@@ -56,7 +59,7 @@ class LongitudinalConfig:
     """
 
     nominal_accel_mps2: float = 0.8
-    brake_trigger_mps2: float = 0.6
+    brake_trigger_mps2: float = 0.8
     max_decel_mps2: float = 3.0
     comfort_decel_mps2: float = 1.8
     max_accel_mps2: float = 1.1
@@ -110,7 +113,8 @@ class WatonobusLongitudinalController:
     and aims at the reference speed along an S-curve (|a| <= sqrt(2 j |Delta v|), arriving with zero
     acceleration); toward a stop it fades out as sqrt(2 j_stop V_des), and eq. (2) aims short of the
     stop point by the distance that fade-out adds (D^3 / (6 j_stop^2)). A stop that needs more than
-    ``comfort_decel_mps2`` is urgent: its braking ramps in at twice the jerk limit.
+    ``comfort_decel_mps2`` is urgent: its braking ramps in faster than the jerk limit, in proportion to
+    how far past comfort it is (twice the limit at ``max_decel_mps2``).
     """
 
     def __init__(self, config: LongitudinalConfig | None = None) -> None:
@@ -155,8 +159,9 @@ class WatonobusLongitudinalController:
             # brakes at the urgent rate.
             self.v_des_mps = self.a_ref_mps2 = 0.0
             urgent = speed_mps > c.overshoot_speed_mps
+            haste = 2.0 if urgent else 1.0
         else:
-            urgent = self._update_reference(dt_s, v_ref_mps, gap_to_stop_m, speed_mps)
+            urgent, haste = self._update_reference(dt_s, v_ref_mps, gap_to_stop_m, speed_mps)
         # With the reference at rest the loop alone brings the vehicle to a stop; a softer gain there
         # keeps that last approach overdamped (with the drive's lag the full gain rings, and the wheels
         # stop while still braking: a step a rider feels).
@@ -173,28 +178,33 @@ class WatonobusLongitudinalController:
         floor = c.max_decel_mps2 if urgent else c.comfort_decel_mps2
         target = min(max(target, -floor), c.max_accel_mps2)
         step = c.max_jerk_mps3 * dt_s
-        # An urgent stop may ramp its braking in twice as fast: safety first, comfort second.
-        lo = self.accel_cmd_mps2 - (2.0 * step if urgent else step)
+        # An urgent stop may ramp its braking in faster: safety first, comfort second.
+        lo = self.accel_cmd_mps2 - haste * step
         hi = self.accel_cmd_mps2 + step
         self.accel_cmd_mps2 = min(max(target, lo), hi)
         return self.accel_cmd_mps2
 
     def _update_reference(
         self, dt_s: float, v_ref_mps: float, gap_to_stop_m: float | None, speed_mps: float
-    ) -> bool:
-        """Advance a_ref and V_des one step (eqs. 1-3, jerk-limited); returns whether the stop is urgent."""
+    ) -> tuple[bool, float]:
+        """Advance a_ref and V_des one step (eqs. 1-3, jerk-limited).
+
+        Returns whether the stop is urgent, and how many times the jerk limit its braking may ramp in at.
+        """
         c = self.config
         a_target = self._free_accel(v_ref_mps)
         stopping = urgent = False
+        haste = 1.0
         if gap_to_stop_m is None:
             self._braking = False
         else:
             stop = self._stop_accel(gap_to_stop_m, speed_mps)
             if stop is not None and stop[0] < a_target:
                 a_target, stopping, urgent = stop[0], True, stop[1]
+                haste = self._haste(-stop[0]) if urgent else 1.0
         ramp = c.reference_jerk_mps3 * dt_s
         if urgent:
-            self.a_ref_mps2 = max(a_target, self.a_ref_mps2 - 2.0 * ramp)
+            self.a_ref_mps2 = max(a_target, self.a_ref_mps2 - haste * ramp)
         else:
             self.a_ref_mps2 = min(max(a_target, self.a_ref_mps2 - ramp), self.a_ref_mps2 + ramp)
         v_next = self.v_des_mps + self.a_ref_mps2 * dt_s
@@ -204,7 +214,17 @@ class WatonobusLongitudinalController:
         if v_next <= 0.0:
             v_next, self.a_ref_mps2 = 0.0, 0.0
         self.v_des_mps = v_next
-        return urgent
+        return urgent, haste
+
+    def _haste(self, decel_mps2: float) -> float:
+        """How many times the jerk limit an urgent stop's braking ramps in at: 1 just past the comfortable
+        deceleration, rising to 2 at ``max_decel_mps2``. A stop barely past comfort needs no haste, and
+        ramping it in at twice the limit broke the jerk envelope for nothing (a crosswalk yield just past
+        comfort, snow seed 4 at 507 s: -2.80 m/s^3); one needing the deepest braking gets it soonest."""
+        c = self.config
+        span = c.max_decel_mps2 - c.comfort_decel_mps2
+        over = (decel_mps2 - c.comfort_decel_mps2) / span if span > 0.0 else 1.0
+        return 1.0 + min(max(over, 0.0), 1.0)
 
     def _free_accel(self, v_ref_mps: float) -> float:
         """Eq. (1)'s a_nom toward the reference, eased so V_des meets it with zero acceleration."""
