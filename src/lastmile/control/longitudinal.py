@@ -158,7 +158,7 @@ class WatonobusLongitudinalController:
             # speed loop sheds what is left in proportion to it (no step), and only a real overshoot
             # brakes at the urgent rate. Its ramp is as hasty as the loop's demand (rest gain x speed)
             # is past comfort: a stop point behind the front at 0.55 m/s (a track appearing inside the
-            # stand-off as the shuttle moved off, snow seed 3 at 69 s) asks for -0.33 m/s^2, and
+            # stand-off as the shuttle moved off, snow seed 3 at 69 s, 0.8 trigger) asks for -0.33, and
             # ramping to that at twice the jerk limit was -2.2 m/s^3 for nothing.
             self.v_des_mps = self.a_ref_mps2 = 0.0
             urgent = speed_mps > c.overshoot_speed_mps
@@ -223,7 +223,8 @@ class WatonobusLongitudinalController:
         """How many times the jerk limit an urgent stop's braking ramps in at: 1 just past the comfortable
         deceleration, rising to 2 at ``max_decel_mps2``. A stop barely past comfort needs no haste, and
         ramping it in at twice the limit broke the jerk envelope for nothing (a crosswalk yield just past
-        comfort, snow seed 4 at 507 s: -2.80 m/s^3); one needing the deepest braking gets it soonest."""
+        comfort, snow seed 4 at 507 s with a 0.8 m/s^2 brake trigger: -2.80 m/s^3); one needing the
+        deepest braking gets it soonest."""
         c = self.config
         span = c.max_decel_mps2 - c.comfort_decel_mps2
         over = (decel_mps2 - c.comfort_decel_mps2) / span if span > 0.0 else 1.0
