@@ -156,13 +156,10 @@ class WatonobusLongitudinalController:
         if gap_to_stop_m is not None and (gap_to_stop_m <= 0.05 or (at_rest and gap_to_stop_m < c.arrive_m)):
             # At the stop point (or at rest within ``arrive_m`` of it) the reference is at rest; the
             # speed loop sheds what is left in proportion to it (no step), and only a real overshoot
-            # brakes at the urgent rate. Its ramp is as hasty as the loop's demand (rest gain x speed)
-            # is past comfort: a stop point behind the front at 0.55 m/s (a track appearing inside the
-            # stand-off as the shuttle moved off, snow seed 3 at 69 s, 0.8 trigger) asks for -0.33, and
-            # ramping to that at twice the jerk limit was -2.2 m/s^3 for nothing.
+            # brakes at the urgent rate.
             self.v_des_mps = self.a_ref_mps2 = 0.0
             urgent = speed_mps > c.overshoot_speed_mps
-            haste = self._haste(c.rest_gain_per_s * speed_mps) if urgent else 1.0
+            haste = 2.0 if urgent else 1.0
         else:
             urgent, haste = self._update_reference(dt_s, v_ref_mps, gap_to_stop_m, speed_mps)
         # With the reference at rest the loop alone brings the vehicle to a stop; a softer gain there
