@@ -156,10 +156,12 @@ class WatonobusLongitudinalController:
         if gap_to_stop_m is not None and (gap_to_stop_m <= 0.05 or (at_rest and gap_to_stop_m < c.arrive_m)):
             # At the stop point (or at rest within ``arrive_m`` of it) the reference is at rest; the
             # speed loop sheds what is left in proportion to it (no step), and only a real overshoot
-            # brakes at the urgent rate.
+            # brakes at the urgent rate, ramping in as hastily as the deepest braking. Graded by the
+            # loop's smaller demand instead, snow seed 0 diverged at an emergency stop and later met an
+            # urgent stop out of the envelope (-2.73 m/s^3 at 510.9 s).
             self.v_des_mps = self.a_ref_mps2 = 0.0
             urgent = speed_mps > c.overshoot_speed_mps
-            haste = 2.0 if urgent else 1.0
+            haste = self._haste(c.max_decel_mps2) if urgent else 1.0
         else:
             urgent, haste = self._update_reference(dt_s, v_ref_mps, gap_to_stop_m, speed_mps)
         # With the reference at rest the loop alone brings the vehicle to a stop; a softer gain there
