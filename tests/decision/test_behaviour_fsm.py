@@ -3,6 +3,7 @@
 import dataclasses
 
 import numpy as np
+import pytest
 
 from lastmile.core.geometry import SE2
 from lastmile.core.object_class import ObjectClass
@@ -176,6 +177,68 @@ def test_a_crosswalk_brakes_hard_for_an_unclassified_track_only_once_it_has_sett
     in_lane = _tracks([(4, 90.0, 0.0, 0.0, 0.0, ObjectClass.UNKNOWN)])
     d = decide(60.0, 0.0, in_lane)
     assert d.stop_reason is StopReason.OBSTACLE and d.risk_track_id == 4
+
+
+def test_a_pedestrian_whose_class_flickers_to_unknown_is_still_yielded_to(straight_layers):
+    # Clear seed 4 (a_nom 1.0): a person yielded to from 13 m at 5.5 m/s read as unclassified for a
+    # few sweeps at 0.7 s old; taken for a new unclassified track, the yield was dropped as no longer
+    # comfortable and came back 0.3 s later as an urgent stop (-2.28 m/s^2, +18 m/s^3 at its end).
+    settle = DecisionConfig().unknown_settle_s
+    on_it = [(3, 100.0, 3.0, 0.0, -0.3, ObjectClass.PEDESTRIAN)]
+    flicker = [(3, 100.0, 3.0, 0.0, -0.3, ObjectClass.UNKNOWN)]
+    close = 97.0 - G.front_from_rear_axle_m - 0.8 * comfortable_stop_m(5.0, DecisionConfig().traffic_lights)
+    fsm = _fsm(straight_layers)
+    d = fsm.step(_inp(0.0, close - 1.0, v=5.0, tracks=_aged(_tracks(on_it), 0.4 * settle)))
+    assert d.stop_reason is StopReason.CROSSWALK
+    d = fsm.step(_inp(0.1, close, v=5.0, tracks=_aged(_tracks(flicker), 0.5 * settle)))
+    assert d.stop_reason is StopReason.CROSSWALK and d.risk_track_id == 3
+    # A new unclassified track with that id after the person's track ended is new again.
+    fsm.step(_inp(0.2, close, v=5.0))
+    assert fsm.step(_inp(0.3, close, v=5.0, tracks=_aged(_tracks(flicker), 0.0))).stop_at_s_m is None
+
+
+def test_a_shuttle_moving_off_past_the_line_stops_at_the_crossings_edge(straight_layers):
+    # Snow seed 2 (a_nom 1.0): moving off after a yield, the front 0.7 m past the line, a person first
+    # tracked as unclassified was ignored at 0.2 m/s (the line behind: no comfortable stop "before" it)
+    # and settled at 0.9 m/s; the stop point, the line behind the front, was an overshoot braked for at
+    # -2.76 m/s^3.
+    front = 97.7  # the line is at 97.0, the crossing from 98.0
+    walking_in = [(3, 100.0, 6.0, 0.0, -1.2, ObjectClass.UNKNOWN)]
+    for age in (0.0, 2.0):  # new, or tracked a while: a comfortable stop fits before the crossing
+        d = _fsm(straight_layers).step(
+            _inp(0.0, front - G.front_from_rear_axle_m, v=0.2, tracks=_aged(_tracks(walking_in), age))
+        )
+        assert d.stop_reason is StopReason.CROSSWALK and d.risk_track_id == 3
+        assert d.stop_at_s_m == pytest.approx(98.0)
+    # Too fast to stop before the crossing comfortably: as before, a new track is not yielded to, a
+    # settled one at the line; standing, the line keeps the shuttle where it stands.
+    for v, age, stop in ((0.9, 0.0, None), (0.9, 2.0, 97.0), (0.0, 2.0, 97.0)):
+        d = _fsm(straight_layers).step(
+            _inp(0.0, front - G.front_from_rear_axle_m, v=v, tracks=_aged(_tracks(walking_in), age))
+        )
+        assert d.stop_at_s_m == (None if stop is None else pytest.approx(stop))
+
+
+def test_a_yield_no_comfortable_stop_fits_is_not_made_for_someone_reaching_the_path_after_the_shuttle(
+    straight_layers,
+):
+    # Clear seed 4 (a_nom 1.0): a person appeared 4 m from the kerb, 8 m from the path, as the front
+    # came within 10 m of the line at 5.5 m/s; the yield braked at -2.28 m/s^2 (+18 m/s^3 at its
+    # end), and they would have reached the path 2.5 s after the shuttle had cleared the crossing.
+    rear = 97.0 - 9.8 - G.front_from_rear_axle_m
+
+    def walker(y_m: float) -> TrackedObjects:
+        return _tracks([(3, 100.0, y_m, 0.0, -1.3, ObjectClass.PEDESTRIAN)])
+
+    assert _fsm(straight_layers).step(_inp(0.0, rear, v=5.5, tracks=walker(9.5))).stop_at_s_m is None
+    # Nearer the path they would be in it before the shuttle is through: yielded to, hard or not.
+    d = _fsm(straight_layers).step(_inp(0.0, rear, v=5.5, tracks=walker(7.5)))
+    assert d.stop_reason is StopReason.CROSSWALK
+    # Far enough off for a comfortable stop, the shuttle yields to the first one as well,
+    far = _fsm(straight_layers)
+    assert far.step(_inp(0.0, rear - 10.0, v=5.5, tracks=walker(11.3))).stop_reason is StopReason.CROSSWALK
+    # and a yield under way is kept, comfortable or not.
+    assert far.step(_inp(0.1, rear, v=5.5, tracks=walker(9.5))).stop_reason is StopReason.CROSSWALK
 
 
 def test_obstacle_too_close_to_stop_comfortably_triggers_emergency_stop(straight_layers):

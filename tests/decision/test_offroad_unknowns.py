@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -16,6 +18,7 @@ from lastmile.decision.decision_config import DecisionConfig
 from lastmile.decision.offroad_unknowns import (
     kerbside_unknown_ids,
     on_road_surface,
+    road_user_ids,
     unsettled_unknown_ids,
     yieldable_tracks,
 )
@@ -117,3 +120,40 @@ def test_unknown_settle_s_must_be_a_finite_non_negative_time():
     for bad in (-0.1, float("nan"), float("inf")):
         with pytest.raises(ConfigError, match="unknown_settle_s"):
             DecisionConfig(unknown_settle_s=bad)
+
+
+def test_a_new_unknown_beside_the_body_is_not_taken_for_a_lead():
+    """Merging at 3 m/s, a 0.16 m track 0.3-0.6 s old keeping pace 0.75 m behind the front, 6 m/s
+    along (a snow echo near the sensor, default service, snow, raw) was stopped for as a lead. A new
+    unclassified track beside the body is not; a settled one there is, as before, and a new one ahead
+    of the front is stopped for from birth."""
+    config = DecisionConfig()
+    g = VehicleGeometry()
+    path = Polyline(np.array([[0.0, 0.0], [200.0, 0.0]]))
+    front = 50.0 + g.front_from_rear_axle_m
+
+    def echo(ds_m: float) -> RouteObstacle:
+        s = front + ds_m
+        return RouteObstacle(779, ObjectClass.UNKNOWN, s, 1.2, s, ds_m, 1.2, 6.2, 0.6, 0.16, 0.1)
+
+    new = frozenset({779})
+    assert in_path_constraints([echo(-0.75)], 3.0, path, g, config, front)  # settled: a lead
+    assert in_path_constraints([echo(-0.75)], 3.0, path, g, config, front, unsettled_ids=new) == []
+    assert in_path_constraints([echo(0.2)], 3.0, path, g, config, front, unsettled_ids=new)  # ahead
+    # Standing beside the body, it is still judged as before (a swept turn may reach it).
+    standing = dataclasses.replace(echo(-0.75), v_s_mps=0.0, v_d_mps=0.0)
+    assert in_path_constraints([standing], 3.0, path, g, config, front, unsettled_ids=new)
+
+
+def test_a_track_once_a_road_user_stays_one_while_tracked():
+    def tracks(*rows: tuple[int, ObjectClass]) -> TrackedObjects:
+        table = np.array([[0.0, 0.0, 0.0, 0.0, 0.5, 0.5, 0.0, int(c), 0.1, 0.5] for _, c in rows])
+        return TrackedObjects(stamp=Stamp(0), ids=np.array([i for i, _ in rows], dtype=np.int64), table=table)
+
+    seen = road_user_ids(tracks((1, ObjectClass.PEDESTRIAN), (2, ObjectClass.UNKNOWN)), frozenset())
+    assert seen == frozenset({1})
+    flickered = tracks((1, ObjectClass.UNKNOWN), (2, ObjectClass.UNKNOWN))
+    seen = road_user_ids(flickered, seen)
+    assert seen == frozenset({1})
+    assert unsettled_unknown_ids(flickered, 1.0, seen) == frozenset({2})
+    assert road_user_ids(tracks((2, ObjectClass.UNKNOWN)), seen) == frozenset()  # 1 ended: forgotten

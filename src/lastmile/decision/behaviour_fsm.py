@@ -36,6 +36,7 @@ from lastmile.decision.intersection_handling import AllWayStops, handle_intersec
 from lastmile.decision.mission import MissionManager
 from lastmile.decision.offroad_unknowns import (
     kerbside_unknown_ids,
+    road_user_ids,
     unsettled_unknown_ids,
     yieldable_tracks,
 )
@@ -154,6 +155,7 @@ class BehaviourStateMachine:
         """The cycle's stop points from obstacles, cut-ins, crosswalks, lights and the fail-safe."""
         t_s = inp.stamp / 1e6
         g, c, ctx = self.geometry, self.config, self.context
+        self.memory.road_user_ids = road_user_ids(inp.tracks, self.memory.road_user_ids)
         # Every rule below sees only the tracks it may yield to (offroad_unknowns).
         inp = dataclasses.replace(
             inp, tracks=yieldable_tracks(inp.tracks, self.layers.hdmap, c.offroad_unknown_horizon_s)
@@ -171,13 +173,14 @@ class BehaviourStateMachine:
             if self.memory.state in _AT_THE_KERB
             else frozenset()
         )
-        constraints = in_path_constraints(obstacles, inp.speed_mps, path, g, c, front_s, kerbside)
+        # An unclassified track only just tracked (never a road user) brakes the shuttle for a crosswalk
+        # only comfortably, and is not taken for a lead while it is beside the body.
+        unsettled = unsettled_unknown_ids(inp.tracks, c.unknown_settle_s, self.memory.road_user_ids)
+        constraints = in_path_constraints(obstacles, inp.speed_mps, path, g, c, front_s, kerbside, unsettled)
         constraints += cut_in_constraints(
             obstacles, inp.predictions, ctx.route, path, front_s, inp.speed_mps, g, c
         )
-        # An unclassified track only just tracked brakes the shuttle for a crosswalk only comfortably.
-        unsettled = unsettled_unknown_ids(inp.tracks, c.unknown_settle_s)
-        constraints += self._crosswalk_hold(
+        yields = self._crosswalk_hold(
             t_s,
             inp.speed_mps,
             crosswalk_constraints(
@@ -190,8 +193,11 @@ class BehaviourStateMachine:
                 g,
                 c,
                 unsettled,
+                may_pass=not self.memory.crosswalk_yielding,  # a yield under way is kept
             ),
         )
+        self.memory.crosswalk_yielding = bool(yields)
+        constraints += yields
         light_stop, light_why = self.lights.step(t_s, front_s, inp.speed_mps, inp.traffic_lights, ctx.ahead_m)
         if light_stop is not None:
             # Never an emergency stop for a light: a late red is braked for as hard as allowed, no harder.

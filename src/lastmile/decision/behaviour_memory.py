@@ -112,6 +112,10 @@ class BehaviourMemory:
     emergency_clear_since_s: float | None = None
     crosswalk_hold: tuple[float, int, float] | None = None
     """(stop point, track id, last seen yielding s) of a crosswalk yield the shuttle stands for."""
+    crosswalk_yielding: bool = False
+    """The last cycle yielded at a crosswalk (a yield under way is not given up for passing first)."""
+    road_user_ids: frozenset[int] = frozenset()
+    """Tracks seen classified as a road user while tracked since (``offroad_unknowns.road_user_ids``)."""
     transitions: list[tuple[float, str, str, str]] = field(default_factory=list)
 
     def enter(self, state: BehaviourState, t_s: float, why: str) -> None:

@@ -72,8 +72,9 @@ class DecisionConfig:
             within 15 m, made the crosswalk rule brake at the urgent rate (-2.8 m/s^2), and 0.1 m
             ones 0.3-0.6 s old held two merges (-2.8 m/s^3). 1 s is ten LiDAR sweeps. A person first
             seen far enough off is yielded to at once, as before; classified road users count from
-            birth, and the in-path rule, which may order an emergency stop, sees every track from
-            birth.
+            birth (and stay road users while tracked, whatever their class reads later), and the
+            in-path rule, which may order an emergency stop, sees every track ahead of the front from
+            birth (beside the body, a new unclassified one is an echo: ``behind_front_ignore_m``).
         vehicle_prediction_horizon_s: how far ahead a vehicle's lane-following predicted path
             (``DecisionInput.predictions``) is searched for where it enters the corridor (a car
             turning in from a side road); the shuttle then follows it from there
@@ -81,6 +82,10 @@ class DecisionConfig:
         cut_in_pass_margin_s: such a car is yielded to unless the shuttle's front would reach the
             entry at least this long before the car, or (a car crossing the lane) the car will have
             left the corridor at least this long before the front gets there.
+        crosswalk_pass_margin_s: a crosswalk yield that no comfortable stop fits is not made for
+            someone whose futures reach the shuttle's corridor (half width plus
+            ``corridor_margin_m``) only this long after the shuttle, at its speed, has cleared the
+            crossing (``crosswalk_yield``): it passes first. The cut-in rule's margin.
         merge_room_m: room kept free ahead of a stopped shuttle's front so it can pull out around a
             car parked further along the bay (with min_gap_m + 0.5 beyond it). 4 m, not 5: every
             metre given here is taken from the swing in, and with a car at the end of S1's 24 m
@@ -100,7 +105,8 @@ class DecisionConfig:
             standing shuttle does not look arbitrarily far into the future.
         in_path_prediction_steps: the predicted motion is tested at this many equal steps (plus now).
         behind_front_ignore_m: an obstacle whose centre is more than this behind the front and which
-            moves along the route is not stopped for (it is beside or behind us, going our way).
+            moves along the route is not stopped for (it is beside or behind us, going our way); a new
+            unclassified one (``unknown_settle_s``) as soon as its centre is behind the front.
         lead_decel_mps2: how hard a lead is assumed to brake when it stops, which places the point
             eq. (2)'s gap is kept to (a firm but ordinary brake of a car).
         emergency_contact_margin_m: the emergency test asks whether the shuttle can stop this short of
@@ -183,6 +189,7 @@ class DecisionConfig:
     unknown_settle_s: float = 1.0
     vehicle_prediction_horizon_s: float = 4.0
     cut_in_pass_margin_s: float = 2.0
+    crosswalk_pass_margin_s: float = 2.0
     transition_m: float = 32.0
     merge_room_m: float = 4.0
     spot_scan_m: float = 40.0
@@ -244,6 +251,7 @@ class DecisionConfig:
             "kerbside_standing_mps",
             "emergency_hold_moving_mps",
             "unknown_settle_s",
+            "crosswalk_pass_margin_s",
         ):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
