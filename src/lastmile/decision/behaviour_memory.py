@@ -15,6 +15,25 @@ from lastmile.decision.stop_constraints import StopConstraint
 from lastmile.hdmap.layers import SLayerDatabase
 
 
+@dataclass(frozen=True, slots=True)
+class CrosswalkHold:
+    """The last crosswalk yield seen.
+
+    Attributes:
+        stop_front_s_m: its stop point (front-bumper route s).
+        track_id: the track yielded to.
+        seen_s: when it was last seen yielding.
+        standing: the shuttle stood for it then.
+        settled: the track had settled then (not a new unclassified one, ``unknown_settle_s``).
+    """
+
+    stop_front_s_m: float
+    track_id: int
+    seen_s: float
+    standing: bool
+    settled: bool
+
+
 @dataclass(slots=True)
 class StopVisit:
     """The requested stop being served, from the pull-over through onboarding to the merge.
@@ -110,10 +129,8 @@ class BehaviourMemory:
     intersection: IntersectionVisit = field(default_factory=IntersectionVisit)
     drop_off: DropOffVisit = field(default_factory=DropOffVisit)
     emergency_clear_since_s: float | None = None
-    crosswalk_hold: tuple[float, int, float] | None = None
-    """(stop point, track id, last seen yielding s) of a crosswalk yield the shuttle stands for."""
-    crosswalk_yielding: bool = False
-    """The last cycle yielded at a crosswalk (a yield under way is not given up for passing first)."""
+    crosswalk_hold: CrosswalkHold | None = None
+    """The last crosswalk yield, held a while after it clears (``BehaviourStateMachine._crosswalk_hold``)."""
     road_user_ids: frozenset[int] = frozenset()
     """Tracks seen classified as a road user while tracked since (``offroad_unknowns.road_user_ids``)."""
     transitions: list[tuple[float, str, str, str]] = field(default_factory=list)

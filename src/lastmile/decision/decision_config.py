@@ -129,7 +129,9 @@ class DecisionConfig:
             been clear this long (as ``emergency_clear_s``): a person making for the crossing right
             behind the one it yielded to is a confirmed radar track about 1.5 s later (seed 2: 1.5 s),
             and a restart caught by them stopped again 2 m on, from 1.4 m/s, with -1.6 m/s^2 and
-            a 9.4 m/s^3 jerk as the wheels stopped.
+            a 9.4 m/s^3 jerk as the wheels stopped. A yield whose settled track the tracker lost is held
+            as long, moving or not, while its stop point is still a comfortable stop
+            (``BehaviourStateMachine._crosswalk_hold``).
         standstill_mps: below this the shuttle counts as stopped (pull-over arrival, emergency release).
         entry_heading_back_m: an all-way stop entry's heading is the lanelet's heading this far before
             its end (the stop line is at the end; the last vertex has no heading of its own).
