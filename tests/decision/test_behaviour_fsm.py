@@ -275,6 +275,26 @@ def test_a_yield_no_comfortable_stop_fits_is_not_made_for_someone_reaching_the_p
     assert far.step(_inp(0.1, rear, v=5.5, tracks=walker(9.5))).stop_reason is StopReason.CROSSWALK
 
 
+def test_a_shuttle_moving_past_the_line_passes_first_too(straight_layers):
+    # Clear seed 4 (a_nom 1.0): at 5.5 m/s the pass-first judgement held while the line was ahead; with
+    # the front 0.6 m past it (the line is 1 m before the crossing) it no longer applied, and the
+    # shuttle braked for the line behind its front for 0.3 s (-2.42 m/s^3) before it was on the crossing.
+    rear = 97.0 + 0.6 - G.front_from_rear_axle_m
+
+    def walker(y_m: float) -> TrackedObjects:
+        return _tracks([(3, 100.0, y_m, 0.0, -1.3, ObjectClass.PEDESTRIAN)])
+
+    # 8 m off the path at 1.3 m/s: about the crossing within the 1.6 s to clear it, in the corridor
+    # 2.9 s after the shuttle has cleared it.
+    assert _fsm(straight_layers).step(_inp(0.0, rear, v=5.5, tracks=walker(8.0))).stop_at_s_m is None
+    # Someone who is in the path before the shuttle is through is still yielded to,
+    d = _fsm(straight_layers).step(_inp(0.0, rear, v=5.5, tracks=walker(4.0)))
+    assert d.stop_reason is StopReason.CROSSWALK
+    # and a shuttle creeping off past the line after a yield still stops for the person it yielded to.
+    d = _fsm(straight_layers).step(_inp(0.0, rear, v=0.5, tracks=walker(8.0)))
+    assert d.stop_reason is StopReason.CROSSWALK
+
+
 def test_obstacle_too_close_to_stop_comfortably_triggers_emergency_stop(straight_layers):
     fsm = _fsm(straight_layers)
     # Front bumper at 53.75 m, goose 3 m ahead of it: stopping would need over 6 m/s^2.

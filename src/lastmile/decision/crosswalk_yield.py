@@ -82,7 +82,10 @@ def crosswalk_yields(
     ``pass_margin_s`` more: the shuttle passes first, as Autoware's crosswalk module judges from the
     times both need to the conflict. A person appearing 4 m from the kerb as the shuttle came within
     10 m of the line at 5.5 m/s, 8 m from its path, was braked for at -2.28 m/s^2 and +18 m/s^3 (clear,
-    seed 4, a_nom 1.0); they would have reached the path 2.5 s after the shuttle had cleared it."""
+    seed 4, a_nom 1.0); they would have reached the path 2.5 s after the shuttle had cleared it. A
+    shuttle moving with its front past the line is judged the same way (it was not: in clear seed 4,
+    a_nom 1.0, a pass judged at 5.5 m/s turned, as the front passed the line, into 0.3 s of braking
+    for the line behind it, -2.42 m/s^3); one standing or creeping off there yields as before."""
     out: list[tuple[float, int]] = []
     to_crossing = _to_crosswalk(predictions)
     for rc in crosswalks:
@@ -115,7 +118,9 @@ def crosswalk_yields(
                 room_m = route.ds_m(front_s_m, back_s)
                 fits = room_m > 0.0 and speed_mps**2 / (2.0 * room_m) <= comfort_decel_mps2
                 stop_s = min(back_s, line_s) if fits and not past_line else line_s
-                urgent = not past_line and route.ds_m(front_s_m, stop_s) < comfortable_room_m
+                # Moving past the line, no stop fits before the crossing: the shuttle may pass first.
+                moving = speed_mps >= _SLOW_MPS
+                urgent = (moving or not past_line) and route.ds_m(front_s_m, stop_s) < comfortable_room_m
                 if urgent and not _reaches_path_by(route, rc, row, path, pass_by_s, corridor_half_m):
                     continue  # the shuttle is through before they reach its path
                 out.append((stop_s, int(tid)))
