@@ -34,6 +34,7 @@ from lastmile.decision.drop_off import (
 from lastmile.decision.give_way_rule import GiveWayRule
 from lastmile.decision.intersection_handling import AllWayStops, handle_intersection, next_all_way_stop_line
 from lastmile.decision.mission import MissionManager
+from lastmile.decision.observed_motion import observed_velocities, updated_trails
 from lastmile.decision.offroad_unknowns import (
     kerbside_unknown_ids,
     road_user_ids,
@@ -157,9 +158,13 @@ class BehaviourStateMachine:
         g, c, ctx = self.geometry, self.config, self.context
         tracked = frozenset(int(i) for i in inp.tracks.ids.tolist())
         self.memory.road_user_ids = road_user_ids(inp.tracks, self.memory.road_user_ids)
+        window_s = c.offroad_motion_window_s
+        self.memory.track_trails = updated_trails(self.memory.track_trails, inp.tracks, t_s, window_s)
+        observed = observed_velocities(self.memory.track_trails, inp.tracks, window_s)
         # Every rule below sees only the tracks it may yield to (offroad_unknowns).
         inp = dataclasses.replace(
-            inp, tracks=yieldable_tracks(inp.tracks, self.layers.hdmap, c.offroad_unknown_horizon_s)
+            inp,
+            tracks=yieldable_tracks(inp.tracks, self.layers.hdmap, c.offroad_unknown_horizon_s, observed),
         )
         front_s = inp.route_s_m + g.front_from_rear_axle_m
         obstacles = route_obstacles(inp.tracks, ctx.route, inp.route_s_m, g.front_from_rear_axle_m)

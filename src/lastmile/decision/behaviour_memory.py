@@ -10,6 +10,7 @@ from lastmile.core.vehicle import VehicleGeometry
 from lastmile.core.vehicle_messages import BehaviourState
 from lastmile.decision.decision_config import DecisionConfig, DecisionInput
 from lastmile.decision.mission import MissionManager
+from lastmile.decision.observed_motion import Trail
 from lastmile.decision.right_of_way import ArrivalOrder
 from lastmile.decision.stop_constraints import StopConstraint
 from lastmile.hdmap.layers import SLayerDatabase
@@ -131,6 +132,8 @@ class BehaviourMemory:
     emergency_clear_since_s: float | None = None
     crosswalk_hold: CrosswalkHold | None = None
     """The last crosswalk yield, held a while after it clears (``BehaviourStateMachine._crosswalk_hold``)."""
+    track_trails: dict[int, Trail] = field(default_factory=dict)
+    """Recent published positions per track (``observed_motion.updated_trails``)."""
     road_user_ids: frozenset[int] = frozenset()
     """Tracks seen classified as a road user while tracked since (``offroad_unknowns.road_user_ids``)."""
     transitions: list[tuple[float, str, str, str]] = field(default_factory=list)

@@ -63,6 +63,13 @@ class DecisionConfig:
             when its constant-velocity path enters the surface within this time
             (``decision.offroad_unknowns``); the crosswalk look-ahead, the longest any yield rule
             looks ahead, so nothing a rule could still yield to is dropped.
+        offroad_motion_window_s: such a track's path must enter the surface at the velocity its
+            published positions bear out over at least this long, as well as at the filter's
+            (``decision.observed_motion``): the filter read a standing sign post beside a crosswalk,
+            9 s tracked, as walking towards the road at 0.67 m/s (snow, seed 0, a_nom 1.0). One
+            second, the settle time of a new unclassified track: a cluster's centre wanders by a
+            few centimetres between sweeps, and someone stepping off the kerb has moved half a
+            metre or more in it.
         unknown_settle_s: until an unclassified track has been tracked this long, the crosswalk rule
             yields to it only while a comfortable stop still fits (``crosswalk_yield``), and the
             merge does not wait for it (rear traffic is judged over rear_tta_s, 7 s). Snow and rain
@@ -188,6 +195,7 @@ class DecisionConfig:
     crosswalk_margin_m: float = 2.0
     crosswalk_lookahead_s: float = 6.0
     offroad_unknown_horizon_s: float = 6.0
+    offroad_motion_window_s: float = 1.0
     unknown_settle_s: float = 1.0
     vehicle_prediction_horizon_s: float = 4.0
     cut_in_pass_margin_s: float = 2.0
@@ -244,6 +252,7 @@ class DecisionConfig:
             "spot_stopping_decel_mps2",
             "emergency_gap_floor_m",
             "vulnerable_reach_min_speed_mps",
+            "offroad_motion_window_s",
         ):
             value = getattr(self, name)
             if not value > 0:

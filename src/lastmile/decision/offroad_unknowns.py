@@ -10,10 +10,14 @@ the sidewalk) is always kept: the crosswalk rule exists for exactly those.
 
 "Off the road" is the footprint against the map's road surface (drivable and crosswalk lanelets);
 "heading onto it" is the constant-velocity path of the footprint's centre entering it within the
-horizon.
+horizon, at the filter's velocity and, once the track's positions span a second or more, at the
+velocity they bear out (``observed_motion``: a standing post's cluster centre drifts as the shuttle
+closes in, and the filter reads that as walking).
 """
 
 from __future__ import annotations
+
+from collections.abc import Mapping
 
 import numpy as np
 from matplotlib.path import Path as MplPath
@@ -49,14 +53,22 @@ def on_road_surface(hdmap: HDMap, xy_m: np.ndarray) -> np.ndarray:
     return on
 
 
-def yieldable_tracks(tracks: TrackedObjects, hdmap: HDMap, horizon_s: float) -> TrackedObjects:
+def yieldable_tracks(
+    tracks: TrackedObjects,
+    hdmap: HDMap,
+    horizon_s: float,
+    observed: Mapping[int, tuple[float, float]] | None = None,
+) -> TrackedObjects:
     """``tracks`` without the unclassified ones whose footprint is off the road surface and whose
-    constant-velocity path stays off it for ``horizon_s``.
+    constant-velocity path stays off it for ``horizon_s``, or, where ``observed`` has the track's
+    velocity as its positions bear it out (``observed_motion``), whose path at that velocity does.
 
     Args:
         tracks: the tracker's output, map frame.
         hdmap: the map whose lanelets and crosswalks are the road surface.
         horizon_s: how far ahead the path is followed (>= 0).
+        observed: track id -> (vx, vy) m/s its published positions moved at over the last second or
+            more; a track without one is judged by its filter's velocity alone.
     """
     t = tracks.table
     unknown = np.flatnonzero(t[:, _CLS].astype(np.int64) == int(ObjectClass.UNKNOWN))
@@ -71,11 +83,18 @@ def yieldable_tracks(tracks: TrackedObjects, hdmap: HDMap, horizon_s: float) -> 
         np.column_stack([u[:, _X] + c * a - s * b, u[:, _Y] + s * a + c * b])
         for a, b in ((hl, hw), (hl, -hw), (-hl, hw), (-hl, -hw))
     ]
+    seen = u[:, [_VX, _VY]].copy()
+    for row, tid in enumerate(tracks.ids[unknown].tolist()):
+        seen[row] = (observed or {}).get(int(tid), seen[row])
     path = [np.column_stack([u[:, _X] + u[:, _VX] * k, u[:, _Y] + u[:, _VY] * k]) for k in steps]
-    probes = np.stack(corners + path, axis=1)  # (U, 4 + T, 2)
+    borne_out = [np.column_stack([u[:, _X] + seen[:, 0] * k, u[:, _Y] + seen[:, 1] * k]) for k in steps]
+    probes = np.stack(corners + path + borne_out, axis=1)  # (U, 4 + 2T, 2)
     on = on_road_surface(hdmap, probes.reshape(-1, 2)).reshape(len(unknown), -1)
+    n = len(steps)
+    # Heading onto the road: both the filter's velocity and the one its positions bear out take it there.
+    heading_on = on[:, 4 : 4 + n].any(axis=1) & on[:, 4 + n :].any(axis=1)
     drop = np.zeros(len(t), dtype=bool)
-    drop[unknown] = ~on.any(axis=1)
+    drop[unknown] = ~(on[:, :4].any(axis=1) | heading_on)
     if not drop.any():
         return tracks
     return TrackedObjects(stamp=tracks.stamp, ids=tracks.ids[~drop], table=t[~drop])
