@@ -404,3 +404,21 @@ def test_a_standing_post_the_filter_reads_as_walking_to_a_crosswalk_is_not_yield
     fsm.step(_inp(0.0, 40.0, v=5.5, tracks=post(-0.6, 8.0)))
     d = fsm.step(_inp(8.5, rear, v=5.5, tracks=post(-0.6, 3.25)))
     assert d.stop_reason is StopReason.CROSSWALK
+
+
+def test_a_yield_under_way_past_the_line_keeps_its_point_and_its_new_track(straight_layers):
+    # Snow seed 2 (a_nom 1.0): moving off at 0.2 m/s past the line, the shuttle yielded at the
+    # crossing's edge to a person first tracked as unclassified; 0.2 s later, at 0.4 m/s, no
+    # comfortable stop fitted before the edge and the new track was dropped; settled 0.5 s later it
+    # came back with the line behind the front as its stop, braked for at -2.76 m/s^3.
+    def person(y_m: float, age_s: float) -> TrackedObjects:
+        return _aged(_tracks([(3, 99.0, y_m, 0.0, 1.24, ObjectClass.UNKNOWN)]), age_s)
+
+    front = G.front_from_rear_axle_m
+    fsm = _fsm(straight_layers)
+    d = fsm.step(_inp(0.0, 97.3 - front, v=0.25, tracks=person(-6.4, 0.3)))
+    assert d.stop_reason is StopReason.CROSSWALK and d.stop_at_s_m == 98.0  # the crossing's edge
+    d = fsm.step(_inp(0.2, 97.85 - front, v=0.45, tracks=person(-6.15, 0.5)))
+    assert d.stop_reason is StopReason.CROSSWALK and d.stop_at_s_m == 98.0  # kept, not dropped
+    d = fsm.step(_inp(0.7, 98.05 - front, v=0.3, tracks=person(-5.5, 1.0)))
+    assert d.stop_reason is StopReason.CROSSWALK and d.stop_at_s_m == 98.0  # not the line behind

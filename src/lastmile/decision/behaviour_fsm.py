@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from lastmile.core.geometry import SE2
-from lastmile.core.objects import TrackedObjects
+from lastmile.core.objects import TRACK_COLUMNS, TrackedObjects
 from lastmile.core.polyline import Polyline
 from lastmile.core.route_obstacles import route_obstacles
 from lastmile.core.safety_messages import FailSafeLevel, MrmKind
@@ -186,10 +186,11 @@ class BehaviourStateMachine:
         constraints += cut_in_constraints(
             obstacles, inp.predictions, ctx.route, path, front_s, inp.speed_mps, g, c
         )
+        yielding_to = _still_yielded_to(self.memory.crosswalk_hold, inp.tracks, t_s)
         constraints += self._crosswalk_hold(
             (t_s, front_s, inp.speed_mps),
             tracked,
-            unsettled,
+            (unsettled, yielding_to),
             crosswalk_constraints(
                 self.layers.crosswalks,
                 ctx.route,
@@ -201,6 +202,7 @@ class BehaviourStateMachine:
                 c,
                 unsettled,
                 may_pass=self.memory.crosswalk_hold is None,
+                yielding_to=yielding_to,
             ),
         )
         light_stop, light_why = self.lights.step(t_s, front_s, inp.speed_mps, inp.traffic_lights, ctx.ahead_m)
@@ -249,7 +251,7 @@ class BehaviourStateMachine:
         self,
         now: tuple[float, float, float],
         tracked: frozenset[int],
-        unsettled: frozenset[int],
+        unsettled_yielding: tuple[frozenset[int], frozenset[int]],
         yields: list[StopConstraint],
     ) -> list[StopConstraint]:
         """The crosswalk yields, and, for ``crosswalk_clear_s`` after the last one cleared, the one the
@@ -264,12 +266,27 @@ class BehaviourStateMachine:
         braking left (+3.57 m/s^3). But a snow echo the tracker followed for 0.5 s is lost as well:
         held, it braked the shuttle to -2.9 m/s^2 (snow seed 3), so only a settled track holds, and
         never past a comfortable stop. Someone still tracked who no longer needs the yield (they
-        have crossed) releases it at once."""
+        have crossed) releases it at once. ``unsettled_yielding``: the new unclassified tracks, and
+        the track of the yield under way (``_still_yielded_to``), whose stop point is kept rather
+        than moved back behind the front (snow seed 2, a_nom 1.0: moving off past the line, a yield
+        at the crossing's edge turned into the line behind the front, -2.76 m/s^3)."""
         c, mem = self.config, self.memory
         t_s, front_s, speed_mps = now
+        unsettled, yielding_to = unsettled_yielding
         standing = speed_mps < c.standstill_mps
         if yields:
             first = min(yields, key=lambda k: k.stop_front_s_m)
+            held = mem.crosswalk_hold
+            if (
+                held is not None
+                and first.track_id in yielding_to
+                and first.stop_front_s_m < min(front_s, held.stop_front_s_m)
+            ):
+                # A yield under way keeps its point rather than jump back to the line behind the
+                # front, an overshoot the speed law brakes back from as hard as it may.
+                at = yields.index(first)
+                first = dataclasses.replace(first, stop_front_s_m=held.stop_front_s_m)
+                yields = [*yields[:at], first, *yields[at + 1 :]]
             settled = first.track_id not in unsettled
             mem.crosswalk_hold = CrosswalkHold(first.stop_front_s_m, first.track_id, t_s, standing, settled)
             return yields
@@ -465,3 +482,13 @@ def _moving_track_ids(tracks: TrackedObjects, faster_than_mps: float) -> frozens
     """Ids of the tracks moving faster than ``faster_than_mps`` (ground speed)."""
     speed = np.hypot(tracks.table[:, 2], tracks.table[:, 3])
     return frozenset(int(i) for i in tracks.ids[speed > faster_than_mps])
+
+
+def _still_yielded_to(held: CrosswalkHold | None, tracks: TrackedObjects, t_s: float) -> frozenset[int]:
+    """The track of the crosswalk yield under way (``held``), if it is tracked now and old enough to
+    be the one yielded to then (a new track may reuse an ended track's id)."""
+    if held is None:
+        return frozenset()
+    age = tracks.table[:, TRACK_COLUMNS.index("age_s")]
+    same = (tracks.ids == held.track_id) & (age >= t_s - held.seen_s - 1e-6)
+    return frozenset(int(i) for i in tracks.ids[same].tolist())

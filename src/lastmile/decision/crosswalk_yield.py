@@ -57,6 +57,7 @@ def crosswalk_yields(
     comfortable_room_m: float = 0.0,
     corridor_half_m: float = 0.0,
     pass_margin_s: float = math.inf,
+    yielding_to: frozenset[int] = frozenset(),
 ) -> list[tuple[float, int]]:
     """(stop point in route s; the first track that makes the shuttle yield) per crosswalk ahead that
     someone is on or about to be on. The stop point is 1 m before the crossing, or ``gap_m`` before
@@ -67,7 +68,8 @@ def crosswalk_yields(
     A track in ``unsettled`` (an unclassified one only just tracked) is yielded to only while the line
     is at least ``comfortable_room_m`` ahead, a comfortable stop's length: a precipitation echo that
     the tracker briefly follows must not brake the shuttle at the urgent rate, and a person still that
-    close once tracked for a while (or classified) is yielded to then, or is the in-path rule's.
+    close once tracked for a while (or classified) is yielded to then, or is the in-path rule's. A
+    yield under way (``yielding_to``: the track the last cycle yielded to) is not dropped for that.
 
     A shuttle whose front is past the line but not yet on the crossing (moving off after a yield)
     stops at the crossing's near edge while a comfortable stop still fits before it (for an unsettled
@@ -107,7 +109,7 @@ def crosswalk_yields(
             cls = ObjectClass(int(row[7]))
             if not (cls.vulnerable or cls == ObjectClass.UNKNOWN):
                 continue
-            if too_close_for_unsettled and int(tid) in unsettled:
+            if too_close_for_unsettled and int(tid) in unsettled and int(tid) not in yielding_to:
                 continue
             ahead_xy = [(row[0] + row[2] * t, row[1] + row[3] * t) for t in steps_s]
             path = to_crossing.get(int(tid))

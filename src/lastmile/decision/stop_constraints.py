@@ -159,12 +159,13 @@ def crosswalk_constraints(
     config: DecisionConfig,
     unsettled: frozenset[int] = frozenset(),
     may_pass: bool = False,
+    yielding_to: frozenset[int] = frozenset(),
 ) -> list[StopConstraint]:
     """Yield at a crosswalk to the people ``crosswalk_yield`` finds there or about to be; to an
     ``unsettled`` track only while a comfortable stop still fits (``comfortable_stop_m``); with
     ``may_pass`` (no yield under way: one being braked for is kept), where none fits, not to someone
     who reaches the corridor only ``crosswalk_pass_margin_s`` after the shuttle has cleared the
-    crossing."""
+    crossing; to a track in ``yielding_to`` (a yield under way) whether settled or not."""
     return [
         StopConstraint(stop_s, "crosswalk", tid, emergency_ok=False, reason=StopReason.CROSSWALK)
         for stop_s, tid in crosswalk_yields(
@@ -183,6 +184,7 @@ def crosswalk_constraints(
             comfortable_room_m=comfortable_stop_m(speed_mps, config.traffic_lights),
             corridor_half_m=geometry.width_m / 2.0 + config.corridor_margin_m,
             pass_margin_s=config.crosswalk_pass_margin_s if may_pass else math.inf,
+            yielding_to=yielding_to,
         )
     ]
 
