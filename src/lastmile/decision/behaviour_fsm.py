@@ -24,6 +24,7 @@ from lastmile.core.safety_messages import FailSafeLevel, MrmKind
 from lastmile.core.vehicle import VehicleGeometry
 from lastmile.core.vehicle_messages import BehaviourDecision, BehaviourState, PassRequest, StopReason
 from lastmile.decision.behaviour_memory import BehaviourMemory, CrosswalkHold, Cycle, DecisionContext, Outcome
+from lastmile.decision.crosswalk_yield import stop_fits
 from lastmile.decision.decision_config import DecisionConfig, DecisionInput
 from lastmile.decision.drop_off import (
     DropOffPlaces,
@@ -190,7 +191,6 @@ class BehaviourStateMachine:
         constraints += self._crosswalk_hold(
             (t_s, front_s, inp.speed_mps),
             tracked,
-            (unsettled, yielding_to),
             crosswalk_constraints(
                 self.layers.crosswalks,
                 ctx.route,
@@ -204,6 +204,8 @@ class BehaviourStateMachine:
                 may_pass=self.memory.crosswalk_hold is None,
                 yielding_to=yielding_to,
             ),
+            unsettled=unsettled,
+            yielding_to=yielding_to,
         )
         light_stop, light_why = self.lights.step(t_s, front_s, inp.speed_mps, inp.traffic_lights, ctx.ahead_m)
         if light_stop is not None:
@@ -251,8 +253,10 @@ class BehaviourStateMachine:
         self,
         now: tuple[float, float, float],
         tracked: frozenset[int],
-        unsettled_yielding: tuple[frozenset[int], frozenset[int]],
         yields: list[StopConstraint],
+        *,
+        unsettled: frozenset[int],
+        yielding_to: frozenset[int],
     ) -> list[StopConstraint]:
         """The crosswalk yields, and, for ``crosswalk_clear_s`` after the last one cleared, the one the
         shuttle stood for (only while it still stands: one that drove on has nothing to hold), or the
@@ -266,13 +270,12 @@ class BehaviourStateMachine:
         braking left (+3.57 m/s^3). But a snow echo the tracker followed for 0.5 s is lost as well:
         held, it braked the shuttle to -2.9 m/s^2 (snow seed 3), so only a settled track holds, and
         never past a comfortable stop. Someone still tracked who no longer needs the yield (they
-        have crossed) releases it at once. ``unsettled_yielding``: the new unclassified tracks, and
+        have crossed) releases it at once. ``unsettled``: the new unclassified tracks; ``yielding_to``:
         the track of the yield under way (``_still_yielded_to``), whose stop point is kept rather
         than moved back behind the front (snow seed 2, a_nom 1.0: moving off past the line, a yield
         at the crossing's edge turned into the line behind the front, -2.76 m/s^3)."""
         c, mem = self.config, self.memory
         t_s, front_s, speed_mps = now
-        unsettled, yielding_to = unsettled_yielding
         standing = speed_mps < c.standstill_mps
         if yields:
             first = min(yields, key=lambda k: k.stop_front_s_m)
@@ -294,8 +297,7 @@ class BehaviourStateMachine:
         if held is None or t_s - held.seen_s >= c.crosswalk_clear_s:
             mem.crosswalk_hold = None
             return yields
-        room_m = held.stop_front_s_m - front_s
-        fits = room_m > 0.0 and speed_mps**2 / (2.0 * room_m) <= c.traffic_lights.comfort_decel_mps2
+        fits = stop_fits(held.stop_front_s_m - front_s, speed_mps, c.traffic_lights.comfort_decel_mps2)
         lost = held.settled and held.track_id not in tracked and fits
         if not (lost or (standing and held.standing)):
             mem.crosswalk_hold = None

@@ -118,7 +118,7 @@ def crosswalk_yields(
             if any(_near_polygon(x, y, poly, margin_m) for x, y in ahead_xy):
                 back_s = _back_off_s_m(route, rc, row, gap_m, margin_m)
                 room_m = route.ds_m(front_s_m, back_s)
-                fits = room_m > 0.0 and speed_mps**2 / (2.0 * room_m) <= comfort_decel_mps2
+                fits = stop_fits(room_m, speed_mps, comfort_decel_mps2)
                 stop_s = min(back_s, line_s) if fits and not past_line else line_s
                 # Moving past the line, no stop fits before the crossing: the shuttle may pass first.
                 moving = speed_mps >= _SLOW_MPS
@@ -128,6 +128,11 @@ def crosswalk_yields(
                 out.append((stop_s, int(tid)))
                 break
     return out
+
+
+def stop_fits(room_m: float, speed_mps: float, decel_mps2: float) -> bool:
+    """A stop ``room_m`` ahead (m) needs no more than ``decel_mps2`` from ``speed_mps``: v^2 / (2 room)."""
+    return room_m > 0.0 and speed_mps**2 / (2.0 * room_m) <= decel_mps2
 
 
 def _reaches_path_by(
