@@ -179,6 +179,12 @@ class WatonobusLongitudinalController:
         # ``overshoot_speed_mps`` is urgent, and braked for at up to ``max_decel_mps2``.
         floor = c.max_decel_mps2 if urgent else c.comfort_decel_mps2
         target = min(max(target, -floor), c.max_accel_mps2)
+        if at_rest and target > 0.0 and self.accel_cmd_mps2 < 0.0:
+            # Moving off from the hold: a brake command on a standing vehicle accelerates nothing, so
+            # it is released at once, not ramped out at the jerk limit (from the -1.0 m/s^2 hold at
+            # 1.8 m/s^3, 0.56 s standing still after every go; the rider feels the drive's answer,
+            # which starts from zero either way).
+            self.accel_cmd_mps2 = 0.0
         step = c.max_jerk_mps3 * dt_s
         # An urgent stop may ramp its braking in faster: safety first, comfort second.
         lo = self.accel_cmd_mps2 - haste * step
