@@ -199,6 +199,11 @@ class CascadedPiSpeedController:
             # 10 m/s^3 jerk at every stop in the closed loop).
             out = max(out, -(c.smooth_stop_min_decel_mps2 + c.smooth_stop_decel_per_s * speed_mps))
         out = min(max(out, -c.max_decel_mps2), c.max_accel_mps2)
+        if speed_mps < c.hold_speed_mps and out > 0.0 and self.accel_cmd_mps2 < 0.0:
+            # Moving off from the hold: a brake command on a standing vehicle accelerates nothing, so
+            # it is released at once rather than ramped out at the jerk limit (as the WATonoBus law).
+            self._rate.reset(0.0)
+            self._lowpass.reset(0.0)
         self.accel_cmd_mps2 = self._lowpass.step(dt_s, self._rate.step(dt_s, out))
         return self.accel_cmd_mps2
 
