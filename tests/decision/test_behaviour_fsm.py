@@ -48,7 +48,7 @@ def _tracks(rows: list[tuple[int, float, float, float, float, ObjectClass]]) -> 
     )
 
 
-def _inp(t_s, s_m, d_m=0.0, v=0.0, tracks=None, door=False, person=False):
+def _inp(t_s, s_m, d_m=0.0, v=0.0, tracks=None, door=False, person=False, a=0.0):
     return DecisionInput(
         stamp=Stamp(int(t_s * 1e6)),
         map_from_base=SE2(s_m, d_m, 0.0),
@@ -59,6 +59,7 @@ def _inp(t_s, s_m, d_m=0.0, v=0.0, tracks=None, door=False, person=False):
         door_open=door,
         person_in_doorway=person,
         trajectory=None,
+        accel_mps2=a,
     )
 
 

@@ -206,6 +206,22 @@ def test_a_rear_traffic_hold_stops_where_a_comfortable_stop_ends(straight_layers
     assert again.stop_front_s_m == pytest.approx(211.2 + G.front_from_rear_axle_m)  # at rest: where it stands
 
 
+def test_a_rear_traffic_hold_while_moving_off_counts_the_acceleration(straight_layers) -> None:
+    """Snow seed 2: merging off at 0.52 m/s and 0.97 m/s^2, a hold placed where a stop from a steady
+    0.52 m/s ends (0.34 m) was braked for at -2.70 m/s^3; ramping the acceleration out first, the
+    stop ends 1.28 m ahead."""
+    ctx, mem = _ctx(straight_layers), BehaviourMemory(state=BehaviourState.MERGING)
+    mem.stop.stop_index, mem.stop.merge_from_s_m = 0, 210.0
+    car = _tracks([(7, 210.5 - G.rear_overhang_m - 5.0 - 2.25, 0.0, 1.0, 0.0, ObjectClass.CAR)])
+    cy = _cycle(ctx, _inp(0.0, 210.5, d_m=-2.0, v=0.52, tracks=car, a=0.97))
+    handle_merging(ctx, mem, cy)
+    (hold,) = cy.constraints
+    assert hold.reason is StopReason.REAR_TRAFFIC
+    moving_off_m = comfortable_stop_m(0.52, C.traffic_lights, 0.97)
+    assert hold.stop_front_s_m == pytest.approx(cy.front_s_m + moving_off_m)
+    assert hold.stop_front_s_m - cy.front_s_m > 1.25 > 0.35 > comfortable_stop_m(0.52, C.traffic_lights)
+
+
 def test_an_unclassified_track_holds_a_merge_only_once_it_has_settled(straight_layers) -> None:
     ctx, mem = _ctx(straight_layers), BehaviourMemory(state=BehaviourState.MERGING)
     mem.stop.stop_index, mem.stop.merge_from_s_m = 0, 210.0

@@ -48,16 +48,19 @@ def test_yellow_counts_the_metres_the_braking_ramp_covers() -> None:
 
 
 def test_comfortable_stop_distance_matches_a_jerk_limited_stop() -> None:
-    # Integrate the braking the model describes (reaction, ramp at the jerk, hold) at 1 ms.
-    for v0 in (0.8, 2.0, 4.0, 5.5):
-        v, a, s, t, dt = v0, 0.0, 0.0, 0.0, 1e-3
+    # Integrate the braking the model describes (reaction at the present acceleration, then the
+    # acceleration ramped down at the jerk to the comfort deceleration, held) at 1 ms.
+    for v0, a0 in ((0.8, 0.0), (2.0, 0.0), (4.0, 0.0), (5.5, 0.0), (0.23, 1.0), (3.0, 0.6), (2.0, -0.5)):
+        v, a, s, t, dt = v0, max(a0, 0.0), 0.0, 0.0, 1e-3
         while v > 0.0:
             if t >= C.reaction_s:
                 a = max(a - C.brake_jerk_mps3 * dt, -C.comfort_decel_mps2)
             s += v * dt + 0.5 * a * dt * dt
             v += a * dt
             t += dt
-        assert tlr.comfortable_stop_m(v0, C) == pytest.approx(s, abs=0.02)
+        assert tlr.comfortable_stop_m(v0, C, a0) == pytest.approx(s, abs=0.02), (v0, a0)
+    # Merging off at 0.52 m/s and 0.97 m/s^2 (snow seed 2) a stop takes 1.28 m, not 0.34.
+    assert tlr.comfortable_stop_m(0.52, C) < 0.35 < 1.25 < tlr.comfortable_stop_m(0.52, C, 0.97)
 
 
 def test_unknown_is_red_only_near_the_line() -> None:

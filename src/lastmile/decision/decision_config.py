@@ -296,3 +296,6 @@ class DecisionInput:
     traffic_lights: TrafficLightStates | None = None
     predictions: PredictedPaths | None = None
     """Map-aware predicted paths of ``tracks`` (tracking's prediction), when the stack computes them."""
+    accel_mps2: float = 0.0
+    """The acceleration the stack last commanded: a stop's comfortable length grows with it
+    (``traffic_light_rule.comfortable_stop_m``)."""

@@ -689,6 +689,7 @@ class ShuttleStack:
                 safety=self._directive,
                 traffic_lights=self.light_tracker.states() if self.light_tracker is not None else None,
                 predictions=self._predictions,
+                accel_mps2=self._command.accel_mps2,
             )
         )
         self._stop_for_signs(now, f.s_m, est.speed_mps)
