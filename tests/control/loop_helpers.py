@@ -8,6 +8,7 @@ import numpy as np
 
 from lastmile.control.coupled_mpc import SnowLionMpcController
 from lastmile.control.lateral import LateralController
+from lastmile.control.longitudinal import LongitudinalController
 from lastmile.core.geometry import SE2
 from lastmile.core.polyline import Polyline
 from lastmile.core.vehicle import VehicleGeometry
@@ -59,3 +60,26 @@ def start_on_circle(radius_m: float, geometry: VehicleGeometry, speed_mps: float
     """Wheelbase centre on the circle at (radius, 0), heading +y."""
     half = geometry.wheelbase_m / 2.0
     return VehicleState(radius_m, -half, math.pi / 2, speed_mps=speed_mps)
+
+
+def move_off_from_hold(
+    controller: LongitudinalController, held_v_ref_mps: float, go_v_ref_mps: float
+) -> tuple[float, float | None, np.ndarray]:
+    """A longitudinal law on the bicycle model, held 2 s at a stop point where it stands, then told to
+    go (no stop point, ``go_v_ref_mps``) for 5 s. Returns the last command of the hold, the time from
+    the go to 0.05 m/s (None: never), and the actual acceleration averaged over 0.1 s windows (the
+    10 Hz signal the comfort metrics read)."""
+    car = KinematicBicycle(VehicleGeometry(), ActuatorDynamics(), VehicleState(0.0, 0.0, 0.0))
+    held = 0.0
+    for _ in range(int(2.0 / DT)):
+        held = controller.step(DT, car.state.speed_mps, held_v_ref_mps, 0.0)
+        car.step(DT, held, 0.0, 0.0, False)
+    accels, moving_s = [], None
+    for k in range(int(5.0 / DT)):
+        a = controller.step(DT, car.state.speed_mps, go_v_ref_mps, None)
+        car.step(DT, a, 0.0, 0.0, False)
+        accels.append(car.state.accel_mps2)
+        if moving_s is None and car.state.speed_mps > 0.05:
+            moving_s = (k + 1) * DT
+    per = round(0.1 / DT)
+    return held, moving_s, np.asarray(accels[: len(accels) // per * per]).reshape(-1, per).mean(axis=1)
