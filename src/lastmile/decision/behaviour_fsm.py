@@ -189,8 +189,6 @@ class BehaviourStateMachine:
         )
         yielding_to = _still_yielded_to(self.memory.crosswalk_hold, inp.tracks, t_s)
         constraints += self._crosswalk_hold(
-            (t_s, front_s, inp.speed_mps),
-            tracked,
             crosswalk_constraints(
                 self.layers.crosswalks,
                 ctx.route,
@@ -204,6 +202,10 @@ class BehaviourStateMachine:
                 may_pass=self.memory.crosswalk_hold is None,
                 yielding_to=yielding_to,
             ),
+            t_s=t_s,
+            front_s_m=front_s,
+            speed_mps=inp.speed_mps,
+            tracked=tracked,
             unsettled=unsettled,
             yielding_to=yielding_to,
         )
@@ -251,17 +253,19 @@ class BehaviourStateMachine:
 
     def _crosswalk_hold(
         self,
-        now: tuple[float, float, float],
-        tracked: frozenset[int],
         yields: list[StopConstraint],
         *,
+        t_s: float,
+        front_s_m: float,
+        speed_mps: float,
+        tracked: frozenset[int],
         unsettled: frozenset[int],
         yielding_to: frozenset[int],
     ) -> list[StopConstraint]:
         """The crosswalk yields, and, for ``crosswalk_clear_s`` after the last one cleared, the one the
         shuttle stood for (only while it still stands: one that drove on has nothing to hold), or the
         one whose settled track the tracker lost (``tracked``: its ids this cycle) while it can still
-        stop there comfortably. ``now``: time (s), front-bumper route s (m), speed (m/s).
+        stop there comfortably. ``front_s_m``: the front bumper's route s.
 
         A lost track is not a person gone: in clear seed 2 a pedestrian 4.5 s tracked, walking across
         35 m ahead, was lost and the shuttle drove on at 5.5 m/s; with a 1.0 m/s^2 a_nom (clear seed
@@ -275,7 +279,6 @@ class BehaviourStateMachine:
         than moved back behind the front (snow seed 2, a_nom 1.0: moving off past the line, a yield
         at the crossing's edge turned into the line behind the front, -2.76 m/s^3)."""
         c, mem = self.config, self.memory
-        t_s, front_s, speed_mps = now
         standing = speed_mps < c.standstill_mps
         if yields:
             first = min(yields, key=lambda k: k.stop_front_s_m)
@@ -283,7 +286,7 @@ class BehaviourStateMachine:
             if (
                 held is not None
                 and first.track_id in yielding_to
-                and first.stop_front_s_m < min(front_s, held.stop_front_s_m)
+                and first.stop_front_s_m < min(front_s_m, held.stop_front_s_m)
             ):
                 # A yield under way keeps its point rather than jump back to the line behind the
                 # front, an overshoot the speed law brakes back from as hard as it may.
@@ -297,7 +300,7 @@ class BehaviourStateMachine:
         if held is None or t_s - held.seen_s >= c.crosswalk_clear_s:
             mem.crosswalk_hold = None
             return yields
-        fits = stop_fits(held.stop_front_s_m - front_s, speed_mps, c.traffic_lights.comfort_decel_mps2)
+        fits = stop_fits(held.stop_front_s_m - front_s_m, speed_mps, c.traffic_lights.comfort_decel_mps2)
         lost = held.settled and held.track_id not in tracked and fits
         if not (lost or (standing and held.standing)):
             mem.crosswalk_hold = None
